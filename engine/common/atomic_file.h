@@ -1,0 +1,25 @@
+/*
+ * atomic_file.h - write a file so that it appears whole or not at all.
+ *
+ * Opens "PATH.tmp-XXXXXX" in PATH's folder; commit flushes, fsyncs and
+ * renames it over PATH; abort removes it.  A killed process leaves at most a
+ * stray .tmp- file, never a half-written PATH.
+ */
+#ifndef HLOD_ATOMIC_FILE_H
+#define HLOD_ATOMIC_FILE_H
+
+#include <stdio.h>
+#include "hlod/hlod.h"
+
+typedef struct hlod_atomic_file {
+    FILE *fp;               /* write here */
+    char *final_path;
+    char *tmp_path;
+} hlod_atomic_file;
+
+hlod_result hlod_atomic_open(hlod_atomic_file *f, const char *path, const hlod_logger *lg);
+/* Commits (returns the first write/flush/rename error, after aborting). */
+hlod_result hlod_atomic_commit(hlod_atomic_file *f, const hlod_logger *lg);
+void hlod_atomic_abort(hlod_atomic_file *f);
+
+#endif

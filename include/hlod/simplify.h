@@ -1,0 +1,71 @@
+/*
+ * simplify.h - quadric error metric (Garland-Heckbert) mesh simplification.
+ *
+ * Edge collapses ordered by quadric error in a priority queue, in double
+ * precision on positions re-centred on the mesh's own bounding-box centre,
+ * so a mesh at x = 5e6 m simplifies like the same mesh at the origin.
+ * Vertices are placed at the quadric optimum when the system is well
+ * conditioned (a scale-invariant test), else at the best point on the edge,
+ * else at an endpoint; collapses that flip or fold a face, create slivers,
+ * or move a vertex far outside its neighbourhood are rejected.  Texture
+ * coordinates enter the error (Hoppe-style attribute quadrics) and UV seams
+ * stay closed: the copies of a seam vertex move and collapse together.
+ * Open borders and seams keep their shape through boundary quadrics; locked
+ * vertices never move and are never removed.
+ *
+ * Cost: O(n log n) time, about 1 KB of memory per input vertex.
+ * Thread safety: reentrant; distinct calls may run on distinct threads.
+ */
+#ifndef HLOD_SIMPLIFY_H
+#define HLOD_SIMPLIFY_H
+
+#include "hlod/mesh.h"
+
+#ifdef __cplusplus
+extern "C" {
+#endif
+
+typedef struct hlod_simplify_desc {
+    /* Stop when at most target_tris triangles remain (0: no count target). */
+    size_t target_tris;
+    /* Stop before a collapse whose estimated error (quadric RMS distance,
+     * model units) would exceed target_error (<= 0: no error target). */
+    double target_error;
+    /* Non-zero: vertices on open borders never move. */
+    int lock_border;
+    /* Per-vertex locks (vertex_count bytes, non-zero = locked) or NULL.  A
+     * locked vertex keeps its exact position and attributes. */
+    const uint8_t *vertex_lock;
+    /* Weight of UV error against geometric error; 0 selects the default
+     * (1.0: a UV shift of 0.01 costs like moving 1% of the mesh size). */
+    double uv_weight;
+    /* Non-zero: after simplifying, measure the two-sided Hausdorff distance
+     * to the input (hlod_mesh_distance) and report it in stats->error. */
+    int measure_error;
+    hlod_progress_fn progress;  /* may be NULL */
+    void *progress_user;
+    const hlod_logger *logger;  /* may be NULL */
+} hlod_simplify_desc;
+
+typedef struct hlod_simplify_stats {
+    size_t tris_in, tris_out;
+    size_t vertices_in, vertices_out;
+    size_t collapses;
+    /* Largest quadric error estimate of any collapse made (model units). */
+    double error_estimate;
+    /* Reported error (model units): the measured two-sided Hausdorff
+     * distance when desc->measure_error, else error_estimate. */
+    double error;
+    double seconds;             /* time spent simplifying (not measuring) */
+} hlod_simplify_stats;
+
+/* Simplifies in into *out (freed first; may not alias in).  Materials,
+ * objects, normals and UVs are carried over; vertex and triangle order
+ * follow the input.  stats may be NULL. */
+hlod_result hlod_simplify(const hlod_mesh *in, const hlod_simplify_desc *desc,
+                          hlod_mesh *out, hlod_simplify_stats *stats);
+
+#ifdef __cplusplus
+}
+#endif
+#endif

@@ -1,0 +1,62 @@
+/*
+ * check.h - the tests' tiny assertion kit.
+ *
+ * CHECK(cond) records a failure with file:line and keeps going; RUN(fn)
+ * runs one test function; check_done() prints "N passed, N failed" and
+ * returns the exit code.  Each test program is one ctest test.
+ */
+#ifndef HLOD_CHECK_H
+#define HLOD_CHECK_H
+
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+static int check_failures_, check_passed_, check_failed_;
+
+#define CHECK(cond)                                                                   \
+    do {                                                                              \
+        if (!(cond)) {                                                                \
+            fprintf(stderr, "%s:%d: CHECK failed: %s\n", __FILE__, __LINE__, #cond);  \
+            check_failures_++;                                                        \
+        }                                                                             \
+    } while (0)
+
+#define CHECKF(cond, ...)                                                             \
+    do {                                                                              \
+        if (!(cond)) {                                                                \
+            fprintf(stderr, "%s:%d: CHECK failed: %s: ", __FILE__, __LINE__, #cond);  \
+            fprintf(stderr, __VA_ARGS__);                                             \
+            fputc('\n', stderr);                                                      \
+            check_failures_++;                                                        \
+        }                                                                             \
+    } while (0)
+
+#define RUN(fn)                                                                       \
+    do {                                                                              \
+        int before_ = check_failures_;                                                \
+        fn();                                                                         \
+        if (check_failures_ == before_) {                                             \
+            check_passed_++;                                                          \
+            fprintf(stderr, "ok   %s\n", #fn);                                        \
+        } else {                                                                      \
+            check_failed_++;                                                          \
+            fprintf(stderr, "FAIL %s\n", #fn);                                        \
+        }                                                                             \
+    } while (0)
+
+static inline int check_done(void)
+{
+    printf("%d passed, %d failed\n", check_passed_, check_failed_);
+    return check_failed_ ? 1 : 0;
+}
+
+/* Path of a file under the source tree ($HLOD_SOURCE_DIR, else "."). */
+static inline const char *check_src_path(const char *rel, char *buf, size_t n)
+{
+    const char *root = getenv("HLOD_SOURCE_DIR");
+    snprintf(buf, n, "%s/%s", root ? root : ".", rel);
+    return buf;
+}
+
+#endif
