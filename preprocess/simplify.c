@@ -45,14 +45,24 @@
 #include <stdlib.h>
 #include <string.h>
 #include <time.h>
-#include <stdio.h>
 
-/* Tunables: scale-free, explained where used. */
+/* Tunables: scale-free, explained where used.  (#ifndef so experiments
+ * can override them from the compiler command line.) */
+#ifndef BORDER_WEIGHT
 #define BORDER_WEIGHT 10.0    /* constraint plane weight per unit edge length^2 */
+#endif
+#ifndef COND_MIN
 #define COND_MIN 1e-5         /* det / (trace/3)^3 below this: ill-conditioned */
+#endif
+#ifndef SPIKE_FACTOR
 #define SPIKE_FACTOR 1.0      /* optimum farther than this * |ab| from the edge */
+#endif
+#ifndef FLIP_COS
 #define FLIP_COS 0.2          /* face normal may turn by at most ~78 degrees */
-#define SLIVER_Q 0.05        /* triangle quality 4*sqrt(3)*A / sum(l^2) floor */
+#endif
+#ifndef SLIVER_Q
+#define SLIVER_Q 0.01         /* triangle quality 4*sqrt(3)*A / sum(l^2) floor */
+#endif
 
 typedef struct quadric {
     double a00, a01, a02, a11, a12, a22; /* symmetric 3x3 */

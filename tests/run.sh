@@ -1,0 +1,92 @@
+#!/usr/bin/env bash
+# run.sh - THE test command: install, build and run every test.
+#
+#   bash tests/run.sh        (as root on Debian 12; safe to run again)
+#
+# 1. data/setup.sh installs missing Debian packages;
+# 2. data/fetch-meshes.sh puts the real test meshes into data/meshes/;
+# 3. configures and builds build/ (normal, with benchmarks) and runs ctest;
+# 4. configures and builds build-asan/ (ASan + UBSan, no benchmarks) and
+#    runs ctest again.
+# Prints a summary and exits non-zero if any step or any test failed.
+# .ci/run calls exactly this script.
+set -uo pipefail
+
+cd "$(dirname "$0")/.." || exit 1
+ROOT=$(pwd)
+JOBS=2
+mkdir -p "$ROOT/out/test-logs"
+
+# Sanitizer reports must fail the test that triggered them.
+export ASAN_OPTIONS=${ASAN_OPTIONS:-detect_leaks=1}
+export UBSAN_OPTIONS=${UBSAN_OPTIONS:-print_stacktrace=1:halt_on_error=1}
+
+summary=()
+failed=0
+note=""   # set by a step to add to its summary line
+start_all=$(date +%s)
+
+# step NAME COMMAND...: runs a step, records "ok"/"FAIL" and its duration.
+step() {
+    local name=$1
+    shift
+    local t0 rc
+    t0=$(date +%s)
+    echo "==> $name"
+    "$@"
+    rc=$?
+    local dt=$(($(date +%s) - t0))
+    if [ $rc -eq 0 ]; then
+        summary+=("$(printf '%-20s ok    %4ds  %s' "$name" "$dt" "$note")")
+    else
+        summary+=("$(printf '%-20s FAIL  %4ds  %s' "$name" "$dt" "${note:-exit $rc}")")
+        failed=1
+    fi
+    note=""
+    return $rc
+}
+
+finish() {
+    echo
+    echo "==> summary"
+    for line in "${summary[@]}"; do
+        echo "  $line"
+    done
+    echo "  total $(($(date +%s) - start_all))s"
+    if [ $failed -eq 0 ]; then
+        echo "ALL TESTS PASSED"
+        exit 0
+    fi
+    echo "FAILED (logs in out/test-logs/)"
+    exit 1
+}
+
+# build DIR CMAKE_ARGS...: configure and build one tree.
+build() {
+    local dir=$1
+    shift
+    cmake -S "$ROOT" -B "$ROOT/$dir" "$@" &&
+        make -C "$ROOT/$dir" -j"$JOBS"
+}
+
+# run_ctest DIR: all tests of one tree; the tail of the log gives the count.
+run_ctest() {
+    local dir=$1 log="$ROOT/out/test-logs/ctest-$1.log"
+    (cd "$ROOT/$dir" && ctest --output-on-failure -j"$JOBS") 2>&1 | tee "$log"
+    local rc=${PIPESTATUS[0]}
+    note=$(grep -E 'tests passed|tests failed' "$log" | tail -n 1)
+    note=${note:-no test summary, see $log}
+    return "$rc"
+}
+
+step "setup packages" bash "$ROOT/data/setup.sh" || finish
+step "fetch meshes" sh "$ROOT/data/fetch-meshes.sh" || finish
+
+if step "build build/" build build -DCMAKE_BUILD_TYPE=RelWithDebInfo -DHLOD_SANITIZE= -DHLOD_BENCH=ON; then
+    step "ctest build/" run_ctest build
+fi
+if step "build build-asan/" build build-asan -DCMAKE_BUILD_TYPE=RelWithDebInfo \
+        "-DHLOD_SANITIZE=address,undefined" -DHLOD_BENCH=OFF; then
+    step "ctest build-asan/" run_ctest build-asan
+fi
+finish
