@@ -84,6 +84,51 @@ typedef struct cand {
     uint32_t a, b;     /* position vertices, a < b */
 } cand;
 
+/* A small binary min-heap of re-priced candidates (see the pass loop). */
+typedef struct rheap {
+    cand *e;
+    size_t n, cap;
+} rheap;
+
+static int rheap_push(rheap *h, cand c)
+{
+    if (h->n == h->cap) {
+        size_t nc = h->cap ? h->cap * 2 : 256;
+        cand *ne = realloc(h->e, nc * sizeof *ne);
+        if (!ne)
+            return 0;
+        h->e = ne;
+        h->cap = nc;
+    }
+    size_t i = h->n++;
+    while (i && c.cost < h->e[(i - 1) / 2].cost) {
+        h->e[i] = h->e[(i - 1) / 2];
+        i = (i - 1) / 2;
+    }
+    h->e[i] = c;
+    return 1;
+}
+
+static cand rheap_pop(rheap *h)
+{
+    cand top = h->e[0], last = h->e[--h->n];
+    size_t i = 0;
+    for (;;) {
+        size_t l = 2 * i + 1;
+        if (l >= h->n)
+            break;
+        if (l + 1 < h->n && h->e[l + 1].cost < h->e[l].cost)
+            l++;
+        if (!(h->e[l].cost < last.cost))
+            break;
+        h->e[i] = h->e[l];
+        i = l;
+    }
+    if (h->n)
+        h->e[i] = last;
+    return top;
+}
+
 /* Everything the hot loop reads about a position vertex, in one place:
  * two cache lines instead of nine scattered arrays. */
 typedef struct pvert {
@@ -122,6 +167,7 @@ typedef struct state {
     cand *cand;                /* this pass's candidates */
     size_t nc, ccap;
     cand *ctmp;                /* radix sort buffer */
+    rheap rh;                  /* re-priced candidates of this pass */
     size_t ocap;
     uint32_t *mark;            /* pv scratch stamps for link_ok */
     uint32_t mark_clock;
@@ -579,6 +625,9 @@ static void add_candidate(eval *e, const double x[3])
     plan *p = &e->cand[e->ncand++];
     memcpy(p->x, x, sizeof p->x);
     p->cost = q_eval(&e->qsum, x);
+#ifdef RANK_RMS
+    p->cost /= e->w > 0 ? e->w : 1;
+#endif
 }
 
 /* Prices the collapse of edge (a, b): which placements are allowed and what
@@ -765,6 +814,58 @@ static int link_ok(state *s, uint32_t a, uint32_t b, const uint32_t *fa, size_t 
             return 0;
     }
     return 1;
+}
+
+/* Everything a collapse of (a, b) must pass, for every placement: returns
+ * the index of the cheapest valid plan in *e, -1 if none, -2 when out of
+ * memory.  Leaves the stars of a and b in s->sa / s->sb (*na / *nb). */
+static int try_edge(state *s, uint32_t a, uint32_t b, eval *e, size_t *na_, size_t *nb_)
+{
+    size_t na = star(s, a, &s->sa), nb = star(s, b, &s->sb);
+    if (na == (size_t)-1 || nb == (size_t)-1)
+        return -2;
+    *na_ = na;
+    *nb_ = nb;
+    /* Is the edge still there, and is it a feature edge? */
+    int nfaces = 0, feature = 0;
+    uint32_t wa0 = 0, wb0 = 0, m0 = 0;
+    for (size_t k = 0; k < na; k++) {
+        uint32_t t = s->sa[k];
+        int cb = corner_of(s, t, b);
+        if (cb < 0)
+            continue;
+        uint32_t wa = s->tw[3 * t + corner_of(s, t, a)], wb = s->tw[3 * t + cb];
+        uint32_t m = s->tmat ? s->tmat[t] : 0;
+        if (nfaces == 0) {
+            wa0 = wa;
+            wb0 = wb;
+            m0 = m;
+        } else if (wa != wa0 || wb != wb0 || m != m0) {
+            feature = 1;
+        }
+        nfaces++;
+    }
+    if (nfaces == 0 || nfaces > 2)
+        return -1;
+    if (nfaces == 1)
+        feature = 1;
+    evaluate(s, a, b, feature, s->sa, na, s->sb, nb, 1, e);
+    if (!e->allowed || !link_ok(s, a, b, s->sa, na, s->sb, nb))
+        return -1;
+    /* Cheapest valid placement. */
+    int order[4] = {0, 1, 2, 3};
+    for (int k = 1; k < e->ncand; k++)
+        for (int j = k; j > 0 && e->cand[order[j]].cost < e->cand[order[j - 1]].cost; j--) {
+            int tmp = order[j];
+            order[j] = order[j - 1];
+            order[j - 1] = tmp;
+        }
+    for (int k = 0; k < e->ncand; k++) {
+        const plan *pl = &e->cand[order[k]];
+        if (star_ok(s, a, b, s->sa, na, pl->x) && star_ok(s, b, a, s->sb, nb, pl->x))
+            return order[k];
+    }
+    return -1;
 }
 
 /* ---------- the collapse itself ---------- */
@@ -978,13 +1079,52 @@ static int spatial_order(state *s, const hlod_mesh *in, const double centre[3], 
     return 1;
 }
 
+/* canon[w] = the first input vertex with w's position and UV. */
+static int canonical_wedges(const state *s, const hlod_mesh *in, uint32_t *canon)
+{
+    size_t nw = s->nw, cap = 16;
+    while (cap < nw * 2)
+        cap *= 2;
+    uint32_t *table = malloc(cap * sizeof *table);
+    if (!table)
+        return 0;
+    for (size_t i = 0; i < cap; i++)
+        table[i] = UINT32_MAX;
+    for (size_t w = 0; w < nw; w++) {
+        uint32_t uvb[2] = {0, 0};
+        if (in->uvs)
+            memcpy(uvb, in->uvs + 2 * w, sizeof uvb);
+        uint64_t h = (uint64_t)s->wpv[w] * 0x9E3779B97F4A7C15ull ^ ((uint64_t)uvb[0] << 32 | uvb[1]);
+        h ^= h >> 29;
+        h *= 0xbf58476d1ce4e5b9ull;
+        h ^= h >> 32;
+        size_t i = h & (cap - 1);
+        for (;;) {
+            uint32_t o = table[i];
+            if (o == UINT32_MAX) {
+                table[i] = (uint32_t)w;
+                canon[w] = (uint32_t)w;
+                break;
+            }
+            if (s->wpv[o] == s->wpv[w] &&
+                (!in->uvs || !memcmp(in->uvs + 2 * (size_t)o, in->uvs + 2 * w, 2 * sizeof(float)))) {
+                canon[w] = o;
+                break;
+            }
+            i = (i + 1) & (cap - 1);
+        }
+    }
+    free(table);
+    return 1;
+}
+
 static void state_free(state *s)
 {
     free(s->vx);
     free(s->rep);
     free(s->adj_start); free(s->adj_count); free(s->adj_cap); free(s->pool);
     free(s->tv); free(s->tw); free(s->tmat); free(s->tpos); free(s->talive); free(s->wpv); free(s->uv); free(s->aq);
-    free(s->wtouched); free(s->cand); free(s->ctmp); free(s->mark); free(s->pass_lock); free(s->sa); free(s->sb); free(s->ring);
+    free(s->wtouched); free(s->cand); free(s->ctmp); free(s->rh.e); free(s->mark); free(s->pass_lock); free(s->sa); free(s->sb); free(s->ring);
 }
 
 static double now_s(void)
@@ -1161,6 +1301,7 @@ hlod_result hlod_simplify(const hlod_mesh *in, const hlod_simplify_desc *desc,
     nrec *recs = NULL;
     size_t rcap = 0;
     hentry *table = NULL;
+    uint32_t *wcanon = NULL;
     if (!s.wpv || !s.rep || !s.tv || !s.tw || !s.talive)
         goto done;
 
@@ -1222,6 +1363,13 @@ hlod_result hlod_simplify(const hlod_mesh *in, const hlod_simplify_desc *desc,
             if (desc->vertex_lock[w])
                 s.vx[s.wpv[w]].ulock = 1;
 
+    /* Wedges: input vertices that share a position and a UV are one wedge,
+     * whatever their normals say (normals are recomputed on output), so a
+     * flat-shaded mesh does not turn every edge into a seam. */
+    wcanon = malloc(nw * sizeof *wcanon);
+    if (!wcanon || !canonical_wedges(&s, in, wcanon))
+        goto done;
+
     /* Triangles, in the order of their first corner's vertex; drop those
      * whose corners weld together. */
     s.tpos = malloc(nt * sizeof *s.tpos);
@@ -1243,7 +1391,7 @@ hlod_result hlod_simplify(const hlod_mesh *in, const hlod_simplify_desc *desc,
     for (size_t t0 = 0; t0 < nt; t0++) {
         size_t t = s.tpos[t0];
         for (int c = 0; c < 3; c++) {
-            s.tw[3 * t + c] = in->indices[3 * t0 + c];
+            s.tw[3 * t + c] = wcanon[in->indices[3 * t0 + c]];
             s.tv[3 * t + c] = s.wpv[in->indices[3 * t0 + c]];
         }
         if (s.tmat)
@@ -1406,7 +1554,7 @@ hlod_result hlod_simplify(const hlod_mesh *in, const hlod_simplify_desc *desc,
     if (desc->target_error > 0)
         err_limit2 = (desc->target_error * inv_scale) * (desc->target_error * inv_scale);
     size_t tris_start = live;
-    int stop = 0;
+    int stop = 0, unlimited = 0;
     while (live > target && !stop) {
         /* One pass: price every edge, sort, and collapse the cheapest
          * ones whose endpoints this pass has not touched yet. */
@@ -1442,63 +1590,44 @@ hlod_result hlod_simplify(const hlod_mesh *in, const hlod_simplify_desc *desc,
          * 1.5x the cost of the collapse that would reach the goal, so a
          * pass never runs far ahead of a strict priority order. */
         size_t goal = (live - target) / 2;
-        float cost_goal = goal < s.nc ? s.cand[goal].cost * 1.5f : FLT_MAX;
+        float cost_goal = goal < s.nc && !unlimited ? s.cand[goal].cost * 1.5f : FLT_MAX;
         memset(s.pass_lock, 0, nv);
         size_t pass_collapses = 0;
-        for (size_t i = 0; i < s.nc && live > target; i++) {
-            const cand *c = &s.cand[i];
-            if (c->cost > cost_goal)
+        /* Walk the sorted prices.  A candidate whose cheapest placement is
+         * refused (flip, sliver) but has a valid dearer one is re-queued at
+         * its true price in a small heap merged into the walk, so a refusal
+         * never lets a dearer edge jump the queue. */
+        s.rh.n = 0;
+        size_t i = 0;
+        while (live > target) {
+            cand c;
+            int from_heap = s.rh.n && (i >= s.nc || s.rh.e[0].cost < s.cand[i].cost);
+            if (from_heap)
+                c = rheap_pop(&s.rh);
+            else if (i < s.nc)
+                c = s.cand[i++];
+            else
                 break;
-            uint32_t a = c->a, b = c->b;
+            if (c.cost > cost_goal)
+                break;
+            uint32_t a = c.a, b = c.b;
             /* collapsed vertices are pass-locked, so this also skips the dead */
             if (s.pass_lock[a] || s.pass_lock[b])
                 continue;
-            size_t na = star(&s, a, &s.sa), nb = star(&s, b, &s.sb);
-            if (na == (size_t)-1 || nb == (size_t)-1)
-                goto done;
-            /* Is the edge still there, and is it a feature edge? */
-            int nfaces = 0, feature = 0;
-            uint32_t wa0 = 0, wb0 = 0, m0 = 0;
-            for (size_t k = 0; k < na; k++) {
-                uint32_t t = s.sa[k];
-                int cb = corner_of(&s, t, b);
-                if (cb < 0)
-                    continue;
-                uint32_t wa = s.tw[3 * t + corner_of(&s, t, a)], wb = s.tw[3 * t + cb];
-                uint32_t m = s.tmat ? s.tmat[t] : 0;
-                if (nfaces == 0) {
-                    wa0 = wa;
-                    wb0 = wb;
-                    m0 = m;
-                } else if (wa != wa0 || wb != wb0 || m != m0) {
-                    feature = 1;
-                }
-                nfaces++;
-            }
-            if (nfaces == 0 || nfaces > 2)
-                continue;
-            if (nfaces == 1)
-                feature = 1;
+            size_t na, nb;
             eval e;
-            evaluate(&s, a, b, feature, s.sa, na, s.sb, nb, 1, &e);
-            if (!e.allowed || !link_ok(&s, a, b, s.sa, na, s.sb, nb))
+            int k = try_edge(&s, a, b, &e, &na, &nb);
+            if (k == -2)
+                goto done;
+            if (k < 0)
                 continue;
-            /* Cheapest valid placement. */
-            int order[4] = {0, 1, 2, 3};
-            for (int k = 1; k < e.ncand; k++)
-                for (int j = k; j > 0 && e.cand[order[j]].cost < e.cand[order[j - 1]].cost; j--) {
-                    int tmp = order[j];
-                    order[j] = order[j - 1];
-                    order[j - 1] = tmp;
-                }
-            const plan *chosen = NULL;
-            for (int k = 0; k < e.ncand && !chosen; k++) {
-                const plan *pl = &e.cand[order[k]];
-                if (star_ok(&s, a, b, s.sa, na, pl->x) && star_ok(&s, b, a, s.sb, nb, pl->x))
-                    chosen = pl;
+            const plan *chosen = &e.cand[k];
+            if ((float)chosen->cost > c.cost) {
+                cand r = {(float)chosen->cost, a, b};
+                if (!rheap_push(&s.rh, r))
+                    goto done;
+                continue;
             }
-            if (!chosen || (float)chosen->cost > cost_goal)
-                continue;
             double est2 = e.w > 0 ? q_eval(&e.qgeo, chosen->x) / e.w : 0;
             if (err_limit2 > 0 && est2 > err_limit2) {
                 stop = 1;
@@ -1511,7 +1640,10 @@ hlod_result hlod_simplify(const hlod_mesh *in, const hlod_simplify_desc *desc,
             if (!collapse(&s, a, b, x, s.sa, na, s.sb, nb, &live, &recs, &rcap))
                 goto done;
             st.collapses++;
-            pass_collapses++;
+            /* A pass that found nothing under its bound takes the cheapest
+             * valid collapse, then bounds itself by that. */
+            if (!pass_collapses++ && cost_goal == FLT_MAX)
+                cost_goal = c.cost * 1.5f;
             s.pass_lock[a] = s.pass_lock[b] = 1;
             /* A feature collapse may reclassify the ring; its prices are
              * stale, so leave it to the next pass. */
@@ -1521,8 +1653,15 @@ hlod_result hlod_simplify(const hlod_mesh *in, const hlod_simplify_desc *desc,
                     s.pass_lock[recs[j].n] = 1;
             }
         }
-        if (!pass_collapses)
-            break;
+        /* When every candidate under the bound was refused, retry once
+         * without the bound before giving up. */
+        if (!pass_collapses) {
+            if (unlimited)
+                break;
+            unlimited = 1;
+            continue;
+        }
+        unlimited = 0;
         if (desc->progress) {
             double total = (double)(tris_start - (target < tris_start ? target : 0));
             if (desc->progress(desc->progress_user, (double)(tris_start - live), total)) {
@@ -1550,6 +1689,7 @@ hlod_result hlod_simplify(const hlod_mesh *in, const hlod_simplify_desc *desc,
     }
 done:
     free(table);
+    free(wcanon);
     free(recs);
     state_free(&s);
     if (stats)
