@@ -716,6 +716,45 @@ static void evaluate(state *s, uint32_t a, uint32_t b, int edge_feature,
     add_candidate(e, pb);
 }
 
+/* evaluate(all = 0) for the common case, kept lean because every pass
+ * prices every edge: no UVs, no features, no locks, so the placement is
+ * free and only the cheapest candidate's cost is needed. */
+static double price_plain(const state *s, uint32_t a, uint32_t b)
+{
+    const quadric *qa = &s->vx[a].q, *qb = &s->vx[b].q;
+    quadric q = {qa->a00 + qb->a00, qa->a01 + qb->a01, qa->a02 + qb->a02, qa->a11 + qb->a11,
+                 qa->a12 + qb->a12, qa->a22 + qb->a22, qa->b0 + qb->b0,   qa->b1 + qb->b1,
+                 qa->b2 + qb->b2,   qa->c + qb->c};
+    const double *pa = s->vx[a].x, *pb = s->vx[b].x;
+    double ab[3] = {pb[0] - pa[0], pb[1] - pa[1], pb[2] - pa[2]};
+    double l2 = dot3(ab, ab);
+    double opt[3];
+    if (q_optimum(&q, opt)) {
+        double ao[3] = {opt[0] - pa[0], opt[1] - pa[1], opt[2] - pa[2]};
+        double t = l2 > 0 ? dot3(ao, ab) / l2 : 0;
+        t = t < 0 ? 0 : t > 1 ? 1 : t;
+        double d[3] = {ao[0] - t * ab[0], ao[1] - t * ab[1], ao[2] - t * ab[2]};
+        if (dot3(d, d) <= SPIKE_FACTOR * SPIKE_FACTOR * l2) {
+            return q_eval(&q, opt);
+        }
+    }
+    double Ad[3] = {q.a00 * ab[0] + q.a01 * ab[1] + q.a02 * ab[2], q.a01 * ab[0] + q.a11 * ab[1] + q.a12 * ab[2],
+                    q.a02 * ab[0] + q.a12 * ab[1] + q.a22 * ab[2]};
+    double den = dot3(ab, Ad);
+    if (den > 0) {
+        double Aa[3] = {q.a00 * pa[0] + q.a01 * pa[1] + q.a02 * pa[2],
+                        q.a01 * pa[0] + q.a11 * pa[1] + q.a12 * pa[2],
+                        q.a02 * pa[0] + q.a12 * pa[1] + q.a22 * pa[2]};
+        double t = -(dot3(ab, Aa) + q.b0 * ab[0] + q.b1 * ab[1] + q.b2 * ab[2]) / den;
+        if (t > 1e-3 && t < 1 - 1e-3) {
+            double x[3] = {pa[0] + t * ab[0], pa[1] + t * ab[1], pa[2] + t * ab[2]};
+            return q_eval(&q, x);
+        }
+    }
+    double ca = q_eval(&q, pa), cb = q_eval(&q, pb);
+    return ca < cb ? ca : cb;
+}
+
 static double best_cost(const eval *e)
 {
     double c = DBL_MAX;
@@ -880,7 +919,16 @@ static int collapse(state *s, uint32_t a, uint32_t b, const double x[3], const u
     int a_stays = x[0] == s->vx[a].x[0] && x[1] == s->vx[a].x[1] && x[2] == s->vx[a].x[2];
     /* Wedge merges through the edge faces: wa -> wb. */
     wgroup g[MAX_GROUPS];
-    int ng = edge_groups(s, a, b, fa, na, fb, nb, g);
+    int ng;
+    if (s->uv) {
+        ng = edge_groups(s, a, b, fa, na, fb, nb, g);
+    } else {
+        /* untextured: one wedge per position vertex, so one merge */
+        g[0].w[0] = s->tw[3 * (size_t)fa[0] + corner_of(s, fa[0], a)];
+        g[0].w[1] = s->tw[3 * (size_t)fb[0] + corner_of(s, fb[0], b)];
+        g[0].n = 2;
+        ng = 1;
+    }
     for (size_t i = 0; i < na; i++) {
         uint32_t t = fa[i];
         if (corner_of(s, t, b) >= 0) {
@@ -1570,14 +1618,21 @@ hlod_result hlod_simplify(const hlod_mesh *in, const hlod_simplify_desc *desc,
                 if (r.n < v || r.faces > 2)
                     continue;
                 uint32_t a = (uint32_t)v, b = r.n;
-                size_t na = s.aq ? star(&s, a, &s.sa) : 0, nb = s.aq ? star(&s, b, &s.sb) : 0;
-                if (na == (size_t)-1 || nb == (size_t)-1)
-                    goto done;
-                eval e;
-                evaluate(&s, a, b, r.feature, s.sa, na, s.sb, nb, 0, &e);
-                if (!e.allowed)
-                    continue;
-                cand c = {(float)best_cost(&e), a, b};
+                double price;
+                if (!s.aq && !r.feature && !s.vx[a].fdeg && !s.vx[b].fdeg && !s.vx[a].locked &&
+                    !s.vx[b].locked) {
+                    price = price_plain(&s, a, b);
+                } else {
+                    size_t na = s.aq ? star(&s, a, &s.sa) : 0, nb = s.aq ? star(&s, b, &s.sb) : 0;
+                    if (na == (size_t)-1 || nb == (size_t)-1)
+                        goto done;
+                    eval e;
+                    evaluate(&s, a, b, r.feature, s.sa, na, s.sb, nb, 0, &e);
+                    if (!e.allowed)
+                        continue;
+                    price = best_cost(&e);
+                }
+                cand c = {(float)price, a, b};
                 if (!cand_push(&s, c))
                     goto done;
             }
@@ -1611,7 +1666,7 @@ hlod_result hlod_simplify(const hlod_mesh *in, const hlod_simplify_desc *desc,
             if (c.cost > cost_goal)
                 break;
             uint32_t a = c.a, b = c.b;
-            /* collapsed vertices are pass-locked, so this also skips the dead */
+            /* an endpoint changed in this pass: its price is stale */
             if (s.pass_lock[a] || s.pass_lock[b])
                 continue;
             size_t na, nb;
