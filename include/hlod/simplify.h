@@ -1,9 +1,11 @@
 /*
  * simplify.h - quadric error metric (Garland-Heckbert) mesh simplification.
  *
- * Edge collapses ordered by quadric error in a priority queue, in double
- * precision on positions re-centred on the mesh's own bounding-box centre,
- * so a mesh at x = 5e6 m simplifies like the same mesh at the origin.
+ * Edge collapses ordered by quadric error (in passes that each price every
+ * edge, sort the prices and collapse in that order), in double precision on
+ * positions re-centred on the mesh's own bounding-box centre and scaled to
+ * unit size, so a mesh at x = 5e6 m, or in millimetres, simplifies like the
+ * same mesh at the origin in metres.
  * Vertices are placed at the quadric optimum when the system is well
  * conditioned (a scale-invariant test), else at the best point on the edge,
  * else at an endpoint; collapses that flip or fold a face, create slivers,
@@ -11,9 +13,14 @@
  * coordinates enter the error (Hoppe-style attribute quadrics) and UV seams
  * stay closed: the copies of a seam vertex move and collapse together.
  * Open borders and seams keep their shape through boundary quadrics; locked
- * vertices never move and are never removed.
+ * vertices never move and are never removed.  Input vertices that share a
+ * position and a UV are one vertex to the simplifier whatever their normals;
+ * output normals are recomputed per vertex from the faces around it.
+ * Collapses keep the mesh manifold (link condition), so a closed part stops
+ * at a tetrahedron and the result may hold more than target_tris triangles
+ * when nothing valid is left to collapse.
  *
- * Cost: O(n log n) time, about 1 KB of memory per input vertex.
+ * Cost: O(n) per pass, about 10 passes; ~400 bytes per input vertex.
  * Thread safety: reentrant; distinct calls may run on distinct threads.
  */
 #ifndef HLOD_SIMPLIFY_H

@@ -1,0 +1,567 @@
+/*
+ * bench_simplify.c - hlod-bench-simplify: our simplifier against
+ * meshoptimizer at equal output triangle counts.
+ *
+ *   hlod-bench-simplify [--meshes DIR] [--out DIR] [--ratios 0.1,0.01]
+ *                       [--samples N] [MESH...]
+ *
+ * For every mesh and ratio, meshoptimizer runs first (meshopt_simplify with
+ * target ratio * triangles and no error limit); then hlod_simplify runs
+ * with target_tris = the count meshoptimizer achieved, so both outputs are
+ * compared at the same size.  Each simplify call is timed alone
+ * (CLOCK_MONOTONIC, single thread, best of 3 runs); each output is then
+ * measured against the input with hlod_mesh_distance (same seed and sample
+ * count for both).  Prints a table and a summary, and writes
+ * OUT/simplify.csv and OUT/summary.json.  The targets (mean error <= 0.75 x
+ * meshoptimizer's on average, >= 1 Mtri/s) are reported, not asserted: the
+ * exit status is 0 unless a mesh cannot be read or an output not written.
+ *
+ * meshoptimizer gets positions only, re-centred on the bounding-box centre
+ * as floats: it welds vertices that share a position itself (its position
+ * remap), so UV-seam copies need no welding here.
+ */
+#include "atomic_file.h"
+#include "cli.h"
+#include "hlod/distance.h"
+#include "hlod/mesh_io.h"
+#include "hlod/simplify.h"
+
+#include <errno.h>
+#include <float.h>
+#include <math.h>
+#include <meshoptimizer.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/stat.h>
+#include <time.h>
+
+#define PROG "hlod-bench-simplify"
+#define RUNS 3
+#define SEED 1u
+#define MAX_RATIOS 16
+#define TARGET_MEAN_RATIO 0.75
+#define TARGET_MTRI_PER_S 1.0
+
+static const char *const default_meshes[] = {"bunny00.off", "fandisk.off", "mech-holes-shark.off",
+                                              "spider.obj"};
+
+typedef struct row {
+    const char *mesh;       /* file name, without its folder */
+    double ratio;
+    const char *simplifier; /* "meshopt" or "hlod" */
+    size_t tris_in, tris_out;
+    double seconds;         /* best of RUNS */
+    double diag;
+    hlod_distance d;
+    int measured;           /* 0: the output was empty, d is meaningless */
+    int more_tris;          /* ours kept more triangles than meshopt */
+} row;
+
+static double now(void)
+{
+    struct timespec ts;
+    clock_gettime(CLOCK_MONOTONIC, &ts);
+    return (double)ts.tv_sec + (double)ts.tv_nsec * 1e-9;
+}
+
+static void usage(FILE *fp)
+{
+    fprintf(fp,
+            "usage: " PROG " [--meshes DIR] [--out DIR] [--ratios 0.1,0.01] [--samples N] [MESH...]\n"
+            "\n"
+            "Benchmarks hlod_simplify against meshoptimizer at equal output triangle\n"
+            "counts: time (best of %d, single thread) and two-sided Hausdorff error.\n"
+            "\n"
+            "  --meshes DIR   folder of the meshes (default data/meshes); a MESH\n"
+            "                 without '/' is looked up there\n"
+            "  --out DIR      where simplify.csv and summary.json go\n"
+            "                 (default out/bench-simplify)\n"
+            "  --ratios LIST  comma-separated output/input triangle ratios in (0, 1]\n"
+            "                 (default 0.1,0.01)\n"
+            "  --samples N    area samples per mesh for hlod_mesh_distance (default\n"
+            "                 200000)\n"
+            "  MESH...        default: bunny00.off fandisk.off mech-holes-shark.off\n"
+            "                 spider.obj\n",
+            RUNS);
+}
+
+static int parse_ratios(const char *text, double *out, int *n)
+{
+    char buf[512];
+    if (strlen(text) >= sizeof buf) {
+        hlod_cli_error(PROG, "--ratios: list too long");
+        return 0;
+    }
+    strcpy(buf, text);
+    *n = 0;
+    for (char *tok = strtok(buf, ","); tok; tok = strtok(NULL, ",")) {
+        if (*n == MAX_RATIOS) {
+            hlod_cli_error(PROG, "--ratios: at most %d ratios", MAX_RATIOS);
+            return 0;
+        }
+        if (!hlod_cli_parse_double(PROG, "--ratios", tok, 0, 1, HLOD_CLI_MIN_OPEN, &out[*n]))
+            return 0;
+        (*n)++;
+    }
+    if (!*n) {
+        hlod_cli_error(PROG, "--ratios: needs at least one ratio");
+        return 0;
+    }
+    return 1;
+}
+
+/* mkdir -p. */
+static int make_dirs(const char *path)
+{
+    char buf[4096];
+    if (snprintf(buf, sizeof buf, "%s", path) >= (int)sizeof buf)
+        return 0;
+    for (char *p = buf + 1;; p++) {
+        if (*p == '/' || *p == 0) {
+            char c = *p;
+            *p = 0;
+            if (mkdir(buf, 0777) != 0 && errno != EEXIST)
+                return 0;
+            *p = c;
+            if (!c)
+                break;
+        }
+    }
+    return 1;
+}
+
+/* ---- the two simplifiers -------------------------------------------------- */
+
+/* Runs meshopt_simplify RUNS times; keeps the best time and the last
+ * output (all runs are identical: meshopt is deterministic). */
+static size_t run_meshopt(const hlod_mesh *m, const float *pos, size_t target_index_count,
+                          uint32_t *dest, double *seconds)
+{
+    size_t n = 0;
+    *seconds = DBL_MAX;
+    for (int r = 0; r < RUNS; r++) {
+        float result_error = 0;
+        double t = now();
+        n = meshopt_simplify(dest, m->indices, 3 * m->tri_count, pos, m->vertex_count,
+                             3 * sizeof(float), target_index_count, FLT_MAX, 0, &result_error);
+        t = now() - t;
+        if (t < *seconds)
+            *seconds = t;
+    }
+    return n;
+}
+
+static hlod_result run_ours(const hlod_mesh *m, size_t target_tris, hlod_mesh *out, double *seconds)
+{
+    hlod_simplify_desc desc = {0};
+    desc.target_tris = target_tris;
+    *seconds = DBL_MAX;
+    for (int r = 0; r < RUNS; r++) {
+        double t = now();
+        hlod_result res = hlod_simplify(m, &desc, out, NULL);
+        t = now() - t;
+        if (res != HLOD_OK)
+            return res;
+        if (t < *seconds)
+            *seconds = t;
+    }
+    return HLOD_OK;
+}
+
+/* ---- output ------------------------------------------------------------- */
+
+static double mtri_per_s(const row *r)
+{
+    return r->seconds > 0 ? (double)r->tris_in / r->seconds / 1e6 : 0;
+}
+
+static double pct(double v, double diag)
+{
+    return diag > 0 ? 100.0 * v / diag : 0;
+}
+
+static void print_header(void)
+{
+    printf("%-22s %6s %-8s %8s %8s %9s %7s %11s %11s %8s %8s\n", "mesh", "ratio", "simp",
+           "tris_in", "tris_out", "seconds", "Mtri/s", "hd_max", "hd_mean", "max%diag",
+           "mean%diag");
+}
+
+static void print_row(const row *r)
+{
+    printf("%-22s %6g %-8s %8zu %8zu %9.5f %7.2f ", r->mesh, r->ratio, r->simplifier, r->tris_in,
+           r->tris_out, r->seconds, mtri_per_s(r));
+    if (r->measured)
+        printf("%11.4e %11.4e %8.4f %8.4f", r->d.max, r->d.mean, pct(r->d.max, r->diag),
+               pct(r->d.mean, r->diag));
+    else
+        printf("%11s %11s %8s %8s", "-", "-", "-", "-");
+    printf("%s\n", r->more_tris ? "  ! more tris than meshopt" : "");
+    fflush(stdout);
+}
+
+/* %.17g, or an empty field (CSV) / null (JSON) when not measured. */
+static void put_num(FILE *fp, int ok, double v, const char *missing)
+{
+    if (ok && isfinite(v))
+        fprintf(fp, "%.17g", v);
+    else
+        fputs(missing, fp);
+}
+
+/* JSON string: mesh names are file names, but escape what JSON needs. */
+static void put_str(FILE *fp, const char *s)
+{
+    fputc('"', fp);
+    for (; *s; s++) {
+        unsigned char c = (unsigned char)*s;
+        if (c == '"' || c == '\\')
+            fprintf(fp, "\\%c", c);
+        else if (c < 0x20)
+            fprintf(fp, "\\u%04x", c);
+        else
+            fputc(c, fp);
+    }
+    fputc('"', fp);
+}
+
+static hlod_result write_csv(const char *path, const row *rows, int n, const hlod_logger *lg)
+{
+    hlod_atomic_file f;
+    hlod_result r = hlod_atomic_open(&f, path, lg);
+    if (r != HLOD_OK)
+        return r;
+    fprintf(f.fp, "mesh,ratio,simplifier,tris_in,tris_out,seconds,mtri_per_s,hausdorff_max,"
+                  "hausdorff_mean,max_pct_diag,mean_pct_diag,bbox_diag,more_tris_than_meshopt\n");
+    for (int i = 0; i < n; i++) {
+        const row *w = &rows[i];
+        /* Mesh names with a comma or quote get CSV quoting. */
+        if (strpbrk(w->mesh, ",\"")) {
+            fputc('"', f.fp);
+            for (const char *s = w->mesh; *s; s++) {
+                if (*s == '"')
+                    fputc('"', f.fp);
+                fputc(*s, f.fp);
+            }
+            fputc('"', f.fp);
+        } else {
+            fputs(w->mesh, f.fp);
+        }
+        fprintf(f.fp, ",%.15g,%s,%zu,%zu,%.17g,%.17g,", w->ratio, w->simplifier, w->tris_in,
+                w->tris_out, w->seconds, mtri_per_s(w));
+        put_num(f.fp, w->measured, w->d.max, "");
+        fputc(',', f.fp);
+        put_num(f.fp, w->measured, w->d.mean, "");
+        fputc(',', f.fp);
+        put_num(f.fp, w->measured, pct(w->d.max, w->diag), "");
+        fputc(',', f.fp);
+        put_num(f.fp, w->measured, pct(w->d.mean, w->diag), "");
+        fprintf(f.fp, ",%.17g,%d\n", w->diag, w->more_tris);
+    }
+    return hlod_atomic_commit(&f, lg);
+}
+
+typedef struct summary {
+    int all_max_le;          /* our max <= meshopt's on every measured pair */
+    double mean_ratio_avg;   /* average over pairs of ours/meshopt mean */
+    int mean_ratio_pairs;
+    double min_mtri;         /* our slowest throughput */
+    int more_tris_pairs;     /* pairs where we kept more triangles */
+} summary;
+
+/* Pairs are rows 2i (meshopt) and 2i + 1 (ours). */
+static double pair_ratio(double ours, double theirs)
+{
+    if (theirs > 0)
+        return ours / theirs;
+    return ours > 0 ? INFINITY : 1.0;
+}
+
+static summary summarise(const row *rows, int n)
+{
+    summary s = {1, 0, 0, DBL_MAX, 0};
+    double sum = 0;
+    for (int i = 0; i + 1 < n; i += 2) {
+        const row *m = &rows[i], *o = &rows[i + 1];
+        if (o->more_tris)
+            s.more_tris_pairs++;
+        if (mtri_per_s(o) < s.min_mtri)
+            s.min_mtri = mtri_per_s(o);
+        if (!m->measured || !o->measured)
+            continue;
+        if (o->d.max > m->d.max)
+            s.all_max_le = 0;
+        sum += pair_ratio(o->d.mean, m->d.mean);
+        s.mean_ratio_pairs++;
+    }
+    s.mean_ratio_avg = s.mean_ratio_pairs ? sum / s.mean_ratio_pairs : NAN;
+    if (s.min_mtri == DBL_MAX)
+        s.min_mtri = 0;
+    return s;
+}
+
+static hlod_result write_json(const char *path, const row *rows, int n, const summary *s,
+                              size_t samples, const hlod_logger *lg)
+{
+    hlod_atomic_file f;
+    hlod_result r = hlod_atomic_open(&f, path, lg);
+    if (r != HLOD_OK)
+        return r;
+    FILE *fp = f.fp;
+    fprintf(fp, "{\n  \"timing\": \"best of %d, CLOCK_MONOTONIC around the simplify call, one thread\",\n",
+            RUNS);
+    fprintf(fp, "  \"meshoptimizer_version\": %d,\n  \"samples_per_mesh\": %zu,\n  \"seed\": %u,\n",
+            MESHOPTIMIZER_VERSION, samples, SEED);
+    fprintf(fp, "  \"pairs\": [\n");
+    for (int i = 0; i + 1 < n; i += 2) {
+        const row *m = &rows[i], *o = &rows[i + 1];
+        int ok = m->measured && o->measured;
+        fprintf(fp, "    {\"mesh\": ");
+        put_str(fp, m->mesh);
+        fprintf(fp, ", \"ratio\": %.15g, \"tris_in\": %zu, \"tris_out_meshopt\": %zu, "
+                    "\"tris_out_ours\": %zu, \"more_tris_than_meshopt\": %s, \"bbox_diag\": %.17g,\n",
+                m->ratio, m->tris_in, m->tris_out, o->tris_out, o->more_tris ? "true" : "false",
+                m->diag);
+        fprintf(fp, "     \"seconds_meshopt\": %.17g, \"seconds_ours\": %.17g, "
+                    "\"mtri_per_s_meshopt\": %.17g, \"mtri_per_s_ours\": %.17g,\n",
+                m->seconds, o->seconds, mtri_per_s(m), mtri_per_s(o));
+        fprintf(fp, "     \"max_meshopt\": ");
+        put_num(fp, m->measured, m->d.max, "null");
+        fprintf(fp, ", \"max_ours\": ");
+        put_num(fp, o->measured, o->d.max, "null");
+        fprintf(fp, ", \"mean_meshopt\": ");
+        put_num(fp, m->measured, m->d.mean, "null");
+        fprintf(fp, ", \"mean_ours\": ");
+        put_num(fp, o->measured, o->d.mean, "null");
+        fprintf(fp, ",\n     \"max_ratio\": ");
+        put_num(fp, ok, pair_ratio(o->d.max, m->d.max), "null");
+        fprintf(fp, ", \"mean_ratio\": ");
+        put_num(fp, ok, pair_ratio(o->d.mean, m->d.mean), "null");
+        fprintf(fp, "}%s\n", i + 3 < n ? "," : "");
+    }
+    fprintf(fp, "  ],\n");
+    fprintf(fp, "  \"max_le_meshopt_every_pair\": %s,\n", s->all_max_le ? "true" : "false");
+    fprintf(fp, "  \"mean_ratio_avg\": ");
+    put_num(fp, s->mean_ratio_pairs > 0, s->mean_ratio_avg, "null");
+    fprintf(fp, ",\n  \"mean_ratio_target\": %.17g,\n  \"mean_ratio_met\": %s,\n", TARGET_MEAN_RATIO,
+            s->mean_ratio_pairs > 0 && s->mean_ratio_avg <= TARGET_MEAN_RATIO ? "true" : "false");
+    fprintf(fp, "  \"min_mtri_per_s_ours\": %.17g,\n  \"mtri_per_s_target\": %.17g,\n", s->min_mtri,
+            TARGET_MTRI_PER_S);
+    fprintf(fp, "  \"mtri_per_s_met\": %s,\n  \"pairs_with_more_tris_than_meshopt\": %d\n}\n",
+            s->min_mtri >= TARGET_MTRI_PER_S ? "true" : "false", s->more_tris_pairs);
+    return hlod_atomic_commit(&f, lg);
+}
+
+/* ---- main ----------------------------------------------------------------- */
+
+/* Measures out against in; an empty output is reported, not measured. */
+static hlod_result measure(const hlod_mesh *in, const hlod_mesh *out, size_t samples, row *r)
+{
+    r->measured = 0;
+    if (!out->tri_count)
+        return HLOD_OK;
+    hlod_result res = hlod_mesh_distance(in, out, samples, SEED, &r->d);
+    if (res == HLOD_OK)
+        r->measured = 1;
+    return res;
+}
+
+int main(int argc, char **argv)
+{
+    const char *mesh_dir = "data/meshes", *out_dir = "out/bench-simplify";
+    double ratios[MAX_RATIOS] = {0.1, 0.01};
+    int n_ratios = 2;
+    size_t samples = 200000;
+    const char **names = NULL;
+    int n_names = 0;
+
+    size_t n_default = sizeof default_meshes / sizeof *default_meshes;
+    names = malloc(((size_t)argc > n_default ? (size_t)argc : n_default) * sizeof *names);
+    if (!names)
+        return 1;
+    for (int i = 1; i < argc; i++) {
+        const char *a = argv[i];
+        if (!strcmp(a, "-h") || !strcmp(a, "--help")) {
+            usage(stdout);
+            free(names);
+            return 0;
+        }
+        int has_value = !strcmp(a, "--meshes") || !strcmp(a, "--out") || !strcmp(a, "--ratios") ||
+                        !strcmp(a, "--samples");
+        if (has_value && i + 1 >= argc) {
+            hlod_cli_error(PROG, "%s: needs a value", a);
+            free(names);
+            return 2;
+        }
+        if (!strcmp(a, "--meshes")) {
+            mesh_dir = argv[++i];
+        } else if (!strcmp(a, "--out")) {
+            out_dir = argv[++i];
+        } else if (!strcmp(a, "--ratios")) {
+            if (!parse_ratios(argv[++i], ratios, &n_ratios)) {
+                free(names);
+                return 2;
+            }
+        } else if (!strcmp(a, "--samples")) {
+            if (!hlod_cli_parse_size(PROG, "--samples", argv[++i], 1, (size_t)1 << 30, &samples)) {
+                free(names);
+                return 2;
+            }
+        } else if (a[0] == '-' && a[1]) {
+            hlod_cli_error(PROG, "unknown option %s", a);
+            usage(stderr);
+            free(names);
+            return 2;
+        } else {
+            names[n_names++] = a;
+        }
+    }
+    if (!n_names) {
+        n_names = (int)n_default;
+        for (int i = 0; i < n_names; i++)
+            names[i] = default_meshes[i];
+    }
+
+    hlod_cli_log log_state = {PROG, HLOD_LOG_WARN, NULL};
+    hlod_logger lg = hlod_cli_logger(&log_state);
+    hlod_import_desc idesc = {0};
+    idesc.logger = &lg;
+
+    /* Read every mesh before timing anything, so a bad path fails at once. */
+    hlod_mesh *meshes = calloc((size_t)n_names, sizeof *meshes);
+    char (*paths)[4096] = calloc((size_t)n_names, sizeof *paths);
+    row *rows = calloc((size_t)n_names * (size_t)n_ratios * 2, sizeof *rows);
+    int status = 0, n_rows = 0;
+    if (!meshes || !paths || !rows) {
+        hlod_cli_error(PROG, "out of memory");
+        status = 1;
+        goto done;
+    }
+    for (int i = 0; i < n_names; i++) {
+        if (strchr(names[i], '/'))
+            snprintf(paths[i], sizeof paths[i], "%s", names[i]);
+        else
+            snprintf(paths[i], sizeof paths[i], "%s/%s", mesh_dir, names[i]);
+        hlod_result r = hlod_mesh_import(paths[i], &idesc, &meshes[i], NULL);
+        if (r != HLOD_OK) {
+            hlod_cli_error(PROG, "%s: cannot read mesh: %s", paths[i], hlod_result_str(r));
+            status = 1;
+            goto done;
+        }
+    }
+
+    printf("hlod-bench-simplify: meshoptimizer %d.%d vs hlod_simplify at meshoptimizer's triangle "
+           "count; seconds = best of %d; hausdorff = hlod_mesh_distance, %zu samples/mesh, seed %u\n\n",
+           MESHOPTIMIZER_VERSION / 1000, MESHOPTIMIZER_VERSION % 1000 / 10, RUNS, samples, SEED);
+    print_header();
+
+    for (int i = 0; i < n_names; i++) {
+        const hlod_mesh *m = &meshes[i];
+        double lo[3], hi[3], c[3];
+        hlod_mesh_bounds(m, lo, hi);
+        for (int k = 0; k < 3; k++)
+            c[k] = 0.5 * (lo[k] + hi[k]);
+        double diag = hlod_mesh_bbox_diag(m);
+        float *pos = malloc(m->vertex_count * 3 * sizeof *pos + 1);
+        uint32_t *dest = malloc(m->tri_count * 3 * sizeof *dest + 1);
+        if (!pos || !dest) {
+            free(pos);
+            free(dest);
+            hlod_cli_error(PROG, "out of memory");
+            status = 1;
+            goto done;
+        }
+        for (size_t v = 0; v < m->vertex_count; v++)
+            for (int k = 0; k < 3; k++)
+                pos[3 * v + k] = (float)(m->positions[3 * v + k] - c[k]);
+
+        for (int j = 0; j < n_ratios; j++) {
+            row *rm = &rows[n_rows++], *ro = &rows[n_rows++];
+            const char *slash = strrchr(paths[i], '/');
+            *rm = (row){.mesh = slash ? slash + 1 : paths[i], .ratio = ratios[j], .simplifier = "meshopt",
+                        .tris_in = m->tri_count, .diag = diag};
+            *ro = *rm;
+            ro->simplifier = "hlod";
+
+            size_t target = (size_t)(ratios[j] * (double)m->tri_count);
+            size_t n_idx = run_meshopt(m, pos, 3 * target, dest, &rm->seconds);
+            rm->tris_out = n_idx / 3;
+            /* Shares the input's vertices: meshopt only rewrites indices. */
+            hlod_mesh mo = {0};
+            mo.vertex_count = m->vertex_count;
+            mo.positions = m->positions;
+            mo.tri_count = rm->tris_out;
+            mo.indices = dest;
+
+            /* target_tris = 0 would mean "no target": ask for one triangle
+             * when meshopt removed everything. */
+            hlod_mesh ours = {0};
+            hlod_result r = run_ours(m, rm->tris_out ? rm->tris_out : 1, &ours, &ro->seconds);
+            if (r != HLOD_OK) {
+                hlod_cli_error(PROG, "%s: hlod_simplify failed: %s", paths[i], hlod_result_str(r));
+                status = 1;
+            }
+            ro->tris_out = ours.tri_count;
+            ro->more_tris = ours.tri_count > rm->tris_out;
+
+            hlod_result r1 = measure(m, &mo, samples, rm);
+            hlod_result r2 = measure(m, &ours, samples, ro);
+            if (r1 != HLOD_OK || r2 != HLOD_OK) {
+                hlod_cli_error(PROG, "%s: hlod_mesh_distance failed: %s", paths[i],
+                               hlod_result_str(r1 != HLOD_OK ? r1 : r2));
+                status = 1;
+            }
+            hlod_mesh_free(&ours);
+            print_row(rm);
+            print_row(ro);
+        }
+        free(pos);
+        free(dest);
+    }
+
+    summary s = summarise(rows, n_rows);
+    printf("\nsummary (ours / meshopt at equal triangle counts):\n");
+    printf("%-22s %6s %10s %10s\n", "mesh", "ratio", "max", "mean");
+    for (int i = 0; i + 1 < n_rows; i += 2) {
+        const row *m = &rows[i], *o = &rows[i + 1];
+        if (m->measured && o->measured)
+            printf("%-22s %6g %10.3f %10.3f%s\n", m->mesh, m->ratio, pair_ratio(o->d.max, m->d.max),
+                   pair_ratio(o->d.mean, m->d.mean), o->more_tris ? "  ! more tris" : "");
+        else
+            printf("%-22s %6g %10s %10s  (an output was empty)\n", m->mesh, m->ratio, "-", "-");
+    }
+    printf("our max <= meshopt's on every pair: %s\n", s.all_max_le ? "yes" : "no");
+    printf("average mean ratio: %.3f (target <= %.2f: %s)\n", s.mean_ratio_avg, TARGET_MEAN_RATIO,
+           s.mean_ratio_pairs && s.mean_ratio_avg <= TARGET_MEAN_RATIO ? "met" : "NOT met");
+    printf("our min throughput: %.2f Mtri/s (target >= %.1f: %s)\n", s.min_mtri, TARGET_MTRI_PER_S,
+           s.min_mtri >= TARGET_MTRI_PER_S ? "met" : "NOT met");
+    if (s.more_tris_pairs)
+        printf("pairs where ours kept more triangles than meshopt: %d\n", s.more_tris_pairs);
+
+    char csv[4200], json[4200];
+    snprintf(csv, sizeof csv, "%s/simplify.csv", out_dir);
+    snprintf(json, sizeof json, "%s/summary.json", out_dir);
+    if (!make_dirs(out_dir)) {
+        hlod_cli_error(PROG, "%s: cannot create folder: %s", out_dir, strerror(errno));
+        status = 1;
+        goto done;
+    }
+    if (write_csv(csv, rows, n_rows, &lg) != HLOD_OK ||
+        write_json(json, rows, n_rows, &s, samples, &lg) != HLOD_OK) {
+        hlod_cli_error(PROG, "cannot write %s or %s", csv, json);
+        status = 1;
+        goto done;
+    }
+    printf("\nwrote %s and %s\n", csv, json);
+
+done:
+    if (meshes)
+        for (int i = 0; i < n_names; i++)
+            hlod_mesh_free(&meshes[i]);
+    free(meshes);
+    free(paths);
+    free(rows);
+    free(names);
+    return status;
+}
