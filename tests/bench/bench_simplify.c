@@ -16,9 +16,12 @@
  * meshoptimizer's on average, >= 1 Mtri/s) are reported, not asserted: the
  * exit status is 0 unless a mesh cannot be read or an output not written.
  *
- * meshoptimizer gets positions only, re-centred on the bounding-box centre
- * as floats: it welds vertices that share a position itself (its position
- * remap), so UV-seam copies need no welding here.
+ * meshoptimizer gets positions re-centred on the bounding-box centre as
+ * floats, after welding vertices that share a position and a UV
+ * (meshopt_generateVertexRemapMulti, not timed), as its documentation asks:
+ * it locks every vertex whose copies it cannot pair up as a seam, so an
+ * unwelded flat-shaded mesh (Wuson.ply) or glTF would not simplify at all.
+ * Our simplifier does the same welding inside its timed call.
  */
 #include "atomic_file.h"
 #include "cli.h"
@@ -135,15 +138,15 @@ static int make_dirs(const char *path)
 
 /* Runs meshopt_simplify RUNS times; keeps the best time and the last
  * output (all runs are identical: meshopt is deterministic). */
-static size_t run_meshopt(const hlod_mesh *m, const float *pos, size_t target_index_count,
-                          uint32_t *dest, double *seconds)
+static size_t run_meshopt(const hlod_mesh *m, const uint32_t *indices, const float *pos, size_t vertex_count,
+                          size_t target_index_count, uint32_t *dest, double *seconds)
 {
     size_t n = 0;
     *seconds = DBL_MAX;
     for (int r = 0; r < RUNS; r++) {
         float result_error = 0;
         double t = now();
-        n = meshopt_simplify(dest, m->indices, 3 * m->tri_count, pos, m->vertex_count,
+        n = meshopt_simplify(dest, indices, 3 * m->tri_count, pos, vertex_count,
                              3 * sizeof(float), target_index_count, FLT_MAX, 0, &result_error);
         t = now() - t;
         if (t < *seconds)
@@ -463,18 +466,37 @@ int main(int argc, char **argv)
         for (int k = 0; k < 3; k++)
             c[k] = 0.5 * (lo[k] + hi[k]);
         double diag = hlod_mesh_bbox_diag(m);
-        float *pos = malloc(m->vertex_count * 3 * sizeof *pos + 1);
+        size_t nv = m->vertex_count;
+        float *pos = malloc(nv * 3 * sizeof *pos + 1), *uv = calloc(nv * 2 + 1, sizeof *uv);
+        float *wpos = malloc(nv * 3 * sizeof *wpos + 1);
+        double *wposd = malloc(nv * 3 * sizeof *wposd + 1);
         uint32_t *dest = malloc(m->tri_count * 3 * sizeof *dest + 1);
-        if (!pos || !dest) {
+        uint32_t *remap = malloc(nv * sizeof *remap + 1), *widx = malloc(m->tri_count * 3 * sizeof *widx + 1);
+        if (!pos || !uv || !wpos || !wposd || !dest || !remap || !widx) {
             free(pos);
+            free(uv);
+            free(wpos);
+            free(wposd);
             free(dest);
+            free(remap);
+            free(widx);
             hlod_cli_error(PROG, "out of memory");
             status = 1;
             goto done;
         }
-        for (size_t v = 0; v < m->vertex_count; v++)
+        for (size_t v = 0; v < nv; v++)
             for (int k = 0; k < 3; k++)
                 pos[3 * v + k] = (float)(m->positions[3 * v + k] - c[k]);
+        if (m->uvs)
+            memcpy(uv, m->uvs, nv * 2 * sizeof *uv);
+        struct meshopt_Stream streams[2] = {{pos, 3 * sizeof(float), 3 * sizeof(float)},
+                                            {uv, 2 * sizeof(float), 2 * sizeof(float)}};
+        size_t wn = meshopt_generateVertexRemapMulti(remap, m->indices, 3 * m->tri_count, nv, streams, 2);
+        meshopt_remapIndexBuffer(widx, m->indices, 3 * m->tri_count, remap);
+        meshopt_remapVertexBuffer(wpos, pos, nv, 3 * sizeof(float), remap);
+        for (size_t v = 0; v < nv; v++)
+            if (remap[v] != ~0u)
+                memcpy(wposd + 3 * (size_t)remap[v], m->positions + 3 * v, 3 * sizeof(double));
 
         for (int j = 0; j < n_ratios; j++) {
             row *rm = &rows[n_rows++], *ro = &rows[n_rows++];
@@ -485,12 +507,12 @@ int main(int argc, char **argv)
             ro->simplifier = "hlod";
 
             size_t target = (size_t)(ratios[j] * (double)m->tri_count);
-            size_t n_idx = run_meshopt(m, pos, 3 * target, dest, &rm->seconds);
+            size_t n_idx = run_meshopt(m, widx, wpos, wn, 3 * target, dest, &rm->seconds);
             rm->tris_out = n_idx / 3;
-            /* Shares the input's vertices: meshopt only rewrites indices. */
+            /* Shares the welded vertices: meshopt only rewrites indices. */
             hlod_mesh mo = {0};
-            mo.vertex_count = m->vertex_count;
-            mo.positions = m->positions;
+            mo.vertex_count = wn;
+            mo.positions = wposd;
             mo.tri_count = rm->tris_out;
             mo.indices = dest;
 
@@ -517,7 +539,12 @@ int main(int argc, char **argv)
             print_row(ro);
         }
         free(pos);
+        free(uv);
+        free(wpos);
+        free(wposd);
         free(dest);
+        free(remap);
+        free(widx);
     }
 
     summary s = summarise(rows, n_rows);
