@@ -910,3 +910,220 @@ hlod_result hlod_mesh_distance(const hlod_mesh *a, const hlod_mesh *b, size_t sa
     out->samples = sab.n_all + sba.n_all;
     return HLOD_OK;
 }
+
+/* ---- certified bound ------------------------------------------------------ */
+
+/* A sub-triangle of the measured surface with the distances at its corners. */
+typedef struct subtri {
+    double p[3][3];
+    double f[3];
+    uint32_t near[3];   /* the closest triangle of the other surface at each corner */
+    int depth;
+} subtri;
+
+typedef struct subtri_stack {
+    subtri *e;
+    size_t n, cap;
+} subtri_stack;
+
+static int subtri_push(subtri_stack *s, const subtri *t)
+{
+    if (s->n == s->cap) {
+        size_t nc = s->cap ? s->cap * 2 : 1024;
+        subtri *ne = realloc(s->e, nc * sizeof *ne);
+        if (!ne)
+            return 0;
+        s->e = ne;
+        s->cap = nc;
+    }
+    s->e[s->n++] = *t;
+    return 1;
+}
+
+#define BOUND_MAX_DEPTH 24
+
+/* An upper bound of the distance over the whole sub-triangle, the smaller
+ * of two:
+ * - every point lies within (longest edge)/sqrt(3) of a corner (the
+ *   circumradius bound of an acute triangle; obtuse ones do better), and
+ *   the distance to a surface is 1-Lipschitz;
+ * - the distance to one fixed triangle of the other surface is convex, so
+ *   over the sub-triangle it peaks at a corner; try the corners' nearest
+ *   triangles.  This one is tight where both surfaces are flat. */
+static double subtri_upper(const hlod_dgrid *g, const subtri *t)
+{
+    double l2 = 0;
+    for (int i = 0; i < 3; i++) {
+        double e[3];
+        sub3(e, t->p[(i + 1) % 3], t->p[i]);
+        double d = dot3(e, e);
+        if (d > l2)
+            l2 = d;
+    }
+    double best = fmax(t->f[0], fmax(t->f[1], t->f[2])) + sqrt(l2 / 3);
+    for (int j = 0; j < 3; j++) {
+        if (j && (t->near[j] == t->near[0] || (j == 2 && t->near[2] == t->near[1])))
+            continue;
+        const hlod_dgrid_tri *tr = &g->tris[t->near[j]];
+        double worst2 = 0;
+        for (int i = 0; i < 3; i++) {
+            double d2 = i == j ? t->f[i] * t->f[i] : hlod_dgrid_tri_dist2(t->p[i], tr);
+            if (d2 > worst2)
+                worst2 = d2;
+        }
+        double w = sqrt(worst2);
+        if (w < best)
+            best = w;
+    }
+    return best;
+}
+
+typedef struct ftri {
+    double fmax;
+    uint32_t t;
+} ftri;
+
+static int ftri_desc(const void *p, const void *q)
+{
+    const ftri *a = p, *b = q;
+    if (a->fmax != b->fmax)
+        return a->fmax > b->fmax ? -1 : 1;
+    return a->t < b->t ? -1 : a->t > b->t;
+}
+
+/* Branch and bound over the triangles of m: the distance is evaluated at
+ * the corners, a triangle whose bound cannot beat the best value found (by
+ * more than the tolerance) is dropped, the others are split in four. */
+static hlod_result bound_side(const hlod_mesh *m, hlod_dgrid *g, const double origin[3], double rel_tol,
+                              double *lower, double *upper)
+{
+    size_t nv = m->vertex_count, nt = m->tri_count;
+    double *fv = malloc((nv ? nv : 1) * sizeof *fv);
+    uint32_t *nearv = malloc((nv ? nv : 1) * sizeof *nearv);
+    ftri *order = malloc((nt ? nt : 1) * sizeof *order);
+    subtri_stack st = {0};
+    hlod_result r = HLOD_ERR_NOMEM;
+    if (!fv || !nearv || !order)
+        goto done;
+    double lb = 0, ub_left = 0;
+    for (size_t v = 0; v < nv; v++) {
+        double p[3];
+        for (int k = 0; k < 3; k++)
+            p[k] = m->positions[3 * v + k] - origin[k];
+        fv[v] = sqrt(hlod_dgrid_closest2(g, p, &nearv[v]));
+    }
+    for (size_t t = 0; t < nt; t++) {
+        const uint32_t *ix = m->indices + 3 * t;
+        order[t].fmax = fmax(fv[ix[0]], fmax(fv[ix[1]], fv[ix[2]]));
+        order[t].t = (uint32_t)t;
+        if (order[t].fmax > lb)
+            lb = order[t].fmax;
+    }
+    /* the worst triangles first: they raise the lower bound early */
+    qsort(order, nt, sizeof *order, ftri_desc);
+    for (size_t i = 0; i < nt; i++) {
+        const uint32_t *ix = m->indices + 3 * (size_t)order[i].t;
+        subtri t0;
+        for (int c = 0; c < 3; c++) {
+            for (int k = 0; k < 3; k++)
+                t0.p[c][k] = m->positions[3 * (size_t)ix[c] + k] - origin[k];
+            t0.f[c] = fv[ix[c]];
+            t0.near[c] = nearv[ix[c]];
+        }
+        t0.depth = 0;
+        if (subtri_upper(g, &t0) <= lb * (1 + rel_tol))
+            continue;
+        st.n = 0;
+        if (!subtri_push(&st, &t0))
+            goto done;
+        while (st.n) {
+            subtri t = st.e[--st.n];
+            double ub = subtri_upper(g, &t);
+            if (ub <= lb * (1 + rel_tol))
+                continue;
+            if (t.depth >= BOUND_MAX_DEPTH) {
+                ub_left = fmax(ub_left, ub);
+                continue;
+            }
+            double mid[3][3], fm[3];
+            uint32_t nm[3];
+            for (int e = 0; e < 3; e++) {
+                for (int k = 0; k < 3; k++)
+                    mid[e][k] = 0.5 * (t.p[e][k] + t.p[(e + 1) % 3][k]);
+                fm[e] = sqrt(hlod_dgrid_closest2(g, mid[e], &nm[e]));
+                if (fm[e] > lb)
+                    lb = fm[e];
+            }
+            /* corners 0,1,2; midpoints m0 = (0,1), m1 = (1,2), m2 = (2,0) */
+            const double *cp[4][3] = {{t.p[0], mid[0], mid[2]},
+                                      {mid[0], t.p[1], mid[1]},
+                                      {mid[2], mid[1], t.p[2]},
+                                      {mid[0], mid[1], mid[2]}};
+            const double cf[4][3] = {{t.f[0], fm[0], fm[2]},
+                                     {fm[0], t.f[1], fm[1]},
+                                     {fm[2], fm[1], t.f[2]},
+                                     {fm[0], fm[1], fm[2]}};
+            const uint32_t cn[4][3] = {{t.near[0], nm[0], nm[2]},
+                                       {nm[0], t.near[1], nm[1]},
+                                       {nm[2], nm[1], t.near[2]},
+                                       {nm[0], nm[1], nm[2]}};
+            for (int c = 0; c < 4; c++) {
+                subtri s;
+                for (int j = 0; j < 3; j++) {
+                    memcpy(s.p[j], cp[c][j], sizeof s.p[j]);
+                    s.f[j] = cf[c][j];
+                    s.near[j] = cn[c][j];
+                }
+                s.depth = t.depth + 1;
+                if (!subtri_push(&st, &s))
+                    goto done;
+            }
+        }
+    }
+    *lower = lb;
+    *upper = fmax(lb * (1 + rel_tol), ub_left);
+    r = HLOD_OK;
+done:
+    free(fv);
+    free(nearv);
+    free(order);
+    free(st.e);
+    return r;
+}
+
+hlod_result hlod_mesh_hausdorff_bound(const hlod_mesh *a, const hlod_mesh *b, double rel_tol,
+                                      double *lower, double *upper)
+{
+    if (!a || !b || !lower || !upper || !(rel_tol >= 0))
+        return HLOD_ERR_INVALID_ARG;
+    *lower = *upper = 0;
+    hlod_result r = check_mesh(a);
+    if (r == HLOD_OK)
+        r = check_mesh(b);
+    if (r != HLOD_OK)
+        return r;
+    double lo[3], hi[3], lo_b[3], hi_b[3], origin[3];
+    hlod_mesh_bounds(a, lo, hi);
+    hlod_mesh_bounds(b, lo_b, hi_b);
+    for (int k = 0; k < 3; k++)
+        origin[k] = 0.5 * (fmin(lo[k], lo_b[k]) + fmax(hi[k], hi_b[k]));
+    hlod_dgrid g;
+    double l1, u1, l2, u2;
+    r = hlod_dgrid_build(&g, b->positions, b->indices, b->tri_count, origin);
+    if (r != HLOD_OK)
+        return r;
+    r = bound_side(a, &g, origin, rel_tol, &l1, &u1);
+    hlod_dgrid_free(&g);
+    if (r != HLOD_OK)
+        return r;
+    r = hlod_dgrid_build(&g, a->positions, a->indices, a->tri_count, origin);
+    if (r != HLOD_OK)
+        return r;
+    r = bound_side(b, &g, origin, rel_tol, &l2, &u2);
+    hlod_dgrid_free(&g);
+    if (r != HLOD_OK)
+        return r;
+    *lower = fmax(l1, l2);
+    *upper = fmax(u1, u2);
+    return HLOD_OK;
+}

@@ -1734,10 +1734,12 @@ hlod_result hlod_simplify(const hlod_mesh *in, const hlod_simplify_desc *desc,
         st.error_estimate = sqrt(max_est) * scale;
         st.error = st.error_estimate;
         if (desc->measure_error && out->tri_count) {
-            hlod_distance d;
-            hlod_result r = hlod_mesh_distance(in, out, 0, 1, &d);
+            /* certified, not sampled: a sampled maximum misses peaks (by
+             * 10% on fandisk at 200k samples) */
+            double lower, upper;
+            hlod_result r = hlod_mesh_hausdorff_bound(in, out, 0.01, &lower, &upper);
             if (r == HLOD_OK)
-                st.error = d.max;
+                st.error = upper;
         }
         if (!out->tri_count)
             st.error = hlod_mesh_bbox_diag(in);

@@ -419,6 +419,66 @@ static void test_empty_and_bad_input(void)
     hlod_mesh_free(&a);
 }
 
+/* The certified bound brackets the exact answer: a square 0.5 above. */
+static void test_bound_offset_square(void)
+{
+    hlod_mesh a, b;
+    make_square(&a, 0.0);
+    make_square(&b, 0.5);
+    double lo, up;
+    CHECK(hlod_mesh_hausdorff_bound(&a, &b, 0.01, &lo, &up) == HLOD_OK);
+    CHECKF(lo <= 0.5 + 1e-12 && up >= 0.5 - 1e-12 && up <= 0.5 * 1.01 + 1e-12, "[%.17g, %.17g]", lo, up);
+    hlod_mesh_free(&a);
+    hlod_mesh_free(&b);
+}
+
+/* A flat square A (with an off-centre middle vertex) over a downward
+ * pyramid B of depth h sharing A's corners.  B -> A peaks at the apex, h;
+ * A -> B peaks at the square's centre, inside a face of A, at
+ * 0.5 h / sqrt(h^2 + 1/4).  The bound must find the first exactly and the
+ * sampler must agree with the second. */
+static void test_bound_finds_interior_peak(void)
+{
+    const double h = 0.2;
+    const double pa[] = {0, 0, 0, 1, 0, 0, 1, 1, 0, 0, 1, 0, 0.3, 0.7, 0};
+    const double pb[] = {0, 0, 0, 1, 0, 0, 1, 1, 0, 0, 1, 0, 0.5, 0.5, -h};
+    const uint32_t idx[] = {0, 1, 4, 1, 2, 4, 2, 3, 4, 3, 0, 4};
+    hlod_mesh a, b;
+    make_mesh(&a, pa, 5, idx, 4);
+    make_mesh(&b, pb, 5, idx, 4);
+    double lo, up;
+    CHECK(hlod_mesh_hausdorff_bound(&a, &b, 0.001, &lo, &up) == HLOD_OK);
+    CHECKF(fabs(lo - h) < 1e-12 && up <= h * 1.001 + 1e-12, "[%.17g, %.17g]", lo, up);
+    double exact = 0.5 * h / sqrt(h * h + 0.25);
+    hlod_distance d;
+    CHECK(hlod_mesh_distance(&a, &b, 400000, SEED, &d) == HLOD_OK);
+    CHECKF(d.max_ab <= exact + 1e-12 && d.max_ab > exact - 2e-3, "sampled A->B %.17g, exact %.17g", d.max_ab,
+           exact);
+    hlod_mesh_free(&a);
+    hlod_mesh_free(&b);
+}
+
+/* On random height fields the bound is never below a dense sampling and
+ * stays within its tolerance of its own lower bound. */
+static void test_bound_dominates_sampling(void)
+{
+    uint64_t rng = 12345;
+    for (int it = 0; it < 20; it++) {
+        hlod_mesh a, b;
+        make_terrain(&a, 6 + it % 5, 10.0, 0.5 + rng_unit(&rng));
+        make_terrain(&b, 3 + it % 4, 10.0, 0.5 + rng_unit(&rng));
+        translate(&b, 0, 0, (rng_unit(&rng) - 0.5) * 0.3);
+        double lo, up;
+        CHECK(hlod_mesh_hausdorff_bound(&a, &b, 0.01, &lo, &up) == HLOD_OK);
+        hlod_distance d;
+        CHECK(hlod_mesh_distance(&a, &b, 100000, SEED + (uint64_t)it, &d) == HLOD_OK);
+        CHECKF(d.max <= up * (1 + 1e-12), "it %d: sampled %.17g above bound %.17g", it, d.max, up);
+        CHECKF(lo <= up && up <= lo * 1.01 * (1 + 1e-12), "it %d: [%.17g, %.17g]", it, lo, up);
+        hlod_mesh_free(&a);
+        hlod_mesh_free(&b);
+    }
+}
+
 int main(void)
 {
     RUN(test_identical_meshes_are_zero);
@@ -433,5 +493,8 @@ int main(void)
     RUN(test_sample_count);
     RUN(test_seed_reproducible);
     RUN(test_empty_and_bad_input);
+    RUN(test_bound_offset_square);
+    RUN(test_bound_finds_interior_peak);
+    RUN(test_bound_dominates_sampling);
     return check_done();
 }

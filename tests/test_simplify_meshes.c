@@ -191,8 +191,12 @@ static void check_mesh(const char *rel, int closed)
         /* An independent, denser measurement with another seed. */
         hlod_distance hd;
         CHECK(hlod_mesh_distance(&m, &o, 400000, 99, &hd) == HLOD_OK);
-        CHECKF(hd.max <= st.error * 1.05 + 1e-6 * diag, "%s %.2f: measured %g > reported %g", rel, ratios[r],
-               hd.max, st.error);
+        CHECKF(hd.max <= st.error * (1 + 1e-9), "%s %.2f: measured %g > reported %g", rel, ratios[r], hd.max,
+               st.error);
+        /* and the bound is tight: within 10% of what dense sampling finds
+         * (sampling itself misses peaks by up to ~10% here) */
+        CHECKF(st.error <= hd.max * 1.10, "%s %.2f: reported %g, measured only %g", rel, ratios[r], st.error,
+               hd.max);
         CHECKF(st.error > 0 && st.error < 0.2 * diag, "%s %.2f: reported error %g of diagonal %g", rel,
                ratios[r], st.error, diag);
         fprintf(stderr, "     %s %.2f: %zu -> %zu tris, error %.4f%% of diagonal\n", rel, ratios[r], m.tri_count,

@@ -46,8 +46,9 @@ typedef struct hlod_simplify_desc {
     /* Weight of UV error against geometric error; 0 selects the default
      * (1.0: a UV shift of 0.01 costs like moving 1% of the mesh size). */
     double uv_weight;
-    /* Non-zero: after simplifying, measure the two-sided Hausdorff distance
-     * to the input (hlod_mesh_distance) and report it in stats->error. */
+    /* Non-zero: after simplifying, bound the two-sided Hausdorff distance
+     * to the input (hlod_mesh_hausdorff_bound, within 1%) and report the
+     * upper bound in stats->error. */
     int measure_error;
     hlod_progress_fn progress;  /* may be NULL */
     void *progress_user;
@@ -60,8 +61,9 @@ typedef struct hlod_simplify_stats {
     size_t collapses;
     /* Largest quadric error estimate of any collapse made (model units). */
     double error_estimate;
-    /* Reported error (model units): the measured two-sided Hausdorff
-     * distance when desc->measure_error, else error_estimate. */
+    /* Reported error (model units): a certified upper bound of the
+     * two-sided Hausdorff distance when desc->measure_error, else
+     * error_estimate. */
     double error;
     double seconds;             /* time spent simplifying (not measuring) */
 } hlod_simplify_stats;
