@@ -54,7 +54,7 @@ static void usage(FILE *fp)
         "  --quiet              no summary, no progress bar, errors only\n"
         "  -h, --help           show this help\n"
         "\n"
-        "error is a certified upper bound (within 1%) of the two-sided Hausdorff\n"
+        "error is a certified upper bound (within 1%%) of the two-sided Hausdorff\n"
         "distance between IN and OUT in model units; seconds is the simplification\n"
         "time without reading, writing or measuring.  Exit status: 0 success,\n"
         "1 failure, 2 bad command line.\n");
