@@ -60,6 +60,9 @@
 #ifndef FLIP_COS
 #define FLIP_COS 0.2          /* face normal may turn by at most ~78 degrees */
 #endif
+#ifndef PASS_SLACK
+#define PASS_SLACK 1.5f       /* a pass stops at this x the goal collapse's price */
+#endif
 #ifndef SLIVER_Q
 #define SLIVER_Q 0.01         /* triangle quality 4*sqrt(3)*A / sum(l^2) floor */
 #endif
@@ -766,43 +769,42 @@ static double best_cost(const eval *e)
 
 /* ---------- validity checks ---------- */
 
-/* Twice the triangle's normal vector, and the sum of its squared edge
- * lengths: quality^2 = 12 |n|^2 / l^2 (1 for equilateral, 0 degenerate). */
-static double tri_shape(const double *p0, const double *p1, const double *p2, double n[3])
-{
-    double e0[3], e1[3], e2[3];
-    sub3(e0, p1, p0);
-    sub3(e1, p2, p1);
-    sub3(e2, p2, p0);
-    cross3(n, e0, e2);
-    return dot3(e0, e0) + dot3(e1, e1) + dot3(e2, e2);
-}
-
 /* Do the faces around v (other than those holding `other`) keep their
- * orientation and shape when v moves to x?  Squared forms, no sqrt: this
- * runs for every face of every collapse. */
+ * orientation and shape when v moves to x?  With d = p2 - p1 the edge
+ * opposite v, a face's (doubled) normal is d x (v - p1) before and
+ * d x (x - p1) after: one cross product each, squared forms, no sqrt.
+ * This runs for every face of every collapse. */
 static int star_ok(const state *s, uint32_t v, uint32_t other, const uint32_t *f, size_t nf,
                    const double x[3])
 {
+    const double *pv = s->vx[v].x;
     for (size_t i = 0; i < nf; i++) {
         uint32_t t = f[i];
         const uint32_t *tv = s->tv + 3 * (size_t)t;
         if (tv[0] == other || tv[1] == other || tv[2] == other)
             continue;
         int c = corner_of(s, t, v);
-        const double *p[3] = {s->vx[tv[0]].x, s->vx[tv[1]].x, s->vx[tv[2]].x};
-        double n0[3], n1[3];
-        double l0 = tri_shape(p[0], p[1], p[2], n0);
-        p[c] = x;
-        double l1 = tri_shape(p[0], p[1], p[2], n1);
-        double s0 = dot3(n0, n0), s1 = dot3(n1, n1), d = dot3(n0, n1);
+        const double *p1 = s->vx[tv[(c + 1) % 3]].x, *p2 = s->vx[tv[(c + 2) % 3]].x;
+        double d[3], a0[3], a1[3], n0[3], n1[3];
+        sub3(d, p2, p1);
+        sub3(a0, pv, p1);
+        sub3(a1, x, p1);
+        cross3(n0, d, a0);
+        cross3(n1, d, a1);
+        double s0 = dot3(n0, n0), s1 = dot3(n1, n1), dn = dot3(n0, n1);
         if (!(s1 > 0))
             return 0;
-        if (s0 > 0 && (d < 0 || d * d < FLIP_COS * FLIP_COS * s0 * s1))
+        if (s0 > 0 && (dn < 0 || dn * dn < FLIP_COS * FLIP_COS * s0 * s1))
             return 0;
-        /* a new sliver is refused unless the face was already that bad */
-        if (12 * s1 < SLIVER_Q * SLIVER_Q * l1 * l1 && s1 * l0 * l0 < s0 * l1 * l1)
-            return 0;
+        /* quality^2 = 12 |n|^2 / l^2 with l the sum of squared edges: a
+         * new sliver is refused unless the face was already that bad */
+        double dd = dot3(d, d);
+        double l1 = dd + dot3(a1, a1) + (dot3(a1, a1) - 2 * dot3(a1, d) + dd);
+        if (12 * s1 < SLIVER_Q * SLIVER_Q * l1 * l1) {
+            double l0 = dd + dot3(a0, a0) + (dot3(a0, a0) - 2 * dot3(a0, d) + dd);
+            if (s1 * l0 * l0 < s0 * l1 * l1)
+                return 0;
+        }
     }
     return 1;
 }
@@ -1645,7 +1647,7 @@ hlod_result hlod_simplify(const hlod_mesh *in, const hlod_simplify_desc *desc,
          * 1.5x the cost of the collapse that would reach the goal, so a
          * pass never runs far ahead of a strict priority order. */
         size_t goal = (live - target) / 2;
-        float cost_goal = goal < s.nc && !unlimited ? s.cand[goal].cost * 1.5f : FLT_MAX;
+        float cost_goal = goal < s.nc && !unlimited ? s.cand[goal].cost * PASS_SLACK : FLT_MAX;
         memset(s.pass_lock, 0, nv);
         size_t pass_collapses = 0;
         /* Walk the sorted prices.  A candidate whose cheapest placement is
@@ -1698,7 +1700,7 @@ hlod_result hlod_simplify(const hlod_mesh *in, const hlod_simplify_desc *desc,
             /* A pass that found nothing under its bound takes the cheapest
              * valid collapse, then bounds itself by that. */
             if (!pass_collapses++ && cost_goal == FLT_MAX)
-                cost_goal = c.cost * 1.5f;
+                cost_goal = c.cost * PASS_SLACK;
             s.pass_lock[a] = s.pass_lock[b] = 1;
             /* A feature collapse may reclassify the ring; its prices are
              * stale, so leave it to the next pass. */
