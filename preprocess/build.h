@@ -1,0 +1,84 @@
+/*
+ * build.h - the hierarchy builders' common shape (private to preprocess/).
+ *
+ * A builder turns one block (an input object or a grid cell) into a tree of
+ * nodes: node 0 is the block's hlod_0 (its coarsest version), children
+ * refine their parent over a part of it, leaves hold the original
+ * triangles.  hlod-build runs builders on many blocks in parallel and
+ * writes their nodes into one store (store_write.h).
+ *
+ * Ownership: an hlod_btree owns its nodes and their meshes and textures;
+ * hlod_btree_free() releases everything.  Builders are reentrant: distinct
+ * blocks may be built on distinct threads at once.
+ */
+#ifndef HLOD_BUILD_H
+#define HLOD_BUILD_H
+
+#include "hlod/image.h"
+#include "hlod/mesh.h"
+
+#define HLOD_BNODE_NONE UINT32_MAX
+
+typedef struct hlod_bnode {
+    hlod_mesh mesh;        /* world coordinates (double); no objects; UVs when
+                              textured, addressing `tex` */
+    hlod_image tex;        /* this node's texture (width 0 when none): the
+                              block texture cropped to the node's UVs and
+                              downsampled by the node's simplification
+                              factor (sqrt of the triangle ratio per side) */
+    uint32_t parent;       /* index in the tree, HLOD_BNODE_NONE for node 0 */
+    uint32_t depth;        /* 0 for node 0 */
+    size_t source_tris;    /* original triangles this node stands for */
+    double error;          /* certified two-sided Hausdorff distance to the
+                              original triangles it stands for (model units),
+                              raised to at least each child's error */
+} hlod_bnode;
+
+typedef struct hlod_btree {
+    hlod_bnode *nodes;     /* node 0 is the root; a parent precedes its children */
+    size_t count, cap;
+} hlod_btree;
+
+void hlod_btree_free(hlod_btree *t);
+/* Appends a zeroed node (parent/depth set by the caller); returns its
+ * index, or HLOD_BNODE_NONE when out of memory.  Invalidates pointers
+ * into t->nodes. */
+uint32_t hlod_btree_add(hlod_btree *t);
+
+typedef struct hlod_build_params {
+    size_t desired_tris;   /* C_desiredTri: triangles of hlod_0 (cutplane) */
+    double level_factor;   /* C_levelFactor: pieces per split and triangle
+                              ratio between levels (cutplane), >= 2 */
+    size_t voxel_tris;     /* N_v: triangles per voxel at most (metis) */
+    size_t leaf_tris;      /* N_l: a part under this is a leaf (metis) */
+    size_t node_tris;      /* N_n: triangles of an inner node (metis) */
+    uint64_t seed;         /* METIS seed and any other choice: fixed, so a
+                              build is reproducible byte for byte */
+    const hlod_logger *logger;
+} hlod_build_params;
+
+/* Lakhia III-A.  block: one block's triangles (materials/objects ignored
+ * except for the texture test), tex: its texture or NULL (untextured: no
+ * UVs needed, the texture path is never touched).  A block already at or
+ * under desired_tris is a single leaf node. */
+hlod_result hlod_build_cutplane(const hlod_mesh *block, const hlod_image *tex,
+                                const hlod_build_params *p, hlod_btree *out);
+
+/* Okamoto 4.1: voxels of < N_v triangles, METIS bisection of the voxel
+ * graph until parts have < N_l triangles, inner nodes = children's union
+ * simplified to N_n triangles with the union's outer boundary locked. */
+hlod_result hlod_build_metis(const hlod_mesh *block, const hlod_image *tex,
+                             const hlod_build_params *p, hlod_btree *out);
+
+/* The texture of a node: crops tex to the UV box of m's UVs (rewriting
+ * m->uvs into the crop) and shrinks it by sqrt(factor) per side (factor =
+ * source triangles / node triangles, >= 1), at least 4x4 pixels.  Wrapping
+ * UVs (outside [0, 1]) keep the whole texture.  Leaves out->width 0 and
+ * touches nothing when tex is NULL or m has no UVs. */
+hlod_result hlod_node_texture(const hlod_image *tex, hlod_mesh *m, double factor, hlod_image *out);
+
+/* Certified error of a node against the original triangles it stands for
+ * (hlod_mesh_hausdorff_bound within 1%), in model units. */
+hlod_result hlod_node_error(const hlod_mesh *node, const hlod_mesh *original, double *error);
+
+#endif

@@ -1,0 +1,491 @@
+/*
+ * cutplane.c - Lakhia III-A hierarchy: simplify, cut, recurse.
+ *
+ * Node 0 (hlod_0) is the whole block simplified by s_0 = numTri /
+ * C_desiredTri.  A node at factor s_d >= 1 is cut by C_levelFactor - 1
+ * planes perpendicular to its piece's longest bounding-box axis into
+ * C_levelFactor pieces; each piece becomes a child at s_{d+1} = s_d /
+ * C_levelFactor, simplified from the ORIGINAL triangles of the piece (not
+ * from the parent), with every vertex on a cut plane locked so neighbouring
+ * pieces meet without cracks.  Pieces at a factor <= 1 are leaves and keep
+ * the original triangles.
+ *
+ * Cutting: a triangle crossing a plane is split into three (UVs and normals
+ * interpolated).  A split vertex is computed once per undirected edge, from
+ * the edge's endpoints in a canonical order, and shared by both triangles on
+ * that edge, so the two sides of the cut hold bit-identical vertices.
+ *
+ * Cut positions are triangle-count quantiles along the axis, so pieces
+ * carry equal work and a plane of level d + 1 lies strictly inside its
+ * parent's slab: it never lines up with a level-d plane, and a level-d
+ * seam is locked only in the subtree below it, never above.
+ */
+#include "build.h"
+
+#include "hlod/simplify.h"
+
+#include <math.h>
+#include <stdlib.h>
+#include <string.h>
+
+/* A piece: triangles of the original block (after cuts), with locks. */
+typedef struct piece {
+    hlod_mesh m;        /* positions, optional uvs/normals, no objects */
+    uint8_t *lock;      /* per vertex: on a cut plane */
+} piece;
+
+static void piece_free(piece *p)
+{
+    hlod_mesh_free(&p->m);
+    free(p->lock);
+    memset(p, 0, sizeof *p);
+}
+
+/* Open-addressing map from an undirected edge to its split vertex. */
+typedef struct edge_map {
+    uint64_t *key;
+    uint32_t *val;
+    size_t cap;
+} edge_map;
+
+static int emap_init(edge_map *e, size_t n)
+{
+    e->cap = 64;
+    while (e->cap < n * 2)
+        e->cap *= 2;
+    e->key = malloc(e->cap * sizeof *e->key);
+    e->val = malloc(e->cap * sizeof *e->val);
+    if (!e->key || !e->val)
+        return 0;
+    memset(e->key, 0xff, e->cap * sizeof *e->key);
+    return 1;
+}
+
+static void emap_free(edge_map *e)
+{
+    free(e->key);
+    free(e->val);
+}
+
+static uint32_t *emap_slot(edge_map *e, uint32_t a, uint32_t b, int *found)
+{
+    uint64_t k = a < b ? ((uint64_t)a << 32 | b) : ((uint64_t)b << 32 | a);
+    uint64_t h = k * 0x9E3779B97F4A7C15ull;
+    size_t i = (size_t)(h >> 17) & (e->cap - 1);
+    while (e->key[i] != UINT64_MAX && e->key[i] != k)
+        i = (i + 1) & (e->cap - 1);
+    *found = e->key[i] == k;
+    e->key[i] = k;
+    return &e->val[i];
+}
+
+/* Growable vertex/triangle arrays for building a piece. */
+typedef struct builder {
+    const hlod_mesh *src;
+    double *pos;
+    float *uv, *nrm;
+    uint8_t *lock;
+    size_t nv, vcap;
+    uint32_t *idx;
+    size_t nt, tcap;
+} builder;
+
+static int b_vertex(builder *b, const double p[3], const float *uv, const float *n, uint8_t lock)
+{
+    if (b->nv == b->vcap) {
+        size_t nc = b->vcap ? b->vcap * 2 : 1024;
+        double *np = realloc(b->pos, nc * 3 * sizeof *np);
+        if (np)
+            b->pos = np;
+        uint8_t *nl = realloc(b->lock, nc);
+        if (nl)
+            b->lock = nl;
+        if (!np || !nl)
+            return 0;
+        if (b->src->uvs) {
+            float *nu = realloc(b->uv, nc * 2 * sizeof *nu);
+            if (!nu)
+                return 0;
+            b->uv = nu;
+        }
+        if (b->src->normals) {
+            float *nn = realloc(b->nrm, nc * 3 * sizeof *nn);
+            if (!nn)
+                return 0;
+            b->nrm = nn;
+        }
+        b->vcap = nc;
+    }
+    memcpy(b->pos + 3 * b->nv, p, 3 * sizeof *p);
+    if (b->uv)
+        memcpy(b->uv + 2 * b->nv, uv, 2 * sizeof *uv);
+    if (b->nrm)
+        memcpy(b->nrm + 3 * b->nv, n, 3 * sizeof *n);
+    b->lock[b->nv] = lock;
+    return ++b->nv <= UINT32_MAX;
+}
+
+static int b_tri(builder *b, uint32_t x, uint32_t y, uint32_t z)
+{
+    if (b->nt == b->tcap) {
+        size_t nc = b->tcap ? b->tcap * 2 : 1024;
+        uint32_t *ni = realloc(b->idx, nc * 3 * sizeof *ni);
+        if (!ni)
+            return 0;
+        b->idx = ni;
+        b->tcap = nc;
+    }
+    b->idx[3 * b->nt] = x;
+    b->idx[3 * b->nt + 1] = y;
+    b->idx[3 * b->nt + 2] = z;
+    b->nt++;
+    return 1;
+}
+
+static void b_free(builder *b)
+{
+    free(b->pos);
+    free(b->uv);
+    free(b->nrm);
+    free(b->lock);
+    free(b->idx);
+}
+
+/* Moves a builder's arrays into a piece, dropping unused vertices. */
+static hlod_result b_finish(builder *b, piece *out)
+{
+    memset(out, 0, sizeof *out);
+    uint32_t *remap = malloc((b->nv ? b->nv : 1) * sizeof *remap);
+    if (!remap)
+        return HLOD_ERR_NOMEM;
+    for (size_t v = 0; v < b->nv; v++)
+        remap[v] = UINT32_MAX;
+    size_t nv = 0;
+    for (size_t i = 0; i < 3 * b->nt; i++)
+        if (remap[b->idx[i]] == UINT32_MAX)
+            remap[b->idx[i]] = 0;
+    for (size_t v = 0; v < b->nv; v++)
+        if (remap[v] == 0)
+            remap[v] = (uint32_t)nv++;
+    unsigned flags = (b->uv ? HLOD_MESH_UVS : 0) | (b->nrm ? HLOD_MESH_NORMALS : 0);
+    hlod_result r = hlod_mesh_alloc(&out->m, nv, b->nt, flags);
+    out->lock = malloc(nv ? nv : 1);
+    if (r != HLOD_OK || !out->lock) {
+        free(remap);
+        piece_free(out);
+        return HLOD_ERR_NOMEM;
+    }
+    for (size_t v = 0; v < b->nv; v++) {
+        uint32_t o = remap[v];
+        if (o == UINT32_MAX)
+            continue;
+        memcpy(out->m.positions + 3 * (size_t)o, b->pos + 3 * v, 3 * sizeof(double));
+        if (b->uv)
+            memcpy(out->m.uvs + 2 * (size_t)o, b->uv + 2 * v, 2 * sizeof(float));
+        if (b->nrm)
+            memcpy(out->m.normals + 3 * (size_t)o, b->nrm + 3 * v, 3 * sizeof(float));
+        out->lock[o] = b->lock[v];
+    }
+    for (size_t i = 0; i < 3 * b->nt; i++)
+        out->m.indices[i] = remap[b->idx[i]];
+    free(remap);
+    return HLOD_OK;
+}
+
+/* Splits p by the plane x[axis] = c into below (< c side) and above.  A
+ * triangle goes to the side of its centroid unless it crosses the plane,
+ * then it is cut.  Vertices exactly on the plane and split vertices are
+ * locked on both sides. */
+static hlod_result split(const piece *p, int axis, double c, piece *below, piece *above)
+{
+    const hlod_mesh *m = &p->m;
+    builder side[2];
+    memset(side, 0, sizeof side);
+    side[0].src = side[1].src = m;
+    uint32_t *map[2] = {malloc(m->vertex_count * sizeof(uint32_t) + 1),
+                        malloc(m->vertex_count * sizeof(uint32_t) + 1)};
+    edge_map em[2] = {{0}, {0}};
+    hlod_result r = HLOD_ERR_NOMEM;
+    if (!map[0] || !map[1] || !emap_init(&em[0], m->tri_count / 4 + 64) ||
+        !emap_init(&em[1], m->tri_count / 4 + 64))
+        goto done;
+    for (size_t v = 0; v < m->vertex_count; v++)
+        map[0][v] = map[1][v] = UINT32_MAX;
+
+    for (size_t t = 0; t < m->tri_count; t++) {
+        const uint32_t *ix = m->indices + 3 * t;
+        double d[3];
+        int nb = 0, na = 0;
+        for (int k = 0; k < 3; k++) {
+            d[k] = m->positions[3 * (size_t)ix[k] + axis] - c;
+            nb += d[k] < 0;
+            na += d[k] > 0;
+        }
+        if (!(nb && na)) {
+            /* whole triangle on one side (touching the plane at most) */
+            int s = na ? 1 : nb ? 0 : 1;
+            uint32_t o[3];
+            for (int k = 0; k < 3; k++) {
+                uint32_t v = ix[k];
+                if (map[s][v] == UINT32_MAX) {
+                    map[s][v] = (uint32_t)side[s].nv;
+                    if (!b_vertex(&side[s], m->positions + 3 * (size_t)v, m->uvs ? m->uvs + 2 * (size_t)v : NULL,
+                                  m->normals ? m->normals + 3 * (size_t)v : NULL,
+                                  (uint8_t)(p->lock[v] || d[k] == 0)))
+                        goto done;
+                }
+                o[k] = map[s][v];
+            }
+            if (!b_tri(&side[s], o[0], o[1], o[2]))
+                goto done;
+            continue;
+        }
+        /* Crossing: walk the polygon, inserting a split vertex on every
+         * edge whose endpoints lie strictly on opposite sides; emit each
+         * side's polygon as a fan. */
+        uint32_t poly[2][4];
+        int pn[2] = {0, 0};
+        for (int k = 0; k < 3; k++) {
+            int k2 = (k + 1) % 3;
+            uint32_t v = ix[k];
+            for (int s = 0; s < 2; s++) {
+                int on_side = s ? d[k] >= 0 : d[k] <= 0;
+                if (!on_side)
+                    continue;
+                if (map[s][v] == UINT32_MAX) {
+                    map[s][v] = (uint32_t)side[s].nv;
+                    if (!b_vertex(&side[s], m->positions + 3 * (size_t)v, m->uvs ? m->uvs + 2 * (size_t)v : NULL,
+                                  m->normals ? m->normals + 3 * (size_t)v : NULL,
+                                  (uint8_t)(p->lock[v] || d[k] == 0)))
+                        goto done;
+                }
+                poly[s][pn[s]++] = map[s][v];
+            }
+            if ((d[k] < 0 && d[k2] > 0) || (d[k] > 0 && d[k2] < 0)) {
+                /* canonical order: the lower vertex index first, so both
+                 * triangles on this edge compute the same bits */
+                uint32_t a = ix[k] < ix[k2] ? ix[k] : ix[k2], b = ix[k] < ix[k2] ? ix[k2] : ix[k];
+                const double *pa = m->positions + 3 * (size_t)a, *pb = m->positions + 3 * (size_t)b;
+                double da = pa[axis] - c, db = pb[axis] - c;
+                double w = da / (da - db);
+                double q[3];
+                for (int j = 0; j < 3; j++)
+                    q[j] = pa[j] + w * (pb[j] - pa[j]);
+                q[axis] = c;
+                float uv[2] = {0, 0}, n[3] = {0, 0, 0};
+                if (m->uvs)
+                    for (int j = 0; j < 2; j++)
+                        uv[j] = (float)(m->uvs[2 * (size_t)a + j] +
+                                        w * (m->uvs[2 * (size_t)b + j] - m->uvs[2 * (size_t)a + j]));
+                if (m->normals)
+                    for (int j = 0; j < 3; j++)
+                        n[j] = (float)(m->normals[3 * (size_t)a + j] +
+                                       w * (m->normals[3 * (size_t)b + j] - m->normals[3 * (size_t)a + j]));
+                for (int s = 0; s < 2; s++) {
+                    int found;
+                    uint32_t *slot = emap_slot(&em[s], a, b, &found);
+                    if (!found) {
+                        *slot = (uint32_t)side[s].nv;
+                        if (!b_vertex(&side[s], q, uv, n, 1))
+                            goto done;
+                    }
+                    poly[s][pn[s]++] = *slot;
+                }
+            }
+        }
+        for (int s = 0; s < 2; s++)
+            for (int k = 1; k + 1 < pn[s]; k++)
+                if (!b_tri(&side[s], poly[s][0], poly[s][k], poly[s][k + 1]))
+                    goto done;
+    }
+    r = b_finish(&side[0], below);
+    if (r == HLOD_OK)
+        r = b_finish(&side[1], above);
+    if (r != HLOD_OK)
+        piece_free(below);
+done:
+    for (int s = 0; s < 2; s++) {
+        b_free(&side[s]);
+        emap_free(&em[s]);
+        free(map[s]);
+    }
+    return r;
+}
+
+static int cmp_double(const void *a, const void *b)
+{
+    double x = *(const double *)a, y = *(const double *)b;
+    return x < y ? -1 : x > y;
+}
+
+/* Cuts p into `count` pieces along its longest axis at triangle-count
+ * quantiles of the centroids. */
+static hlod_result cut(const piece *p, int count, piece *out)
+{
+    double lo[3], hi[3];
+    hlod_mesh_bounds(&p->m, lo, hi);
+    int axis = 0;
+    for (int k = 1; k < 3; k++)
+        if (hi[k] - lo[k] > hi[axis] - lo[axis])
+            axis = k;
+    size_t nt = p->m.tri_count;
+    double *cen = malloc((nt ? nt : 1) * sizeof *cen);
+    if (!cen)
+        return HLOD_ERR_NOMEM;
+    for (size_t t = 0; t < nt; t++) {
+        double s = 0;
+        for (int k = 0; k < 3; k++)
+            s += p->m.positions[3 * (size_t)p->m.indices[3 * t + k] + axis];
+        cen[t] = s / 3;
+    }
+    qsort(cen, nt, sizeof *cen, cmp_double);
+    piece rest = {0};
+    const piece *cur = p;
+    hlod_result r = HLOD_OK;
+    int made = 0;
+    for (int i = 1; i < count && r == HLOD_OK; i++) {
+        double c = cen[nt * (size_t)i / (size_t)count];
+        if (!(c > lo[axis] && c < hi[axis]))
+            c = lo[axis] + (hi[axis] - lo[axis]) * i / count;
+        piece below, above;
+        r = split(cur, axis, c, &below, &above);
+        if (r != HLOD_OK)
+            break;
+        out[made++] = below;
+        if (cur == &rest)
+            piece_free(&rest);
+        rest = above;
+        cur = &rest;
+    }
+    if (r == HLOD_OK) {
+        if (cur == &rest) {
+            out[made++] = rest;
+        } else {
+            /* count == 1: a copy of p */
+            r = hlod_mesh_copy(&out[made].m, &p->m);
+            out[made].lock = malloc(p->m.vertex_count + 1);
+            if (r == HLOD_OK && out[made].lock) {
+                memcpy(out[made].lock, p->lock, p->m.vertex_count);
+                made++;
+            } else {
+                piece_free(&out[made]);
+                r = HLOD_ERR_NOMEM;
+            }
+        }
+    } else {
+        piece_free(&rest);
+    }
+    free(cen);
+    if (r != HLOD_OK)
+        for (int i = 0; i < made; i++)
+            piece_free(&out[i]);
+    return r;
+}
+
+/* Builds the node for piece p at factor s (and its subtree); returns the
+ * node's index through *index. */
+static hlod_result build_node(hlod_btree *t, piece *p, double s, uint32_t parent, uint32_t depth,
+                              const hlod_image *tex, const hlod_build_params *bp, uint32_t *index)
+{
+    uint32_t id = hlod_btree_add(t);
+    if (id == HLOD_BNODE_NONE)
+        return HLOD_ERR_NOMEM;
+    t->nodes[id].parent = parent;
+    t->nodes[id].depth = depth;
+    t->nodes[id].source_tris = p->m.tri_count;
+    *index = id;
+    hlod_result r;
+    hlod_mesh node_mesh = {0};
+    if (s <= 1 || p->m.tri_count <= 1) {
+        /* leaf: the original triangles */
+        r = hlod_mesh_copy(&node_mesh, &p->m);
+    } else {
+        hlod_simplify_desc d = {0};
+        d.target_tris = (size_t)llround((double)p->m.tri_count / s);
+        d.target_tris = d.target_tris ? d.target_tris : 1;
+        d.vertex_lock = p->lock;
+        d.logger = bp->logger;
+        r = hlod_simplify(&p->m, &d, &node_mesh, NULL);
+    }
+    if (r != HLOD_OK)
+        return r;
+    double err = 0;
+    if (s > 1)
+        r = hlod_node_error(&node_mesh, &p->m, &err);
+    hlod_image img = {0};
+    if (r == HLOD_OK && tex)
+        r = hlod_node_texture(tex, &node_mesh, s > 1 ? s : 1, &img);
+    if (r != HLOD_OK) {
+        hlod_mesh_free(&node_mesh);
+        return r;
+    }
+    t->nodes[id].mesh = node_mesh;
+    t->nodes[id].tex = img;
+    t->nodes[id].error = err;
+    if (s <= 1)
+        return HLOD_OK;
+
+    int count = (int)llround(bp->level_factor);
+    piece *kids = calloc((size_t)count, sizeof *kids);
+    if (!kids)
+        return HLOD_ERR_NOMEM;
+    r = cut(p, count, kids);
+    if (r != HLOD_OK) {
+        free(kids);
+        return r;
+    }
+    double child_s = s / bp->level_factor;
+    for (int i = 0; i < count && r == HLOD_OK; i++) {
+        if (!kids[i].m.tri_count)
+            continue;
+        uint32_t cid;
+        r = build_node(t, &kids[i], child_s, id, depth + 1, tex, bp, &cid);
+        if (r == HLOD_OK && t->nodes[cid].error > t->nodes[id].error)
+            t->nodes[id].error = t->nodes[cid].error; /* monotone up the tree */
+    }
+    for (int i = 0; i < count; i++)
+        piece_free(&kids[i]);
+    free(kids);
+    return r;
+}
+
+hlod_result hlod_build_cutplane(const hlod_mesh *block, const hlod_image *tex,
+                                const hlod_build_params *p, hlod_btree *out)
+{
+    memset(out, 0, sizeof *out);
+    if (!block || !p || !(p->level_factor >= 2) || !p->desired_tris)
+        return HLOD_ERR_INVALID_ARG;
+    if (!block->tri_count)
+        return HLOD_ERR_EMPTY;
+    piece root = {0};
+    hlod_result r = hlod_mesh_copy(&root.m, block);
+    root.lock = calloc(block->vertex_count + 1, 1);
+    if (r != HLOD_OK || !root.lock) {
+        piece_free(&root);
+        return HLOD_ERR_NOMEM;
+    }
+    /* the builder works on triangles alone: objects and materials are the
+     * caller's business (one texture per block) */
+    for (size_t i = 0; i < root.m.object_count; i++)
+        free(root.m.objects[i].name);
+    free(root.m.objects);
+    root.m.objects = NULL;
+    root.m.object_count = 0;
+    for (size_t i = 0; i < root.m.material_count; i++) {
+        free(root.m.materials[i].name);
+        free(root.m.materials[i].texture_path);
+    }
+    free(root.m.materials);
+    free(root.m.tri_material);
+    root.m.materials = NULL;
+    root.m.material_count = 0;
+    root.m.tri_material = NULL;
+    const hlod_image *t = block->uvs ? tex : NULL;
+    double s0 = (double)block->tri_count / (double)p->desired_tris;
+    uint32_t id;
+    r = build_node(out, &root, s0 > 1 ? s0 : 1, HLOD_BNODE_NONE, 0, t, p, &id);
+    piece_free(&root);
+    if (r != HLOD_OK)
+        hlod_btree_free(out);
+    return r;
+}

@@ -1,0 +1,306 @@
+/*
+ * test_cutplane.c - the Lakhia III-A builder's hierarchy invariants on a
+ * synthetic textured block: leaves hold the original surface, cuts keep
+ * area, siblings share bit-identical boundaries, triangle counts follow
+ * the factors, errors bound their subtrees and grow towards the root.
+ */
+#include "check.h"
+#include "build.h"
+#include "hlod/distance.h"
+
+#include <math.h>
+#include <stdint.h>
+
+/* A bumpy, irregular height field, n x n quads over 40 x 10 m, with UVs. */
+static void block_mesh(hlod_mesh *m, int n, int textured)
+{
+    hlod_mesh_alloc(m, (size_t)(n + 1) * (n + 1), (size_t)2 * n * n, textured ? HLOD_MESH_UVS : 0);
+    for (int j = 0; j <= n; j++)
+        for (int i = 0; i <= n; i++) {
+            size_t v = (size_t)j * (n + 1) + i;
+            double x = 40.0 * i / n, y = 10.0 * j / n;
+            m->positions[3 * v] = x + 5e5;
+            m->positions[3 * v + 1] = y + 4.1e6;
+            m->positions[3 * v + 2] = 0.3 * sin(0.7 * x) * cos(1.3 * y) + 0.05 * sin(5.1 * x + 2.3 * y);
+            if (m->uvs) {
+                m->uvs[2 * v] = (float)i / n;
+                m->uvs[2 * v + 1] = (float)j / n;
+            }
+        }
+    size_t t = 0;
+    for (int j = 0; j < n; j++)
+        for (int i = 0; i < n; i++) {
+            uint32_t a = (uint32_t)(j * (n + 1) + i), b = a + 1, c = a + (uint32_t)n + 1, d = c + 1;
+            uint32_t *x = m->indices + 3 * t;
+            x[0] = a, x[1] = b, x[2] = d, x[3] = a, x[4] = d, x[5] = c;
+            t += 2;
+        }
+}
+
+static void texture(hlod_image *img, int w, int h)
+{
+    img->width = w;
+    img->height = h;
+    img->channels = 3;
+    img->pixels = malloc((size_t)w * h * 3);
+    for (size_t i = 0; i < (size_t)w * h * 3; i++)
+        img->pixels[i] = (uint8_t)(i * 7 % 251);
+}
+
+static hlod_build_params params(void)
+{
+    hlod_build_params p = {0};
+    p.desired_tris = 1000;
+    p.level_factor = 3;
+    p.seed = 1;
+    return p;
+}
+
+static int is_leaf(const hlod_btree *t, uint32_t i)
+{
+    for (size_t k = 0; k < t->count; k++)
+        if (t->nodes[k].parent == i)
+            return 0;
+    return 1;
+}
+
+/* Union of the leaves under node i (the original triangles it stands for). */
+static void leaves_under(const hlod_btree *t, uint32_t i, hlod_mesh *out)
+{
+    size_t nv = 0, nt = 0;
+    for (size_t k = 0; k < t->count; k++) {
+        uint32_t a = (uint32_t)k;
+        while (a != HLOD_BNODE_NONE && a != i)
+            a = t->nodes[a].parent;
+        if (a == i && is_leaf(t, (uint32_t)k)) {
+            nv += t->nodes[k].mesh.vertex_count;
+            nt += t->nodes[k].mesh.tri_count;
+        }
+    }
+    hlod_mesh_alloc(out, nv, nt, 0);
+    nv = nt = 0;
+    for (size_t k = 0; k < t->count; k++) {
+        uint32_t a = (uint32_t)k;
+        while (a != HLOD_BNODE_NONE && a != i)
+            a = t->nodes[a].parent;
+        if (a != i || !is_leaf(t, (uint32_t)k))
+            continue;
+        const hlod_mesh *m = &t->nodes[k].mesh;
+        memcpy(out->positions + 3 * nv, m->positions, m->vertex_count * 3 * sizeof(double));
+        for (size_t x = 0; x < m->tri_count * 3; x++)
+            out->indices[3 * nt + x] = m->indices[x] + (uint32_t)nv;
+        nv += m->vertex_count;
+        nt += m->tri_count;
+    }
+}
+
+static void leaves_keep_area_and_cover_the_block(void)
+{
+    hlod_mesh m = {0};
+    block_mesh(&m, 60, 1);
+    hlod_image img = {0};
+    texture(&img, 64, 32);
+    hlod_build_params p = params();
+    hlod_btree t;
+    CHECK(hlod_build_cutplane(&m, &img, &p, &t) == HLOD_OK);
+    /* s0 = 7200 / 1000 = 7.2 -> 2.4 -> 0.8: three levels, 1 + 3 + 9 nodes */
+    CHECKF(t.count == 13, "nodes %zu", t.count);
+    double area = 0;
+    size_t leaf_tris = 0;
+    for (size_t k = 0; k < t.count; k++)
+        if (is_leaf(&t, (uint32_t)k)) {
+            area += hlod_mesh_area(&t.nodes[k].mesh);
+            leaf_tris += t.nodes[k].mesh.tri_count;
+            CHECK(t.nodes[k].depth == 2);
+            CHECK(t.nodes[k].error == 0);
+        }
+    double a0 = hlod_mesh_area(&m);
+    CHECKF(fabs(area - a0) < 1e-9 * a0, "leaf area %.17g vs %.17g", area, a0);
+    CHECK(leaf_tris >= m.tri_count);
+    /* hlod_0 covers the block */
+    double lo[3], hi[3], rlo[3], rhi[3];
+    hlod_mesh_bounds(&m, lo, hi);
+    hlod_mesh_bounds(&t.nodes[0].mesh, rlo, rhi);
+    for (int k = 0; k < 2; k++)
+        CHECKF(fabs(lo[k] - rlo[k]) <= t.nodes[0].error && fabs(hi[k] - rhi[k]) <= t.nodes[0].error,
+               "axis %d: block [%.17g, %.17g], hlod_0 [%.17g, %.17g], error %g", k, lo[k], hi[k], rlo[k], rhi[k],
+               t.nodes[0].error);
+    hlod_btree_free(&t);
+    hlod_image_free(&img);
+    hlod_mesh_free(&m);
+}
+
+static int cmp_u64(const void *a, const void *b)
+{
+    uint64_t x = *(const uint64_t *)a, y = *(const uint64_t *)b;
+    return x < y ? -1 : x > y;
+}
+
+static uint64_t hash_pos(const double *p)
+{
+    uint64_t h = 1469598103934665603ull;
+    const unsigned char *c = (const unsigned char *)p;
+    for (size_t i = 0; i < 3 * sizeof(double); i++)
+        h = (h ^ c[i]) * 1099511628211ull;
+    return h;
+}
+
+/* The block's outline is simplified too (its vertices may move a little
+ * off it, within the node's error), so "on the outline" is within 2 cm;
+ * the cuts lie 13 m from the ends. */
+static int on_outline(const double *p)
+{
+    double x = p[0] - 5e5, y = p[1] - 4.1e6;
+    return fabs(x) < 0.02 || fabs(x - 40) < 0.02 || fabs(y) < 0.02 || fabs(y - 10) < 0.02;
+}
+
+/* Border edges (one face) of every node at a depth, keyed by the bits of
+ * their two positions: a border edge inside the block must appear in
+ * exactly two nodes (one on each side of a cut), or it is a crack.  Only
+ * the block's own outline may stay unmatched. */
+static void siblings_share_boundaries(void)
+{
+    hlod_mesh m = {0};
+    block_mesh(&m, 60, 0);
+    hlod_build_params p = params();
+    hlod_btree t;
+    CHECK(hlod_build_cutplane(&m, NULL, &p, &t) == HLOD_OK);
+    for (uint32_t depth = 1; depth <= 2; depth++) {
+        size_t cap = 0;
+        for (size_t k = 0; k < t.count; k++)
+            if (t.nodes[k].depth == depth)
+                cap += t.nodes[k].mesh.tri_count * 3;
+        uint64_t *all = malloc(cap * sizeof *all);
+        uint8_t *outline = malloc(cap);
+        size_t n_all = 0, inner = 0;
+        for (size_t k = 0; k < t.count; k++) {
+            if (t.nodes[k].depth != depth)
+                continue;
+            const hlod_mesh *nm = &t.nodes[k].mesh;
+            size_t ne = nm->tri_count * 3;
+            uint64_t *e = malloc(ne * sizeof *e);
+            uint8_t *ol = malloc(ne);
+            for (size_t x = 0; x < nm->tri_count; x++)
+                for (int c = 0; c < 3; c++) {
+                    const double *pa = nm->positions + 3 * nm->indices[3 * x + c];
+                    const double *pb = nm->positions + 3 * nm->indices[3 * x + (c + 1) % 3];
+                    uint64_t a = hash_pos(pa), b = hash_pos(pb);
+                    /* the low bit says "on the outline" */
+                    e[3 * x + c] = ((a < b ? a * 31 + b : b * 31 + a) & ~1ull) | (uint64_t)(on_outline(pa) && on_outline(pb));
+                }
+            qsort(e, ne, sizeof *e, cmp_u64);
+            for (size_t i = 0; i < ne;) {
+                size_t j = i;
+                while (j < ne && e[j] == e[i])
+                    j++;
+                if (j - i == 1) {
+                    all[n_all] = e[i];
+                    outline[n_all++] = (uint8_t)(e[i] & 1);
+                    inner += !(e[i] & 1);
+                }
+                i = j;
+            }
+            free(e);
+            free(ol);
+        }
+        qsort(all, n_all, sizeof *all, cmp_u64);
+        size_t cracks = 0;
+        for (size_t i = 0; i < n_all;) {
+            size_t j = i;
+            while (j < n_all && all[j] == all[i])
+                j++;
+            if (!(all[i] & 1))
+                cracks += j - i != 2;
+            i = j;
+        }
+        CHECKF(cracks == 0, "depth %u: %zu inner border edges without a twin", depth, cracks);
+        CHECKF(inner > 0, "depth %u: no cut edges at all", depth);
+        free(all);
+        free(outline);
+    }
+    hlod_btree_free(&t);
+    hlod_mesh_free(&m);
+}
+
+static void counts_follow_factors_and_errors_bound(void)
+{
+    hlod_mesh m = {0};
+    block_mesh(&m, 60, 1);
+    hlod_image img = {0};
+    texture(&img, 64, 32);
+    hlod_build_params p = params();
+    hlod_btree t;
+    CHECK(hlod_build_cutplane(&m, &img, &p, &t) == HLOD_OK);
+    double s[3] = {7.2, 2.4, 0.8};
+    for (size_t k = 0; k < t.count; k++) {
+        const hlod_bnode *n = &t.nodes[k];
+        if (n->depth < 2) {
+            double want = (double)n->source_tris / s[n->depth];
+            CHECKF(n->mesh.tri_count <= want + 1 && n->mesh.tri_count >= 0.8 * want,
+                   "node %zu depth %u: %zu tris, want %.0f", k, n->depth, n->mesh.tri_count, want);
+            /* texture shrinks by sqrt(s) per side, cropped to the node */
+            CHECK(n->tex.width > 0 && n->tex.width <= 64 && n->tex.height <= 32);
+        }
+        if (n->parent != HLOD_BNODE_NONE)
+            CHECKF(t.nodes[n->parent].error >= n->error, "node %zu error above its parent's", k);
+        hlod_mesh orig = {0};
+        leaves_under(&t, (uint32_t)k, &orig);
+        hlod_distance d;
+        CHECK(hlod_mesh_distance(&n->mesh, &orig, 20000, 3, &d) == HLOD_OK);
+        CHECKF(d.max <= n->error * (1 + 1e-9) + 1e-12, "node %zu: sampled %g > error %g", k, d.max, n->error);
+        hlod_mesh_free(&orig);
+    }
+    CHECK(t.nodes[0].error > 0);
+    hlod_btree_free(&t);
+    hlod_image_free(&img);
+    hlod_mesh_free(&m);
+}
+
+static void small_block_is_one_node(void)
+{
+    hlod_mesh m = {0};
+    block_mesh(&m, 10, 0); /* 200 triangles < 1000 */
+    hlod_build_params p = params();
+    hlod_btree t;
+    CHECK(hlod_build_cutplane(&m, NULL, &p, &t) == HLOD_OK);
+    CHECK(t.count == 1 && t.nodes[0].mesh.tri_count == m.tri_count && t.nodes[0].error == 0);
+    hlod_btree_free(&t);
+    hlod_mesh_free(&m);
+}
+
+static void reproducible(void)
+{
+    hlod_mesh m = {0};
+    block_mesh(&m, 40, 1);
+    hlod_image img = {0};
+    texture(&img, 32, 32);
+    hlod_build_params p = params();
+    hlod_btree a, b;
+    CHECK(hlod_build_cutplane(&m, &img, &p, &a) == HLOD_OK);
+    CHECK(hlod_build_cutplane(&m, &img, &p, &b) == HLOD_OK);
+    CHECK(a.count == b.count);
+    for (size_t k = 0; k < a.count && a.count == b.count; k++) {
+        const hlod_mesh *x = &a.nodes[k].mesh, *y = &b.nodes[k].mesh;
+        CHECK(x->vertex_count == y->vertex_count && x->tri_count == y->tri_count);
+        if (x->vertex_count == y->vertex_count && x->tri_count == y->tri_count) {
+            CHECK(!memcmp(x->positions, y->positions, x->vertex_count * 3 * sizeof(double)));
+            CHECK(!memcmp(x->indices, y->indices, x->tri_count * 3 * sizeof(uint32_t)));
+            CHECK(!memcmp(x->uvs, y->uvs, x->vertex_count * 2 * sizeof(float)));
+        }
+        CHECK(a.nodes[k].error == b.nodes[k].error);
+    }
+    hlod_btree_free(&a);
+    hlod_btree_free(&b);
+    hlod_image_free(&img);
+    hlod_mesh_free(&m);
+}
+
+int main(void)
+{
+    RUN(leaves_keep_area_and_cover_the_block);
+    RUN(siblings_share_boundaries);
+    RUN(counts_follow_factors_and_errors_bound);
+    RUN(small_block_is_one_node);
+    RUN(reproducible);
+    return check_done();
+}
