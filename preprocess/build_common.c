@@ -104,7 +104,7 @@ hlod_result hlod_node_error(const hlod_mesh *node, const hlod_mesh *original, do
     if (!node->tri_count || !original->tri_count)
         return HLOD_OK;
     double lower, upper;
-    hlod_result r = hlod_mesh_hausdorff_bound(node, original, 0.01, &lower, &upper);
+    hlod_result r = hlod_mesh_hausdorff_bound(node, original, 0.25, &lower, &upper);
     if (r == HLOD_OK)
         *error = upper;
     return r;

@@ -60,6 +60,11 @@ _Static_assert(sizeof(hlod_dgrid_tri) % 64 == 0, "hlod_dgrid_tri must fill whole
 
 /* ---- small vector helpers ---------------------------------------------- */
 
+/* min/max without fmin's NaN rules: libm calls otherwise, in the
+ * innermost loops (inputs here are finite, checked at the entry points). */
+static inline double dmin(double a, double b) { return a < b ? a : b; }
+static inline double dmax(double a, double b) { return a > b ? a : b; }
+
 static inline double dot3(const double a[3], const double b[3])
 {
     return a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
@@ -178,7 +183,7 @@ double hlod_dgrid_tri_dist2(const double p[3], const hlod_dgrid_tri *t)
         double d0 = seg_dist2(p, t->a, t->b);
         double d1 = seg_dist2(p, t->b, t->c);
         double d2 = seg_dist2(p, t->c, t->a);
-        return fmin(d0, fmin(d1, d2));
+        return dmin(d0, dmin(d1, d2));
     }
     if (t->inv_det == 0)
         return ericson_dist2(p, t);
@@ -203,9 +208,9 @@ double hlod_dgrid_tri_dist2(const double p[3], const hlod_dgrid_tri *t)
     if (w < 0)
         best = seg_dist2(p, t->a, t->b);
     if (v < 0)
-        best = fmin(best, seg_dist2(p, t->a, t->c));
+        best = dmin(best, seg_dist2(p, t->a, t->c));
     if (v + w > 1)
-        best = fmin(best, seg_dist2(p, t->b, t->c));
+        best = dmin(best, seg_dist2(p, t->b, t->c));
     return best;
 }
 
@@ -215,7 +220,7 @@ static double cells_for(const double ext[3], double h)
 {
     double n = 1;
     for (int k = 0; k < 3; k++)
-        n *= fmax(1.0, ceil(ext[k] / h));
+        n *= dmax(1.0, ceil(ext[k] / h));
     return n;
 }
 
@@ -268,8 +273,8 @@ static size_t insert_tri(hlod_dgrid *g, uint32_t ti, uint32_t *fill)
     const hlod_dgrid_tri *t = &g->tris[ti];
     int r0[3], r1[3];
     for (int k = 0; k < 3; k++) {
-        double vmin = fmin(t->a[k], fmin(t->b[k], t->c[k]));
-        double vmax = fmax(t->a[k], fmax(t->b[k], t->c[k]));
+        double vmin = dmin(t->a[k], dmin(t->b[k], t->c[k]));
+        double vmax = dmax(t->a[k], dmax(t->b[k], t->c[k]));
         cell_range(g, k, vmin, vmax, &r0[k], &r1[k]);
     }
     int single = r0[0] == r1[0] && r0[1] == r1[1] && r0[2] == r1[2];
@@ -326,8 +331,8 @@ hlod_result hlod_dgrid_build(hlod_dgrid *g, const double *positions, const uint3
             const double *v = positions + 3 * (size_t)indices[3 * i + j];
             for (int k = 0; k < 3; k++) {
                 dst[j][k] = v[k] - origin[k];
-                lo[k] = fmin(lo[k], dst[j][k]);
-                hi[k] = fmax(hi[k], dst[j][k]);
+                lo[k] = dmin(lo[k], dst[j][k]);
+                hi[k] = dmax(hi[k], dst[j][k]);
             }
         }
         double ab[3], ac[3], n[3];
@@ -375,7 +380,7 @@ hlod_result hlod_dgrid_build(hlod_dgrid *g, const double *positions, const uint3
         area += 0.5 * sqrt(dot3(n, n));
     }
     double h = sqrt(1.5 * TRIS_PER_CELL * area / (double)tri_count);
-    double target = fmin(MAX_CELLS_PER_TRI * (double)tri_count + 1.0, (double)MAX_CELLS);
+    double target = dmin(MAX_CELLS_PER_TRI * (double)tri_count + 1.0, (double)MAX_CELLS);
     double h_hi = sqrt(diag2);
     if (!(h_hi > 0)) {
         h = 1.0;    /* every corner at one point: one cell */
@@ -394,7 +399,7 @@ hlod_result hlod_dgrid_build(hlod_dgrid *g, const double *positions, const uint3
     g->inv_h = 1.0 / h;
     for (int k = 0; k < 3; k++) {
         g->lo[k] = lo[k];
-        g->n[k] = (int)fmax(1.0, ceil(ext[k] / h));
+        g->n[k] = (int)dmax(1.0, ceil(ext[k] / h));
     }
 
     size_t cells = (size_t)g->n[0] * (size_t)g->n[1] * (size_t)g->n[2];
@@ -521,6 +526,18 @@ static inline void test_cell(hlod_dgrid *g, const double p[3], size_t cell, doub
         sub3(ap, p, t->a);
         double s = dot3(t->n, ap);
         if (s * s > *best2 * (1 + 1e-12))
+            continue;
+        /* So does the distance to its bounding box: it rejects the
+         * coplanar neighbours on a facade, where the plane test cannot. */
+        double box2 = 0;
+        for (int k = 0; k < 3; k++) {
+            double lo = t->a[k] < t->b[k] ? t->a[k] : t->b[k], hi = t->a[k] < t->b[k] ? t->b[k] : t->a[k];
+            lo = t->c[k] < lo ? t->c[k] : lo;
+            hi = t->c[k] > hi ? t->c[k] : hi;
+            double e = p[k] < lo ? lo - p[k] : p[k] > hi ? p[k] - hi : 0;
+            box2 += e * e;
+        }
+        if (box2 > *best2 * (1 + 1e-12))
             continue;
         double d2 = hlod_dgrid_tri_dist2(p, t);
         if (d2 < *best2) {
@@ -872,7 +889,7 @@ hlod_result hlod_mesh_distance(const hlod_mesh *a, const hlod_mesh *b, size_t sa
     hlod_mesh_bounds(a, lo, hi);
     hlod_mesh_bounds(b, lo_b, hi_b);
     for (int k = 0; k < 3; k++)
-        origin[k] = 0.5 * (fmin(lo[k], lo_b[k]) + fmax(hi[k], hi_b[k]));
+        origin[k] = 0.5 * (dmin(lo[k], lo_b[k]) + dmax(hi[k], hi_b[k]));
 
     /* One grid at a time keeps the peak memory to the larger mesh's grid.
      * Each side draws from its own stream, so sampling a does not shift
@@ -902,7 +919,7 @@ hlod_result hlod_mesh_distance(const hlod_mesh *a, const hlod_mesh *b, size_t sa
     out->max_ba = sba.max;
     out->mean_ab = sab.n_area ? sab.sum_area / (double)sab.n_area : sab.sum_all / (double)sab.n_all;
     out->mean_ba = sba.n_area ? sba.sum_area / (double)sba.n_area : sba.sum_all / (double)sba.n_all;
-    out->max = fmax(out->max_ab, out->max_ba);
+    out->max = dmax(out->max_ab, out->max_ba);
     if (area_a + area_b > 0)
         out->mean = (out->mean_ab * area_a + out->mean_ba * area_b) / (area_a + area_b);
     else
@@ -960,7 +977,7 @@ static double subtri_upper(const hlod_dgrid *g, const subtri *t)
         if (d > l2)
             l2 = d;
     }
-    double best = fmax(t->f[0], fmax(t->f[1], t->f[2])) + sqrt(l2 / 3);
+    double best = dmax(t->f[0], dmax(t->f[1], t->f[2])) + sqrt(l2 / 3);
     for (int j = 0; j < 3; j++) {
         if (j && (t->near[j] == t->near[0] || (j == 2 && t->near[2] == t->near[1])))
             continue;
@@ -993,9 +1010,11 @@ static int ftri_desc(const void *p, const void *q)
 
 /* Branch and bound over the triangles of m: the distance is evaluated at
  * the corners, a triangle whose bound cannot beat the best value found (by
- * more than the tolerance) is dropped, the others are split in four. */
+ * more than the tolerance) is dropped, the others are split in four.
+ * known: a lower bound of the two-sided answer from the other side, so
+ * regions that cannot exceed it are dropped at once. */
 static hlod_result bound_side(const hlod_mesh *m, hlod_dgrid *g, const double origin[3], double rel_tol,
-                              double *lower, double *upper)
+                              double known, double *lower, double *upper)
 {
     size_t nv = m->vertex_count, nt = m->tri_count;
     double *fv = malloc((nv ? nv : 1) * sizeof *fv);
@@ -1005,7 +1024,7 @@ static hlod_result bound_side(const hlod_mesh *m, hlod_dgrid *g, const double or
     hlod_result r = HLOD_ERR_NOMEM;
     if (!fv || !nearv || !order)
         goto done;
-    double lb = 0, ub_left = 0;
+    double lb = known, ub_left = 0;
     for (size_t v = 0; v < nv; v++) {
         double p[3];
         for (int k = 0; k < 3; k++)
@@ -1014,7 +1033,7 @@ static hlod_result bound_side(const hlod_mesh *m, hlod_dgrid *g, const double or
     }
     for (size_t t = 0; t < nt; t++) {
         const uint32_t *ix = m->indices + 3 * t;
-        order[t].fmax = fmax(fv[ix[0]], fmax(fv[ix[1]], fv[ix[2]]));
+        order[t].fmax = dmax(fv[ix[0]], dmax(fv[ix[1]], fv[ix[2]]));
         order[t].t = (uint32_t)t;
         if (order[t].fmax > lb)
             lb = order[t].fmax;
@@ -1042,7 +1061,7 @@ static hlod_result bound_side(const hlod_mesh *m, hlod_dgrid *g, const double or
             if (ub <= lb * (1 + rel_tol))
                 continue;
             if (t.depth >= BOUND_MAX_DEPTH) {
-                ub_left = fmax(ub_left, ub);
+                ub_left = dmax(ub_left, ub);
                 continue;
             }
             double mid[3][3], fm[3];
@@ -1081,7 +1100,7 @@ static hlod_result bound_side(const hlod_mesh *m, hlod_dgrid *g, const double or
         }
     }
     *lower = lb;
-    *upper = fmax(lb * (1 + rel_tol), ub_left);
+    *upper = dmax(lb * (1 + rel_tol), ub_left);
     r = HLOD_OK;
 done:
     free(fv);
@@ -1106,24 +1125,28 @@ hlod_result hlod_mesh_hausdorff_bound(const hlod_mesh *a, const hlod_mesh *b, do
     hlod_mesh_bounds(a, lo, hi);
     hlod_mesh_bounds(b, lo_b, hi_b);
     for (int k = 0; k < 3; k++)
-        origin[k] = 0.5 * (fmin(lo[k], lo_b[k]) + fmax(hi[k], hi_b[k]));
+        origin[k] = 0.5 * (dmin(lo[k], lo_b[k]) + dmax(hi[k], hi_b[k]));
+    /* The finer mesh first: its small triangles rarely need splitting, so
+     * it yields a good lower bound cheaply, and that bound prunes most of
+     * the coarse mesh's large triangles on the way back. */
+    const hlod_mesh *first = a->tri_count >= b->tri_count ? a : b, *second = first == a ? b : a;
     hlod_dgrid g;
     double l1, u1, l2, u2;
-    r = hlod_dgrid_build(&g, b->positions, b->indices, b->tri_count, origin);
+    r = hlod_dgrid_build(&g, second->positions, second->indices, second->tri_count, origin);
     if (r != HLOD_OK)
         return r;
-    r = bound_side(a, &g, origin, rel_tol, &l1, &u1);
+    r = bound_side(first, &g, origin, rel_tol, 0, &l1, &u1);
     hlod_dgrid_free(&g);
     if (r != HLOD_OK)
         return r;
-    r = hlod_dgrid_build(&g, a->positions, a->indices, a->tri_count, origin);
+    r = hlod_dgrid_build(&g, first->positions, first->indices, first->tri_count, origin);
     if (r != HLOD_OK)
         return r;
-    r = bound_side(b, &g, origin, rel_tol, &l2, &u2);
+    r = bound_side(second, &g, origin, rel_tol, l1, &l2, &u2);
     hlod_dgrid_free(&g);
     if (r != HLOD_OK)
         return r;
-    *lower = fmax(l1, l2);
-    *upper = fmax(u1, u2);
+    *lower = dmax(l1, l2);
+    *upper = dmax(u1, u2);
     return HLOD_OK;
 }

@@ -1,0 +1,649 @@
+/*
+ * store_read.c - the store's validating reader (format: hlod/store.h).
+ *
+ * Nothing read from the file is trusted before it is checked: open reads the
+ * header, checks magic, byte order, version, record sizes and checksum, and
+ * that the file is exactly as long as the header says (so every truncation
+ * is caught here, before any payload read); then it reads the node table
+ * (whose size was bounded by the file size first, so a corrupt count cannot
+ * make us allocate more than the file), checks its checksum and every rule
+ * of hlod_store_validate.  A payload read allocates exactly the validated
+ * payload_size, hashes as it reads, and at finish checks the hash and
+ * parses with every count compared against the node table, so a payload
+ * whose bytes hash right but lie still cannot index past its arrays.
+ *
+ * The store is immutable after open and payload reads use pread on its file
+ * descriptor, so any thread may read any node at any time; each read keeps
+ * its own progress in its hlod_store_read.
+ */
+#define XXH_INLINE_ALL
+#include <xxhash.h>
+
+#include "hlod/store.h"
+
+#include <assert.h>
+#include <errno.h>
+#include <fcntl.h>
+#include <math.h>
+#include <stddef.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/stat.h>
+#include <unistd.h>
+
+/* The structs are the bytes on disk: no compiler padding, fixed offsets. */
+_Static_assert(sizeof(hlod_store_build_info) == 56, "build info layout");
+_Static_assert(sizeof(hlod_store_header) == 256, "header layout");
+_Static_assert(offsetof(hlod_store_header, build) == 136, "header layout");
+_Static_assert(offsetof(hlod_store_header, header_hash) == HLOD_STORE_HEADER_HASHED,
+               "header layout");
+_Static_assert(sizeof(hlod_store_node) == 192, "node layout");
+_Static_assert(offsetof(hlod_store_node, avg_normal) == 144, "node layout");
+_Static_assert(offsetof(hlod_store_node, payload_offset) == 160, "node layout");
+_Static_assert(sizeof(hlod_store_payload_header) == 64, "payload header layout");
+_Static_assert(sizeof(float) == 4 && sizeof(double) == 8, "IEEE 754 sizes");
+
+struct hlod_store {
+    int fd;
+    char *path;
+    hlod_logger logger;         /* copy; func may be NULL */
+    hlod_store_header header;
+    hlod_store_node *nodes;     /* node_count + 1 */
+};
+
+/* ---- shared helpers ---- */
+
+uint64_t hlod_store_hash(const void *data, size_t size)
+{
+    return (uint64_t)XXH3_64bits(data, size);
+}
+
+double hlod_store_cost(uint32_t tex_tris, uint32_t untex_tris, double c_tex)
+{
+    return (double)tex_tris * c_tex + (double)untex_tris * (1.0 - c_tex);
+}
+
+uint64_t hlod_store_payload_size(uint32_t flags, uint32_t vertex_count, uint32_t index_count,
+                                 uint32_t tex_width, uint32_t tex_height, uint32_t tex_channels)
+{
+    if (flags & ~HLOD_NODE_ALL_FLAGS)
+        return 0;
+    int textured = (flags & HLOD_NODE_TEXTURE) != 0;
+    if (textured) {
+        if (!(flags & HLOD_NODE_UVS) || tex_width == 0 || tex_height == 0 ||
+            tex_width > HLOD_STORE_MAX_TEXTURE || tex_height > HLOD_STORE_MAX_TEXTURE ||
+            tex_channels < 1 || tex_channels > 4)
+            return 0;
+    } else if (tex_width || tex_height || tex_channels) {
+        return 0;
+    }
+    /* counts are below 2^32 and the texture below 2^34 bytes: no overflow */
+    uint64_t v = vertex_count;
+    uint64_t size = sizeof(hlod_store_payload_header) + 12 * v + 4 * (uint64_t)index_count;
+    if (flags & HLOD_NODE_NORMALS)
+        size += 12 * v;
+    if (flags & HLOD_NODE_UVS)
+        size += 8 * v;
+    if (flags & HLOD_NODE_COLORS)
+        size += 4 * v;
+    if (textured)
+        size += (uint64_t)tex_width * tex_height * tex_channels;
+    return size;
+}
+
+static int finite3d(const double *v)
+{
+    return isfinite(v[0]) && isfinite(v[1]) && isfinite(v[2]);
+}
+
+static int is_zero(const void *p, size_t n)
+{
+    const uint8_t *b = p;
+    for (size_t i = 0; i < n; i++)
+        if (b[i])
+            return 0;
+    return 1;
+}
+
+/* ---- table validation ---- */
+
+typedef struct extent {
+    uint64_t begin, end;
+    uint32_t node;
+} extent;
+
+static int cmp_extent(const void *a, const void *b)
+{
+    const extent *x = a, *y = b;
+    return x->begin < y->begin ? -1 : x->begin > y->begin ? 1 : 0;
+}
+
+#define BAD(code, ...)                                  \
+    do {                                                \
+        hlod_logf(lg, HLOD_LOG_ERROR, __VA_ARGS__);     \
+        return (code);                                  \
+    } while (0)
+
+/* One node's own fields (everything but the links to other nodes). */
+static hlod_result check_node_fields(const hlod_store_header *h, const hlod_store_node *n,
+                                     uint32_t i, uint64_t file_size, const char *name,
+                                     const hlod_logger *lg)
+{
+    if (n->reserved0 || n->reserved1)
+        BAD(HLOD_ERR_FORMAT, "%s: node %u: reserved fields are not zero", name, i);
+    if (n->tri_count == 0)
+        BAD(HLOD_ERR_FORMAT, "%s: node %u: no triangles", name, i);
+    if (n->tri_count > UINT32_MAX / 3)
+        BAD(HLOD_ERR_FORMAT, "%s: node %u: %u triangles is too many", name, i, n->tri_count);
+    if ((uint64_t)n->tex_tri_count + n->untex_tri_count != n->tri_count)
+        BAD(HLOD_ERR_FORMAT, "%s: node %u: %u textured + %u untextured triangles != %u", name, i,
+            n->tex_tri_count, n->untex_tri_count, n->tri_count);
+    if (!(n->flags & HLOD_NODE_TEXTURE) && n->tex_tri_count)
+        BAD(HLOD_ERR_FORMAT, "%s: node %u: textured triangles but no texture", name, i);
+    if (n->vertex_count == 0)
+        BAD(HLOD_ERR_FORMAT, "%s: node %u: no vertices", name, i);
+    uint64_t want = hlod_store_payload_size(n->flags, n->vertex_count, 3 * n->tri_count,
+                                            n->tex_width, n->tex_height, n->tex_channels);
+    if (want == 0)
+        BAD(HLOD_ERR_FORMAT, "%s: node %u: impossible flags %#x or texture %ux%ux%u", name, i,
+            n->flags, n->tex_width, n->tex_height, n->tex_channels);
+    if (n->payload_size != want)
+        BAD(HLOD_ERR_FORMAT, "%s: node %u: payload is %llu bytes, its counts need %llu", name,
+            i, (unsigned long long)n->payload_size, (unsigned long long)want);
+    if (n->payload_offset % h->payload_align)
+        BAD(HLOD_ERR_FORMAT, "%s: node %u: payload offset %llu is not a multiple of %u", name,
+            i, (unsigned long long)n->payload_offset, h->payload_align);
+    if (n->payload_offset < h->header_size || n->payload_size > file_size ||
+        n->payload_offset > file_size - n->payload_size)
+        BAD(HLOD_ERR_FORMAT, "%s: node %u: payload [%llu, +%llu) lies outside the file's "
+            "payload area [%u, %llu)", name, i, (unsigned long long)n->payload_offset,
+            (unsigned long long)n->payload_size, h->header_size,
+            (unsigned long long)file_size);
+    uint64_t t0 = h->node_table_offset, t1 = t0 + h->node_table_size;
+    if (n->payload_offset < t1 && n->payload_offset + n->payload_size > t0)
+        BAD(HLOD_ERR_FORMAT, "%s: node %u: payload [%llu, +%llu) overlaps the node table",
+            name, i, (unsigned long long)n->payload_offset, (unsigned long long)n->payload_size);
+
+    if (!finite3d(n->bbox_min) || !finite3d(n->bbox_max) || !finite3d(n->origin) ||
+        !isfinite(n->cost) || !isfinite(n->static_benefit) || !isfinite(n->error) ||
+        !isfinite(n->avg_normal[0]) || !isfinite(n->avg_normal[1]) ||
+        !isfinite(n->avg_normal[2]))
+        BAD(HLOD_ERR_NAN, "%s: node %u: a non-finite number in box, origin, cost, benefit, "
+            "error or normal", name, i);
+    for (int k = 0; k < 3; k++)
+        if (n->bbox_min[k] > n->bbox_max[k])
+            BAD(HLOD_ERR_FORMAT, "%s: node %u: bounding box min > max on axis %d", name, i, k);
+    if (n->cost < 0 || n->static_benefit < 0 || n->error < 0)
+        BAD(HLOD_ERR_FORMAT, "%s: node %u: negative cost, benefit or error", name, i);
+    double cost = hlod_store_cost(n->tex_tri_count, n->untex_tri_count, h->build.c_tex);
+    if (fabs(n->cost - cost) > 1e-9 * (cost > 1 ? cost : 1))
+        BAD(HLOD_ERR_FORMAT, "%s: node %u: cost %.17g is not eq. 1's %.17g (c_tex %g)", name, i,
+            n->cost, cost, h->build.c_tex);
+    double len2 = (double)n->avg_normal[0] * n->avg_normal[0] +
+                  (double)n->avg_normal[1] * n->avg_normal[1] +
+                  (double)n->avg_normal[2] * n->avg_normal[2];
+    if (len2 != 0 && fabs(len2 - 1) > 1e-4)
+        BAD(HLOD_ERR_FORMAT, "%s: node %u: average normal is neither unit nor zero", name, i);
+    return HLOD_OK;
+}
+
+hlod_result hlod_store_validate(const hlod_store_header *h, const hlod_store_node *nodes,
+                                uint64_t file_size, const char *name, const hlod_logger *lg)
+{
+    assert(h && nodes);
+    if (!name)
+        name = "store";
+    const uint32_t n = h->node_count, roots = h->root_count;
+    if (n == 0 || roots == 0 || roots > n)
+        BAD(HLOD_ERR_FORMAT, "%s: %u roots for %u nodes", name, roots, n);
+    if (h->payload_align < HLOD_STORE_MIN_ALIGN || h->payload_align > HLOD_STORE_MAX_ALIGN ||
+        (h->payload_align & (h->payload_align - 1)))
+        BAD(HLOD_ERR_FORMAT, "%s: payload alignment %u is not a power of two in [%u, %u]", name,
+            h->payload_align, HLOD_STORE_MIN_ALIGN, HLOD_STORE_MAX_ALIGN);
+    if (!(h->build.c_tex >= 0 && h->build.c_tex <= 1))
+        BAD(HLOD_ERR_FORMAT, "%s: c_tex %g is not in [0, 1]", name, h->build.c_tex);
+
+    /* Sentinel: first_child = n, nothing else. */
+    hlod_store_node sentinel;
+    memset(&sentinel, 0, sizeof sentinel);
+    sentinel.first_child = n;
+    if (memcmp(&nodes[n], &sentinel, sizeof sentinel) != 0)
+        BAD(HLOD_ERR_FORMAT, "%s: the sentinel node %u is not {first_child = %u, zeros}", name,
+            n, n);
+    if (nodes[0].first_child != roots)
+        BAD(HLOD_ERR_FORMAT, "%s: node 0: children start at %u, not after the %u roots", name,
+            nodes[0].first_child, roots);
+
+    uint64_t payload_bytes = 0;
+    uint32_t max_depth = 0;
+    int textured = 0;
+    double lo[3] = {INFINITY, INFINITY, INFINITY}, hi[3] = {-INFINITY, -INFINITY, -INFINITY};
+    for (uint32_t i = 0; i < n; i++) {
+        const hlod_store_node *nd = &nodes[i];
+        hlod_result r = check_node_fields(h, nd, i, file_size, name, lg);
+        if (r != HLOD_OK)
+            return r;
+        uint32_t c0 = nd->first_child, c1 = nodes[i + 1].first_child;
+        /* Ranges tile [roots, n) in order: that makes each non-root the
+         * child of exactly one earlier node. */
+        if (c0 > c1 || c1 > n || c0 <= i)
+            BAD(HLOD_ERR_FORMAT, "%s: node %u: children [%u, %u) are not a range after it "
+                "inside the %u nodes", name, i, c0, c1, n);
+        if (i < roots) {
+            if (nd->parent != HLOD_STORE_NO_PARENT || nd->depth != 0 || nd->block != i)
+                BAD(HLOD_ERR_FORMAT, "%s: root %u: parent %u, depth %u, block %u (want none, "
+                    "0, %u)", name, i, nd->parent, nd->depth, nd->block, i);
+        }
+        for (uint32_t c = c0; c < c1; c++) {
+            const hlod_store_node *ch = &nodes[c];
+            if (ch->parent != i || ch->depth != nd->depth + 1 || ch->block != nd->block)
+                BAD(HLOD_ERR_FORMAT, "%s: node %u: parent %u, depth %u, block %u disagree with "
+                    "its place among node %u's children (depth %u, block %u)", name, c,
+                    ch->parent, ch->depth, ch->block, i, nd->depth, nd->block);
+            if (isfinite(ch->error) && ch->error > nd->error) /* NaN: caught below */
+                BAD(HLOD_ERR_FORMAT, "%s: node %u: error %.17g exceeds its parent %u's %.17g",
+                    name, c, ch->error, i, nd->error);
+        }
+        payload_bytes += nd->payload_size;
+        if (nd->depth > max_depth)
+            max_depth = nd->depth;
+        if (nd->flags & HLOD_NODE_TEXTURE)
+            textured = 1;
+        for (int k = 0; k < 3; k++) {
+            lo[k] = fmin(lo[k], nd->bbox_min[k]);
+            hi[k] = fmax(hi[k], nd->bbox_max[k]);
+        }
+    }
+
+    if (h->depth_count != max_depth + 1)
+        BAD(HLOD_ERR_FORMAT, "%s: header says %u depths, the tree has %u", name, h->depth_count,
+            max_depth + 1);
+    if (h->payload_bytes != payload_bytes)
+        BAD(HLOD_ERR_FORMAT, "%s: header says %llu payload bytes, the nodes hold %llu", name,
+            (unsigned long long)h->payload_bytes, (unsigned long long)payload_bytes);
+    if (((h->flags & HLOD_STORE_TEXTURED) != 0) != textured || (h->flags & ~HLOD_STORE_TEXTURED))
+        BAD(HLOD_ERR_FORMAT, "%s: header flags %#x disagree with the nodes", name, h->flags);
+    for (int k = 0; k < 3; k++)
+        if (h->bbox_min[k] != lo[k] || h->bbox_max[k] != hi[k])
+            BAD(HLOD_ERR_FORMAT, "%s: header bounding box is not the union of the nodes'", name);
+
+    /* Payloads must not overlap each other: sort by offset. */
+    extent *ex = malloc((size_t)n * sizeof *ex);
+    if (!ex)
+        return HLOD_ERR_NOMEM;
+    for (uint32_t i = 0; i < n; i++) {
+        ex[i].begin = nodes[i].payload_offset;
+        ex[i].end = nodes[i].payload_offset + nodes[i].payload_size;
+        ex[i].node = i;
+    }
+    qsort(ex, n, sizeof *ex, cmp_extent);
+    hlod_result r = HLOD_OK;
+    for (uint32_t i = 1; i < n; i++)
+        if (ex[i].begin < ex[i - 1].end) {
+            hlod_logf(lg, HLOD_LOG_ERROR, "%s: node %u: payload overlaps node %u's", name,
+                      ex[i].node, ex[i - 1].node);
+            r = HLOD_ERR_FORMAT;
+            break;
+        }
+    free(ex);
+    return r;
+}
+
+/* ---- open ---- */
+
+/* Reads exactly n bytes at off; 0 on success, else errno-style code (0 bytes
+ * at the end of the file gives EIO-like -1). */
+static int pread_all(int fd, void *buf, size_t n, uint64_t off)
+{
+    uint8_t *p = buf;
+    while (n) {
+        ssize_t k = pread(fd, p, n, (off_t)off);
+        if (k < 0) {
+            if (errno == EINTR)
+                continue;
+            return errno ? errno : EIO;
+        }
+        if (k == 0)
+            return -1;
+        p += k;
+        n -= (size_t)k;
+        off += (uint64_t)k;
+    }
+    return 0;
+}
+
+static hlod_result check_header(const hlod_store_header *h, uint64_t file_size, const char *name,
+                                const hlod_logger *lg)
+{
+    if (memcmp(h->magic, HLOD_STORE_MAGIC, 8) != 0)
+        BAD(HLOD_ERR_FORMAT, "%s: not an hlod store (bad magic)", name);
+    if (h->endian != HLOD_STORE_ENDIAN) {
+        if (h->endian == 0x04030201u)
+            BAD(HLOD_ERR_UNSUPPORTED, "%s: store has the other byte order", name);
+        BAD(HLOD_ERR_FORMAT, "%s: bad byte-order marker %#x", name, h->endian);
+    }
+    if (h->version != HLOD_STORE_VERSION)
+        BAD(HLOD_ERR_VERSION, "%s: store format version %u, this program reads version %u",
+            name, h->version, HLOD_STORE_VERSION);
+    if (h->header_size != sizeof(hlod_store_header) || h->node_size != sizeof(hlod_store_node))
+        BAD(HLOD_ERR_FORMAT, "%s: header/node record sizes %u/%u, expected %zu/%zu", name,
+            h->header_size, h->node_size, sizeof(hlod_store_header), sizeof(hlod_store_node));
+    if (hlod_store_hash(h, HLOD_STORE_HEADER_HASHED) != h->header_hash)
+        BAD(HLOD_ERR_CHECKSUM, "%s: header checksum mismatch", name);
+    if (h->file_size != file_size)
+        BAD(HLOD_ERR_FORMAT, "%s: file is %llu bytes, its header says %llu (truncated?)", name,
+            (unsigned long long)file_size, (unsigned long long)h->file_size);
+    if (h->reserved0 || h->build.reserved || !is_zero(h->reserved, sizeof h->reserved))
+        BAD(HLOD_ERR_FORMAT, "%s: reserved header fields are not zero", name);
+    if (h->node_count == 0 || h->node_count == UINT32_MAX)
+        BAD(HLOD_ERR_FORMAT, "%s: %u nodes", name, h->node_count);
+    uint64_t table = ((uint64_t)h->node_count + 1) * sizeof(hlod_store_node);
+    if (h->node_table_size != table)
+        BAD(HLOD_ERR_FORMAT, "%s: node table is %llu bytes, %u nodes need %llu", name,
+            (unsigned long long)h->node_table_size, h->node_count, (unsigned long long)table);
+    if (h->node_table_offset < h->header_size || table > file_size ||
+        h->node_table_offset > file_size - table)
+        BAD(HLOD_ERR_FORMAT, "%s: node table [%llu, +%llu) lies outside the file (%llu bytes)",
+            name, (unsigned long long)h->node_table_offset, (unsigned long long)table,
+            (unsigned long long)file_size);
+    if (h->build.method > HLOD_STORE_METHOD_METIS)
+        BAD(HLOD_ERR_FORMAT, "%s: unknown build method %u", name, h->build.method);
+    if (!isfinite(h->build.level_factor) || h->build.level_factor < 0 ||
+        !finite3d(h->bbox_min) || !finite3d(h->bbox_max))
+        BAD(HLOD_ERR_NAN, "%s: a non-finite number in the header", name);
+    return HLOD_OK;
+}
+
+hlod_result hlod_store_open(const char *path, const hlod_logger *lg_in, hlod_store **out)
+{
+    if (!out)
+        return HLOD_ERR_INVALID_ARG;
+    *out = NULL;
+    if (!path)
+        return HLOD_ERR_INVALID_ARG;
+    hlod_store *s = calloc(1, sizeof *s);
+    if (!s)
+        return HLOD_ERR_NOMEM;
+    s->fd = -1;
+    if (lg_in)
+        s->logger = *lg_in;
+    const hlod_logger *lg = &s->logger;
+    hlod_result r = HLOD_ERR_NOMEM;
+    size_t plen = strlen(path);
+    s->path = malloc(plen + 1);
+    if (!s->path)
+        goto fail;
+    memcpy(s->path, path, plen + 1);
+
+    s->fd = open(path, O_RDONLY | O_CLOEXEC);
+    struct stat st;
+    if (s->fd < 0 || fstat(s->fd, &st) != 0) {
+        hlod_logf(lg, HLOD_LOG_ERROR, "%s: cannot open: %s", path, strerror(errno));
+        r = HLOD_ERR_IO;
+        goto fail;
+    }
+    if (!S_ISREG(st.st_mode)) {
+        hlod_logf(lg, HLOD_LOG_ERROR, "%s: not a regular file", path);
+        r = HLOD_ERR_IO;
+        goto fail;
+    }
+    uint64_t file_size = (uint64_t)st.st_size;
+    if (file_size < sizeof(hlod_store_header)) {
+        hlod_logf(lg, HLOD_LOG_ERROR, "%s: %llu bytes is shorter than a store header (%zu)",
+                  path, (unsigned long long)file_size, sizeof(hlod_store_header));
+        r = HLOD_ERR_FORMAT;
+        goto fail;
+    }
+    int e = pread_all(s->fd, &s->header, sizeof s->header, 0);
+    if (e) {
+        hlod_logf(lg, HLOD_LOG_ERROR, "%s: cannot read the header: %s", path,
+                  e > 0 ? strerror(e) : "unexpected end of file");
+        r = HLOD_ERR_IO;
+        goto fail;
+    }
+    r = check_header(&s->header, file_size, path, lg);
+    if (r != HLOD_OK)
+        goto fail;
+
+    /* Bounded by the file size in check_header. */
+    size_t table = (size_t)s->header.node_table_size;
+    s->nodes = malloc(table);
+    if (!s->nodes) {
+        r = HLOD_ERR_NOMEM;
+        goto fail;
+    }
+    e = pread_all(s->fd, s->nodes, table, s->header.node_table_offset);
+    if (e) {
+        hlod_logf(lg, HLOD_LOG_ERROR, "%s: cannot read the node table: %s", path,
+                  e > 0 ? strerror(e) : "unexpected end of file");
+        r = HLOD_ERR_IO;
+        goto fail;
+    }
+    if (hlod_store_hash(s->nodes, table) != s->header.node_table_hash) {
+        hlod_logf(lg, HLOD_LOG_ERROR, "%s: node table checksum mismatch", path);
+        r = HLOD_ERR_CHECKSUM;
+        goto fail;
+    }
+    r = hlod_store_validate(&s->header, s->nodes, file_size, path, lg);
+    if (r != HLOD_OK)
+        goto fail;
+    *out = s;
+    return HLOD_OK;
+fail:
+    hlod_store_close(s);
+    return r;
+}
+
+void hlod_store_close(hlod_store *s)
+{
+    if (!s)
+        return;
+    if (s->fd >= 0)
+        close(s->fd);
+    free(s->nodes);
+    free(s->path);
+    free(s);
+}
+
+const hlod_store_header *hlod_store_get_header(const hlod_store *s) { return &s->header; }
+const hlod_store_node *hlod_store_nodes(const hlod_store *s) { return s->nodes; }
+uint32_t hlod_store_node_count(const hlod_store *s) { return s->header.node_count; }
+uint32_t hlod_store_root_count(const hlod_store *s) { return s->header.root_count; }
+const char *hlod_store_path(const hlod_store *s) { return s->path; }
+
+/* ---- payload reads ---- */
+
+void hlod_store_payload_free(hlod_store_payload *p)
+{
+    if (!p)
+        return;
+    free(p->memory);
+    memset(p, 0, sizeof *p);
+}
+
+/* called from the loader thread (or any one thread owning rd) */
+hlod_result hlod_store_read_begin(const hlod_store *s, uint32_t node, hlod_store_read *rd)
+{
+    if (!rd)
+        return HLOD_ERR_INVALID_ARG;
+    memset(rd, 0, sizeof *rd);
+    if (!s || node >= s->header.node_count)
+        return HLOD_ERR_INVALID_ARG;
+    const hlod_store_node *n = &s->nodes[node];
+    rd->store = s;
+    rd->node = node;
+    rd->size = n->payload_size;     /* validated: inside the file */
+    rd->buf = malloc((size_t)rd->size);
+    XXH3_state_t *st = XXH3_createState();
+    if (!rd->buf || !st || XXH3_64bits_reset(st) != XXH_OK) {
+        XXH3_freeState(st);
+        hlod_store_read_cancel(rd);
+        return HLOD_ERR_NOMEM;
+    }
+    rd->hash_state = st;
+    return HLOD_OK;
+}
+
+/* called from the thread owning rd; one pread of at most max_bytes */
+hlod_result hlod_store_read_step(hlod_store_read *rd, size_t max_bytes, int *complete)
+{
+    if (!rd || !rd->store || !rd->buf || max_bytes == 0)
+        return HLOD_ERR_INVALID_ARG;
+    const hlod_store *s = rd->store;
+    const hlod_logger *lg = &s->logger;
+    uint64_t left = rd->size - rd->done;
+    if (left) {
+        size_t want = left < max_bytes ? (size_t)left : max_bytes;
+        uint64_t off = s->nodes[rd->node].payload_offset + rd->done;
+        ssize_t k;
+        do
+            k = pread(s->fd, rd->buf + rd->done, want, (off_t)off);
+        while (k < 0 && errno == EINTR);
+        if (k <= 0) {
+            hlod_logf(lg, HLOD_LOG_ERROR, "%s: node %u: cannot read payload at offset %llu: %s",
+                      s->path, rd->node, (unsigned long long)off,
+                      k < 0 ? strerror(errno) : "unexpected end of file (file shrank?)");
+            return HLOD_ERR_IO;
+        }
+        if (XXH3_64bits_update(rd->hash_state, rd->buf + rd->done, (size_t)k) != XXH_OK)
+            return HLOD_ERR_INVALID_ARG;
+        rd->done += (uint64_t)k;
+    }
+    if (complete)
+        *complete = rd->done == rd->size;
+    return HLOD_OK;
+}
+
+void hlod_store_read_cancel(hlod_store_read *rd)
+{
+    if (!rd)
+        return;
+    free(rd->buf);
+    XXH3_freeState(rd->hash_state);
+    memset(rd, 0, sizeof *rd);
+}
+
+static int finite_floats(const float *v, size_t n)
+{
+    for (size_t i = 0; i < n; i++)
+        if (!isfinite(v[i]))
+            return 0;
+    return 1;
+}
+
+/* Parses buf (size bytes, hash verified) against node n into *p. */
+static hlod_result parse_payload(const hlod_store *s, uint32_t node, uint8_t *buf, uint64_t size,
+                                 hlod_store_payload *p)
+{
+    const hlod_logger *lg = &s->logger;
+    const hlod_store_node *n = &s->nodes[node];
+    const char *name = s->path;
+    hlod_store_payload_header ph;
+    if (size < sizeof ph)
+        BAD(HLOD_ERR_FORMAT, "%s: node %u: payload shorter than its header", name, node);
+    memcpy(&ph, buf, sizeof ph);
+    if (memcmp(ph.magic, HLOD_PAYLOAD_MAGIC, 4) != 0 || !is_zero(ph.reserved, sizeof ph.reserved))
+        BAD(HLOD_ERR_FORMAT, "%s: node %u: bad payload header", name, node);
+    if (ph.flags != n->flags || ph.vertex_count != n->vertex_count ||
+        ph.index_count != 3 * (uint64_t)n->tri_count || ph.tex_tri_count != n->tex_tri_count ||
+        ph.tex_width != n->tex_width || ph.tex_height != n->tex_height ||
+        ph.tex_channels != n->tex_channels)
+        BAD(HLOD_ERR_FORMAT, "%s: node %u: payload counts disagree with the node table", name,
+            node);
+    if (hlod_store_payload_size(ph.flags, ph.vertex_count, ph.index_count, ph.tex_width,
+                                ph.tex_height, ph.tex_channels) != size)
+        BAD(HLOD_ERR_FORMAT, "%s: node %u: payload size disagrees with its counts", name, node);
+
+    size_t v = ph.vertex_count, off = sizeof ph;
+    memset(p, 0, sizeof *p);
+    p->node = node;
+    p->flags = ph.flags;
+    p->vertex_count = ph.vertex_count;
+    p->index_count = ph.index_count;
+    p->tex_tri_count = ph.tex_tri_count;
+    p->tex_width = ph.tex_width;
+    p->tex_height = ph.tex_height;
+    p->tex_channels = ph.tex_channels;
+    /* Sections are 4-byte aligned in a malloc'ed buffer: used in place. */
+    p->positions = (const float *)(buf + off);
+    off += 12 * v;
+    if (ph.flags & HLOD_NODE_NORMALS) {
+        p->normals = (const float *)(buf + off);
+        off += 12 * v;
+    }
+    if (ph.flags & HLOD_NODE_UVS) {
+        p->uvs = (const float *)(buf + off);
+        off += 8 * v;
+    }
+    if (ph.flags & HLOD_NODE_COLORS) {
+        p->colors = buf + off;
+        off += 4 * v;
+    }
+    p->indices = (const uint32_t *)(buf + off);
+    off += 4 * (size_t)ph.index_count;
+    if (ph.flags & HLOD_NODE_TEXTURE)
+        p->pixels = buf + off;
+
+    if (!finite_floats(p->positions, 3 * v) || (p->normals && !finite_floats(p->normals, 3 * v)) ||
+        (p->uvs && !finite_floats(p->uvs, 2 * v))) {
+        memset(p, 0, sizeof *p);
+        BAD(HLOD_ERR_NAN, "%s: node %u: non-finite vertex data", name, node);
+    }
+    for (size_t i = 0; i < ph.index_count; i++)
+        if (p->indices[i] >= ph.vertex_count) {
+            uint32_t bad = p->indices[i];
+            memset(p, 0, sizeof *p);
+            BAD(HLOD_ERR_INDEX_RANGE, "%s: node %u: index %zu is %u, vertex count %u", name,
+                node, i, bad, ph.vertex_count);
+        }
+    p->memory = buf;
+    p->bytes = (size_t)size;
+    return HLOD_OK;
+}
+
+/* called from the thread owning rd */
+hlod_result hlod_store_read_finish(hlod_store_read *rd, hlod_store_payload *out)
+{
+    if (!out) {
+        hlod_store_read_cancel(rd);
+        return HLOD_ERR_INVALID_ARG;
+    }
+    memset(out, 0, sizeof *out);
+    if (!rd || !rd->store || !rd->buf)
+        return HLOD_ERR_INVALID_ARG;
+    const hlod_store *s = rd->store;
+    hlod_result r;
+    if (rd->done != rd->size) {
+        hlod_logf(&s->logger, HLOD_LOG_ERROR, "%s: node %u: finish before the payload was read",
+                  s->path, rd->node);
+        r = HLOD_ERR_INVALID_ARG;
+    } else if ((uint64_t)XXH3_64bits_digest(rd->hash_state) != s->nodes[rd->node].payload_hash) {
+        hlod_logf(&s->logger, HLOD_LOG_ERROR, "%s: node %u: payload checksum mismatch",
+                  s->path, rd->node);
+        r = HLOD_ERR_CHECKSUM;
+    } else {
+        r = parse_payload(s, rd->node, rd->buf, rd->size, out);
+        if (r == HLOD_OK)
+            rd->buf = NULL;     /* moved into *out */
+    }
+    hlod_store_read_cancel(rd);
+    return r;
+}
+
+hlod_result hlod_store_read_node(const hlod_store *s, uint32_t node, size_t max_bytes,
+                                 hlod_store_payload *out)
+{
+    if (!out)
+        return HLOD_ERR_INVALID_ARG;
+    memset(out, 0, sizeof *out);
+    hlod_store_read rd;
+    hlod_result r = hlod_store_read_begin(s, node, &rd);
+    int complete = 0;
+    while (r == HLOD_OK && !complete)
+        r = hlod_store_read_step(&rd, max_bytes ? max_bytes : 65536, &complete);
+    if (r != HLOD_OK) {
+        hlod_store_read_cancel(&rd);
+        return r;
+    }
+    return hlod_store_read_finish(&rd, out);
+}

@@ -1,0 +1,303 @@
+/*
+ * store.h - the HLOD store: one file holding a whole hierarchy, its format
+ * and its validating reader.  The one header both preprocess/ (which writes
+ * stores, see store_write.h) and engine/ (which reads them) include.
+ *
+ * File layout (all integers and floats little-endian, IEEE 754; the structs
+ * below are the bytes on disk, without implicit padding):
+ *
+ *   [0, 256)                hlod_store_header
+ *   [256, align)            zero padding
+ *   payloads                one per node, each at a multiple of
+ *                           header.payload_align (4096 by default), in the
+ *                           order the builder produced them, zero padding
+ *                           between them
+ *   node table              (node_count + 1) hlod_store_node records: the
+ *                           nodes in breadth-first order, then a sentinel
+ *
+ * The node table comes last because the builder knows it only when every
+ * payload has been written: payloads stream to the file as they are made, so
+ * a store may be larger than RAM, and the header is written at the end.
+ *
+ * Tree rule (Nexus style): node_count nodes, breadth-first, the root_count
+ * hlod_0 nodes first (root b is block b).  The children of node i are the
+ * nodes [nodes[i].first_child, nodes[i + 1].first_child); node i is a leaf
+ * when the range is empty.  nodes[node_count] is the sentinel: first_child =
+ * node_count, every other byte zero.  Hence nodes[0].first_child =
+ * root_count, first_child never decreases, and the ranges tile
+ * [root_count, node_count) so every non-root node has exactly one parent.
+ * A child has depth parent.depth + 1 and the parent's block.
+ *
+ * Payload layout (offsets from the payload's first byte):
+ *   hlod_store_payload_header (64 bytes)
+ *   float    positions[3 * vertex_count]   relative to the node's origin
+ *   float    normals[3 * vertex_count]     if HLOD_NODE_NORMALS
+ *   float    uvs[2 * vertex_count]         if HLOD_NODE_UVS
+ *   uint8_t  colors[4 * vertex_count]      if HLOD_NODE_COLORS (RGBA, sRGB)
+ *   uint32_t indices[index_count]          triangles, counter-clockwise front;
+ *                                          the first tex_tri_count triangles
+ *                                          use the texture, the rest do not
+ *   uint8_t  pixels[w * h * channels]      if HLOD_NODE_TEXTURE: 8-bit,
+ *                                          row-major, top row first (as
+ *                                          hlod_image), UVs as in the source
+ * Every section starts 4-byte aligned, so a payload read into malloc'ed
+ * memory is used in place (zero copy).  payload_size is exactly the sum of
+ * these sections; the padding after it belongs to no checksum and carries
+ * nothing.
+ *
+ * Checksums: XXH3-64 (seed 0, libxxhash) over the header's first 248 bytes,
+ * over the whole node table (sentinel included) and over each payload.
+ * xxHash because Debian ships it (setup.sh installs libxxhash-dev), it hashes
+ * at memory speed (so the loader thread spends its time on I/O, not on
+ * CRC tables) and its 64 bits make a missed corruption practically
+ * impossible.  It is compiled header-only into store_read.c.
+ *
+ * Reader threads: hlod_store_open() is called once; afterwards the store is
+ * immutable, so any number of threads may read payloads from one store at
+ * once, each with its own hlod_store_read (reads are pread() on one file
+ * descriptor, no shared file position).  Two stores opened on one file are
+ * independent.
+ */
+#ifndef HLOD_STORE_H
+#define HLOD_STORE_H
+
+#include "hlod/hlod.h"
+
+#ifdef __cplusplus
+extern "C" {
+#endif
+
+/* ---- format ---- */
+
+#define HLOD_STORE_MAGIC "HLODSTOR"     /* 8 bytes, no terminator on disk */
+#define HLOD_STORE_VERSION 1u
+#define HLOD_STORE_ENDIAN 0x01020304u   /* read back as 0x04030201: wrong byte order */
+#define HLOD_STORE_DEFAULT_ALIGN 4096u
+#define HLOD_STORE_MIN_ALIGN 64u
+#define HLOD_STORE_MAX_ALIGN (1u << 20)
+#define HLOD_STORE_NO_PARENT 0xffffffffu
+#define HLOD_STORE_MAX_TEXTURE 65536u   /* width and height limit */
+
+/* header.flags */
+#define HLOD_STORE_TEXTURED 1u          /* some node has a texture */
+
+/* header.method: how the hierarchy was partitioned */
+#define HLOD_STORE_METHOD_OTHER 0u
+#define HLOD_STORE_METHOD_CUTPLANE 1u   /* Lakhia III-A */
+#define HLOD_STORE_METHOD_METIS 2u      /* Okamoto 4.1 */
+
+/* The build parameters, recorded so tools can show how a store was made
+ * (SPEC section 2).  Zero where the method does not use one. */
+typedef struct hlod_store_build_info {
+    uint32_t method;        /* HLOD_STORE_METHOD_* */
+    uint32_t reserved;      /* 0 */
+    uint64_t desired_tris;  /* C_desiredTri: triangles of each hlod_0 node */
+    double level_factor;    /* C_levelFactor */
+    uint64_t voxel_tris;    /* N_v */
+    uint64_t leaf_tris;     /* N_l */
+    uint64_t node_tris;     /* N_n */
+    double c_tex;           /* c_tex of eq. 1, in [0, 1] */
+} hlod_store_build_info;   /* 56 bytes */
+
+typedef struct hlod_store_header {
+    char magic[8];              /*   0 HLOD_STORE_MAGIC */
+    uint32_t version;           /*   8 HLOD_STORE_VERSION */
+    uint32_t endian;            /*  12 HLOD_STORE_ENDIAN */
+    uint32_t header_size;       /*  16 sizeof(hlod_store_header) = 256 */
+    uint32_t node_size;         /*  20 sizeof(hlod_store_node) = 192 */
+    uint32_t flags;             /*  24 HLOD_STORE_TEXTURED */
+    uint32_t node_count;        /*  28 nodes, sentinel excluded, >= 1 */
+    uint32_t root_count;        /*  32 hlod_0 nodes = blocks, >= 1 */
+    uint32_t depth_count;       /*  36 deepest depth + 1 */
+    uint32_t payload_align;     /*  40 power of two in [64, 1 MiB] */
+    uint32_t reserved0;         /*  44 0 */
+    uint64_t file_size;         /*  48 bytes in the file */
+    uint64_t node_table_offset; /*  56 */
+    uint64_t node_table_size;   /*  64 (node_count + 1) * node_size */
+    uint64_t node_table_hash;   /*  72 XXH3-64 of the node table */
+    uint64_t payload_bytes;     /*  80 sum of payload_size */
+    double bbox_min[3];         /*  88 union of the node boxes, model units */
+    double bbox_max[3];         /* 112 */
+    hlod_store_build_info build; /* 136 */
+    uint8_t reserved[56];       /* 192 zero */
+    uint64_t header_hash;       /* 248 XXH3-64 of bytes [0, 248) */
+} hlod_store_header;
+
+/* header_hash covers the header up to itself. */
+#define HLOD_STORE_HEADER_HASHED 248u
+
+/* node.flags: which payload sections exist */
+#define HLOD_NODE_NORMALS 1u
+#define HLOD_NODE_UVS 2u
+#define HLOD_NODE_COLORS 4u
+#define HLOD_NODE_TEXTURE 8u    /* requires HLOD_NODE_UVS */
+#define HLOD_NODE_ALL_FLAGS 15u
+
+typedef struct hlod_store_node {
+    uint32_t first_child;       /*   0 see the tree rule above */
+    uint32_t parent;            /*   4 HLOD_STORE_NO_PARENT for roots */
+    uint32_t depth;             /*   8 0 for roots (hlod_0) */
+    uint32_t block;             /*  12 the root's index */
+    uint32_t flags;             /*  16 HLOD_NODE_* */
+    uint32_t vertex_count;      /*  20 */
+    uint32_t tri_count;         /*  24 >= 1; = tex_tri_count + untex_tri_count */
+    uint32_t tex_tri_count;     /*  28 textured triangles (stored first) */
+    uint32_t untex_tri_count;   /*  32 */
+    uint32_t tex_width;         /*  36 texture size; all 0 when untextured */
+    uint32_t tex_height;        /*  40 */
+    uint32_t tex_channels;      /*  44 1..4 */
+    double bbox_min[3];         /*  48 world coordinates, model units */
+    double bbox_max[3];         /*  72 */
+    double origin[3];           /*  96 payload positions are relative to it */
+    double cost;                /* 120 Lakhia eq. 1 with header.build.c_tex */
+    double static_benefit;      /* 128 Lakhia eq. 2: sqrt(numTri * sum(area)) */
+    double error;               /* 136 geometric error, model units; a node's
+                                   error is >= each child's */
+    float avg_normal[3];        /* 144 Lakhia eq. 3 (unit, or 0 when the
+                                   area-weighted normals cancel out) */
+    uint32_t reserved0;         /* 156 0 */
+    uint64_t payload_offset;    /* 160 multiple of payload_align */
+    uint64_t payload_size;      /* 168 exact bytes, see the payload layout */
+    uint64_t payload_hash;      /* 176 XXH3-64 of the payload */
+    uint64_t reserved1;         /* 184 0 */
+} hlod_store_node;
+
+#define HLOD_PAYLOAD_MAGIC "HLPL"
+
+typedef struct hlod_store_payload_header {
+    char magic[4];              /*  0 HLOD_PAYLOAD_MAGIC */
+    uint32_t flags;             /*  4 = node.flags */
+    uint32_t vertex_count;      /*  8 = node.vertex_count */
+    uint32_t index_count;       /* 12 = 3 * node.tri_count */
+    uint32_t tex_tri_count;     /* 16 = node.tex_tri_count */
+    uint32_t tex_width;         /* 20 = node.tex_width ... */
+    uint32_t tex_height;        /* 24 */
+    uint32_t tex_channels;      /* 28 */
+    uint32_t reserved[8];       /* 32 zero */
+} hlod_store_payload_header;
+
+/* Children of node i: [hlod_store_first_child(n, i), hlod_store_child_end(n, i)). */
+static inline uint32_t hlod_store_first_child(const hlod_store_node *nodes, uint32_t i)
+{
+    return nodes[i].first_child;
+}
+static inline uint32_t hlod_store_child_end(const hlod_store_node *nodes, uint32_t i)
+{
+    return nodes[i + 1].first_child;
+}
+
+/* Bytes of a payload with these counts (header included); 0 when the counts
+ * are impossible (texture over HLOD_STORE_MAX_TEXTURE, channels > 4, flags
+ * inconsistent). */
+uint64_t hlod_store_payload_size(uint32_t flags, uint32_t vertex_count, uint32_t index_count,
+                                 uint32_t tex_width, uint32_t tex_height, uint32_t tex_channels);
+
+/* The store's checksum: XXH3-64, seed 0.  Reentrant. */
+uint64_t hlod_store_hash(const void *data, size_t size);
+
+/* Lakhia eq. 1: numTexTri * c_tex + numUnTexTri * (1 - c_tex). */
+double hlod_store_cost(uint32_t tex_tris, uint32_t untex_tris, double c_tex);
+
+/* Checks a header and node table against every rule of this file (the tree
+ * rule, field ranges, finite numbers, eq. 1, error monotone up the tree,
+ * payloads aligned, inside the file, off the header and table and not
+ * overlapping each other, header totals).  Checksums are not checked here.
+ * nodes holds header->node_count + 1 records.  The first problem is logged
+ * through lg prefixed with `name`.  Returns HLOD_OK, HLOD_ERR_FORMAT,
+ * HLOD_ERR_NAN or HLOD_ERR_NOMEM.  Used by the reader at open and by the
+ * writer before it commits a store.  O(n log n), reentrant. */
+hlod_result hlod_store_validate(const hlod_store_header *h, const hlod_store_node *nodes,
+                                uint64_t file_size, const char *name, const hlod_logger *lg);
+
+/* ---- reader ---- */
+
+typedef struct hlod_store hlod_store;
+
+/* Opens and validates a store: header (magic, endianness, version, sizes,
+ * checksum, file size), then the node table (checksum and
+ * hlod_store_validate).  Payloads are checked when read.  lg is copied and
+ * used for this call and for later payload reads from any thread (so its
+ * callback must be thread safe when several threads read); it may be NULL.
+ * Results: HLOD_ERR_IO (cannot open/read), HLOD_ERR_FORMAT (not a store,
+ * truncated, inconsistent), HLOD_ERR_VERSION, HLOD_ERR_UNSUPPORTED (byte
+ * order), HLOD_ERR_CHECKSUM, HLOD_ERR_NAN, HLOD_ERR_NOMEM.  Costs one
+ * header read and one node-table read.  *out is NULL on failure. */
+hlod_result hlod_store_open(const char *path, const hlod_logger *lg, hlod_store **out);
+void hlod_store_close(hlod_store *s);   /* s may be NULL; no reads may be in flight */
+
+/* Read-only views, valid until hlod_store_close.  nodes has node_count + 1
+ * records (the sentinel last).  Any thread. */
+const hlod_store_header *hlod_store_get_header(const hlod_store *s);
+const hlod_store_node *hlod_store_nodes(const hlod_store *s);
+uint32_t hlod_store_node_count(const hlod_store *s);
+uint32_t hlod_store_root_count(const hlod_store *s);
+const char *hlod_store_path(const hlod_store *s);
+
+/* A node's payload in memory, ready to upload: one allocation (memory, bytes)
+ * holding the payload as stored; the pointers point into it.  Owned by
+ * whoever received it; free with hlod_store_payload_free() from any thread. */
+typedef struct hlod_store_payload {
+    uint32_t node;
+    uint32_t flags;             /* HLOD_NODE_* */
+    uint32_t vertex_count, index_count, tex_tri_count;
+    uint32_t tex_width, tex_height, tex_channels;
+    const float *positions;     /* 3 * vertex_count, relative to nodes[node].origin */
+    const float *normals;       /* 3 * vertex_count or NULL */
+    const float *uvs;           /* 2 * vertex_count or NULL */
+    const uint8_t *colors;      /* 4 * vertex_count or NULL */
+    const uint32_t *indices;    /* index_count, each < vertex_count */
+    const uint8_t *pixels;      /* w * h * channels or NULL */
+    void *memory;
+    size_t bytes;
+} hlod_store_payload;
+
+void hlod_store_payload_free(hlod_store_payload *p);   /* p may be zeroed */
+
+/* An incremental payload read, owned by one thread at a time (the loader).
+ * Usage:
+ *     hlod_store_read rd;
+ *     hlod_store_read_begin(s, node, &rd);
+ *     while (!rd_complete) hlod_store_read_step(&rd, 65536, &rd_complete);
+ *     hlod_store_read_finish(&rd, &payload);
+ * Each step reads at most max_bytes with one pread and hashes them; the
+ * bytes read stay read, so a read may be left for another node's read and
+ * resumed later without re-reading.  A read that is not finished must be
+ * cancelled.  Fields are read-only to the caller. */
+typedef struct hlod_store_read {
+    const hlod_store *store;
+    uint32_t node;
+    uint64_t size;              /* payload bytes */
+    uint64_t done;              /* bytes read so far */
+    uint8_t *buf;               /* size bytes, owned by the read */
+    void *hash_state;           /* XXH3 streaming state */
+} hlod_store_read;
+
+/* Allocates the payload buffer (payload_size bytes, validated at open to
+ * lie inside the file).  HLOD_ERR_INVALID_ARG for a bad node index,
+ * HLOD_ERR_NOMEM.  On failure rd is zeroed. */
+hlod_result hlod_store_read_begin(const hlod_store *s, uint32_t node, hlod_store_read *rd);
+
+/* Reads up to max_bytes (>= 1) more; *complete becomes non-zero when all
+ * bytes are in.  HLOD_ERR_IO on a read error or when the file ended early
+ * (it shrank after open).  After an error the read must be cancelled. */
+hlod_result hlod_store_read_step(hlod_store_read *rd, size_t max_bytes, int *complete);
+
+/* Verifies the checksum (HLOD_ERR_CHECKSUM), then parses: header and counts
+ * against the node table, sizes, flags (HLOD_ERR_FORMAT), finite positions,
+ * normals and UVs (HLOD_ERR_NAN), indices < vertex_count
+ * (HLOD_ERR_INDEX_RANGE).  On success the buffer moves into *out (zero
+ * copy); on failure it is freed and *out zeroed.  Either way rd ends zeroed.
+ * O(payload size). */
+hlod_result hlod_store_read_finish(hlod_store_read *rd, hlod_store_payload *out);
+
+/* Abandons a read and frees its buffer (rd may be zeroed). */
+void hlod_store_read_cancel(hlod_store_read *rd);
+
+/* begin + steps of max_bytes + finish, for tools and tests. */
+hlod_result hlod_store_read_node(const hlod_store *s, uint32_t node, size_t max_bytes,
+                                 hlod_store_payload *out);
+
+#ifdef __cplusplus
+}
+#endif
+#endif

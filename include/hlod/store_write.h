@@ -1,0 +1,108 @@
+/*
+ * store_write.h - writing an HLOD store (format: store.h).  Preprocess side.
+ *
+ * A builder makes nodes in any order, on any number of threads, and knows
+ * the final tree only at the end.  So:
+ *
+ *   hlod_store_writer *w;
+ *   hlod_store_writer_open("city.hlod", &desc, &w);
+ *   // any thread, any order, as each node's mesh is ready:
+ *   hlod_store_writer_add(w, &payload, &my_nodes[k]);   // fills my_nodes[k]
+ *   // the owner, after every add has returned:
+ *   my_nodes[k].parent = index of k's parent in my_nodes, or HLOD_STORE_NO_PARENT;
+ *   my_nodes[k].block = block id (roots only; 0 .. blocks-1, one root each);
+ *   my_nodes[k].error = geometric error (>= each child's);
+ *   hlod_store_writer_finish(w, my_nodes, count, final_index);  // or _abort(w)
+ *
+ * Each payload is written to the file as soon as it is added (pwrite at an
+ * offset reserved under a mutex), so memory holds one payload per adding
+ * thread and a small record per node: a store may be larger than RAM.
+ * finish puts the nodes in breadth-first order, computes first_child, depth
+ * and the non-root blocks, writes the node table after the last payload and
+ * the header at the start, validates everything as the reader will
+ * (hlod_store_validate), then fsyncs and renames the temporary file
+ * "PATH.tmp-XXXXXX" over PATH.  On any failure, or abort, the temporary
+ * file is removed: PATH is never partial and an existing PATH is untouched.
+ *
+ * Thread rules: open, finish and abort belong to one thread (the owner);
+ * add may be called from any threads concurrently, each with its own
+ * hlod_store_node to fill, until finish or abort is called.
+ */
+#ifndef HLOD_STORE_WRITE_H
+#define HLOD_STORE_WRITE_H
+
+#include "hlod/store.h"
+
+#ifdef __cplusplus
+extern "C" {
+#endif
+
+typedef struct hlod_store_writer hlod_store_writer;
+
+typedef struct hlod_store_writer_desc {
+    hlod_store_build_info build;    /* recorded in the header; build.c_tex
+                                       prices every node (eq. 1) */
+    uint32_t payload_align;         /* 0: HLOD_STORE_DEFAULT_ALIGN (4096) */
+    const hlod_logger *logger;      /* may be NULL; must outlive the writer
+                                       and be thread safe if add is called
+                                       from several threads */
+} hlod_store_writer_desc;
+
+/* One node's geometry.  The arrays are read during the call only. */
+typedef struct hlod_store_payload_desc {
+    uint32_t vertex_count;          /* >= 1 */
+    const double *positions;        /* 3 * vertex_count, world coordinates */
+    double origin[3];               /* stored positions are (float)(p - origin);
+                                       pick a point near the node (e.g. its
+                                       box centre) so floats keep precision */
+    const float *normals;           /* 3 * vertex_count or NULL */
+    const float *uvs;               /* 2 * vertex_count or NULL (required
+                                       with a texture) */
+    const uint8_t *colors;          /* 4 * vertex_count RGBA or NULL */
+    uint32_t tri_count;             /* >= 1 */
+    const uint32_t *indices;        /* 3 * tri_count, each < vertex_count */
+    uint32_t tex_tri_count;         /* the first tex_tri_count triangles use
+                                       the texture; 0 without one */
+    uint32_t tex_width, tex_height, tex_channels;   /* 0 without a texture */
+    const uint8_t *pixels;          /* w * h * channels, top row first, or NULL */
+} hlod_store_payload_desc;
+
+/* Starts a store at path (a temporary file beside it).  desc may not be
+ * NULL.  HLOD_ERR_INVALID_ARG for a bad alignment or c_tex, HLOD_ERR_IO. */
+hlod_result hlod_store_writer_open(const char *path, const hlod_store_writer_desc *desc,
+                                   hlod_store_writer **out);
+
+/* called from any thread.  Validates p (HLOD_ERR_INVALID_ARG, HLOD_ERR_NAN,
+ * HLOD_ERR_INDEX_RANGE), writes it (HLOD_ERR_IO, HLOD_ERR_NOMEM) and fills
+ * *node (zeroed first) with everything the payload determines: flags, counts,
+ * texture size, origin, bbox (of the double positions), cost (eq. 1),
+ * static_benefit (eq. 2), avg_normal (eq. 3, area-weighted, in double) and
+ * payload_offset/size/hash.  parent and error are left 0, block 0 and depth
+ * 0: the caller sets parent, block (roots) and error before finish.  After
+ * a write error the writer is failed: finish will refuse it. */
+hlod_result hlod_store_writer_add(hlod_store_writer *w, const hlod_store_payload_desc *p,
+                                  hlod_store_node *node);
+
+/* called from the owner thread after every add returned.  nodes[0..count)
+ * in any order, each filled by add and then given its parent (an index into
+ * nodes, or HLOD_STORE_NO_PARENT for a root), its error, and for roots its
+ * block (roots must have blocks 0..R-1, each once).  Children keep the
+ * relative order they have in nodes.  Every payload added must be used by
+ * exactly one node.  first_child, depth and non-root blocks are computed
+ * here (values passed are ignored).  When store_index is not NULL,
+ * store_index[k] receives nodes[k]'s index in the store.  The writer is
+ * freed whatever the result; on failure nothing appears at the path.
+ * Results: HLOD_ERR_INVALID_ARG (tree or payload references inconsistent),
+ * HLOD_ERR_FORMAT/HLOD_ERR_NAN (a rule of hlod_store_validate broken, e.g.
+ * error not monotone), HLOD_ERR_IO, HLOD_ERR_NOMEM. */
+hlod_result hlod_store_writer_finish(hlod_store_writer *w, const hlod_store_node *nodes,
+                                     uint32_t count, uint32_t *store_index);
+
+/* called from the owner thread: removes the temporary file, frees w
+ * (NULL is fine).  No add may be in flight. */
+void hlod_store_writer_abort(hlod_store_writer *w);
+
+#ifdef __cplusplus
+}
+#endif
+#endif

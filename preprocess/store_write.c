@@ -1,0 +1,569 @@
+/*
+ * store_write.c - the store writer (API: hlod/store_write.h, format:
+ * hlod/store.h).
+ *
+ * Design: the file is a temporary file from hlod_atomic_open, written only
+ * with pwrite on its descriptor (its FILE* never buffers anything), so
+ * threads write disjoint ranges without sharing a file position.  add()
+ * serialises the payload into one buffer outside any lock, then takes the
+ * mutex just long enough to reserve the next aligned offset and append a
+ * record, and writes outside the lock.  Offsets are reserved in increasing
+ * order, so the record array is sorted by offset and finish() finds a
+ * node's payload by binary search.  finish() orders the caller's nodes
+ * breadth-first (the reader's tree rule), writes the table after the last
+ * payload and the header at offset 0, validates with the reader's own
+ * hlod_store_validate, and only then commits (fsync + rename).
+ */
+#include "hlod/store_write.h"
+
+#include "atomic_file.h"
+
+#include <assert.h>
+#include <errno.h>
+#include <math.h>
+#include <pthread.h>
+#include <stdlib.h>
+#include <string.h>
+#include <unistd.h>
+
+/* What finish needs to know about a written payload (the node's copy of
+ * these must still agree). */
+typedef struct payload_record {
+    uint64_t offset, size, hash;
+    double origin[3];
+    uint32_t flags, vertex_count, tri_count, tex_tri_count;
+    uint32_t tex_width, tex_height, tex_channels;
+    uint8_t written;    /* pwrite completed */
+    uint8_t used;       /* claimed by a node in finish */
+} payload_record;
+
+struct hlod_store_writer {
+    hlod_atomic_file file;
+    int fd;
+    hlod_store_writer_desc desc;
+    const hlod_logger *lg;
+    pthread_mutex_t lock;       /* guards next, records, failed */
+    uint64_t next;              /* next free aligned offset */
+    payload_record *records;
+    size_t record_count, record_cap;
+    int failed;
+};
+
+static uint64_t align_up(uint64_t v, uint64_t a)
+{
+    return (v + a - 1) & ~(a - 1);
+}
+
+static int pwrite_all(int fd, const void *buf, size_t n, uint64_t off)
+{
+    const uint8_t *p = buf;
+    while (n) {
+        ssize_t k = pwrite(fd, p, n, (off_t)off);
+        if (k < 0) {
+            if (errno == EINTR)
+                continue;
+            return errno;
+        }
+        p += k;
+        n -= (size_t)k;
+        off += (uint64_t)k;
+    }
+    return 0;
+}
+
+hlod_result hlod_store_writer_open(const char *path, const hlod_store_writer_desc *desc,
+                                   hlod_store_writer **out)
+{
+    if (!out)
+        return HLOD_ERR_INVALID_ARG;
+    *out = NULL;
+    if (!path || !desc)
+        return HLOD_ERR_INVALID_ARG;
+    const hlod_logger *lg = desc->logger;
+    uint32_t align = desc->payload_align ? desc->payload_align : HLOD_STORE_DEFAULT_ALIGN;
+    if (align < HLOD_STORE_MIN_ALIGN || align > HLOD_STORE_MAX_ALIGN || (align & (align - 1))) {
+        hlod_logf(lg, HLOD_LOG_ERROR, "%s: payload alignment %u is not a power of two in "
+                  "[%u, %u]", path, align, HLOD_STORE_MIN_ALIGN, HLOD_STORE_MAX_ALIGN);
+        return HLOD_ERR_INVALID_ARG;
+    }
+    const hlod_store_build_info *b = &desc->build;
+    if (!(b->c_tex >= 0 && b->c_tex <= 1) || !isfinite(b->level_factor) ||
+        b->level_factor < 0 || b->method > HLOD_STORE_METHOD_METIS || b->reserved) {
+        hlod_logf(lg, HLOD_LOG_ERROR, "%s: bad build parameters (method %u, c_tex %g, level "
+                  "factor %g)", path, b->method, b->c_tex, b->level_factor);
+        return HLOD_ERR_INVALID_ARG;
+    }
+    hlod_store_writer *w = calloc(1, sizeof *w);
+    if (!w)
+        return HLOD_ERR_NOMEM;
+    if (pthread_mutex_init(&w->lock, NULL) != 0) {
+        free(w);
+        return HLOD_ERR_NOMEM;
+    }
+    hlod_result r = hlod_atomic_open(&w->file, path, lg);
+    if (r != HLOD_OK) {
+        pthread_mutex_destroy(&w->lock);
+        free(w);
+        return r;
+    }
+    w->fd = fileno(w->file.fp);
+    w->desc = *desc;
+    w->desc.payload_align = align;
+    w->lg = lg;
+    w->next = align_up(sizeof(hlod_store_header), align);
+    *out = w;
+    return HLOD_OK;
+}
+
+void hlod_store_writer_abort(hlod_store_writer *w)
+{
+    if (!w)
+        return;
+    hlod_atomic_abort(&w->file);
+    pthread_mutex_destroy(&w->lock);
+    free(w->records);
+    free(w);
+}
+
+/* ---- add ---- */
+
+static int finite_f(const float *v, size_t n)
+{
+    for (size_t i = 0; i < n; i++)
+        if (!isfinite(v[i]))
+            return 0;
+    return 1;
+}
+
+/* Checks p; logs the first problem. */
+static hlod_result check_desc(const hlod_store_payload_desc *p, const char *name,
+                              const hlod_logger *lg)
+{
+    if (!p->vertex_count || !p->positions || !p->tri_count || !p->indices ||
+        p->tri_count > UINT32_MAX / 3) {
+        hlod_logf(lg, HLOD_LOG_ERROR, "%s: payload with %u vertices, %u triangles", name,
+                  p->vertex_count, p->tri_count);
+        return HLOD_ERR_INVALID_ARG;
+    }
+    int textured = p->pixels != NULL;
+    if (textured ? (!p->uvs || !p->tex_width || !p->tex_height || p->tex_channels < 1 ||
+                    p->tex_channels > 4 || p->tex_width > HLOD_STORE_MAX_TEXTURE ||
+                    p->tex_height > HLOD_STORE_MAX_TEXTURE || p->tex_tri_count > p->tri_count)
+                 : (p->tex_width || p->tex_height || p->tex_channels || p->tex_tri_count)) {
+        hlod_logf(lg, HLOD_LOG_ERROR, "%s: payload texture %ux%ux%u (%s pixels, %s UVs, %u of "
+                  "%u triangles textured) is inconsistent", name, p->tex_width, p->tex_height,
+                  p->tex_channels, textured ? "with" : "no", p->uvs ? "with" : "no",
+                  p->tex_tri_count, p->tri_count);
+        return HLOD_ERR_INVALID_ARG;
+    }
+    size_t v = p->vertex_count;
+    int finite = isfinite(p->origin[0]) && isfinite(p->origin[1]) && isfinite(p->origin[2]);
+    for (size_t i = 0; finite && i < 3 * v; i++)
+        finite = isfinite(p->positions[i]) &&
+                 isfinite((float)(p->positions[i] - p->origin[i % 3]));
+    if (!finite || (p->normals && !finite_f(p->normals, 3 * v)) ||
+        (p->uvs && !finite_f(p->uvs, 2 * v))) {
+        hlod_logf(lg, HLOD_LOG_ERROR, "%s: payload has non-finite vertex data", name);
+        return HLOD_ERR_NAN;
+    }
+    for (size_t i = 0; i < 3 * (size_t)p->tri_count; i++)
+        if (p->indices[i] >= p->vertex_count) {
+            hlod_logf(lg, HLOD_LOG_ERROR, "%s: payload index %zu is %u, vertex count %u", name, i,
+                      p->indices[i], p->vertex_count);
+            return HLOD_ERR_INDEX_RANGE;
+        }
+    return HLOD_OK;
+}
+
+/* Fills the fields of n that p determines (Lakhia eqs. 1-3). */
+static void derive_node(const hlod_store_payload_desc *p, double c_tex, hlod_store_node *n)
+{
+    n->vertex_count = p->vertex_count;
+    n->tri_count = p->tri_count;
+    n->tex_tri_count = p->tex_tri_count;
+    n->untex_tri_count = p->tri_count - p->tex_tri_count;
+    n->tex_width = p->tex_width;
+    n->tex_height = p->tex_height;
+    n->tex_channels = p->tex_channels;
+    memcpy(n->origin, p->origin, sizeof n->origin);
+    for (int k = 0; k < 3; k++) {
+        n->bbox_min[k] = INFINITY;
+        n->bbox_max[k] = -INFINITY;
+    }
+    for (size_t i = 0; i < p->vertex_count; i++)
+        for (int k = 0; k < 3; k++) {
+            double x = p->positions[3 * i + k];
+            n->bbox_min[k] = fmin(n->bbox_min[k], x);
+            n->bbox_max[k] = fmax(n->bbox_max[k], x);
+        }
+    /* Areas and normals in double, relative to the origin (differences are
+     * what matter; this keeps city-scale coordinates exact). */
+    double area = 0, sum[3] = {0, 0, 0};
+    for (size_t t = 0; t < p->tri_count; t++) {
+        const double *a = p->positions + 3 * (size_t)p->indices[3 * t];
+        const double *b = p->positions + 3 * (size_t)p->indices[3 * t + 1];
+        const double *c = p->positions + 3 * (size_t)p->indices[3 * t + 2];
+        double u[3] = {b[0] - a[0], b[1] - a[1], b[2] - a[2]};
+        double v[3] = {c[0] - a[0], c[1] - a[1], c[2] - a[2]};
+        double x[3] = {u[1] * v[2] - u[2] * v[1], u[2] * v[0] - u[0] * v[2],
+                       u[0] * v[1] - u[1] * v[0]};
+        /* |x| / 2 is the area; x / 2 is the unit normal times the area */
+        area += 0.5 * sqrt(x[0] * x[0] + x[1] * x[1] + x[2] * x[2]);
+        for (int k = 0; k < 3; k++)
+            sum[k] += 0.5 * x[k];
+    }
+    n->cost = hlod_store_cost(n->tex_tri_count, n->untex_tri_count, c_tex);   /* eq. 1 */
+    n->static_benefit = sqrt((double)p->tri_count * area);                    /* eq. 2 */
+    /* eq. 3; a closed surface's normals cancel out: store 0 (no
+     * foreshortening preference) rather than a noise direction */
+    double len = sqrt(sum[0] * sum[0] + sum[1] * sum[1] + sum[2] * sum[2]);
+    for (int k = 0; k < 3; k++)
+        n->avg_normal[k] = len > 1e-9 * area && len > 0 ? (float)(sum[k] / len) : 0.0f;
+}
+
+static void write_section(uint8_t **dst, const void *src, size_t bytes)
+{
+    memcpy(*dst, src, bytes);
+    *dst += bytes;
+}
+
+/* called from any thread */
+hlod_result hlod_store_writer_add(hlod_store_writer *w, const hlod_store_payload_desc *p,
+                                  hlod_store_node *node)
+{
+    if (!w || !p || !node)
+        return HLOD_ERR_INVALID_ARG;
+    const char *name = w->file.final_path;
+    hlod_result r = check_desc(p, name, w->lg);
+    if (r != HLOD_OK)
+        return r;
+    memset(node, 0, sizeof *node);
+    node->flags = (p->normals ? HLOD_NODE_NORMALS : 0) | (p->uvs ? HLOD_NODE_UVS : 0) |
+                  (p->colors ? HLOD_NODE_COLORS : 0) | (p->pixels ? HLOD_NODE_TEXTURE : 0);
+    uint64_t size = hlod_store_payload_size(node->flags, p->vertex_count, 3 * p->tri_count,
+                                            p->tex_width, p->tex_height, p->tex_channels);
+    assert(size > 0);
+    if (size > SIZE_MAX)
+        return HLOD_ERR_NOMEM;
+    uint8_t *buf = malloc((size_t)size);
+    if (!buf)
+        return HLOD_ERR_NOMEM;
+
+    size_t v = p->vertex_count;
+    hlod_store_payload_header ph;
+    memset(&ph, 0, sizeof ph);
+    memcpy(ph.magic, HLOD_PAYLOAD_MAGIC, 4);
+    ph.flags = node->flags;
+    ph.vertex_count = p->vertex_count;
+    ph.index_count = 3 * p->tri_count;
+    ph.tex_tri_count = p->tex_tri_count;
+    ph.tex_width = p->tex_width;
+    ph.tex_height = p->tex_height;
+    ph.tex_channels = p->tex_channels;
+    uint8_t *dst = buf;
+    write_section(&dst, &ph, sizeof ph);
+    for (size_t i = 0; i < 3 * v; i++) {
+        float f = (float)(p->positions[i] - p->origin[i % 3]);
+        write_section(&dst, &f, sizeof f);
+    }
+    if (p->normals)
+        write_section(&dst, p->normals, 12 * v);
+    if (p->uvs)
+        write_section(&dst, p->uvs, 8 * v);
+    if (p->colors)
+        write_section(&dst, p->colors, 4 * v);
+    write_section(&dst, p->indices, 12 * (size_t)p->tri_count);
+    if (p->pixels)
+        write_section(&dst, p->pixels,
+                      (size_t)p->tex_width * p->tex_height * p->tex_channels);
+    assert((uint64_t)(dst - buf) == size);
+    uint64_t hash = hlod_store_hash(buf, (size_t)size);
+    derive_node(p, w->desc.build.c_tex, node);
+
+    /* Reserve the offset and the record; write outside the lock. */
+    pthread_mutex_lock(&w->lock);
+    if (w->failed) {
+        pthread_mutex_unlock(&w->lock);
+        free(buf);
+        hlod_logf(w->lg, HLOD_LOG_ERROR, "%s: store writer already failed", name);
+        return HLOD_ERR_IO;
+    }
+    if (w->record_count == w->record_cap) {
+        size_t cap = w->record_cap ? 2 * w->record_cap : 256;
+        payload_record *nr = realloc(w->records, cap * sizeof *nr);
+        if (!nr) {
+            w->failed = 1;
+            pthread_mutex_unlock(&w->lock);
+            free(buf);
+            return HLOD_ERR_NOMEM;
+        }
+        w->records = nr;
+        w->record_cap = cap;
+    }
+    size_t idx = w->record_count++;
+    uint64_t offset = w->next;
+    w->next = align_up(offset + size, w->desc.payload_align);
+    payload_record *rec = &w->records[idx];
+    memset(rec, 0, sizeof *rec);
+    rec->offset = offset;
+    rec->size = size;
+    rec->hash = hash;
+    memcpy(rec->origin, p->origin, sizeof rec->origin);
+    rec->flags = node->flags;
+    rec->vertex_count = node->vertex_count;
+    rec->tri_count = node->tri_count;
+    rec->tex_tri_count = node->tex_tri_count;
+    rec->tex_width = node->tex_width;
+    rec->tex_height = node->tex_height;
+    rec->tex_channels = node->tex_channels;
+    pthread_mutex_unlock(&w->lock);
+
+    int e = pwrite_all(w->fd, buf, (size_t)size, offset);
+    free(buf);
+    pthread_mutex_lock(&w->lock);
+    if (e)
+        w->failed = 1;
+    else
+        w->records[idx].written = 1;    /* records may have moved: index again */
+    pthread_mutex_unlock(&w->lock);
+    if (e) {
+        hlod_logf(w->lg, HLOD_LOG_ERROR, "%s: cannot write payload: %s", name, strerror(e));
+        return HLOD_ERR_IO;
+    }
+    node->payload_offset = offset;
+    node->payload_size = size;
+    node->payload_hash = hash;
+    return HLOD_OK;
+}
+
+/* ---- finish ---- */
+
+static payload_record *find_record(hlod_store_writer *w, uint64_t offset)
+{
+    size_t lo = 0, hi = w->record_count;
+    while (lo < hi) {
+        size_t mid = lo + (hi - lo) / 2;
+        if (w->records[mid].offset < offset)
+            lo = mid + 1;
+        else
+            hi = mid;
+    }
+    return lo < w->record_count && w->records[lo].offset == offset ? &w->records[lo] : NULL;
+}
+
+/* Does node n (in store order, index i) still describe record rec? */
+static int node_matches(const hlod_store_node *n, const payload_record *rec)
+{
+    return rec->written && n->payload_size == rec->size && n->payload_hash == rec->hash &&
+           n->flags == rec->flags && n->vertex_count == rec->vertex_count &&
+           n->tri_count == rec->tri_count && n->tex_tri_count == rec->tex_tri_count &&
+           n->untex_tri_count == rec->tri_count - rec->tex_tri_count &&
+           n->tex_width == rec->tex_width && n->tex_height == rec->tex_height &&
+           n->tex_channels == rec->tex_channels &&
+           memcmp(n->origin, rec->origin, sizeof n->origin) == 0;
+}
+
+/* Breadth-first order of the caller's nodes: order[pos] = caller index,
+ * child_count[k] = children of caller node k.  Roots by block. */
+static hlod_result bfs_order(const hlod_store_node *nodes, uint32_t count, uint32_t *order,
+                             uint32_t *child_count, uint32_t *root_count, const char *name,
+                             const hlod_logger *lg)
+{
+    hlod_result r = HLOD_ERR_NOMEM;
+    uint32_t *start = calloc((size_t)count + 1, sizeof *start);  /* CSR of children */
+    uint32_t *kids = malloc((size_t)count * sizeof *kids);
+    uint32_t *fill = malloc((size_t)count * sizeof *fill);
+    if (!start || !kids || !fill)
+        goto done;
+    r = HLOD_ERR_INVALID_ARG;
+    uint32_t roots = 0;
+    memset(child_count, 0, (size_t)count * sizeof *child_count);
+    for (uint32_t k = 0; k < count; k++) {
+        uint32_t p = nodes[k].parent;
+        if (p == HLOD_STORE_NO_PARENT) {
+            roots++;
+        } else if (p >= count || p == k) {
+            hlod_logf(lg, HLOD_LOG_ERROR, "%s: node %u: parent %u is not another of the %u "
+                      "nodes", name, k, p, count);
+            goto done;
+        } else {
+            child_count[p]++;
+        }
+    }
+    if (roots == 0) {
+        hlod_logf(lg, HLOD_LOG_ERROR, "%s: no root node (parent = HLOD_STORE_NO_PARENT)", name);
+        goto done;
+    }
+    /* roots go to order[block] */
+    for (uint32_t i = 0; i < roots; i++)
+        order[i] = UINT32_MAX;
+    for (uint32_t k = 0; k < count; k++) {
+        if (nodes[k].parent != HLOD_STORE_NO_PARENT)
+            continue;
+        uint32_t b = nodes[k].block;
+        if (b >= roots || order[b] != UINT32_MAX) {
+            hlod_logf(lg, HLOD_LOG_ERROR, "%s: root node %u has block %u; the %u roots need "
+                      "blocks 0..%u, one each", name, k, b, roots, roots - 1);
+            goto done;
+        }
+        order[b] = k;
+    }
+    for (uint32_t k = 0; k < count; k++)
+        start[k + 1] = start[k] + child_count[k];
+    memcpy(fill, start, (size_t)count * sizeof *fill);
+    for (uint32_t k = 0; k < count; k++)   /* stable: children keep caller order */
+        if (nodes[k].parent != HLOD_STORE_NO_PARENT)
+            kids[fill[nodes[k].parent]++] = k;
+    uint32_t len = roots;
+    for (uint32_t pos = 0; pos < len; pos++) {
+        uint32_t k = order[pos];
+        for (uint32_t c = start[k]; c < start[k + 1]; c++)
+            order[len++] = kids[c];
+    }
+    if (len != count) {
+        hlod_logf(lg, HLOD_LOG_ERROR, "%s: %u of %u nodes are not reachable from a root "
+                  "(a parent cycle)", name, count - len, count);
+        goto done;
+    }
+    *root_count = roots;
+    r = HLOD_OK;
+done:
+    free(start);
+    free(kids);
+    free(fill);
+    return r;
+}
+
+/* called from the owner thread */
+hlod_result hlod_store_writer_finish(hlod_store_writer *w, const hlod_store_node *nodes,
+                                     uint32_t count, uint32_t *store_index)
+{
+    if (!w)
+        return HLOD_ERR_INVALID_ARG;
+    const hlod_logger *lg = w->lg;
+    const char *name = w->file.final_path;
+    hlod_result r = HLOD_ERR_INVALID_ARG;
+    uint32_t *order = NULL, *child_count = NULL, *index = NULL;
+    hlod_store_node *table = NULL;
+    if (!nodes || count == 0 || count >= UINT32_MAX) {
+        hlod_logf(lg, HLOD_LOG_ERROR, "%s: %u nodes given to finish", name, count);
+        goto fail;
+    }
+    if (w->failed) {
+        hlod_logf(lg, HLOD_LOG_ERROR, "%s: a payload write failed; not finishing", name);
+        r = HLOD_ERR_IO;
+        goto fail;
+    }
+    r = HLOD_ERR_NOMEM;
+    order = malloc((size_t)count * sizeof *order);
+    child_count = malloc((size_t)count * sizeof *child_count);
+    index = malloc((size_t)count * sizeof *index);
+    table = calloc((size_t)count + 1, sizeof *table);
+    if (!order || !child_count || !index || !table)
+        goto fail;
+    uint32_t roots = 0;
+    r = bfs_order(nodes, count, order, child_count, &roots, name, lg);
+    if (r != HLOD_OK)
+        goto fail;
+    for (uint32_t pos = 0; pos < count; pos++)
+        index[order[pos]] = pos;
+
+    /* The table in store order; children of pos are [first_child, next's). */
+    uint32_t next_child = roots;
+    for (uint32_t pos = 0; pos < count; pos++) {
+        uint32_t k = order[pos];
+        hlod_store_node *t = &table[pos];
+        *t = nodes[k];
+        t->first_child = next_child;
+        next_child += child_count[k];
+        if (nodes[k].parent == HLOD_STORE_NO_PARENT) {
+            t->parent = HLOD_STORE_NO_PARENT;
+            t->depth = 0;
+            t->block = pos;     /* = nodes[k].block: roots are ordered by block */
+        } else {
+            t->parent = index[nodes[k].parent];
+            t->depth = table[t->parent].depth + 1;  /* parent comes first in BFS */
+            t->block = table[t->parent].block;
+        }
+        payload_record *rec = find_record(w, t->payload_offset);
+        if (!rec || !node_matches(t, rec)) {
+            hlod_logf(lg, HLOD_LOG_ERROR, "%s: node %u (store node %u): its payload fields do "
+                      "not match a payload added to this writer", name, k, pos);
+            r = HLOD_ERR_INVALID_ARG;
+            goto fail;
+        }
+        if (rec->used) {
+            hlod_logf(lg, HLOD_LOG_ERROR, "%s: node %u: payload at %llu is used by two nodes",
+                      name, k, (unsigned long long)rec->offset);
+            r = HLOD_ERR_INVALID_ARG;
+            goto fail;
+        }
+        rec->used = 1;
+    }
+    table[count].first_child = count;   /* the sentinel */
+    for (size_t i = 0; i < w->record_count; i++)
+        if (!w->records[i].used) {
+            hlod_logf(lg, HLOD_LOG_ERROR, "%s: payload at offset %llu belongs to no node", name,
+                      (unsigned long long)w->records[i].offset);
+            r = HLOD_ERR_INVALID_ARG;
+            goto fail;
+        }
+
+    hlod_store_header h;
+    memset(&h, 0, sizeof h);
+    memcpy(h.magic, HLOD_STORE_MAGIC, 8);
+    h.version = HLOD_STORE_VERSION;
+    h.endian = HLOD_STORE_ENDIAN;
+    h.header_size = sizeof(hlod_store_header);
+    h.node_size = sizeof(hlod_store_node);
+    h.node_count = count;
+    h.root_count = roots;
+    h.payload_align = w->desc.payload_align;
+    h.build = w->desc.build;
+    for (int k = 0; k < 3; k++) {
+        h.bbox_min[k] = INFINITY;
+        h.bbox_max[k] = -INFINITY;
+    }
+    for (uint32_t i = 0; i < count; i++) {
+        const hlod_store_node *t = &table[i];
+        if (t->depth + 1 > h.depth_count)
+            h.depth_count = t->depth + 1;
+        if (t->flags & HLOD_NODE_TEXTURE)
+            h.flags |= HLOD_STORE_TEXTURED;
+        h.payload_bytes += t->payload_size;
+        for (int k = 0; k < 3; k++) {
+            h.bbox_min[k] = fmin(h.bbox_min[k], t->bbox_min[k]);
+            h.bbox_max[k] = fmax(h.bbox_max[k], t->bbox_max[k]);
+        }
+    }
+    h.node_table_offset = w->next;      /* aligned, after the last payload */
+    h.node_table_size = ((uint64_t)count + 1) * sizeof(hlod_store_node);
+    h.file_size = h.node_table_offset + h.node_table_size;
+    h.node_table_hash = hlod_store_hash(table, (size_t)h.node_table_size);
+    h.header_hash = hlod_store_hash(&h, HLOD_STORE_HEADER_HASHED);
+
+    /* Never commit what the reader would refuse. */
+    r = hlod_store_validate(&h, table, h.file_size, name, lg);
+    if (r != HLOD_OK)
+        goto fail;
+    int e = pwrite_all(w->fd, table, (size_t)h.node_table_size, h.node_table_offset);
+    if (!e)
+        e = pwrite_all(w->fd, &h, sizeof h, 0);
+    if (e) {
+        hlod_logf(lg, HLOD_LOG_ERROR, "%s: cannot write the node table: %s", name, strerror(e));
+        r = HLOD_ERR_IO;
+        goto fail;
+    }
+    r = hlod_atomic_commit(&w->file, lg);   /* fsync + rename; aborts itself on error */
+    if (r != HLOD_OK)
+        goto fail;
+    if (store_index)
+        memcpy(store_index, index, (size_t)count * sizeof *index);
+fail:
+    free(order);
+    free(child_count);
+    free(index);
+    free(table);
+    hlod_store_writer_abort(w);     /* after a commit: only frees */
+    return r;
+}
