@@ -623,6 +623,17 @@ static int edge_groups(const state *s, uint32_t a, uint32_t b, const uint32_t *f
     return ng;
 }
 
+/* The wedge of v in any live face (v's only wedge when fdeg is 0). */
+static uint32_t any_wedge(const state *s, uint32_t v)
+{
+    const uint32_t *f = s->pool + s->adj_start[v];
+    for (uint32_t i = 0; i < s->adj_count[v]; i++)
+        if (s->talive[f[i]])
+            return s->tw[3 * (size_t)f[i] + corner_of(s, f[i], v)];
+    assert(!"vertex without a live face");
+    return 0;
+}
+
 static void add_candidate(eval *e, const double x[3])
 {
     plan *p = &e->cand[e->ncand++];
@@ -660,7 +671,16 @@ static void evaluate(state *s, uint32_t a, uint32_t b, int edge_feature,
     e->w = s->vx[a].w + s->vx[b].w;
     if (s->aq) {
         wgroup g[MAX_GROUPS];
-        int ng = edge_groups(s, a, b, fa, na, fb, nb, g);
+        int ng;
+        if (!s->vx[a].fdeg && !s->vx[b].fdeg) {
+            /* no seam at either end: one wedge each, merged */
+            g[0].w[0] = any_wedge(s, a);
+            g[0].w[1] = any_wedge(s, b);
+            g[0].n = 2;
+            ng = 1;
+        } else {
+            ng = edge_groups(s, a, b, fa, na, fb, nb, g);
+        }
         for (int i = 0; i < ng; i++) {
             attrq t = s->aq[g[i].w[0]];
             if (g[i].n == 2)
@@ -1625,7 +1645,9 @@ hlod_result hlod_simplify(const hlod_mesh *in, const hlod_simplify_desc *desc,
                     !s.vx[b].locked) {
                     price = price_plain(&s, a, b);
                 } else {
-                    size_t na = s.aq ? star(&s, a, &s.sa) : 0, nb = s.aq ? star(&s, b, &s.sb) : 0;
+                    /* stars feed the wedge groups of seam vertices only */
+                    int need = s.aq && (s.vx[a].fdeg || s.vx[b].fdeg);
+                    size_t na = need ? star(&s, a, &s.sa) : 0, nb = need ? star(&s, b, &s.sb) : 0;
                     if (na == (size_t)-1 || nb == (size_t)-1)
                         goto done;
                     eval e;
