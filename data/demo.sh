@@ -1,7 +1,9 @@
 #!/usr/bin/env bash
-# demo.sh - THE main job (for now): simplify real meshes and print a table.
+# demo.sh - THE main job (for now): simplify real meshes and print a table,
+# then generate the default city and build its HLOD store.
 #
-#   bash data/demo.sh        (as root on Debian 12; safe to run again)
+#   bash data/demo.sh              (as root on Debian 12; safe to run again)
+#   HLOD_DEMO_CITY=small bash data/demo.sh    (a 50k-triangle city, quick)
 #
 # Installs missing packages (data/setup.sh), fetches the real meshes
 # (data/fetch-meshes.sh), builds build/, runs bin/hlod-simplify on each mesh
@@ -10,7 +12,11 @@
 # where error is the measured two-sided Hausdorff distance in model units.
 # Results: out/demo/ (simplified meshes, one JSON per run, table.txt,
 # simplify.csv).  Then runs build/bin/hlod-bench-simplify when it was built
-# (ours vs meshoptimizer; writes out/bench-simplify/).
+# (ours vs meshoptimizer; writes out/bench-simplify/).  Finally generates
+# the city (hlod-gen-city --preset default: 200 blocks, 7M triangles,
+# textured; out/demo/city/, kept between runs), builds its store with
+# hlod-build (cut-plane method) and prints hlod-info's tree statistics.
+# The fly-through and its report come with the runtime.
 # Exits non-zero if anything failed.
 set -uo pipefail
 
@@ -91,5 +97,22 @@ if [ -x "$BENCH" ]; then
     echo "==> hlod-bench-simplify (ours vs meshoptimizer)"
     "$BENCH" || { echo "demo: error: hlod-bench-simplify failed" >&2; failed=1; }
 fi
+
+PRESET=${HLOD_DEMO_CITY:-default}
+CITY=$OUT/city/$PRESET
+mkdir -p "$OUT/city"
+echo
+if [ -s "$CITY.obj" ]; then
+    echo "==> city: $CITY.obj exists (delete it to generate again)"
+else
+    echo "==> hlod-gen-city --preset $PRESET"
+    "$ROOT/build/bin/hlod-gen-city" --preset "$PRESET" -o "$CITY.obj" ||
+        { echo "demo: error: hlod-gen-city failed" >&2; exit 1; }
+fi
+echo "==> hlod-build $CITY.obj (cutplane)"
+"$ROOT/build/bin/hlod-build" "$CITY.obj" -o "$CITY.hlod" --json ||
+    { echo "demo: error: hlod-build failed" >&2; exit 1; }
+echo "==> hlod-info $CITY.hlod"
+"$ROOT/build/bin/hlod-info" "$CITY.hlod" || failed=1
 
 exit $failed

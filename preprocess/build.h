@@ -78,7 +78,8 @@ hlod_result hlod_build_metis(const hlod_mesh *block, const hlod_image *tex,
 hlod_result hlod_node_texture(const hlod_image *tex, hlod_mesh *m, double factor, hlod_image *out);
 
 /* Certified error of a node against the original triangles it stands for
- * (hlod_mesh_hausdorff_bound within 1%), in model units. */
+ * (hlod_mesh_hausdorff_bound, within 25% plus 1e-3 of the original's
+ * size), in model units. */
 hlod_result hlod_node_error(const hlod_mesh *node, const hlod_mesh *original, double *error);
 
 #endif

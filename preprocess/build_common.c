@@ -104,7 +104,11 @@ hlod_result hlod_node_error(const hlod_mesh *node, const hlod_mesh *original, do
     if (!node->tri_count || !original->tri_count)
         return HLOD_OK;
     double lower, upper;
-    hlod_result r = hlod_mesh_hausdorff_bound(node, original, 0.25, &lower, &upper);
+    /* 25% and 1e-3 of the size: node errors steer refinement, where a
+     * looser bound costs a little detail and a tight one costs build time
+     * (coincident flat walls cost the most to resolve) */
+    hlod_result r = hlod_mesh_hausdorff_bound(node, original, 0.25, 1e-3 * hlod_mesh_bbox_diag(original), &lower,
+                                              &upper);
     if (r == HLOD_OK)
         *error = upper;
     return r;

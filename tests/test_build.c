@@ -1,0 +1,198 @@
+/*
+ * test_build.c - hlod-build end to end: a generated city in, a store out,
+ * read back with the validating reader.  Runs the built tools
+ * ($HLOD_BIN_DIR/hlod-gen-city, hlod-build) in a scratch folder.
+ */
+#include "check.h"
+#include "hlod/store.h"
+
+#include <math.h>
+#include <stdarg.h>
+#include <stdint.h>
+#include <sys/stat.h>
+#include <sys/wait.h>
+#include <unistd.h>
+
+static char bin[1024], tmp[1024];
+
+static int sh(const char *fmt, ...)
+#if defined(__GNUC__)
+    __attribute__((format(printf, 1, 2)))
+#endif
+    ;
+static int sh(const char *fmt, ...)
+{
+    char cmd[4096];
+    va_list ap;
+    va_start(ap, fmt);
+    vsnprintf(cmd, sizeof cmd, fmt, ap);
+    va_end(ap);
+    int rc = system(cmd);
+    return WIFEXITED(rc) ? WEXITSTATUS(rc) : -1;
+}
+
+static long file_size(const char *path)
+{
+    struct stat st;
+    return stat(path, &st) == 0 ? (long)st.st_size : -1;
+}
+
+static int same_file(const char *a, const char *b)
+{
+    return sh("cmp -s '%s' '%s'", a, b) == 0;
+}
+
+static void city(const char *name, const char *extra)
+{
+    CHECKF(sh("'%s/hlod-gen-city' --preset tiny --blocks 4 --quiet %s -o '%s/%s.obj'", bin, extra, tmp, name) == 0,
+           "hlod-gen-city %s", name);
+}
+
+static int build(const char *in, const char *out, const char *extra)
+{
+    return sh("'%s/hlod-build' '%s/%s.obj' -o '%s/%s' --desired-tris 500 --quiet %s", bin, tmp, in, tmp, out,
+              extra);
+}
+
+static void builds_and_verifies_both_methods(void)
+{
+    city("c", "");
+    CHECK(build("c", "cut.hlod", "--method cutplane") == 0);
+    CHECK(build("c", "metis.hlod", "--method metis --leaf-tris 1000 --node-tris 500 --voxel-tris 200") == 0);
+    char p[2048];
+    snprintf(p, sizeof p, "%s/cut.hlod", tmp);
+    CHECK(sh("'%s/hlod-info' --verify '%s' > /dev/null", bin, p) == 0);
+    snprintf(p, sizeof p, "%s/metis.hlod", tmp);
+    CHECK(sh("'%s/hlod-info' --verify '%s' > /dev/null", bin, p) == 0);
+    /* the tree has more than one level and textures */
+    hlod_store *s = NULL;
+    snprintf(p, sizeof p, "%s/cut.hlod", tmp);
+    CHECK(hlod_store_open(p, NULL, &s) == HLOD_OK);
+    if (s) {
+        const hlod_store_header *h = hlod_store_get_header(s);
+        CHECK(h->depth_count >= 2);
+        CHECK(h->flags & HLOD_STORE_TEXTURED);
+        CHECK(h->root_count == 5); /* 4 blocks + ground */
+        hlod_store_close(s);
+    }
+}
+
+static void json_keys(void)
+{
+    char out[2048];
+    snprintf(out, sizeof out, "%s/json.txt", tmp);
+    CHECK(sh("cd '%s' && '%s/hlod-build' c.obj -o j.hlod --desired-tris 500 --quiet --json > json.txt", tmp, bin) ==
+          0);
+    FILE *fp = fopen(out, "r");
+    char line[4096] = {0};
+    CHECK(fp && fgets(line, sizeof line, fp));
+    if (fp)
+        fclose(fp);
+    const char *keys[] = {"\"blocks\"", "\"nodes\"", "\"levels\"", "\"tris_in\"", "\"tris_leaf\"",
+                          "\"tris_total\"", "\"bytes\"", "\"seconds\"", "\"peak_rss_bytes\""};
+    for (size_t i = 0; i < sizeof keys / sizeof *keys; i++)
+        CHECKF(strstr(line, keys[i]), "missing %s in %s", keys[i], line);
+}
+
+static void reproducible_byte_for_byte(void)
+{
+    CHECK(build("c", "r1.hlod", "--threads 2") == 0);
+    CHECK(build("c", "r2.hlod", "--threads 1") == 0);
+    CHECK(build("c", "m1.hlod", "--method metis --threads 2") == 0);
+    CHECK(build("c", "m2.hlod", "--method metis --threads 1") == 0);
+    char a[2048], b[2048];
+    snprintf(a, sizeof a, "%s/r1.hlod", tmp);
+    snprintf(b, sizeof b, "%s/r2.hlod", tmp);
+    CHECK(same_file(a, b));
+    snprintf(a, sizeof a, "%s/m1.hlod", tmp);
+    snprintf(b, sizeof b, "%s/m2.hlod", tmp);
+    CHECK(same_file(a, b));
+}
+
+/* The same city at (5e5, 4.1e6, 0): same tree, node boxes shifted by the
+ * offset, the same relative payload positions. */
+static void large_coordinates(void)
+{
+    city("far", "--origin 500000 4100000 0");
+    CHECK(build("c", "near.hlod", "") == 0);
+    CHECK(build("far", "far.hlod", "") == 0);
+    char a[2048], b[2048];
+    snprintf(a, sizeof a, "%s/near.hlod", tmp);
+    snprintf(b, sizeof b, "%s/far.hlod", tmp);
+    hlod_store *sa = NULL, *sb = NULL;
+    CHECK(hlod_store_open(a, NULL, &sa) == HLOD_OK);
+    CHECK(hlod_store_open(b, NULL, &sb) == HLOD_OK);
+    if (!sa || !sb) {
+        hlod_store_close(sa);
+        hlod_store_close(sb);
+        return;
+    }
+    uint32_t n = hlod_store_node_count(sa);
+    CHECKF(n == hlod_store_node_count(sb), "%u vs %u nodes", n, hlod_store_node_count(sb));
+    const hlod_store_node *na = hlod_store_nodes(sa), *nb = hlod_store_nodes(sb);
+    const double off[3] = {5e5, 4.1e6, 0};
+    size_t bad_box = 0, bad_count = 0, bad_pos = 0;
+    double worst = 0;
+    for (uint32_t i = 0; i < n && n == hlod_store_node_count(sb); i++) {
+        bad_count += na[i].tri_count != nb[i].tri_count || na[i].vertex_count != nb[i].vertex_count ||
+                     na[i].first_child != nb[i].first_child;
+        for (int k = 0; k < 3; k++)
+            bad_box += fabs(na[i].bbox_min[k] + off[k] - nb[i].bbox_min[k]) > 1e-6 ||
+                       fabs(na[i].bbox_max[k] + off[k] - nb[i].bbox_max[k]) > 1e-6;
+        hlod_store_payload pa, pb;
+        if (hlod_store_read_node(sa, i, 65536, &pa) == HLOD_OK) {
+            if (hlod_store_read_node(sb, i, 65536, &pb) == HLOD_OK) {
+                if (pa.vertex_count == pb.vertex_count)
+                    for (size_t v = 0; v < 3 * (size_t)pa.vertex_count; v++) {
+                        /* absolute positions agree to a millimetre */
+                        double xa = pa.positions[v] + na[i].origin[v % 3] + off[v % 3];
+                        double xb = pb.positions[v] + nb[i].origin[v % 3];
+                        double d = fabs(xa - xb);
+                        worst = d > worst ? d : worst;
+                        bad_pos += d > 1e-3;
+                    }
+                hlod_store_payload_free(&pb);
+            }
+            hlod_store_payload_free(&pa);
+        }
+    }
+    CHECKF(bad_count == 0, "%zu nodes differ in counts or shape", bad_count);
+    CHECKF(bad_box == 0, "%zu box coordinates differ by more than 1e-6 m", bad_box);
+    CHECKF(bad_pos == 0, "%zu positions differ by more than 1 mm (worst %g m)", bad_pos, worst);
+    hlod_store_close(sa);
+    hlod_store_close(sb);
+}
+
+static void bad_input_leaves_nothing(void)
+{
+    char out[2048];
+    snprintf(out, sizeof out, "%s/bad.hlod", tmp);
+    CHECK(sh("'%s/hlod-build' '%s/missing.obj' -o '%s' --quiet 2> /dev/null", bin, tmp, out) == 1);
+    CHECK(file_size(out) < 0);
+    CHECK(sh("'%s/hlod-build' '%s/c.obj' -o '%s' --method bogus 2> /dev/null", bin, tmp, out) == 2);
+    CHECK(sh("'%s/hlod-build' '%s/c.obj' -o '%s' --level-factor 1 2> /dev/null", bin, tmp, out) == 2);
+    CHECK(sh("'%s/hlod-build' '%s/c.obj' 2> /dev/null", bin, tmp) == 2);
+    CHECK(file_size(out) < 0);
+    /* an existing store survives a failed build */
+    char good[2048];
+    snprintf(good, sizeof good, "%s/cut.hlod", tmp);
+    long before = file_size(good);
+    CHECK(sh("'%s/hlod-build' '%s/missing.obj' -o '%s' --quiet 2> /dev/null", bin, tmp, good) == 1);
+    CHECK(file_size(good) == before);
+    CHECK(sh("'%s/hlod-info' --verify '%s' > /dev/null", bin, good) == 0);
+}
+
+int main(void)
+{
+    const char *b = getenv("HLOD_BIN_DIR");
+    snprintf(bin, sizeof bin, "%s", b ? b : "build/bin");
+    snprintf(tmp, sizeof tmp, "/tmp/hlod-test-build-%ld", (long)getpid());
+    sh("rm -rf '%s' && mkdir -p '%s'", tmp, tmp);
+    RUN(builds_and_verifies_both_methods);
+    RUN(json_keys);
+    RUN(reproducible_byte_for_byte);
+    RUN(large_coordinates);
+    RUN(bad_input_leaves_nothing);
+    sh("rm -rf '%s'", tmp);
+    return check_done();
+}
