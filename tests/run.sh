@@ -7,7 +7,9 @@
 # 2. data/fetch-meshes.sh puts the real test meshes into data/meshes/;
 # 3. configures and builds build/ (normal, with benchmarks) and runs ctest;
 # 4. configures and builds build-asan/ (ASan + UBSan, no benchmarks) and
-#    runs ctest again.
+#    runs ctest again;
+# 5. builds the threaded tools and their tests with ThreadSanitizer
+#    (build-tsan/) and runs those tests.
 # Prints a summary and exits non-zero if any step or any test failed.
 # .ci/run calls exactly this script.
 set -uo pipefail
@@ -88,5 +90,27 @@ fi
 if step "build build-asan/" build build-asan -DCMAKE_BUILD_TYPE=RelWithDebInfo \
         "-DHLOD_SANITIZE=address,undefined" -DHLOD_BENCH=OFF; then
     step "ctest build-asan/" run_ctest build-asan
+fi
+# ThreadSanitizer over the code that runs threads: hlod-build's workers and
+# the store writer/readers.  OpenImageIO is not instrumented; its internal
+# synchronisation is suppressed (tests/tsan.supp), ours is checked.
+TSAN_TESTS="test_build|test_store|test_metis"
+build_tsan() {
+    cmake -S "$ROOT" -B "$ROOT/build-tsan" -DCMAKE_BUILD_TYPE=RelWithDebInfo -DHLOD_SANITIZE=thread \
+        -DHLOD_BENCH=OFF >/dev/null &&
+        make -C "$ROOT/build-tsan" -j"$JOBS" hlod-build hlod-gen-city hlod-info test_build test_store test_metis
+}
+run_tsan() {
+    local log="$ROOT/out/test-logs/ctest-build-tsan.log"
+    (cd "$ROOT/build-tsan" &&
+        TSAN_OPTIONS="halt_on_error=1 second_deadlock_stack=1 suppressions=$ROOT/tests/tsan.supp" \
+            ctest --output-on-failure -j"$JOBS" -R "$TSAN_TESTS") 2>&1 | tee "$log"
+    local rc=${PIPESTATUS[0]}
+    note=$(grep -E 'tests passed|tests failed' "$log" | tail -n 1)
+    note=${note:-no test summary, see $log}
+    return "$rc"
+}
+if step "build build-tsan/" build_tsan; then
+    step "ctest build-tsan/" run_tsan
 fi
 finish
