@@ -365,8 +365,10 @@ static int adj_reserve(state *s, uint32_t v, uint32_t need)
     return 1;
 }
 
-/* Copies the live faces around v into *buf (grown as needed). */
-static size_t star(state *s, uint32_t v, uint32_t **buf)
+/* Copies the live faces around v into s->sa (which = 0) or s->sb (1),
+ * both grown together as needed; returns the count, (size_t)-1 when out of
+ * memory. */
+static size_t star(state *s, uint32_t v, int which)
 {
     uint32_t n = s->adj_count[v];
     if (n > s->scap) {
@@ -381,12 +383,12 @@ static size_t star(state *s, uint32_t v, uint32_t **buf)
         s->sb = nb;
         s->scap = nc;
     }
-    *buf = (buf == &s->sa) ? s->sa : s->sb;
+    uint32_t *buf = which ? s->sb : s->sa;
     const uint32_t *list = s->pool + s->adj_start[v];
     size_t k = 0;
     for (uint32_t i = 0; i < n; i++)
         if (s->talive[list[i]])
-            (*buf)[k++] = list[i];
+            buf[k++] = list[i];
     return k;
 }
 
@@ -882,7 +884,7 @@ static int link_ok(state *s, uint32_t a, uint32_t b, const uint32_t *fa, size_t 
  * memory.  Leaves the stars of a and b in s->sa / s->sb (*na / *nb). */
 static int try_edge(state *s, uint32_t a, uint32_t b, eval *e, size_t *na_, size_t *nb_)
 {
-    size_t na = star(s, a, &s->sa), nb = star(s, b, &s->sb);
+    size_t na = star(s, a, 0), nb = star(s, b, 1);
     if (na == (size_t)-1 || nb == (size_t)-1)
         return -2;
     *na_ = na;
@@ -1647,7 +1649,7 @@ hlod_result hlod_simplify(const hlod_mesh *in, const hlod_simplify_desc *desc,
                 } else {
                     /* stars feed the wedge groups of seam vertices only */
                     int need = s.aq && (s.vx[a].fdeg || s.vx[b].fdeg);
-                    size_t na = need ? star(&s, a, &s.sa) : 0, nb = need ? star(&s, b, &s.sb) : 0;
+                    size_t na = need ? star(&s, a, 0) : 0, nb = need ? star(&s, b, 1) : 0;
                     if (na == (size_t)-1 || nb == (size_t)-1)
                         goto done;
                     eval e;
