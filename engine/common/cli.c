@@ -328,3 +328,30 @@ int hlod_json_end(hlod_json *j)
         return -1;
     return 0;
 }
+
+/* ---- flags ---- */
+
+int hlod_cli_match_flag(int argc, char **argv, int *i, const char *flag, const char **value)
+{
+    const char *a = argv[*i];
+    size_t n = strlen(flag);
+    if (strncmp(a, flag, n) != 0)
+        return 0;
+    if (a[n] == '=') {
+        *value = a + n + 1;
+        return 1;
+    }
+    if (a[n] != 0)
+        return 0;
+    *value = *i + 1 < argc ? argv[++*i] : NULL;
+    return 1;
+}
+
+int hlod_cli_usage_error(const char *prog, const char *fmt, const char *arg)
+{
+    char msg[512];
+    snprintf(msg, sizeof msg, fmt, arg);
+    hlod_cli_error(prog, "%s", msg);
+    fprintf(stderr, "try '%s --help'\n", prog);
+    return 2;
+}

@@ -67,6 +67,17 @@ void hlod_cli_error(const char *prog, const char *fmt, ...)
 #endif
     ;
 
+/* ---- flags ---- */
+
+/* Matches "--flag VALUE" and "--flag=VALUE" at argv[*i]: returns 1 and sets
+ * *value (NULL when the value is missing; *i advances past a separate
+ * value) when argv[*i] is the flag, else 0. */
+int hlod_cli_match_flag(int argc, char **argv, int *i, const char *flag, const char **value);
+
+/* "PROG: error: <fmt with arg>" and "try 'PROG --help'" on stderr;
+ * returns 2, the exit status for a bad command line. */
+int hlod_cli_usage_error(const char *prog, const char *fmt, const char *arg);
+
 /* ---- flag values ---- */
 
 /* Range flags for hlod_cli_parse_double. */

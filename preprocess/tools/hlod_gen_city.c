@@ -80,27 +80,12 @@ typedef struct options {
 
 static int match_flag(int argc, char **argv, int *i, const char *flag, const char **value)
 {
-    const char *a = argv[*i];
-    size_t n = strlen(flag);
-    if (strncmp(a, flag, n) != 0)
-        return 0;
-    if (a[n] == '=') {
-        *value = a + n + 1;
-        return 1;
-    }
-    if (a[n] != 0)
-        return 0;
-    *value = *i + 1 < argc ? argv[++*i] : NULL;
-    return 1;
+    return hlod_cli_match_flag(argc, argv, i, flag, value);
 }
 
 static int usage_error(const char *fmt, const char *arg)
 {
-    char msg[512];
-    snprintf(msg, sizeof msg, fmt, arg);
-    hlod_cli_error(PROG, "%s", msg);
-    fprintf(stderr, "try '%s --help'\n", PROG);
-    return 2;
+    return hlod_cli_usage_error(PROG, fmt, arg);
 }
 
 static int parse_args(int argc, char **argv, options *o)
