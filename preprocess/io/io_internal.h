@@ -119,4 +119,10 @@ hlod_result io_write_gltf(const char *path, const hlod_mesh *m, int binary,
  * target's absolute path; used to reference textures from a written file. */
 char *io_relative_path(const char *dir, const char *target);
 
+/* Ends a single-object reader (PLY, OFF): on success the mesh becomes one
+ * object named after the file's stem and st->tris_read is set; on failure
+ * (out of memory logged) the mesh is freed.  Returns the final result. */
+hlod_result io_finish_file_mesh(const char *path, const hlod_logger *lg, hlod_result res, hlod_mesh *out,
+                                hlod_import_stats *st);
+
 #endif

@@ -505,3 +505,24 @@ char *io_relative_path(const char *dir, const char *target)
     free(t);
     return r;
 }
+
+hlod_result io_finish_file_mesh(const char *path, const hlod_logger *lg, hlod_result res, hlod_mesh *out,
+                                hlod_import_stats *st)
+{
+    if (res == HLOD_OK) {
+        out->objects = calloc(1, sizeof *out->objects);
+        if (!out->objects || !(out->objects[0].name = io_file_stem(path))) {
+            res = HLOD_ERR_NOMEM;
+        } else {
+            out->object_count = 1;
+            out->objects[0].tri_count = out->tri_count;
+        }
+    }
+    if (res == HLOD_ERR_NOMEM)
+        hlod_logf(lg, HLOD_LOG_ERROR, "%s: out of memory", path);
+    if (res)
+        hlod_mesh_free(out);
+    else if (st)
+        st->tris_read = out->tri_count;
+    return res;
+}

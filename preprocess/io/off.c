@@ -238,21 +238,7 @@ hlod_result io_read_off(const char *path, const hlod_logger *lg, hlod_mesh *out,
     if (res)
         return res;
     res = read_off(&r, out);
-    if (res == HLOD_OK) {
-        out->objects = calloc(1, sizeof *out->objects);
-        if (!out->objects || !(out->objects[0].name = io_file_stem(path))) {
-            res = HLOD_ERR_NOMEM;
-        } else {
-            out->object_count = 1;
-            out->objects[0].tri_count = out->tri_count;
-        }
-    }
-    if (res == HLOD_ERR_NOMEM)
-        hlod_logf(lg, HLOD_LOG_ERROR, "%s: out of memory", path);
-    if (res)
-        hlod_mesh_free(out);
-    else if (st)
-        st->tris_read = out->tri_count;
+    res = io_finish_file_mesh(path, lg, res, out, st);
     io_close(&r.s);
     return res;
 }

@@ -525,21 +525,7 @@ hlod_result io_read_ply(const char *path, const hlod_logger *lg, hlod_mesh *out,
     res = parse_header(&r);
     if (res == HLOD_OK)
         res = read_body(&r, out);
-    if (res == HLOD_OK) {
-        out->objects = calloc(1, sizeof *out->objects);
-        if (!out->objects || !(out->objects[0].name = io_file_stem(path)))
-            res = HLOD_ERR_NOMEM;
-        else {
-            out->object_count = 1;
-            out->objects[0].tri_count = out->tri_count;
-        }
-    }
-    if (res == HLOD_ERR_NOMEM)
-        hlod_logf(lg, HLOD_LOG_ERROR, "%s: out of memory", path);
-    if (res)
-        hlod_mesh_free(out);
-    else if (st)
-        st->tris_read = out->tri_count;
+    res = io_finish_file_mesh(path, lg, res, out, st);
     io_close(&r.s);
     element *es = r.elems.data;
     for (size_t i = 0; i < r.elems.count; i++) {
