@@ -957,12 +957,63 @@ static int subtri_push(subtri_stack *s, const subtri *t)
     return 1;
 }
 
-/* Where the surfaces nearly coincide, the pieces that straddle the other
- * surface's edges keep needing splits (the one-triangle convex bound does
- * not hold across an edge): stop at 10 levels, where a piece is 1/1024 of
- * its triangle and its bound, still certified, is within 0.06% of the
- * triangle's size. */
-#define BOUND_MAX_DEPTH 10
+/* A safety cap on splitting.  Pieces straddling an edge between two
+ * coplanar triangles of the other surface are settled by the convex-pair
+ * bound, so where the surfaces coincide only the pieces at the other
+ * surface's vertices keep splitting, a constant number per level. */
+#define BOUND_MAX_DEPTH 30
+
+static int same_point(const double *a, const double *b)
+{
+    return a[0] == b[0] && a[1] == b[1] && a[2] == b[2];
+}
+
+/* Twice the signed area of (a, b, p) about the unit normal n. */
+static double side2(const double n[3], const double *a, const double *b, const double *p)
+{
+    double e[3], f[3], c[3];
+    sub3(e, b, a);
+    sub3(f, p, a);
+    cross3(c, e, f);
+    return dot3(n, c);
+}
+
+/* Are u and v coplanar, sharing an edge, on opposite sides of it, with a
+ * convex union (a convex quad)?  Exact comparisons with a tight relative
+ * slack for coplanarity: a false "no" only costs a split. */
+static int convex_pair(const hlod_dgrid_tri *u, const hlod_dgrid_tri *v)
+{
+    if (dot3(u->n, u->n) == 0 || dot3(v->n, v->n) == 0 || dot3(u->n, v->n) < 1 - 1e-12)
+        return 0;
+    const double *pu[3] = {u->a, u->b, u->c}, *pv[3] = {v->a, v->b, v->c};
+    int su[2], sv[2], ns = 0;
+    for (int i = 0; i < 3 && ns < 3; i++)
+        for (int j = 0; j < 3; j++)
+            if (same_point(pu[i], pv[j])) {
+                if (ns < 2) {
+                    su[ns] = i;
+                    sv[ns] = j;
+                }
+                ns++;
+            }
+    if (ns != 2)
+        return 0;
+    const double *s0 = pu[su[0]], *s1 = pu[su[1]];
+    const double *ou = pu[3 - su[0] - su[1]], *ov = pv[3 - sv[0] - sv[1]];
+    /* ov in u's plane */
+    double d[3];
+    sub3(d, ov, u->a);
+    double e[3];
+    sub3(e, s1, s0);
+    double scale = dot3(e, e);
+    if (fabs(dot3(u->n, d)) > 1e-9 * sqrt(scale))
+        return 0;
+    /* opposite sides of the shared edge, and the shared edge's ends on
+     * opposite sides of the other diagonal: a convex quad */
+    double a1 = side2(u->n, s0, s1, ou), a2 = side2(u->n, s0, s1, ov);
+    double b1 = side2(u->n, ou, ov, s0), b2 = side2(u->n, ou, ov, s1);
+    return ((a1 > 0 && a2 < 0) || (a1 < 0 && a2 > 0)) && ((b1 > 0 && b2 < 0) || (b1 < 0 && b2 > 0));
+}
 
 /* An upper bound of the distance over the whole sub-triangle, the smaller
  * of two:
@@ -997,6 +1048,28 @@ static double subtri_upper(const hlod_dgrid *g, const subtri *t)
         if (w < best)
             best = w;
     }
+    /* Where the two surfaces coincide the corners often sit on two
+     * neighbouring triangles, and neither alone is near all three corners.
+     * Two coplanar triangles sharing an edge and forming a convex quad
+     * have a convex union, so the distance to the union also peaks at a
+     * corner: without this a flat region would split to the depth cap. */
+    for (int j = 0; j < 3; j++)
+        for (int k = j + 1; k < 3; k++) {
+            if (t->near[j] == t->near[k])
+                continue;
+            const hlod_dgrid_tri *u = &g->tris[t->near[j]], *v = &g->tris[t->near[k]];
+            if (!convex_pair(u, v))
+                continue;
+            double worst2 = 0;
+            for (int i = 0; i < 3; i++) {
+                double d2 = dmin(hlod_dgrid_tri_dist2(t->p[i], u), hlod_dgrid_tri_dist2(t->p[i], v));
+                if (d2 > worst2)
+                    worst2 = d2;
+            }
+            double w = sqrt(worst2);
+            if (w < best)
+                best = w;
+        }
     return best;
 }
 

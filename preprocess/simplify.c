@@ -1763,7 +1763,7 @@ hlod_result hlod_simplify(const hlod_mesh *in, const hlod_simplify_desc *desc,
             /* certified, not sampled: a sampled maximum misses peaks (by
              * 10% on fandisk at 200k samples) */
             double lower, upper;
-            hlod_result r = hlod_mesh_hausdorff_bound(in, out, 0.01, 1e-6 * hlod_mesh_bbox_diag(in), &lower, &upper);
+            hlod_result r = hlod_mesh_hausdorff_bound(in, out, 0.01, 1e-9 * hlod_mesh_bbox_diag(in), &lower, &upper);
             if (r == HLOD_OK)
                 st.error = upper;
         }

@@ -479,6 +479,36 @@ static void test_bound_dominates_sampling(void)
     }
 }
 
+/* Two triangulations of the same flat square (a fine grid and its two
+ * halves): the bound reaches its absolute floor quickly instead of
+ * splitting every piece that straddles a grid edge. */
+static void test_bound_coincident_surfaces(void)
+{
+    const int n = 24;
+    hlod_mesh a = {0}, b;
+    CHECK(hlod_mesh_alloc(&a, (size_t)(n + 1) * (n + 1), (size_t)2 * n * n, 0) == HLOD_OK);
+    for (int j = 0; j <= n; j++)
+        for (int i = 0; i <= n; i++) {
+            double *p = a.positions + 3 * ((size_t)j * (n + 1) + i);
+            p[0] = (double)i / n;
+            p[1] = (double)j / n;
+            p[2] = 0;
+        }
+    uint32_t *x = a.indices;
+    for (int j = 0; j < n; j++)
+        for (int i = 0; i < n; i++) {
+            uint32_t v = (uint32_t)(j * (n + 1) + i);
+            *x++ = v, *x++ = v + 1, *x++ = v + (uint32_t)n + 2;
+            *x++ = v, *x++ = v + (uint32_t)n + 2, *x++ = v + (uint32_t)n + 1;
+        }
+    make_square(&b, 0.0);
+    double lo, up;
+    CHECK(hlod_mesh_hausdorff_bound(&a, &b, 0.01, 1e-9, &lo, &up) == HLOD_OK);
+    CHECKF(lo <= 1e-15 && up <= 2e-9, "[%.17g, %.17g]", lo, up);
+    hlod_mesh_free(&a);
+    hlod_mesh_free(&b);
+}
+
 int main(void)
 {
     RUN(test_identical_meshes_are_zero);
@@ -496,5 +526,6 @@ int main(void)
     RUN(test_bound_offset_square);
     RUN(test_bound_finds_interior_peak);
     RUN(test_bound_dominates_sampling);
+    RUN(test_bound_coincident_surfaces);
     return check_done();
 }

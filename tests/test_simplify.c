@@ -148,6 +148,16 @@ static void flat_square_reaches_two_triangles(void)
     hlod_distance d;
     CHECK(hlod_mesh_distance(&m, &o, 20000, 7, &d) == HLOD_OK);
     CHECKF(d.max < 1e-9 * diag, "hausdorff %g", d.max);
+    /* and the certified error it reports is near zero too (the bound's
+     * absolute floor is 1e-9 of the diagonal) */
+    hlod_mesh o2 = {0};
+    hlod_simplify_desc dm = {0};
+    dm.target_tris = 2;
+    dm.measure_error = 1;
+    hlod_simplify_stats sm;
+    CHECK(hlod_simplify(&m, &dm, &o2, &sm) == HLOD_OK);
+    CHECKF(sm.error <= 1e-9 * diag * (1 + 1e-6), "reported %g", sm.error);
+    hlod_mesh_free(&o2);
     /* the four corners survive, exactly */
     double lo[3], hi[3];
     hlod_mesh_bounds(&o, lo, hi);
