@@ -1022,8 +1022,11 @@ static int convex_pair(const hlod_dgrid_tri *u, const hlod_dgrid_tri *v)
  *   the distance to a surface is 1-Lipschitz;
  * - the distance to one fixed triangle of the other surface is convex, so
  *   over the sub-triangle it peaks at a corner; try the corners' nearest
- *   triangles.  This one is tight where both surfaces are flat. */
-static double subtri_upper(const hlod_dgrid *g, const subtri *t)
+ *   triangles.  This one is tight where both surfaces are flat;
+ * - the convex-pair variant below, where the surfaces coincide.
+ * Returns as soon as a bound is at most `enough`: the caller only needs to
+ * know whether the piece is settled. */
+static double subtri_upper(const hlod_dgrid *g, const subtri *t, double enough)
 {
     double l2 = 0;
     for (int i = 0; i < 3; i++) {
@@ -1033,7 +1036,11 @@ static double subtri_upper(const hlod_dgrid *g, const subtri *t)
         if (d > l2)
             l2 = d;
     }
-    double best = dmax(t->f[0], dmax(t->f[1], t->f[2])) + sqrt(l2 / 3);
+    double fmax3 = dmax(t->f[0], dmax(t->f[1], t->f[2]));
+    double best = fmax3 + sqrt(l2 / 3);
+    /* the cheaper bounds first; stop as soon as one settles the piece */
+    if (best <= enough)
+        return best;
     for (int j = 0; j < 3; j++) {
         if (j && (t->near[j] == t->near[0] || (j == 2 && t->near[2] == t->near[1])))
             continue;
@@ -1048,6 +1055,9 @@ static double subtri_upper(const hlod_dgrid *g, const subtri *t)
         if (w < best)
             best = w;
     }
+    /* A pair can only settle the piece when every corner already does. */
+    if (best <= enough || fmax3 > enough)
+        return best;
     /* Where the two surfaces coincide the corners often sit on two
      * neighbouring triangles, and neither alone is near all three corners.
      * Two coplanar triangles sharing an edge and forming a convex quad
@@ -1128,14 +1138,14 @@ static hlod_result bound_side(const hlod_mesh *m, hlod_dgrid *g, const double or
             t0.near[c] = nearv[ix[c]];
         }
         t0.depth = 0;
-        if (subtri_upper(g, &t0) <= lb * (1 + rel_tol) + abs_tol)
+        if (subtri_upper(g, &t0, lb * (1 + rel_tol) + abs_tol) <= lb * (1 + rel_tol) + abs_tol)
             continue;
         st.n = 0;
         if (!subtri_push(&st, &t0))
             goto done;
         while (st.n) {
             subtri t = st.e[--st.n];
-            double ub = subtri_upper(g, &t);
+            double ub = subtri_upper(g, &t, lb * (1 + rel_tol) + abs_tol);
             if (ub <= lb * (1 + rel_tol) + abs_tol)
                 continue;
             if (t.depth >= BOUND_MAX_DEPTH) {
