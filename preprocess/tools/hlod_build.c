@@ -22,7 +22,6 @@
  * - The store appears at OUT only when complete (temporary file + rename);
  *   any failure leaves nothing at OUT and an old OUT untouched.
  */
-#include "atomic_file.h"
 #include "build.h"
 #include "cli.h"
 #include "hlod/image.h"
@@ -311,7 +310,7 @@ typedef struct job {
     hlod_store_writer *w;
     const hlod_logger *lg;
     size_t next;            /* next block to build (under turn_mu) */
-    atomic_size_t done_blocks, done_tris;
+    atomic_size_t done_blocks;
     atomic_int failed;
     /* Payloads go into the store in block order, whatever thread finishes
      * first, so the same input gives a byte-identical store.  A finished
@@ -495,7 +494,6 @@ static void *worker(void *arg)
             atomic_store(&J->failed, 1);
             hlod_btree_free(&t);
         }
-        atomic_fetch_add(&J->done_tris, b->mesh.tri_count);
         hlod_image_free(&tex);
         hlod_mesh_free(&b->mesh);
         pthread_mutex_lock(&J->turn_mu);
