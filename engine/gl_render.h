@@ -1,0 +1,45 @@
+/*
+ * gl_render.h - the engine's side of the renderer (engine/gl_*.c hold every
+ * GL call).  Render thread only, with the renderer's context current.
+ *
+ * A node on the GPU is one VAO with one VBO (positions, normals, UVs and
+ * colours as present in the payload) and one IBO, plus a mipmapped texture
+ * when the payload has one.  Positions stay relative to the node's origin;
+ * hlod_gpu_draw gets the origin minus the camera position, computed in
+ * double by the caller and rounded to float once, so vertex data never
+ * sees large coordinates.
+ *
+ * Shading: textured triangles sample the texture; untextured ones use the
+ * vertex colour (the material's diffuse colour), or light grey when the
+ * payload has none; both with a simple headlight-plus-sky diffuse term from
+ * the normals so untextured geometry shows its shape.
+ */
+#ifndef HLOD_ENGINE_GL_RENDER_H
+#define HLOD_ENGINE_GL_RENDER_H
+
+#include "hlod/engine.h"
+
+typedef struct hlod_gpu_node {
+    uint32_t vao, vbo, ibo, tex;    /* GL names; 0 = none */
+    uint32_t index_count;
+    uint32_t tex_index_count;       /* the first tex_index_count indices are textured */
+    uint64_t bytes;                 /* GPU bytes (buffers + texture with mipmaps) */
+} hlod_gpu_node;
+
+/* Uploads a payload.  HLOD_ERR_NOMEM when GL runs out of memory (the node
+ * stays absent), HLOD_ERR_INVALID_ARG for an empty payload.  *out zeroed on
+ * failure. */
+hlod_result hlod_gpu_upload(hlod_renderer *r, const hlod_store_payload *p, hlod_gpu_node *out);
+void hlod_gpu_release(hlod_renderer *r, hlod_gpu_node *g);   /* zeroes g; g may be zeroed */
+
+/* Frame: begin clears and sets the viewport and camera-relative
+ * view-projection; draw draws one node at `offset` = origin - camera;
+ * end flushes and, when finish is set, waits for the GPU (glFinish) so the
+ * caller's timer measures the whole frame.  depth picks the level colour in
+ * depth-colour mode. */
+void hlod_gpu_begin(hlod_renderer *r, const hlod_camera *cam);
+void hlod_gpu_draw(hlod_renderer *r, const hlod_gpu_node *g, const double offset[3],
+                   uint32_t depth);
+void hlod_gpu_end(hlod_renderer *r, int finish);
+
+#endif

@@ -1,0 +1,399 @@
+/*
+ * traverse.c - node selection (Lakhia III-C; SPEC section 3).
+ *
+ * Top-down and breadth-first from the hlod_0 nodes.  Each visible node is
+ * priced (priority = benefit / cost); a node's time slice is its parent's
+ * slice shared among the visible siblings by priority (eq. 4), and its
+ * timeNeeded is v_time * cost.  For each node p on the current front the
+ * policy decides between drawing p and drawing its visible children:
+ *
+ *   lakhia  hyst_c += (slice_c - needed_c) / needed_c, clamped (outside a
+ *           small dead band, see update_hyst);
+ *           cumHyst = sum trunc(hyst_c / c_hystSwitch); refine if
+ *           cumHyst >= 0 (SPEC: cumHyst < 0 draws the parent), unless the
+ *           safety clamp fires (children's summed timeNeeded over the shared
+ *           time by more than c_safety_slack);
+ *   nohyst  refine if shareTime > sum timeNeeded (eq. 4 recursion rule);
+ *   sse     refine while p's projected geometric error exceeds the pixel
+ *           threshold (the threshold is adapted by the engine);
+ *   full    refine whenever the children are resident (reference renders).
+ *
+ * Whatever the policy: a visible child that is not resident forces the
+ * parent (Lakhia III-C), and for the time-based policies the frame estimate
+ * never exceeds the budget: a refinement that would push the running
+ * estimate of the whole front over it draws the parent instead.
+ *
+ * Visibility: a node whose box meets the frustum is visible (frustumVis = 1).
+ * Outside, frustumVis falls linearly to 0 over c_vis_falloff node radii;
+ * those nodes are priced only for the loader (prefetch) and share no time.
+ * Farther nodes are not priced at all, so the work per frame is bounded by
+ * the visible front and its children, not by the store.
+ *
+ * Everything is computed in doubles relative to the camera, so a city at
+ * x = 5e6 m selects exactly as at the origin.
+ */
+#include "engine_internal.h"
+
+#include <assert.h>
+#include <math.h>
+#include <string.h>
+
+/* ---- view ---- */
+
+void hlod_view_init(hlod_view *v, const hlod_camera *cam, const double velocity[3],
+                    double lookahead_s)
+{
+    assert(v && cam && velocity);
+    memset(v, 0, sizeof *v);
+    for (int k = 0; k < 3; k++) {
+        v->eye[k] = cam->position[k];
+        double ahead = velocity[k] * lookahead_s;
+        v->probe[k] = cam->position[k] + (isfinite(ahead) ? ahead : 0);
+    }
+    /* m = proj * view, column-major; the rows of m give the planes
+     * (Gribb-Hartmann), in camera-relative coordinates. */
+    double m[16];
+    for (int c = 0; c < 4; c++)
+        for (int r = 0; r < 4; r++) {
+            double s = 0;
+            for (int k = 0; k < 4; k++)
+                s += cam->proj[k * 4 + r] * cam->view[c * 4 + k];
+            m[c * 4 + r] = s;
+        }
+    double row[4][4];
+    for (int r = 0; r < 4; r++)
+        for (int c = 0; c < 4; c++)
+            row[r][c] = m[c * 4 + r];
+    for (int i = 0; i < 6; i++) {
+        int axis = i / 2;
+        double sign = (i % 2) ? -1.0 : 1.0;
+        double len2 = 0;
+        for (int c = 0; c < 4; c++) {
+            v->planes[i][c] = row[3][c] + sign * row[axis][c];
+            if (c < 3)
+                len2 += v->planes[i][c] * v->planes[i][c];
+        }
+        double inv = len2 > 0 ? 1 / sqrt(len2) : 0;
+        for (int c = 0; c < 4; c++)
+            v->planes[i][c] *= inv;
+    }
+    /* The view matrix's third row is the eye's +z axis in world space: the
+     * direction toward the viewer, i.e. the image plane's normal. */
+    v->toward[0] = cam->view[2];
+    v->toward[1] = cam->view[6];
+    v->toward[2] = cam->view[10];
+    double t = tan(0.5 * cam->fov_y_deg * M_PI / 180.0);
+    v->pixels_per_radian = t > 0 ? 0.5 * (double)cam->height / t : 1.0;
+}
+
+/* How far (model units) the box lies outside the frustum: <= 0 when it
+ * meets it.  The test is conservative (a box near a frustum corner may be
+ * reported as meeting it), as usual. */
+static double outside_distance(const hlod_view *v, const hlod_store_node *n)
+{
+    double lo[3], hi[3];
+    for (int k = 0; k < 3; k++) {
+        lo[k] = n->bbox_min[k] - v->eye[k];
+        hi[k] = n->bbox_max[k] - v->eye[k];
+    }
+    double worst = -INFINITY;
+    for (int i = 0; i < 6; i++) {
+        const double *p = v->planes[i];
+        double s = p[3];
+        for (int k = 0; k < 3; k++)
+            s += p[k] * (p[k] >= 0 ? hi[k] : lo[k]);
+        if (-s > worst)
+            worst = -s;
+    }
+    return worst;
+}
+
+static double node_radius(const hlod_store_node *n)
+{
+    double dx = n->bbox_max[0] - n->bbox_min[0], dy = n->bbox_max[1] - n->bbox_min[1],
+           dz = n->bbox_max[2] - n->bbox_min[2];
+    return 0.5 * sqrt(dx * dx + dy * dy + dz * dz);
+}
+
+/* Distance from the look-ahead probe to the box, clamped below by a tenth
+ * of the node's radius (and never zero): a camera inside a node gets a large
+ * but finite benefit (SPEC 3). */
+static double node_distance(const hlod_view *v, const hlod_store_node *n)
+{
+    double d2 = 0;
+    for (int k = 0; k < 3; k++) {
+        double lo = n->bbox_min[k] - v->probe[k], hi = v->probe[k] - n->bbox_max[k];
+        double g = lo > hi ? lo : hi;
+        if (g > 0)
+            d2 += g * g;
+    }
+    double d = sqrt(d2), floor = 0.1 * node_radius(n);
+    if (!(floor > 1e-6))
+        floor = 1e-6;
+    return d > floor ? d : floor;
+}
+
+/* Lakhia: priority = benefit / cost, benefit = staticBenefit * vis *
+ * foreshorten / distance^2.  Kept inside (0, 1e300): no zero, NaN or Inf
+ * reaches a slice. */
+static double node_priority(const hlod_engine *e, const hlod_view *v, uint32_t i,
+                            double frustum_vis)
+{
+    const hlod_store_node *n = &e->nodes[i];
+    double vis = 1 + e->d.c_vis * frustum_vis;
+    double dot = v->toward[0] * n->avg_normal[0] + v->toward[1] * n->avg_normal[1] +
+                 v->toward[2] * n->avg_normal[2];
+    double fore = 1 + e->d.c_fore * dot;
+    if (!(fore > 0.05))
+        fore = 0.05; /* c_fore near 1 would zero a back-facing node */
+    double d = node_distance(v, n);
+    double sb = n->static_benefit > 0 ? n->static_benefit : 1e-9;
+    double pr = sb * vis * fore / (d * d) / hlod_node_cost(n);
+    if (!(pr > 1e-300))
+        pr = 1e-300;
+    if (!(pr < 1e300))
+        pr = 1e300;
+    return pr;
+}
+
+/* frustumVis in [0, 1], or -1 when the node is beyond the falloff (not
+ * priced). */
+static double frustum_vis(const hlod_engine *e, const hlod_view *v, uint32_t i)
+{
+    double out = outside_distance(v, &e->nodes[i]);
+    if (!(out > 0))
+        return 1;
+    double fall = e->d.c_vis_falloff * node_radius(&e->nodes[i]);
+    if (!(fall > 0) || out >= fall)
+        return -1;
+    return 1 - out / fall;
+}
+
+/* ---- bookkeeping ---- */
+
+static void note_toggle(hlod_engine *e, uint32_t i, int dir)
+{
+    hlod_node_frame *f = &e->fr[i];
+    if (dir > 0)
+        e->st.toggles_up++;
+    else
+        e->st.toggles_down++;
+    /* An oscillation: this toggle undoes one made within the last 10 frames. */
+    if (f->toggled && f->toggle_dir == -dir && e->frame - f->toggled <= 10)
+        e->st.oscillations++;
+    f->toggled = e->frame;
+    f->toggle_dir = (int8_t)dir;
+}
+
+static int draw_node(hlod_engine *e, uint32_t i)
+{
+    const hlod_store_node *n = &e->nodes[i];
+    hlod_node_frame *f = &e->fr[i];
+    if (!hlod_u32_push(e, &e->draw, i))
+        return 0;
+    if (f->refined && f->refined + 1 == e->frame)
+        note_toggle(e, i, -1);
+    f->drawn = e->frame;
+    e->st.nodes_drawn++;
+    e->st.nodes_per_depth[n->depth < HLOD_STATS_MAX_DEPTH ? n->depth : HLOD_STATS_MAX_DEPTH - 1]++;
+    e->st.tris_drawn += n->tri_count;
+    e->st.cost_drawn += n->cost;
+    return 1;
+}
+
+/* A node the traversal would like resident: queue it for admission unless
+ * it is bad or backing off after a failure. */
+static int want_node(hlod_engine *e, uint32_t i, double priority)
+{
+    hlod_node_res *r = &e->res[i];
+    if (r->state == HLOD_NODE_RESIDENT || r->state == HLOD_NODE_BAD)
+        return 1;
+    if (r->wanted == e->frame)
+        return 1;
+    if (r->state == HLOD_NODE_ABSENT && r->retry_frame > e->frame)
+        return 1;
+    r->wanted = e->frame;
+    return hlod_req_push(e, &e->want, i, priority);
+}
+
+static void update_hyst(hlod_engine *e, hlod_node_frame *f)
+{
+    /* New or re-entering nodes start at 0 (SPEC 3). */
+    if (f->hyst_frame + 1 != e->frame)
+        f->hyst = 0;
+    /* Lakhia: hyst += (timeSlice - timeNeeded) / timeNeeded, clamped.
+     * Within the dead band the two are "almost the same" and the counter
+     * stays where it is: a nearly balanced node would otherwise creep to a
+     * switch hundreds of frames later, or random-walk across one with the
+     * noise of the measured frame time, and a still camera would never
+     * settle. */
+    double urgency = (f->slice - f->needed) / f->needed;
+    if (fabs(urgency) > e->d.c_hyst_deadband)
+        f->hyst += urgency;
+    double lim = e->d.c_hyst_limit;
+    if (f->hyst > lim)
+        f->hyst = lim;
+    if (f->hyst < -lim)
+        f->hyst = -lim;
+    f->hyst_frame = e->frame;
+}
+
+/* ---- the traversal ---- */
+
+typedef struct front {
+    double est;     /* estimated ms of the front so far (sum of timeNeeded) */
+    double budget;
+} front;
+
+/* Decides node p of the front: draw it, or append its visible children to
+ * e->next.  Returns 0 on allocation failure. */
+static int visit(hlod_engine *e, const hlod_view *v, front *fr, uint32_t p)
+{
+    const hlod_store_node *nodes = e->nodes;
+    hlod_node_frame *pf = &e->fr[p];
+    uint32_t c0 = hlod_store_first_child(nodes, p), c1 = hlod_store_child_end(nodes, p);
+    if (c0 == c1)
+        return draw_node(e, p);
+
+    const hlod_policy pol = e->d.policy;
+    const double vt = e->v_time;
+    size_t mark = e->next.n;
+    double sum_pr = 0;
+    for (uint32_t c = c0; c < c1; c++) {
+        double fv = frustum_vis(e, v, c);
+        if (fv < 0)
+            continue;
+        hlod_node_frame *cf = &e->fr[c];
+        cf->priority = node_priority(e, v, c, fv);
+        cf->priced = e->frame;
+        e->st.nodes_visited++;
+        if (fv < 1) {
+            /* outside but near: prefetch only */
+            if (!want_node(e, c, cf->priority))
+                return 0;
+            continue;
+        }
+        if (!hlod_u32_push(e, &e->next, c))
+            return 0;
+        sum_pr += cf->priority;
+    }
+    size_t nvis = e->next.n - mark;
+    if (nvis == 0) {
+        /* The box meets the frustum but no child's does: nothing of the
+         * children would show; drawing p is the safe choice. */
+        e->next.n = mark;
+        return draw_node(e, p);
+    }
+
+    /* eq. 4 among the visible siblings, timeNeeded = v_time * cost. */
+    double share = pf->slice, sum_needed = 0;
+    long cum = 0;
+    int all_resident = 1;
+    uint32_t missing = 0;
+    for (size_t k = mark; k < e->next.n; k++) {
+        uint32_t c = e->next.v[k];
+        hlod_node_frame *cf = &e->fr[c];
+        cf->slice = share * (cf->priority / sum_pr);
+        cf->needed = vt * hlod_node_cost(&nodes[c]);
+        sum_needed += cf->needed;
+        if (pol == HLOD_POLICY_LAKHIA) {
+            update_hyst(e, cf);
+            cum += (long)trunc(cf->hyst / e->d.c_hyst_switch);
+        }
+        if (e->res[c].state != HLOD_NODE_RESIDENT) {
+            all_resident = 0;
+            missing++;
+        }
+    }
+
+    int refine, near;
+    switch (pol) {
+    case HLOD_POLICY_LAKHIA:
+        /* cumHyst < 0 draws the parent; the safety clamp draws it too when
+         * the children clearly do not fit the shared time (SPEC 3). */
+        refine = cum >= 0 && sum_needed <= share * (1 + e->d.c_safety_slack);
+        near = sum_needed <= 2 * share;
+        break;
+    case HLOD_POLICY_NOHYST:
+        refine = share > sum_needed;
+        near = sum_needed <= 2 * share;
+        break;
+    case HLOD_POLICY_SSE: {
+        double sse = nodes[p].error * v->pixels_per_radian / node_distance(v, &nodes[p]);
+        refine = sse > e->sse_pixels;
+        near = sse > 0.5 * e->sse_pixels;
+        break;
+    }
+    default: /* HLOD_POLICY_FULL */
+        refine = near = 1;
+        break;
+    }
+    /* The frame estimate never exceeds the budget (time-based policies). */
+    if (refine && (pol == HLOD_POLICY_LAKHIA || pol == HLOD_POLICY_NOHYST) &&
+        fr->est - pf->needed + sum_needed > fr->budget)
+        refine = 0;
+
+    /* Ask for the children that are not resident when refining is near. */
+    if (near && !all_resident)
+        for (size_t k = mark; k < e->next.n; k++)
+            if (!want_node(e, e->next.v[k], e->fr[e->next.v[k]].priority))
+                return 0;
+
+    if (refine && !all_resident) {
+        /* A visible sibling that is not resident forces the parent. */
+        e->st.wanted_missing += missing;
+        refine = 0;
+    }
+    if (!refine) {
+        e->next.n = mark;
+        return draw_node(e, p);
+    }
+    fr->est += sum_needed - pf->needed;
+    if (pf->drawn && pf->drawn + 1 == e->frame)
+        note_toggle(e, p, +1);
+    pf->refined = e->frame;
+    return 1;
+}
+
+hlod_result hlod_traverse(hlod_engine *e, const hlod_view *v, double budget_ms,
+                          double share_ms)
+{
+    assert(e && v);
+    e->draw.n = e->level.n = e->next.n = e->want.n = 0;
+    front fr = {0, budget_ms};
+
+    /* hlod_0: the visible roots share share_ms (shareTime = c_targetTime
+     * less the fixed frame part, times the engine's share gain); they are
+     * always resident and drawn. */
+    double sum_pr = 0;
+    for (uint32_t r = 0; r < e->root_count; r++) {
+        double fv = frustum_vis(e, v, r);
+        if (fv < 1)
+            continue; /* roots are resident: nothing to prefetch */
+        hlod_node_frame *f = &e->fr[r];
+        f->priority = node_priority(e, v, r, fv);
+        f->priced = e->frame;
+        e->st.nodes_visited++;
+        if (!hlod_u32_push(e, &e->level, r))
+            return HLOD_ERR_NOMEM;
+        sum_pr += f->priority;
+    }
+    for (size_t k = 0; k < e->level.n; k++) {
+        uint32_t r = e->level.v[k];
+        hlod_node_frame *f = &e->fr[r];
+        f->slice = share_ms * (f->priority / sum_pr);
+        f->needed = e->v_time * hlod_node_cost(&e->nodes[r]);
+        fr.est += f->needed;
+    }
+
+    while (e->level.n) {
+        e->next.n = 0;
+        for (size_t k = 0; k < e->level.n; k++)
+            if (!visit(e, v, &fr, e->level.v[k]))
+                return HLOD_ERR_NOMEM;
+        hlod_u32_vec t = e->level;
+        e->level = e->next;
+        e->next = t;
+    }
+    return HLOD_OK;
+}

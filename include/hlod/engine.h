@@ -1,0 +1,260 @@
+/*
+ * engine.h - the runtime: priority traversal with time slicing and urgency
+ * hysteresis (Lakhia III-C), a preemptive loader thread (III-D) and an
+ * OpenGL renderer.  SPEC section 3 gives every formula and constant.
+ *
+ * Usage (render thread, with a GL 3.3 context current when a renderer is
+ * given):
+ *
+ *     hlod_store *st;  hlod_store_open("city.hlod", NULL, &st);
+ *     hlod_engine_desc d = {0};          // zero = every default
+ *     d.target_ms = 33.3;
+ *     d.renderer = r;                    // hlod_renderer_create(), or NULL
+ *     hlod_engine *e;  hlod_engine_create(st, &d, &e);
+ *     for (;;) {
+ *         hlod_camera cam;  hlod_camera_look_at(&cam, eye, at, up, 60, 0.5, 5000, 1280, 720);
+ *         hlod_frame_stats fs;  hlod_engine_frame(e, &cam, dt, &fs);
+ *     }
+ *     hlod_engine_destroy(e);            // stops the loader
+ *     hlod_store_close(st);
+ *
+ * Threads: an engine is used by one thread (the render thread); it owns one
+ * loader thread.  Engines share no state, so several may live in one
+ * process, over one store or several.  The store must outlive its engines.
+ *
+ * Numbers: the camera position is double; node origins are double; the
+ * renderer draws each node at (origin - camera) computed in double, so a city
+ * at x = 5e6 m renders exactly like the same city at the origin.
+ */
+#ifndef HLOD_ENGINE_H
+#define HLOD_ENGINE_H
+
+#include "hlod/hlod.h"
+#include "hlod/store.h"
+
+#ifdef __cplusplus
+extern "C" {
+#endif
+
+/* ---- camera ---- */
+
+/* A camera: eye position in model units (double), plus a view rotation and
+ * projection that work in camera-relative coordinates (eye at 0), which is
+ * what the renderer and the frustum test use.  Matrices are column-major
+ * (OpenGL).  z is up in the generated city, but nothing here assumes it. */
+typedef struct hlod_camera {
+    double position[3];     /* eye */
+    double view[16];        /* rotation only: world direction -> eye space */
+    double proj[16];        /* perspective */
+    uint32_t width, height; /* viewport in pixels */
+    double fov_y_deg;       /* vertical field of view, for screen-space error */
+} hlod_camera;
+
+/* Fills cam from an eye, a look-at point and an up vector; a perspective of
+ * fov_y_deg with near/far planes.  HLOD_ERR_INVALID_ARG (and cam zeroed) for
+ * non-finite input, eye == target, up parallel to the view direction,
+ * fov outside (0, 180), near <= 0, far <= near or a zero viewport. */
+hlod_result hlod_camera_look_at(hlod_camera *cam, const double eye[3], const double target[3],
+                                const double up[3], double fov_y_deg, double near_plane,
+                                double far_plane, uint32_t width, uint32_t height);
+
+/* The unit view direction (where the camera looks) of a camera. */
+void hlod_camera_forward(const hlod_camera *cam, double out[3]);
+
+/* ---- renderer (engine/gl_*.c) ---- */
+
+typedef struct hlod_renderer hlod_renderer;
+
+/* A GL function loader: OSMesaGetProcAddress, glfwGetProcAddress. */
+typedef void *(*hlod_gl_get_proc)(const char *name);
+
+/* Creates a renderer in the current GL context (3.3 core or later): loads
+ * the entry points through get_proc, compiles the shaders.  HLOD_ERR_UNSUPPORTED
+ * when the context is too old or a function is missing.  Render thread. */
+hlod_result hlod_renderer_create(hlod_gl_get_proc get_proc, const hlod_logger *lg,
+                                 hlod_renderer **out);
+void hlod_renderer_destroy(hlod_renderer *r);   /* context current; r may be NULL */
+
+/* Colour nodes by depth instead of texture/material (viewer toggle). */
+void hlod_renderer_set_depth_colors(hlod_renderer *r, int on);
+void hlod_renderer_set_wireframe(hlod_renderer *r, int on);
+void hlod_renderer_set_clear_color(hlod_renderer *r, float red, float green, float blue);
+
+/* A headless OSMesa context with its own colour and depth buffer. */
+typedef struct hlod_osmesa hlod_osmesa;
+hlod_result hlod_osmesa_create(uint32_t width, uint32_t height, const hlod_logger *lg,
+                               hlod_osmesa **out);   /* and makes it current */
+void hlod_osmesa_destroy(hlod_osmesa *o);
+hlod_gl_get_proc hlod_osmesa_get_proc(void);
+/* Copies the current image as 8-bit RGB, top row first, width*height*3
+ * bytes (glReadPixels after glFinish). */
+hlod_result hlod_osmesa_read_rgb(hlod_osmesa *o, uint8_t *rgb);
+
+/* ---- engine ---- */
+
+typedef struct hlod_engine hlod_engine;
+
+typedef enum hlod_policy {
+    HLOD_POLICY_LAKHIA = 0, /* priorities, time slices, urgency hysteresis */
+    HLOD_POLICY_NOHYST,     /* eq. 4 recursion rule, no hysteresis */
+    HLOD_POLICY_SSE,        /* screen-space error with an adaptive threshold */
+    HLOD_POLICY_FULL,       /* leaves only, everything loaded (reference) */
+    HLOD_POLICY_COUNT
+} hlod_policy;
+
+const char *hlod_policy_name(hlod_policy p);           /* "lakhia", ... */
+int hlod_policy_parse(const char *name, hlod_policy *out); /* 1 on success */
+
+/* Optional allocator for the engine's own tables (payload buffers come from
+ * malloc).  All three or none. */
+typedef struct hlod_allocator {
+    void *(*alloc)(void *user_data, size_t size);
+    void *(*realloc)(void *user_data, void *p, size_t size);
+    void (*free)(void *user_data, void *p);
+    void *user_data;
+} hlod_allocator;
+
+/* Called by the loader before each incremental read of a payload (from the
+ * loader thread).  Returning non-OK fails that read as if the disk had
+ * (HLOD_ERR_IO is transient and retried with backoff; anything else marks
+ * the node bad).  May sleep, to simulate a slow disk.  For tests and fault
+ * injection. */
+typedef hlod_result (*hlod_read_hook)(void *user_data, uint32_t node, uint64_t offset,
+                                      size_t bytes);
+
+/* Replaces measured wall time (for tests without GL): the frame time a
+ * synthetic machine would take to draw drawn_cost (sum of eq. 1) in
+ * drawn_tris triangles. */
+typedef double (*hlod_time_model)(void *user_data, double drawn_cost, uint64_t drawn_tris);
+
+/* Engine settings.  Zero means "default" for every field; defaults are
+ * filled in one place (hlod_engine_desc_defaults). */
+typedef struct hlod_engine_desc {
+    double target_ms;            /* c_targetTime; default 33.3 */
+    uint64_t memory_budget_bytes;/* maxMemory; default 512 MiB */
+    double c_vis;                /* vis = 1 + c_vis * frustumVis; default 4 */
+    double c_vis_falloff;        /* falloff outside the frustum, in node radii; default 1 */
+    double c_fore;               /* foreshorten = 1 + c_fore * (view . avgNormal); default 0.25 */
+    double c_hyst_limit;         /* default 8 */
+    double c_hyst_switch;        /* in [1, c_hyst_limit]; default 2 */
+    double c_memory;             /* bytes per unit of cost; default: from the store
+                                    (payload bytes / total cost) */
+    double c_safety_slack;       /* siblings' timeNeeded over their share that forces
+                                    the parent regardless of counters; default 0.10 */
+    double c_hyst_deadband;      /* |timeSlice - timeNeeded| / timeNeeded below this
+                                    leaves hyst unchanged (Lakhia: "almost the same"
+                                    stays near 0); default 0.10, negative = none */
+    double velocity_lookahead_s; /* distance advanced by this much camera motion; default 0.5 */
+    double sse_pixels;           /* initial SSE threshold; default 2 */
+    hlod_policy policy;          /* default HLOD_POLICY_LAKHIA */
+    uint32_t read_chunk_bytes;   /* loader increment; default 64 KiB */
+    uint64_t upload_budget_bytes;/* GL uploads per frame; default 16 MiB */
+    uint32_t max_inflight;       /* requests handed to the loader at once; default 32 */
+
+    /* Reproducible runs: v_time and the fixed frame part are held at these
+     * values (ms per cost unit, ms) instead of fitted from measurements, and
+     * the loader runs synchronously inside frame() reading at most
+     * deterministic_load_bytes per frame in priority order. */
+    int deterministic;
+    double fixed_v_time;         /* default: 1e-4 ms per cost unit */
+    double fixed_frame_ms;       /* default 0 */
+    uint64_t deterministic_load_bytes; /* default 4 MiB */
+
+    hlod_renderer *renderer;     /* NULL: select only, draw nothing (tests) */
+    hlod_time_model time_model;  /* NULL: wall time (glFinish-bounded) */
+    void *time_model_user;
+    hlod_read_hook read_hook;    /* NULL: none */
+    void *read_hook_user;
+    hlod_logger logger;          /* func NULL: silent; may be called from the loader thread */
+    hlod_allocator allocator;    /* alloc NULL: malloc/realloc/free */
+} hlod_engine_desc;
+
+/* Fills every zero field of d with its default.  Idempotent. */
+void hlod_engine_desc_defaults(hlod_engine_desc *d);
+
+#define HLOD_STATS_MAX_DEPTH 32
+
+typedef struct hlod_frame_stats {
+    uint64_t frame;              /* 0, 1, ... */
+    double measured_ms;          /* whole frame, glFinish-bounded (or time_model) */
+    double estimated_ms;         /* fixed_ms + v_time * drawn cost */
+    double v_time;               /* ms per cost unit used this frame */
+    double fixed_ms;             /* fixed part of the cost model */
+    double budget_ms;            /* target - fixed: the bound on the estimate */
+    double share_gain;           /* roots' shareTime / budget_ms (>= 1) */
+    double traversal_ms;         /* CPU time of selection (no GL) */
+    double upload_ms;            /* CPU time of GL uploads and frees */
+    double sse_pixels;           /* current SSE threshold (policy sse) */
+    uint32_t nodes_drawn;
+    uint32_t nodes_per_depth[HLOD_STATS_MAX_DEPTH]; /* deeper nodes count in the last */
+    uint64_t tris_drawn;
+    double cost_drawn;           /* sum of eq. 1 over drawn nodes */
+    uint32_t toggles_up;         /* drawn node replaced by its children */
+    uint32_t toggles_down;       /* children replaced by their parent */
+    uint32_t oscillations;       /* toggles reversing one within 10 frames */
+    uint32_t nodes_visited;      /* nodes whose priority was computed */
+    uint32_t wanted_missing;     /* visible nodes wanted but not resident */
+    uint32_t resident_nodes;
+    uint64_t resident_bytes;     /* payload bytes of resident nodes */
+    double resident_cost;        /* c_memory * sum(cost of resident) */
+    uint64_t memory_budget_bytes;
+    uint32_t loads;              /* nodes that became resident this frame */
+    uint32_t evictions;          /* nodes evicted this frame */
+    uint64_t bytes_read;         /* by the loader, this frame */
+    uint32_t load_failures;      /* reads that failed this frame */
+    uint32_t bad_nodes;          /* nodes marked bad so far */
+    uint32_t queued;             /* requests handed to the loader */
+    uint32_t render_waits;       /* render thread blocked on the loader: must be 0 */
+} hlod_frame_stats;
+
+/* Creates an engine over an open store: reads every hlod_0 node
+ * synchronously (they are always resident), uploads them when a renderer is
+ * given, and starts the loader thread (not in deterministic mode).
+ * HLOD_ERR_INVALID_ARG for a bad desc (e.g. c_hyst_switch outside [1,
+ * c_hyst_limit], a NaN), HLOD_ERR_NOMEM, or the error of an hlod_0 read. */
+hlod_result hlod_engine_create(const hlod_store *store, const hlod_engine_desc *desc,
+                               hlod_engine **out);
+
+/* Stops and joins the loader, frees GPU resources (context current) and
+ * everything else.  e may be NULL. */
+void hlod_engine_destroy(hlod_engine *e);
+
+/* One frame: collect finished loads and upload them (within the upload
+ * budget), select nodes, draw them, measure, update the cost model, hand
+ * the loader its new queue and evict.  Never blocks on the loader.  dt is
+ * the simulated time since the previous frame (for the camera velocity).
+ * HLOD_ERR_INVALID_ARG for a NULL argument or a non-finite camera or dt (no
+ * frame is drawn, stats are zeroed).  stats may be NULL. */
+hlod_result hlod_engine_frame(hlod_engine *e, const hlod_camera *cam, double dt,
+                              hlod_frame_stats *stats);
+
+/* Changes settings between frames: target_ms, c_* constants, policy,
+ * sse_pixels, fixed_v_time.  Fields that need a restart (memory budget,
+ * renderer, deterministic) are ignored.  HLOD_ERR_INVALID_ARG as for create. */
+hlod_result hlod_engine_set(hlod_engine *e, const hlod_engine_desc *desc);
+const hlod_engine_desc *hlod_engine_get_desc(const hlod_engine *e);
+
+/* Loads every node the policy HLOD_POLICY_FULL would draw from cam (all
+ * leaves in or near the frustum), synchronously, ignoring the budget.  For
+ * reference renders only. */
+hlod_result hlod_engine_load_all_leaves(hlod_engine *e, const hlod_camera *cam);
+
+/* Inspection for tests and tools (render thread). */
+typedef enum hlod_node_state {
+    HLOD_NODE_ABSENT = 0,
+    HLOD_NODE_QUEUED,            /* handed to the loader */
+    HLOD_NODE_RESIDENT,
+    HLOD_NODE_BAD                /* failed for good: never retried */
+} hlod_node_state;
+
+hlod_node_state hlod_engine_node_state(const hlod_engine *e, uint32_t node);
+/* 1 when node was drawn in the last frame. */
+int hlod_engine_node_drawn(const hlod_engine *e, uint32_t node);
+/* The node's hysteresis counter and last time slice / need (ms). */
+void hlod_engine_node_debug(const hlod_engine *e, uint32_t node, double *hyst,
+                            double *time_slice, double *time_needed, double *priority);
+
+#ifdef __cplusplus
+}
+#endif
+#endif

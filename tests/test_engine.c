@@ -1,0 +1,765 @@
+/*
+ * test_engine.c - the runtime's selection and residency, without GL.
+ *
+ * Synthetic stores (tests/store_fixture.h) and an engine with no renderer:
+ * the traversal, hysteresis, cost model and loader run for real; frame time
+ * comes from a synthetic machine (hlod_time_model) or from the
+ * deterministic mode's fixed v_time.  Each test checks one behaviour of
+ * SPEC section 3: time slices, the estimate bound, the missing-sibling
+ * rule, hysteresis clamps and settling, pricing only what is near the view,
+ * the memory budget under random jumps, load-once when the scene fits,
+ * corrupt and failing nodes, a slow disk that must not stall the render
+ * thread, and a city far from the origin selecting exactly as at it.
+ */
+#include "check.h"
+#include "engine_internal.h"
+#include "store_fixture.h"
+
+#include <math.h>
+#include <pthread.h>
+#include <time.h>
+#include <unistd.h>
+
+static char g_dir[256];
+
+static void sleep_us(long us)
+{
+    struct timespec ts = {us / 1000000, (us % 1000000) * 1000};
+    nanosleep(&ts, NULL);
+}
+
+static const char *tmp_path(const char *name, char *buf, size_t n)
+{
+    snprintf(buf, n, "%s/%s", g_dir, name);
+    return buf;
+}
+
+static hlod_store *make_store(const char *name, const fixture_opts *o, uint32_t *count)
+{
+    char path[512];
+    tmp_path(name, path, sizeof path);
+    hlod_result r = fixture_write(path, o, count);
+    CHECKF(r == HLOD_OK, "fixture_write: %s", hlod_result_str(r));
+    hlod_store *s = NULL;
+    r = hlod_store_open(path, NULL, &s);
+    CHECKF(r == HLOD_OK, "open: %s", hlod_result_str(r));
+    return s;
+}
+
+static void look(hlod_camera *cam, double ex, double ey, double ez, double tx, double ty,
+                 double tz)
+{
+    double eye[3] = {ex, ey, ez}, at[3] = {tx, ty, tz}, up[3] = {0, 0, 1};
+    hlod_result r = hlod_camera_look_at(cam, eye, at, up, 60, 0.5, 1e5, 1280, 720);
+    CHECK(r == HLOD_OK);
+}
+
+static uint64_t rng_state = 88172645463325252ull;
+static double frand(void)
+{
+    rng_state ^= rng_state << 13;
+    rng_state ^= rng_state >> 7;
+    rng_state ^= rng_state << 17;
+    return (double)(rng_state >> 11) / 9007199254740992.0;
+}
+
+/* A random camera over and around the fixture's blocks (x in [0, 440]). */
+static void random_camera(hlod_camera *cam, double ox, double oy)
+{
+    double ex = ox - 200 + 840 * frand(), ey = oy - 200 + 500 * frand(), ez = 1 + 300 * frand();
+    double tx = ox + 440 * frand(), ty = oy + 100 * frand();
+    look(cam, ex, ey, ez, tx, ty, 0);
+}
+
+static int stats_finite(const hlod_frame_stats *s)
+{
+    return isfinite(s->measured_ms) && isfinite(s->estimated_ms) && isfinite(s->v_time) &&
+           isfinite(s->fixed_ms) && isfinite(s->budget_ms) && isfinite(s->traversal_ms) &&
+           isfinite(s->sse_pixels) && isfinite(s->cost_drawn) && isfinite(s->resident_cost);
+}
+
+/* A synthetic machine: fixed + per-cost time, with optional noise. */
+typedef struct machine {
+    double fixed, per_cost, noise;
+} machine;
+
+static double machine_time(void *user, double cost, uint64_t tris)
+{
+    machine *m = user;
+    (void)tris;
+    double t = m->fixed + m->per_cost * cost;
+    if (m->noise > 0)
+        t *= 1 + m->noise * (2 * frand() - 1);
+    return t;
+}
+
+/* ---------- selection ---------- */
+
+/* Lakhia eq. 4: the visible roots share the budget, and the children of a
+ * refined node share its slice exactly. */
+static void test_time_slices_sum(void)
+{
+    fixture_opts o = {0};
+    uint32_t count = 0;
+    hlod_store *s = make_store("slices.hlod", &o, &count);
+    hlod_engine_desc d = {0};
+    d.deterministic = 1;
+    d.fixed_v_time = 1e-3;
+    d.target_ms = 33;
+    d.deterministic_load_bytes = 1u << 30;
+    hlod_engine *e = NULL;
+    CHECK(hlod_engine_create(s, &d, &e) == HLOD_OK);
+    hlod_camera cam;
+    look(&cam, 200, -60, 40, 200, 50, 0);
+    hlod_frame_stats st;
+    for (int f = 0; f < 60; f++)
+        CHECK(hlod_engine_frame(e, &cam, 1.0 / 30, &st) == HLOD_OK);
+    const hlod_store_node *nodes = hlod_store_nodes(s);
+    int refined_seen = 0;
+    double root_sum = 0;
+    for (uint32_t r = 0; r < hlod_store_root_count(s); r++) {
+        double slice;
+        hlod_engine_node_debug(e, r, NULL, &slice, NULL, NULL);
+        if (e->fr[r].priced == e->frame)
+            root_sum += slice;
+    }
+    double share = st.budget_ms * st.share_gain;
+    CHECKF(fabs(root_sum - share) <= 1e-9 * share, "roots %g share %g", root_sum, share);
+    for (uint32_t p = 0; p < count; p++) {
+        if (e->fr[p].refined != e->frame)
+            continue;
+        double sum = 0;
+        int n = 0;
+        for (uint32_t c = nodes[p].first_child; c < nodes[p + 1].first_child; c++)
+            if (e->fr[c].drawn == e->frame || e->fr[c].refined == e->frame) {
+                sum += e->fr[c].slice;
+                n++;
+            }
+        CHECKF(fabs(sum - e->fr[p].slice) <= 1e-9 * e->fr[p].slice, "node %u: %g vs %g", p, sum,
+               e->fr[p].slice);
+        refined_seen += n > 0;
+    }
+    CHECK(refined_seen > 0);
+    CHECK(st.nodes_per_depth[1] + st.nodes_per_depth[2] + st.nodes_per_depth[3] > 0);
+    hlod_engine_destroy(e);
+    hlod_store_close(s);
+}
+
+/* The estimate of what is drawn never exceeds the target, for the
+ * time-based policies, over random views (v_time such that full detail
+ * would need several times the target). */
+static void test_estimate_within_target(void)
+{
+    fixture_opts o = {0};
+    hlod_store *s = make_store("estimate.hlod", &o, NULL);
+    for (int pol = HLOD_POLICY_LAKHIA; pol <= HLOD_POLICY_NOHYST; pol++) {
+        hlod_engine_desc d = {0};
+        d.deterministic = 1;
+        d.fixed_v_time = 0.05; /* 32-tri nodes cost 16: 0.8 ms each */
+        d.fixed_frame_ms = 3;
+        d.target_ms = 20;
+        d.deterministic_load_bytes = 1u << 30;
+        d.policy = (hlod_policy)pol;
+        hlod_engine *e = NULL;
+        CHECK(hlod_engine_create(s, &d, &e) == HLOD_OK);
+        hlod_camera cam;
+        hlod_frame_stats st;
+        int over = 0, deep = 0;
+        for (int f = 0; f < 400; f++) {
+            if (f % 20 == 0)
+                random_camera(&cam, 0, 0);
+            CHECK(hlod_engine_frame(e, &cam, 1.0 / 30, &st) == HLOD_OK);
+            over += st.estimated_ms > d.target_ms * (1 + 1e-12);
+            deep += st.nodes_per_depth[2] + st.nodes_per_depth[3];
+            CHECK(stats_finite(&st));
+        }
+        CHECKF(over == 0, "%s: %d frames over target", hlod_policy_name((hlod_policy)pol), over);
+        CHECKF(deep > 0, "%s: never refined", hlod_policy_name((hlod_policy)pol));
+        hlod_engine_destroy(e);
+    }
+    hlod_store_close(s);
+}
+
+/* A visible sibling that cannot be loaded forces its parent, for good. */
+static uint32_t g_bad_node;
+static hlod_result fail_one(void *user, uint32_t node, uint64_t offset, size_t bytes)
+{
+    (void)user;
+    (void)offset;
+    (void)bytes;
+    return node == g_bad_node ? HLOD_ERR_CHECKSUM : HLOD_OK;
+}
+
+static void test_missing_sibling_forces_parent(void)
+{
+    fixture_opts o = {0};
+    o.roots = 1;
+    o.depth = 1;
+    hlod_store *s = make_store("missing.hlod", &o, NULL);
+    /* node 0 = root, 1..4 its quadrants: make quadrant 2 unreadable */
+    g_bad_node = 2;
+    hlod_engine_desc d = {0};
+    d.deterministic = 1;
+    d.fixed_v_time = 1e-6; /* everything affordable */
+    d.deterministic_load_bytes = 1u << 30;
+    d.read_hook = fail_one;
+    hlod_engine *e = NULL;
+    CHECK(hlod_engine_create(s, &d, &e) == HLOD_OK);
+    hlod_camera cam;
+    look(&cam, 50, -100, 80, 50, 50, 0);
+    hlod_frame_stats st;
+    for (int f = 0; f < 30; f++) {
+        CHECK(hlod_engine_frame(e, &cam, 1.0 / 30, &st) == HLOD_OK);
+        CHECK(hlod_engine_node_drawn(e, 0));
+        for (uint32_t c = 1; c <= 4; c++)
+            CHECK(!hlod_engine_node_drawn(e, c));
+    }
+    CHECK(hlod_engine_node_state(e, 2) == HLOD_NODE_BAD);
+    CHECK(hlod_engine_node_state(e, 1) == HLOD_NODE_RESIDENT);
+    CHECK(st.bad_nodes == 1);
+    CHECK(st.wanted_missing == 1);
+    hlod_engine_destroy(e);
+
+    /* Control: without the fault the children replace the root. */
+    g_bad_node = 999;
+    CHECK(hlod_engine_create(s, &d, &e) == HLOD_OK);
+    for (int f = 0; f < 10; f++)
+        CHECK(hlod_engine_frame(e, &cam, 1.0 / 30, &st) == HLOD_OK);
+    CHECK(!hlod_engine_node_drawn(e, 0));
+    CHECK(hlod_engine_node_drawn(e, 2));
+    hlod_engine_destroy(e);
+    hlod_store_close(s);
+}
+
+/* Hysteresis counters stay within +-c_hyst_limit; a still camera with a
+ * noisy machine settles to zero toggles, where nohyst keeps toggling. */
+static void test_hysteresis_settles(void)
+{
+    fixture_opts o = {0};
+    hlod_store *s = make_store("hyst.hlod", &o, NULL);
+    uint32_t late_toggles[2] = {0, 0};
+    for (int pol = 0; pol < 2; pol++) {
+        machine m = {4, 0.02, 0.08};
+        hlod_engine_desc d = {0};
+        d.target_ms = 20;
+        d.time_model = machine_time;
+        d.time_model_user = &m;
+        d.policy = pol ? HLOD_POLICY_NOHYST : HLOD_POLICY_LAKHIA;
+        hlod_engine *e = NULL;
+        CHECK(hlod_engine_create(s, &d, &e) == HLOD_OK);
+        hlod_camera cam;
+        look(&cam, 150, -80, 60, 200, 50, 0);
+        hlod_frame_stats st;
+        double lim = hlod_engine_get_desc(e)->c_hyst_limit;
+        for (int f = 0; f < 400; f++) {
+            CHECK(hlod_engine_frame(e, &cam, 1.0 / 30, &st) == HLOD_OK);
+            if (f >= 200)
+                late_toggles[pol] += st.toggles_up + st.toggles_down;
+            for (uint32_t i = 0; i < hlod_store_node_count(s); i++)
+                if (e->fr[i].hyst < -lim || e->fr[i].hyst > lim)
+                    CHECKF(0, "node %u hyst %g", i, e->fr[i].hyst);
+        }
+        /* the measured time is held near the target */
+        CHECKF(st.measured_ms < 1.25 * d.target_ms, "%s: %g ms", hlod_policy_name(d.policy),
+               st.measured_ms);
+        hlod_engine_destroy(e);
+    }
+    CHECKF(late_toggles[0] == 0, "lakhia toggled %u times in 200 still frames", late_toggles[0]);
+    fprintf(stderr, "  still camera, frames 200-399: lakhia %u toggles, nohyst %u\n",
+            late_toggles[0], late_toggles[1]);
+    hlod_store_close(s);
+}
+
+/* With the deterministic machine a still camera reaches a fixed selection
+ * within a bounded number of frames. */
+static void test_still_camera_fixed_point(void)
+{
+    fixture_opts o = {0};
+    hlod_store *s = make_store("still.hlod", &o, NULL);
+    hlod_engine_desc d = {0};
+    d.deterministic = 1;
+    d.fixed_v_time = 0.02;
+    d.target_ms = 20;
+    hlod_engine *e = NULL;
+    CHECK(hlod_engine_create(s, &d, &e) == HLOD_OK);
+    hlod_camera cam;
+    look(&cam, 100, -50, 30, 220, 50, 0);
+    hlod_frame_stats st;
+    int last_toggle = -1;
+    for (int f = 0; f < 300; f++) {
+        CHECK(hlod_engine_frame(e, &cam, 1.0 / 30, &st) == HLOD_OK);
+        if (st.toggles_up + st.toggles_down) {
+            last_toggle = f;
+            if (getenv("HLOD_TEST_VERBOSE"))
+                fprintf(stderr, "  frame %d: up %u down %u gain %.3f est %.3f drawn %u\n", f,
+                        st.toggles_up, st.toggles_down, st.share_gain, st.estimated_ms,
+                        st.nodes_drawn);
+        }
+    }
+    CHECKF(last_toggle < 100, "last toggle at frame %d", last_toggle);
+    CHECK(st.oscillations == 0);
+    hlod_engine_destroy(e);
+    hlod_store_close(s);
+}
+
+/* Nodes outside the view are neither priced nor loaded. */
+static void test_outside_not_priced(void)
+{
+    fixture_opts o = {0};
+    o.roots = 8;
+    uint32_t count = 0;
+    hlod_store *s = make_store("outside.hlod", &o, &count);
+    hlod_engine_desc d = {0};
+    d.deterministic = 1;
+    d.fixed_v_time = 1e-6;
+    hlod_engine *e = NULL;
+    CHECK(hlod_engine_create(s, &d, &e) == HLOD_OK);
+    hlod_camera cam;
+    hlod_frame_stats st;
+    /* looking up into the sky */
+    look(&cam, 400, 50, 10, 400, 51, 1000);
+    for (int f = 0; f < 5; f++)
+        CHECK(hlod_engine_frame(e, &cam, 1.0 / 30, &st) == HLOD_OK);
+    CHECK(st.nodes_visited == 0 && st.nodes_drawn == 0 && st.queued == 0);
+    /* looking at one block from close by: far fewer nodes than the store */
+    look(&cam, 50, -20, 30, 50, 50, 0);
+    uint32_t visited_max = 0;
+    for (int f = 0; f < 20; f++) {
+        CHECK(hlod_engine_frame(e, &cam, 1.0 / 30, &st) == HLOD_OK);
+        if (st.nodes_visited > visited_max)
+            visited_max = st.nodes_visited;
+    }
+    CHECKF(visited_max * 4 < count, "visited %u of %u", visited_max, count);
+    for (uint32_t i = hlod_store_root_count(s); i < count; i++) {
+        const hlod_store_node *n = &hlod_store_nodes(s)[i];
+        if (n->bbox_min[0] > 300) /* blocks 3.. are well outside the view */
+            CHECK(hlod_engine_node_state(e, i) == HLOD_NODE_ABSENT);
+    }
+    hlod_engine_destroy(e);
+    hlod_store_close(s);
+}
+
+/* ---------- residency ---------- */
+
+/* The budget holds at every frame under random jumps (threaded loader). */
+static void test_budget_random_jumps(void)
+{
+    fixture_opts o = {0};
+    o.depth = 4;
+    hlod_store *s = make_store("budget.hlod", &o, NULL);
+    const hlod_store_header *h = hlod_store_get_header(s);
+    machine m = {2, 0.002, 0.05};
+    hlod_engine_desc d = {0};
+    d.target_ms = 20;
+    d.time_model = machine_time;
+    d.time_model_user = &m;
+    d.memory_budget_bytes = h->payload_bytes / 8;
+    hlod_engine *e = NULL;
+    CHECK(hlod_engine_create(s, &d, &e) == HLOD_OK);
+    const int frames = getenv("HLOD_SOAK_FRAMES") ? atoi(getenv("HLOD_SOAK_FRAMES")) : 10000;
+    hlod_camera cam;
+    hlod_frame_stats st;
+    uint64_t loads = 0, evictions = 0, over = 0, peak = 0;
+    for (int f = 0; f < frames; f++) {
+        if (f % 7 == 0)
+            random_camera(&cam, 0, 0);
+        CHECK(hlod_engine_frame(e, &cam, 1.0 / 30, &st) == HLOD_OK);
+        loads += st.loads;
+        evictions += st.evictions;
+        if (st.resident_bytes + e->reserved_bytes > d.memory_budget_bytes ||
+            st.resident_cost > (double)d.memory_budget_bytes * (1 + 1e-9))
+            over++;
+        if (st.resident_bytes > peak)
+            peak = st.resident_bytes;
+        if (f % 97 == 0)
+            sleep_us(200); /* let the loader run */
+    }
+    CHECKF(over == 0, "%llu frames over budget", (unsigned long long)over);
+    CHECK(loads > 50 && evictions > 10); /* it did stream */
+    CHECK(st.render_waits == 0);
+    fprintf(stderr, "  %d frames: %llu loads, %llu evictions, peak %llu of %llu bytes\n", frames,
+            (unsigned long long)loads, (unsigned long long)evictions, (unsigned long long)peak,
+            (unsigned long long)d.memory_budget_bytes);
+    hlod_engine_destroy(e);
+    hlod_store_close(s);
+}
+
+/* A scene that fits the budget is loaded once and never evicted. */
+static void test_fits_loaded_once(void)
+{
+    fixture_opts o = {0};
+    uint32_t count = 0;
+    hlod_store *s = make_store("fits.hlod", &o, &count);
+    hlod_engine_desc d = {0};
+    d.deterministic = 1;
+    d.fixed_v_time = 1e-3;
+    d.deterministic_load_bytes = 256u << 10;
+    hlod_engine *e = NULL;
+    CHECK(hlod_engine_create(s, &d, &e) == HLOD_OK);
+    hlod_camera cam;
+    hlod_frame_stats st;
+    uint64_t loads = 0, evictions = 0;
+    for (int f = 0; f < 1500; f++) {
+        if (f % 5 == 0)
+            random_camera(&cam, 0, 0);
+        CHECK(hlod_engine_frame(e, &cam, 1.0 / 30, &st) == HLOD_OK);
+        loads += st.loads;
+        evictions += st.evictions;
+    }
+    CHECK(evictions == 0);
+    CHECKF(loads <= count - hlod_store_root_count(s), "%llu loads for %u nodes",
+           (unsigned long long)loads, count);
+    CHECK(loads > 0);
+    hlod_engine_destroy(e);
+    hlod_store_close(s);
+}
+
+/* A payload corrupted on disk is marked bad and never drawn. */
+static void test_corrupt_never_drawn(void)
+{
+    fixture_opts o = {0};
+    o.roots = 1;
+    o.depth = 1;
+    char path[512];
+    hlod_store *s = make_store("corrupt.hlod", &o, NULL);
+    const hlod_store_node n3 = hlod_store_nodes(s)[3];
+    hlod_store_close(s);
+    FILE *fp = fopen(tmp_path("corrupt.hlod", path, sizeof path), "r+b");
+    CHECK(fp != NULL);
+    fseek(fp, (long)(n3.payload_offset + n3.payload_size - 5), SEEK_SET);
+    fputc(0x5a, fp);
+    fclose(fp);
+    CHECK(hlod_store_open(path, NULL, &s) == HLOD_OK);
+    hlod_engine_desc d = {0};
+    d.deterministic = 1;
+    d.fixed_v_time = 1e-6;
+    hlod_engine *e = NULL;
+    CHECK(hlod_engine_create(s, &d, &e) == HLOD_OK);
+    hlod_camera cam;
+    look(&cam, 50, -100, 80, 50, 50, 0);
+    hlod_frame_stats st;
+    for (int f = 0; f < 20; f++) {
+        CHECK(hlod_engine_frame(e, &cam, 1.0 / 30, &st) == HLOD_OK);
+        CHECK(!hlod_engine_node_drawn(e, 3));
+        CHECK(hlod_engine_node_drawn(e, 0)); /* the parent stands in */
+    }
+    CHECK(hlod_engine_node_state(e, 3) == HLOD_NODE_BAD);
+    hlod_engine_destroy(e);
+    hlod_store_close(s);
+}
+
+/* Transient read errors are retried with backoff, not in a tight loop. */
+static int g_io_calls;
+static hlod_result fail_io(void *user, uint32_t node, uint64_t offset, size_t bytes)
+{
+    (void)user;
+    (void)offset;
+    (void)bytes;
+    if (node == 2) {
+        g_io_calls++;
+        return HLOD_ERR_IO;
+    }
+    return HLOD_OK;
+}
+
+static void test_transient_backoff(void)
+{
+    fixture_opts o = {0};
+    o.roots = 1;
+    o.depth = 1;
+    hlod_store *s = make_store("transient.hlod", &o, NULL);
+    hlod_engine_desc d = {0};
+    d.deterministic = 1;
+    d.fixed_v_time = 1e-6;
+    d.read_hook = fail_io;
+    g_io_calls = 0;
+    hlod_engine *e = NULL;
+    CHECK(hlod_engine_create(s, &d, &e) == HLOD_OK);
+    hlod_camera cam;
+    look(&cam, 50, -100, 80, 50, 50, 0);
+    hlod_frame_stats st;
+    for (int f = 0; f < 400; f++)
+        CHECK(hlod_engine_frame(e, &cam, 1.0 / 30, &st) == HLOD_OK);
+    /* 4 tries (backoffs of 16, 32, 64 frames), then bad */
+    CHECKF(g_io_calls == 4, "%d read attempts", g_io_calls);
+    CHECK(hlod_engine_node_state(e, 2) == HLOD_NODE_BAD);
+    CHECK(hlod_engine_node_drawn(e, 0));
+    hlod_engine_destroy(e);
+    hlod_store_close(s);
+}
+
+/* A slow disk never stalls the render thread. */
+static hlod_result slow_disk(void *user, uint32_t node, uint64_t offset, size_t bytes)
+{
+    (void)user;
+    (void)node;
+    (void)offset;
+    (void)bytes;
+    sleep_us(20000);
+    return HLOD_OK;
+}
+
+static double now_ms(void)
+{
+    struct timespec ts;
+    clock_gettime(CLOCK_MONOTONIC, &ts);
+    return (double)ts.tv_sec * 1e3 + (double)ts.tv_nsec * 1e-6;
+}
+
+static void test_slow_disk_no_stall(void)
+{
+    fixture_opts o = {0};
+    hlod_store *s = make_store("slow.hlod", &o, NULL);
+    machine m = {2, 0.001, 0};
+    hlod_engine_desc d = {0};
+    d.time_model = machine_time;
+    d.time_model_user = &m;
+    d.read_hook = slow_disk;
+    hlod_engine *e = NULL;
+    CHECK(hlod_engine_create(s, &d, &e) == HLOD_OK);
+    hlod_camera cam;
+    hlod_frame_stats st;
+    double worst = 0;
+    uint32_t loads = 0, waits = 0;
+    double t_end = now_ms() + 600;
+    int f = 0;
+    while (now_ms() < t_end) {
+        if (f++ % 10 == 0)
+            random_camera(&cam, 0, 0);
+        double t0 = now_ms();
+        CHECK(hlod_engine_frame(e, &cam, 1.0 / 30, &st) == HLOD_OK);
+        double dt = now_ms() - t0;
+        worst = dt > worst ? dt : worst;
+        loads += st.loads;
+        waits += st.render_waits;
+        sleep_us(1000);
+    }
+    /* a frame with a 20 ms read in flight must not take anywhere near it */
+    CHECKF(worst < 10, "worst frame %.2f ms", worst);
+    CHECK(waits == 0);
+    CHECK(loads > 3); /* the loader got through some */
+    fprintf(stderr, "  %d frames with a 20 ms/read disk: worst frame() %.2f ms, %u loads\n", f,
+            worst, loads);
+    hlod_engine_destroy(e);
+    hlod_store_close(s);
+}
+
+/* A city at x = 5e6 m selects exactly as the same city at the origin. */
+static void test_far_origin_same_selection(void)
+{
+    fixture_opts a = {0}, b = {0};
+    b.origin[0] = 5e6;
+    b.origin[1] = 4.1e6;
+    b.origin[2] = 30;
+    hlod_store *sa = make_store("near.hlod", &a, NULL), *sb = make_store("far.hlod", &b, NULL);
+    hlod_engine_desc d = {0};
+    d.deterministic = 1;
+    d.fixed_v_time = 0.01;
+    d.target_ms = 20;
+    hlod_engine *ea = NULL, *eb = NULL;
+    CHECK(hlod_engine_create(sa, &d, &ea) == HLOD_OK);
+    CHECK(hlod_engine_create(sb, &d, &eb) == HLOD_OK);
+    uint32_t count = hlod_store_node_count(sa);
+    int differ = 0, refined = 0;
+    for (int f = 0; f < 300; f++) {
+        hlod_camera ca, cb;
+        double t = f / 300.0;
+        look(&ca, 40 + 300 * t, -60 + 50 * t, 5 + 60 * t, 200, 50, 0);
+        look(&cb, 5e6 + 40 + 300 * t, 4.1e6 - 60 + 50 * t, 30 + 5 + 60 * t, 5e6 + 200,
+             4.1e6 + 50, 30);
+        hlod_frame_stats s1, s2;
+        CHECK(hlod_engine_frame(ea, &ca, 1.0 / 30, &s1) == HLOD_OK);
+        CHECK(hlod_engine_frame(eb, &cb, 1.0 / 30, &s2) == HLOD_OK);
+        for (uint32_t i = 0; i < count; i++)
+            differ += hlod_engine_node_drawn(ea, i) != hlod_engine_node_drawn(eb, i);
+        refined += s1.nodes_drawn > s1.nodes_per_depth[0];
+    }
+    CHECKF(differ == 0, "%d node-frames differ", differ);
+    CHECK(refined > 0);
+    hlod_engine_destroy(ea);
+    hlod_engine_destroy(eb);
+    hlod_store_close(sa);
+    hlod_store_close(sb);
+}
+
+/* Bad input and degenerate views: errors, not NaN. */
+static void test_degenerate_views(void)
+{
+    fixture_opts o = {0};
+    hlod_store *s = make_store("degenerate.hlod", &o, NULL);
+    hlod_engine_desc d = {0};
+    d.c_hyst_switch = 0.5; /* below 1: rejected */
+    hlod_engine *e = NULL;
+    CHECK(hlod_engine_create(s, &d, &e) == HLOD_ERR_INVALID_ARG && e == NULL);
+    d.c_hyst_switch = 0;
+    d.target_ms = NAN;
+    CHECK(hlod_engine_create(s, &d, &e) == HLOD_ERR_INVALID_ARG);
+    double targets[2] = {1, 10000};
+    double switches[2] = {1, 8};
+    for (int k = 0; k < 4; k++) {
+        machine m = {0.5, 0.01, 0.1};
+        memset(&d, 0, sizeof d);
+        d.target_ms = targets[k % 2];
+        d.c_hyst_switch = switches[k / 2];
+        d.time_model = machine_time;
+        d.time_model_user = &m;
+        CHECK(hlod_engine_create(s, &d, &e) == HLOD_OK);
+        hlod_camera cam;
+        hlod_frame_stats st;
+        /* inside a node's box (on the ground plane, z = 0), then right at a
+         * vertex, then all siblings behind the camera */
+        double eyes[3][6] = {{50, 50, 0, 60, 50, 0},
+                             {0, 0, 0, 10, 10, 0},
+                             {200, 200, 5, 200, 300, 5}};
+        for (int f = 0; f < 90; f++) {
+            const double *q = eyes[f / 30];
+            look(&cam, q[0], q[1], q[2], q[3], q[4], q[5]);
+            CHECK(hlod_engine_frame(e, &cam, 1.0 / 30, &st) == HLOD_OK);
+            CHECK(stats_finite(&st));
+        }
+        for (uint32_t i = 0; i < hlod_store_node_count(s); i++)
+            CHECK(isfinite(e->fr[i].hyst) && isfinite(e->fr[i].slice) &&
+                  isfinite(e->fr[i].priority));
+        /* a NaN camera is rejected, not drawn */
+        cam.position[0] = NAN;
+        CHECK(hlod_engine_frame(e, &cam, 1.0 / 30, &st) == HLOD_ERR_INVALID_ARG);
+        CHECK(st.nodes_drawn == 0);
+        look(&cam, 50, -50, 20, 50, 50, 0);
+        CHECK(hlod_engine_frame(e, &cam, INFINITY, &st) == HLOD_ERR_INVALID_ARG);
+        hlod_engine_destroy(e);
+    }
+    hlod_store_close(s);
+}
+
+/* The cost model recovers a machine's fixed and per-cost times. */
+static void test_cost_model_fit(void)
+{
+    fixture_opts o = {0};
+    o.depth = 4;
+    hlod_store *s = make_store("fit.hlod", &o, NULL);
+    machine m = {8, 0.004, 0.02};
+    hlod_engine_desc d = {0};
+    d.target_ms = 30;
+    d.time_model = machine_time;
+    d.time_model_user = &m;
+    hlod_engine *e = NULL;
+    CHECK(hlod_engine_create(s, &d, &e) == HLOD_OK);
+    hlod_camera cam;
+    hlod_frame_stats st;
+    double sum_ratio = 0;
+    int n = 0, within = 0;
+    for (int f = 0; f < 600; f++) {
+        double t = f / 600.0;
+        look(&cam, 20 + 400 * t, -40 - 100 * t, 10 + 150 * t, 220, 50, 0);
+        CHECK(hlod_engine_frame(e, &cam, 1.0 / 30, &st) == HLOD_OK);
+        if (getenv("HLOD_TEST_VERBOSE") && f % 20 == 0)
+            fprintf(stderr, "  frame %d: measured %.2f est %.2f fixed %.2f v_time %.5f gain %.2f "
+                    "drawn %u (d0 %u d1 %u d2 %u d3 %u d4 %u) missing %u resident %u\n", f,
+                    st.measured_ms, st.estimated_ms, st.fixed_ms, st.v_time, st.share_gain,
+                    st.nodes_drawn, st.nodes_per_depth[0], st.nodes_per_depth[1],
+                    st.nodes_per_depth[2], st.nodes_per_depth[3], st.nodes_per_depth[4],
+                    st.wanted_missing, st.resident_nodes);
+        sleep_us(200);
+        if (f >= 100) {
+            sum_ratio += st.measured_ms / d.target_ms;
+            within += fabs(st.measured_ms - d.target_ms) <= 0.1 * d.target_ms;
+            n++;
+        }
+    }
+    fprintf(stderr, "  fit: fixed %.2f ms (true 8), v_time %.5f (true 0.004), mean measured "
+            "%.3f x target, %d/%d frames within 10%%\n", st.fixed_ms, st.v_time, sum_ratio / n,
+            within, n);
+    CHECK(fabs(st.v_time - m.per_cost) < 0.25 * m.per_cost);
+    CHECK(fabs(st.fixed_ms - m.fixed) < 0.25 * m.fixed);
+    CHECK(sum_ratio / n <= 1.05);
+    CHECKF(within >= 0.9 * n, "%d of %d frames within 10%%", within, n);
+    hlod_engine_destroy(e);
+    hlod_store_close(s);
+}
+
+/* Two engines, each in its own thread, over one store. */
+typedef struct twin {
+    hlod_store *s;
+    int ok;
+    uint64_t loads;
+} twin;
+
+static void *twin_main(void *arg)
+{
+    twin *t = arg;
+    machine m = {2, 0.002, 0.05};
+    hlod_engine_desc d = {0};
+    d.time_model = machine_time;
+    d.time_model_user = &m;
+    d.memory_budget_bytes = hlod_store_get_header(t->s)->payload_bytes / 4;
+    hlod_engine *e = NULL;
+    if (hlod_engine_create(t->s, &d, &e) != HLOD_OK)
+        return NULL;
+    t->ok = 1;
+    for (int f = 0; f < 1500; f++) {
+        hlod_camera cam;
+        double eye[3] = {40 + (f % 300), -50, 20 + (f % 50)}, at[3] = {200, 50, 0},
+               up[3] = {0, 0, 1};
+        hlod_camera_look_at(&cam, eye, at, up, 60, 0.5, 1e5, 640, 480);
+        hlod_frame_stats st;
+        if (hlod_engine_frame(e, &cam, 1.0 / 30, &st) != HLOD_OK ||
+            st.resident_bytes > d.memory_budget_bytes || st.render_waits) {
+            if (t->ok)
+                fprintf(stderr, "  twin frame %d: resident %llu of %llu, waits %u\n", f,
+                        (unsigned long long)st.resident_bytes,
+                        (unsigned long long)d.memory_budget_bytes, st.render_waits);
+            t->ok = 0;
+        }
+        t->loads += st.loads;
+        if (f % 50 == 0)
+            sleep_us(500);
+    }
+    hlod_engine_destroy(e);
+    return NULL;
+}
+
+static void test_two_engines_two_threads(void)
+{
+    fixture_opts o = {0};
+    hlod_store *s = make_store("twins.hlod", &o, NULL);
+    twin a = {s, 0, 0}, b = {s, 0, 0};
+    pthread_t ta, tb;
+    pthread_create(&ta, NULL, twin_main, &a);
+    pthread_create(&tb, NULL, twin_main, &b);
+    pthread_join(ta, NULL);
+    pthread_join(tb, NULL);
+    CHECK(a.ok && b.ok);
+    CHECK(a.loads > 0 && b.loads > 0);
+    hlod_store_close(s);
+}
+
+int main(int argc, char **argv)
+{
+    (void)argc;
+    (void)argv;
+    snprintf(g_dir, sizeof g_dir, "/tmp/hlod-test-engine-XXXXXX");
+    if (!mkdtemp(g_dir)) {
+        perror("mkdtemp");
+        return 1;
+    }
+    RUN(test_time_slices_sum);
+    RUN(test_estimate_within_target);
+    RUN(test_missing_sibling_forces_parent);
+    RUN(test_hysteresis_settles);
+    RUN(test_still_camera_fixed_point);
+    RUN(test_outside_not_priced);
+    RUN(test_budget_random_jumps);
+    RUN(test_fits_loaded_once);
+    RUN(test_corrupt_never_drawn);
+    RUN(test_transient_backoff);
+    RUN(test_slow_disk_no_stall);
+    RUN(test_far_origin_same_selection);
+    RUN(test_degenerate_views);
+    RUN(test_cost_model_fit);
+    RUN(test_two_engines_two_threads);
+    char cmd[300];
+    snprintf(cmd, sizeof cmd, "rm -rf '%s'", g_dir);
+    if (system(cmd) != 0)
+        fprintf(stderr, "could not remove %s\n", g_dir);
+    return check_done();
+}
