@@ -33,7 +33,7 @@
 
 #define MAX_TRANSIENT_FAILURES 4
 #define KEEP_UNWANTED_FRAMES 8  /* a queued node not wanted for this long is dropped */
-#define WAIT_MS 2.0             /* a post/collect call this slow counts as a wait */
+#define WAIT_MS 5.0             /* a post/collect call this slow counts as a wait */
 
 static double now_ms(void)
 {

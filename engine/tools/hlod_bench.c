@@ -1,0 +1,1030 @@
+/*
+ * hlod-bench: replays a camera path through the engine, headless (OSMesa),
+ * and reports frame time against the target, image error against a
+ * full-detail reference, flicker, detail per depth and streaming.
+ *
+ *   hlod-bench STORE --path P --target-ms T --out DIR [options]
+ *
+ * One run writes DIR/frames.csv (one row per frame, every stats field),
+ * DIR/summary.json (keys scripts rely on: keep them stable) and PNG plots
+ * drawn by gnuplot.  --policy with several names, or --sweep KEY=V1,V2,..,
+ * runs the path once per (policy, value) into DIR/<policy>[-KEY=V]/ and
+ * adds DIR/sweep.csv plus the run-time-vs-error (Pareto) plot.
+ *
+ * Reference frames (--reference) come from a second engine over the same
+ * store with the full-detail policy, drawn after the measured frame has
+ * ended, so they are never charged to its time.
+ *
+ * Exit status: 0 success, 1 a run failed (unreadable store or path, GL
+ * unavailable, output not writable), 2 bad command line.
+ */
+#include <errno.h>
+#include <math.h>
+#include <stdint.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/stat.h>
+
+#include "atomic_file.h"
+#include "cli.h"
+#include "hlod/engine.h"
+#include "hlod/metrics.h"
+#include "hlod/path.h"
+
+static const char *const PROG = "hlod-bench";
+
+#ifndef HLOD_DATA_DIR
+#define HLOD_DATA_DIR "data"
+#endif
+
+static void usage(FILE *fp)
+{
+    fprintf(fp,
+        "usage: hlod-bench STORE --path P --target-ms T --out DIR [options]\n"
+        "\n"
+        "Replays camera path P through the engine headless (OSMesa) and writes\n"
+        "DIR/frames.csv, DIR/summary.json and PNG plots.\n"
+        "\n"
+        "  --path P          a path file (t ex ey ez lx ly lz per line), or a\n"
+        "                    built-in name (walk, fly, walk-to-fly, walk-drive,\n"
+        "                    orbit, still) looked up in data/paths/default/\n"
+        "  --paths-dir D     where built-in names are looked up (default\n"
+        "                    " HLOD_DATA_DIR "/paths/default)\n"
+        "  --target-ms T     c_targetTime in ms (default 33.3)\n"
+        "  --out DIR         output folder (created)\n"
+        "  --width W         viewport (default 1280)\n"
+        "  --height H        viewport (default 720)\n"
+        "  --fov DEG         vertical field of view (default 60)\n"
+        "  --near N          near plane in model units (default 0.25)\n"
+        "  --up z|y          the path's up axis (default z)\n"
+        "  --dt S            simulated time per frame (default 1/30 s)\n"
+        "  --frames N        stop after N frames (default: the whole path)\n"
+        "  --policy LIST     lakhia, nohyst, sse (comma list; default lakhia)\n"
+        "  --memory-mb M     memory budget in MiB (default: 25%% of the store)\n"
+        "  --reference       render a full-detail reference per frame: PSNR, SSIM\n"
+        "  --reference-every K  only every K-th frame (default 1)\n"
+        "  --set KEY=VALUE   engine constant: c_vis, c_vis_falloff, c_fore,\n"
+        "                    c_hyst_limit, c_hyst_switch, c_hyst_deadband,\n"
+        "                    c_memory, c_safety_slack, velocity_lookahead_s,\n"
+        "                    sse_pixels, target_ms, v_time, fixed_ms (repeatable)\n"
+        "  --sweep KEY=V1,V2 run once per value of KEY (any --set key)\n"
+        "  --deterministic   fixed v_time and fixed_ms (calibrated in a short\n"
+        "                    warm-up unless given with --set) and a loader that\n"
+        "                    reads synchronously at --io-mbps: the selection is\n"
+        "                    the same on any machine\n"
+        "  --io-mbps R       simulated disk in MB/s for --deterministic (default 100)\n"
+        "  --no-plots        skip gnuplot\n"
+        "  --json            also print summary.json on stdout (last run)\n"
+        "  -h, --help        show this help\n"
+        "\n"
+        "summary.json keys: frames, target_ms, frame_ms_mean, frame_ms_p50,\n"
+        "frame_ms_p95, frame_ms_p99, frame_ms_max, within_10pct, over_target_frac,\n"
+        "toggles_up, toggles_down, toggles_per_frame, oscillations, psnr_mean,\n"
+        "psnr_min, ssim_mean, image_flicker, tris_mean, loads, evictions, bytes_read,\n"
+        "peak_resident_bytes, memory_budget_bytes, missing_wanted_frames,\n"
+        "render_waits, traversal_ms_mean, traversal_ms_max, policy, path.\n"
+        "\n"
+        "Exit status: 0 success, 1 a run failed, 2 bad command line.\n");
+}
+
+/* ---- options ---- */
+
+#define MAX_SETS 32
+#define MAX_SWEEP 64
+
+typedef struct setting {
+    const char *key;
+    double value;
+} setting;
+
+typedef struct options {
+    const char *store, *path, *paths_dir, *out;
+    double target_ms, fov, near_plane, dt, io_mbps, memory_mb;
+    uint32_t width, height;
+    long frames;
+    int up_y, reference, reference_every, deterministic, plots, json;
+    hlod_policy policies[HLOD_POLICY_COUNT];
+    int npolicies;
+    setting sets[MAX_SETS];
+    int nsets;
+    const char *sweep_key;
+    double sweep[MAX_SWEEP];
+    int nsweep;
+} options;
+
+static const char *const set_keys[] = {"c_vis", "c_vis_falloff", "c_fore", "c_hyst_limit",
+                                       "c_hyst_switch", "c_hyst_deadband", "c_memory",
+                                       "c_safety_slack", "velocity_lookahead_s", "sse_pixels",
+                                       "target_ms", "v_time", "fixed_ms", NULL};
+
+static int known_key(const char *k)
+{
+    for (int i = 0; set_keys[i]; i++)
+        if (strcmp(k, set_keys[i]) == 0)
+            return 1;
+    return 0;
+}
+
+static void apply_setting(hlod_engine_desc *d, const char *k, double v)
+{
+    if (!strcmp(k, "c_vis")) d->c_vis = v;
+    else if (!strcmp(k, "c_vis_falloff")) d->c_vis_falloff = v;
+    else if (!strcmp(k, "c_fore")) d->c_fore = v;
+    else if (!strcmp(k, "c_hyst_limit")) d->c_hyst_limit = v;
+    else if (!strcmp(k, "c_hyst_switch")) d->c_hyst_switch = v;
+    else if (!strcmp(k, "c_hyst_deadband")) d->c_hyst_deadband = v;
+    else if (!strcmp(k, "c_memory")) d->c_memory = v;
+    else if (!strcmp(k, "c_safety_slack")) d->c_safety_slack = v;
+    else if (!strcmp(k, "velocity_lookahead_s")) d->velocity_lookahead_s = v;
+    else if (!strcmp(k, "sse_pixels")) d->sse_pixels = v;
+    else if (!strcmp(k, "target_ms")) d->target_ms = v;
+    else if (!strcmp(k, "v_time")) d->fixed_v_time = v;
+    else if (!strcmp(k, "fixed_ms")) d->fixed_frame_ms = v;
+}
+
+/* "KEY=VALUE" */
+static int parse_set(const char *text, setting *out)
+{
+    const char *eq = strchr(text, '=');
+    static char keys[MAX_SETS + 1][64];
+    static int next;
+    if (!eq || eq == text || (size_t)(eq - text) >= sizeof keys[0]) {
+        hlod_cli_usage_error(PROG, "--set wants KEY=VALUE, got '%s'", text);
+        return 0;
+    }
+    char *k = keys[next++ % (MAX_SETS + 1)];
+    memcpy(k, text, (size_t)(eq - text));
+    k[eq - text] = 0;
+    if (!known_key(k)) {
+        hlod_cli_usage_error(PROG, "--set: unknown key '%s' (see --help)", k);
+        return 0;
+    }
+    out->key = k;
+    return hlod_cli_parse_double(PROG, k, eq + 1, -1e12, 1e12, 0, &out->value);
+}
+
+static int parse_sweep(const char *text, options *o)
+{
+    static char key[64];
+    const char *eq = strchr(text, '=');
+    if (!eq || eq == text || (size_t)(eq - text) >= sizeof key) {
+        hlod_cli_usage_error(PROG, "--sweep wants KEY=V1,V2,..., got '%s'", text);
+        return 0;
+    }
+    memcpy(key, text, (size_t)(eq - text));
+    key[eq - text] = 0;
+    if (!known_key(key)) {
+        hlod_cli_usage_error(PROG, "--sweep: unknown key '%s' (see --help)", key);
+        return 0;
+    }
+    o->sweep_key = key;
+    const char *p = eq + 1;
+    while (*p) {
+        const char *c = strchr(p, ',');
+        size_t n = c ? (size_t)(c - p) : strlen(p);
+        char buf[64];
+        if (n == 0 || n >= sizeof buf || o->nsweep >= MAX_SWEEP) {
+            hlod_cli_usage_error(PROG, "--sweep: bad value list '%s'", eq + 1);
+            return 0;
+        }
+        memcpy(buf, p, n);
+        buf[n] = 0;
+        if (!hlod_cli_parse_double(PROG, "--sweep", buf, -1e12, 1e12, 0, &o->sweep[o->nsweep]))
+            return 0;
+        o->nsweep++;
+        p += n + (c ? 1 : 0);
+        if (c && !*p) {
+            hlod_cli_usage_error(PROG, "--sweep: trailing comma in '%s'", eq + 1);
+            return 0;
+        }
+    }
+    if (o->nsweep == 0) {
+        hlod_cli_usage_error(PROG, "--sweep: no values in '%s'", text);
+        return 0;
+    }
+    return 1;
+}
+
+static int parse_policies(const char *text, options *o)
+{
+    char buf[128];
+    if (strlen(text) >= sizeof buf) {
+        hlod_cli_usage_error(PROG, "--policy: list too long: '%s'", text);
+        return 0;
+    }
+    strcpy(buf, text);
+    o->npolicies = 0;
+    for (char *save = NULL, *t = strtok_r(buf, ",", &save); t; t = strtok_r(NULL, ",", &save)) {
+        hlod_policy p;
+        if (!hlod_policy_parse(t, &p) || p == HLOD_POLICY_FULL) {
+            hlod_cli_usage_error(PROG, "--policy: unknown policy '%s' (lakhia, nohyst, sse)", t);
+            return 0;
+        }
+        for (int i = 0; i < o->npolicies; i++)
+            if (o->policies[i] == p) {
+                hlod_cli_usage_error(PROG, "--policy: '%s' given twice", t);
+                return 0;
+            }
+        o->policies[o->npolicies++] = p;
+    }
+    if (!o->npolicies) {
+        hlod_cli_usage_error(PROG, "--policy: empty list '%s'", text);
+        return 0;
+    }
+    return 1;
+}
+
+/* Returns -1 to continue, else an exit status. */
+static int parse_args(int argc, char **argv, options *o)
+{
+    memset(o, 0, sizeof *o);
+    o->target_ms = 33.3;
+    o->width = 1280;
+    o->height = 720;
+    o->fov = 60;
+    o->near_plane = 0.25;
+    o->dt = 1.0 / 30;
+    o->io_mbps = 100;
+    o->frames = -1;
+    o->reference_every = 1;
+    o->plots = 1;
+    o->policies[0] = HLOD_POLICY_LAKHIA;
+    o->npolicies = 1;
+    o->paths_dir = HLOD_DATA_DIR "/paths/default";
+    for (int i = 1; i < argc; i++) {
+        const char *v = NULL;
+        const char *a = argv[i];
+        double x;
+        size_t n;
+        if (!strcmp(a, "-h") || !strcmp(a, "--help")) {
+            usage(stdout);
+            return 0;
+        }
+#define FLAG(name) hlod_cli_match_flag(argc, argv, &i, name, &v)
+#define NEED(name)                                                              \
+    if (!v)                                                                     \
+        return hlod_cli_usage_error(PROG, "%s needs a value", name);
+        if (FLAG("--path")) {
+            NEED("--path");
+            o->path = v;
+        } else if (FLAG("--paths-dir")) {
+            NEED("--paths-dir");
+            o->paths_dir = v;
+        } else if (FLAG("--out")) {
+            NEED("--out");
+            o->out = v;
+        } else if (FLAG("--target-ms")) {
+            NEED("--target-ms");
+            if (!hlod_cli_parse_double(PROG, "--target-ms", v, 0, 1e6, HLOD_CLI_MIN_OPEN,
+                                       &o->target_ms))
+                return 2;
+        } else if (FLAG("--width")) {
+            NEED("--width");
+            if (!hlod_cli_parse_size(PROG, "--width", v, 16, 16384, &n))
+                return 2;
+            o->width = (uint32_t)n;
+        } else if (FLAG("--height")) {
+            NEED("--height");
+            if (!hlod_cli_parse_size(PROG, "--height", v, 16, 16384, &n))
+                return 2;
+            o->height = (uint32_t)n;
+        } else if (FLAG("--fov")) {
+            NEED("--fov");
+            if (!hlod_cli_parse_double(PROG, "--fov", v, 1, 170, 0, &o->fov))
+                return 2;
+        } else if (FLAG("--near")) {
+            NEED("--near");
+            if (!hlod_cli_parse_double(PROG, "--near", v, 0, 1e6, HLOD_CLI_MIN_OPEN,
+                                       &o->near_plane))
+                return 2;
+        } else if (FLAG("--up")) {
+            NEED("--up");
+            if (strcmp(v, "z") && strcmp(v, "y"))
+                return hlod_cli_usage_error(PROG, "--up must be z or y, not '%s'", v);
+            o->up_y = v[0] == 'y';
+        } else if (FLAG("--dt")) {
+            NEED("--dt");
+            if (!hlod_cli_parse_double(PROG, "--dt", v, 0, 10, HLOD_CLI_MIN_OPEN, &o->dt))
+                return 2;
+        } else if (FLAG("--frames")) {
+            NEED("--frames");
+            if (!hlod_cli_parse_size(PROG, "--frames", v, 1, 100000000, &n))
+                return 2;
+            o->frames = (long)n;
+        } else if (FLAG("--policy")) {
+            NEED("--policy");
+            if (!parse_policies(v, o))
+                return 2;
+        } else if (FLAG("--memory-mb")) {
+            NEED("--memory-mb");
+            if (!hlod_cli_parse_double(PROG, "--memory-mb", v, 0, 1e9, HLOD_CLI_MIN_OPEN,
+                                       &o->memory_mb))
+                return 2;
+        } else if (!strcmp(a, "--reference")) {
+            o->reference = 1;
+        } else if (FLAG("--reference-every")) {
+            NEED("--reference-every");
+            if (!hlod_cli_parse_size(PROG, "--reference-every", v, 1, 1000000, &n))
+                return 2;
+            o->reference_every = (int)n;
+        } else if (FLAG("--set")) {
+            NEED("--set");
+            if (o->nsets >= MAX_SETS)
+                return hlod_cli_usage_error(PROG, "too many --set flags (%s)", "32");
+            if (!parse_set(v, &o->sets[o->nsets]))
+                return 2;
+            o->nsets++;
+        } else if (FLAG("--sweep")) {
+            NEED("--sweep");
+            if (o->sweep_key)
+                return hlod_cli_usage_error(PROG, "--sweep given twice (%s)", v);
+            if (!parse_sweep(v, o))
+                return 2;
+        } else if (!strcmp(a, "--deterministic")) {
+            o->deterministic = 1;
+        } else if (FLAG("--io-mbps")) {
+            NEED("--io-mbps");
+            if (!hlod_cli_parse_double(PROG, "--io-mbps", v, 0, 1e6, HLOD_CLI_MIN_OPEN,
+                                       &o->io_mbps))
+                return 2;
+        } else if (!strcmp(a, "--no-plots")) {
+            o->plots = 0;
+        } else if (!strcmp(a, "--json")) {
+            o->json = 1;
+        } else if (a[0] == '-' && a[1]) {
+            return hlod_cli_usage_error(PROG, "unknown option '%s'", a);
+        } else if (!o->store) {
+            o->store = a;
+        } else {
+            return hlod_cli_usage_error(PROG, "unexpected argument '%s' (one store only)", a);
+        }
+#undef FLAG
+#undef NEED
+        (void)x;
+    }
+    if (!o->store)
+        return hlod_cli_usage_error(PROG, "no store given%s", "");
+    if (!o->path)
+        return hlod_cli_usage_error(PROG, "--path is required%s", "");
+    if (!o->out)
+        return hlod_cli_usage_error(PROG, "--out is required%s", "");
+    (void)argc;
+    return -1;
+}
+
+/* ---- per-frame records ---- */
+
+typedef struct frame_rec {
+    hlod_frame_stats st;
+    double t;
+    double psnr, ssim;          /* NAN when no reference this frame */
+    double luma, ref_luma;      /* change from the previous frame; NAN when unknown */
+    double up_ma, down_ma;      /* toggles, 35-frame moving average */
+} frame_rec;
+
+typedef struct summary {
+    long frames;
+    double target_ms;
+    double mean, p50, p95, p99, max, within, over;
+    uint64_t up, down, osc;
+    double toggles_per_frame;
+    double psnr_mean, psnr_min, ssim_mean, image_flicker;
+    double tris_mean, traversal_mean, traversal_max;
+    uint64_t loads, evictions, bytes_read, peak_resident, budget, missing_frames, waits;
+    double v_time, fixed_ms;
+} summary;
+
+static void summarise(const frame_rec *r, long n, double target, summary *s)
+{
+    memset(s, 0, sizeof *s);
+    s->frames = n;
+    s->target_ms = target;
+    double *ms = malloc((size_t)(n ? n : 1) * sizeof *ms);
+    double psnr_sum = 0, ssim_sum = 0, luma = 0, ref_luma = 0;
+    long npsnr = 0, nluma = 0;
+    s->psnr_min = NAN;
+    for (long i = 0; i < n; i++) {
+        const hlod_frame_stats *st = &r[i].st;
+        ms[i] = st->measured_ms;
+        s->within += fabs(st->measured_ms - target) <= 0.1 * target;
+        s->over += st->measured_ms > target;
+        s->up += st->toggles_up;
+        s->down += st->toggles_down;
+        s->osc += st->oscillations;
+        s->tris_mean += (double)st->tris_drawn;
+        s->traversal_mean += st->traversal_ms;
+        if (st->traversal_ms > s->traversal_max)
+            s->traversal_max = st->traversal_ms;
+        s->loads += st->loads;
+        s->evictions += st->evictions;
+        s->bytes_read += st->bytes_read;
+        if (st->resident_bytes > s->peak_resident)
+            s->peak_resident = st->resident_bytes;
+        s->budget = st->memory_budget_bytes;
+        s->missing_frames += st->wanted_missing > 0;
+        s->waits += st->render_waits;
+        if (!isnan(r[i].psnr)) {
+            psnr_sum += r[i].psnr;
+            ssim_sum += r[i].ssim;
+            s->psnr_min = npsnr == 0 || r[i].psnr < s->psnr_min ? r[i].psnr : s->psnr_min;
+            npsnr++;
+        }
+        if (!isnan(r[i].luma) && !isnan(r[i].ref_luma)) {
+            luma += r[i].luma;
+            ref_luma += r[i].ref_luma;
+            nluma++;
+        }
+        s->v_time = st->v_time;
+        s->fixed_ms = st->fixed_ms;
+    }
+    if (n) {
+        s->mean = hlod_stats_mean(ms, (size_t)n);
+        hlod_stats_sort(ms, (size_t)n);
+        s->p50 = hlod_stats_percentile_sorted(ms, (size_t)n, 50);
+        s->p95 = hlod_stats_percentile_sorted(ms, (size_t)n, 95);
+        s->p99 = hlod_stats_percentile_sorted(ms, (size_t)n, 99);
+        s->max = ms[n - 1];
+        s->within /= (double)n;
+        s->over /= (double)n;
+        s->tris_mean /= (double)n;
+        s->traversal_mean /= (double)n;
+        s->toggles_per_frame = (double)(s->up + s->down) / (double)n;
+    }
+    s->psnr_mean = npsnr ? psnr_sum / (double)npsnr : NAN;
+    s->ssim_mean = npsnr ? ssim_sum / (double)npsnr : NAN;
+    s->image_flicker = nluma ? (luma - ref_luma) / (double)nluma : NAN;
+    free(ms);
+}
+
+static void moving_averages(frame_rec *r, long n)
+{
+    double *in = malloc((size_t)(n ? n : 1) * sizeof *in), *ma = malloc((size_t)(n ? n : 1) * sizeof *ma);
+    if (!in || !ma) {
+        free(in);
+        free(ma);
+        return;
+    }
+    for (int dir = 0; dir < 2; dir++) {
+        for (long i = 0; i < n; i++)
+            in[i] = dir ? r[i].st.toggles_down : r[i].st.toggles_up;
+        if (n && hlod_stats_moving_average(in, (size_t)n, 35, ma) == HLOD_OK)
+            for (long i = 0; i < n; i++)
+                *(dir ? &r[i].down_ma : &r[i].up_ma) = ma[i];
+    }
+    free(in);
+    free(ma);
+}
+
+/* ---- outputs ---- */
+
+static hlod_result write_frames_csv(const char *dir, const frame_rec *r, long n, uint32_t depths,
+                                    const hlod_logger *lg)
+{
+    char path[4200];
+    snprintf(path, sizeof path, "%s/frames.csv", dir);
+    hlod_atomic_file af;
+    hlod_result res = hlod_atomic_open(&af, path, lg);
+    if (res != HLOD_OK)
+        return res;
+    FILE *fp = af.fp;
+    fprintf(fp, "frame,t,measured_ms,estimated_ms,v_time,fixed_ms,budget_ms,share_gain,"
+                "traversal_ms,upload_ms,sse_pixels,nodes_drawn");
+    for (uint32_t d = 0; d < depths; d++)
+        fprintf(fp, ",depth%u", d);
+    fprintf(fp, ",tris_drawn,cost_drawn,toggles_up,toggles_down,oscillations,nodes_visited,"
+                "wanted_missing,resident_nodes,resident_bytes,resident_cost,memory_budget_bytes,"
+                "loads,evictions,bytes_read,load_failures,bad_nodes,queued,render_waits,psnr,"
+                "ssim,luma_change,ref_luma_change,toggles_up_ma35,toggles_down_ma35\n");
+    for (long i = 0; i < n; i++) {
+        const hlod_frame_stats *s = &r[i].st;
+        fprintf(fp, "%llu,%.6f,%.4f,%.4f,%.9g,%.4f,%.4f,%.4f,%.4f,%.4f,%.4f,%u",
+                (unsigned long long)s->frame, r[i].t, s->measured_ms, s->estimated_ms, s->v_time,
+                s->fixed_ms, s->budget_ms, s->share_gain, s->traversal_ms, s->upload_ms,
+                s->sse_pixels, s->nodes_drawn);
+        for (uint32_t d = 0; d < depths; d++)
+            fprintf(fp, ",%u", s->nodes_per_depth[d]);
+        fprintf(fp, ",%llu,%.3f,%u,%u,%u,%u,%u,%u,%llu,%.0f,%llu,%u,%u,%llu,%u,%u,%u,%u",
+                (unsigned long long)s->tris_drawn, s->cost_drawn, s->toggles_up,
+                s->toggles_down, s->oscillations, s->nodes_visited, s->wanted_missing,
+                s->resident_nodes, (unsigned long long)s->resident_bytes, s->resident_cost,
+                (unsigned long long)s->memory_budget_bytes, s->loads, s->evictions,
+                (unsigned long long)s->bytes_read, s->load_failures, s->bad_nodes, s->queued,
+                s->render_waits);
+        if (isnan(r[i].psnr))
+            fprintf(fp, ",,");
+        else
+            fprintf(fp, ",%.4f,%.6f", r[i].psnr, r[i].ssim);
+        if (isnan(r[i].luma))
+            fprintf(fp, ",");
+        else
+            fprintf(fp, ",%.5f", r[i].luma);
+        if (isnan(r[i].ref_luma))
+            fprintf(fp, ",");
+        else
+            fprintf(fp, ",%.5f", r[i].ref_luma);
+        fprintf(fp, ",%.4f,%.4f\n", r[i].up_ma, r[i].down_ma);
+    }
+    return hlod_atomic_commit(&af, lg);
+}
+
+static void json_summary(hlod_json *j, const summary *s, const char *policy, const char *path,
+                         const options *o)
+{
+    hlod_json_int(j, "frames", s->frames);
+    hlod_json_double(j, "target_ms", s->target_ms);
+    hlod_json_double(j, "frame_ms_mean", s->mean);
+    hlod_json_double(j, "frame_ms_p50", s->p50);
+    hlod_json_double(j, "frame_ms_p95", s->p95);
+    hlod_json_double(j, "frame_ms_p99", s->p99);
+    hlod_json_double(j, "frame_ms_max", s->max);
+    hlod_json_double(j, "within_10pct", s->within);
+    hlod_json_double(j, "over_target_frac", s->over);
+    hlod_json_int(j, "toggles_up", (long long)s->up);
+    hlod_json_int(j, "toggles_down", (long long)s->down);
+    hlod_json_double(j, "toggles_per_frame", s->toggles_per_frame);
+    hlod_json_int(j, "oscillations", (long long)s->osc);
+    hlod_json_double(j, "psnr_mean", s->psnr_mean);
+    hlod_json_double(j, "psnr_min", s->psnr_min);
+    hlod_json_double(j, "ssim_mean", s->ssim_mean);
+    hlod_json_double(j, "image_flicker", s->image_flicker);
+    hlod_json_double(j, "tris_mean", s->tris_mean);
+    hlod_json_int(j, "loads", (long long)s->loads);
+    hlod_json_int(j, "evictions", (long long)s->evictions);
+    hlod_json_int(j, "bytes_read", (long long)s->bytes_read);
+    hlod_json_int(j, "peak_resident_bytes", (long long)s->peak_resident);
+    hlod_json_int(j, "memory_budget_bytes", (long long)s->budget);
+    hlod_json_int(j, "missing_wanted_frames", (long long)s->missing_frames);
+    hlod_json_int(j, "render_waits", (long long)s->waits);
+    hlod_json_double(j, "traversal_ms_mean", s->traversal_mean);
+    hlod_json_double(j, "traversal_ms_max", s->traversal_max);
+    hlod_json_double(j, "v_time_final", s->v_time);
+    hlod_json_double(j, "fixed_ms_final", s->fixed_ms);
+    hlod_json_string(j, "policy", policy);
+    hlod_json_string(j, "path", path);
+    hlod_json_int(j, "width", o->width);
+    hlod_json_int(j, "height", o->height);
+    hlod_json_bool(j, "deterministic", o->deterministic);
+    hlod_json_bool(j, "reference", o->reference);
+}
+
+static hlod_result write_summary(const char *dir, const summary *s, const char *policy,
+                                 const char *path, const options *o, const hlod_logger *lg)
+{
+    char file[4200];
+    snprintf(file, sizeof file, "%s/summary.json", dir);
+    hlod_atomic_file af;
+    hlod_result r = hlod_atomic_open(&af, file, lg);
+    if (r != HLOD_OK)
+        return r;
+    hlod_json j;
+    hlod_json_begin(&j, af.fp);
+    json_summary(&j, s, policy, path, o);
+    hlod_json_end(&j);
+    return hlod_atomic_commit(&af, lg);
+}
+
+/* Runs gnuplot on script text; 0 on success. */
+static int run_gnuplot(const char *dir, const char *name, const char *script)
+{
+    char gp[4096], cmd[8400];
+    snprintf(gp, sizeof gp, "%s/%s.gp", dir, name);
+    FILE *fp = fopen(gp, "w");
+    if (!fp) {
+        hlod_cli_error(PROG, "%s: cannot write: %s", gp, strerror(errno));
+        return 1;
+    }
+    fputs(script, fp);
+    if (fclose(fp) != 0) {
+        hlod_cli_error(PROG, "%s: cannot write: %s", gp, strerror(errno));
+        return 1;
+    }
+    snprintf(cmd, sizeof cmd, "cd '%s' && gnuplot '%s.gp' 2>'%s.log'", dir, name, name);
+    if (system(cmd) != 0) {
+        hlod_cli_error(PROG, "%s/%s.gp: gnuplot failed (see %s/%s.log)", dir, name, dir, name);
+        return 1;
+    }
+    return 0;
+}
+
+static int plot_run(const char *dir, uint32_t depths, int have_psnr, double target)
+{
+    /* frames.csv columns: 1 frame, 3 measured, 4 estimated, 12 nodes_drawn,
+     * 13.. depth d, then tris, cost, up, down, ... */
+    int c_depth0 = 13, c_up = 13 + (int)depths + 2;
+    int c_res = c_up + 6, c_budget = c_up + 8;
+    int c_psnr = c_up + 16, c_up_ma = c_up + 20, c_down_ma = c_up + 21;
+    char s[8192];
+    int n = snprintf(s, sizeof s,
+        "set datafile separator ','\nset terminal pngcairo size 1100,500\nset key outside\n"
+        "set grid\nset xlabel 'frame'\n"
+        "set output 'frame_time.png'\nset title 'Frame time vs target (Lakhia Fig. 9)'\n"
+        "set ylabel 'ms'\nplot 'frames.csv' every ::1 using 1:3 with lines title 'measured', "
+        "'' every ::1 using 1:4 with lines title 'estimated', %g with lines dt 2 title "
+        "'target'\n"
+        "set output 'nodes_per_depth.png'\nset title 'Nodes drawn per depth (Lakhia Fig. 7)'\n"
+        "set ylabel 'nodes'\nplot for [d=0:%u] 'frames.csv' every ::1 using 1:(column(%d+d)) "
+        "with lines title sprintf('depth %%d', d)\n"
+        "set output 'toggles.png'\nset title 'Toggles, 35-frame moving average (Lakhia Fig. 8)'\n"
+        "set ylabel 'toggles per frame'\n"
+        "plot 'frames.csv' every ::1 using 1:(column(%d)) with lines title 'up', "
+        "'' every ::1 using 1:(-column(%d)) with lines title 'down (negative)', 0 with lines "
+        "lc rgb 'black' notitle\n"
+        "set output 'memory.png'\nset title 'Resident memory vs budget'\nset ylabel 'MiB'\n"
+        "plot 'frames.csv' every ::1 using 1:(column(%d)/1048576.0) with lines title "
+        "'resident', '' every ::1 using 1:(column(%d)/1048576.0) with lines dt 2 title "
+        "'budget'\n",
+        target, depths ? depths - 1 : 0, c_depth0, c_up_ma, c_down_ma, c_res, c_budget);
+    if (have_psnr && n > 0 && (size_t)n < sizeof s)
+        snprintf(s + n, sizeof s - (size_t)n,
+                 "set output 'psnr.png'\nset title 'PSNR against the full-detail reference'\n"
+                 "set ylabel 'dB'\nplot 'frames.csv' every ::1 using 1:%d with linespoints "
+                 "pt 7 ps 0.3 title 'PSNR'\n",
+                 c_psnr);
+    return run_gnuplot(dir, "plots", s);
+}
+
+/* ---- one run ---- */
+
+typedef struct context {
+    const options *o;
+    hlod_store *store;
+    hlod_path path;
+    const char *path_name;
+    hlod_osmesa *gl;
+    hlod_renderer *renderer;
+    hlod_logger lg;
+    uint8_t *img, *prev_img, *ref, *prev_ref;
+} context;
+
+static void path_camera(const context *c, uint64_t f, hlod_camera *cam, double *t_out)
+{
+    const options *o = c->o;
+    double t = hlod_path_frame_time(&c->path, o->dt, f), eye[3], at[3];
+    hlod_path_eval(&c->path, t, eye, at);
+    const hlod_store_header *h = hlod_store_get_header(c->store);
+    double diag = 0;
+    for (int k = 0; k < 3; k++) {
+        double span = h->bbox_max[k] - h->bbox_min[k];
+        diag += span * span;
+    }
+    double far_plane = 3 * sqrt(diag) + 1000;
+    for (int k = 0; k < 3; k++) {
+        double m = fabs(eye[k] - 0.5 * (h->bbox_min[k] + h->bbox_max[k]));
+        far_plane += m;
+    }
+    double up[3] = {0, o->up_y ? 1 : 0, o->up_y ? 0 : 1};
+    if (hlod_camera_look_at(cam, eye, at, up, o->fov, o->near_plane, far_plane, o->width,
+                            o->height) != HLOD_OK) {
+        /* looking straight along the up axis: tilt the up vector */
+        double up2[3] = {0, o->up_y ? 0 : 1, o->up_y ? 1 : 0};
+        hlod_camera_look_at(cam, eye, at, up2, o->fov, o->near_plane, far_plane, o->width,
+                            o->height);
+    }
+    *t_out = t;
+}
+
+/* Calibrates v_time and fixed_ms for --deterministic from a short warm-up
+ * in the normal mode. */
+static hlod_result calibrate(context *c, const hlod_engine_desc *base, double *v_time,
+                             double *fixed_ms)
+{
+    hlod_engine_desc d = *base;
+    d.deterministic = 0;
+    hlod_engine *e = NULL;
+    hlod_result r = hlod_engine_create(c->store, &d, &e);
+    if (r != HLOD_OK)
+        return r;
+    hlod_frame_stats st;
+    uint64_t n = hlod_path_frame_count(&c->path, c->o->dt);
+    for (int i = 0; i < 60; i++) {
+        hlod_camera cam;
+        double t;
+        path_camera(c, (uint64_t)i * (n > 60 ? n / 60 : 1) % (n ? n : 1), &cam, &t);
+        r = hlod_engine_frame(e, &cam, c->o->dt, &st);
+        if (r != HLOD_OK)
+            break;
+    }
+    *v_time = st.v_time;
+    *fixed_ms = st.fixed_ms;
+    hlod_engine_destroy(e);
+    return r;
+}
+
+static int run(context *c, hlod_policy policy, const char *dir, const setting *extra,
+               summary *out)
+{
+    const options *o = c->o;
+    hlod_engine_desc d = {0};
+    d.target_ms = o->target_ms;
+    d.policy = policy;
+    d.renderer = c->renderer;
+    d.logger = c->lg;
+    const hlod_store_header *h = hlod_store_get_header(c->store);
+    d.memory_budget_bytes = o->memory_mb > 0 ? (uint64_t)(o->memory_mb * 1048576.0)
+                                             : (uint64_t)(0.25 * (double)h->file_size);
+    for (int i = 0; i < o->nsets; i++)
+        apply_setting(&d, o->sets[i].key, o->sets[i].value);
+    if (extra)
+        apply_setting(&d, extra->key, extra->value);
+    if (o->deterministic) {
+        int have_v = 0, have_fixed = 0;
+        for (int i = 0; i < o->nsets; i++) {
+            have_v |= !strcmp(o->sets[i].key, "v_time");
+            have_fixed |= !strcmp(o->sets[i].key, "fixed_ms");
+        }
+        if (extra) {
+            have_v |= !strcmp(extra->key, "v_time");
+            have_fixed |= !strcmp(extra->key, "fixed_ms");
+        }
+        if (!have_v || !have_fixed) {
+            double v, fixed;
+            if (calibrate(c, &d, &v, &fixed) != HLOD_OK) {
+                hlod_cli_error(PROG, "%s: calibration run failed", o->store);
+                return 1;
+            }
+            if (!have_v)
+                d.fixed_v_time = v;
+            if (!have_fixed)
+                d.fixed_frame_ms = fixed < d.target_ms ? fixed : 0.5 * d.target_ms;
+            fprintf(stderr, "%s: calibrated v_time %.6g ms/cost, fixed %.3g ms (pass them "
+                    "with --set to repeat this run exactly)\n", PROG, d.fixed_v_time,
+                    d.fixed_frame_ms);
+        }
+        d.deterministic = 1;
+        d.deterministic_load_bytes = (uint64_t)(o->io_mbps * 1e6 * o->dt);
+        if (!d.deterministic_load_bytes)
+            d.deterministic_load_bytes = 1;
+    }
+
+    hlod_engine *e = NULL, *ref = NULL;
+    hlod_result r = hlod_engine_create(c->store, &d, &e);
+    if (r != HLOD_OK) {
+        hlod_cli_error(PROG, "%s: cannot start the engine: %s", o->store, hlod_result_str(r));
+        return 1;
+    }
+    if (o->reference) {
+        hlod_engine_desc rd = {0};
+        rd.policy = HLOD_POLICY_FULL;
+        rd.renderer = c->renderer;
+        rd.logger = c->lg;
+        rd.deterministic = 1; /* no loader thread: load_all_leaves loads */
+        rd.memory_budget_bytes = UINT64_MAX / 4;
+        r = hlod_engine_create(c->store, &rd, &ref);
+        if (r != HLOD_OK) {
+            hlod_cli_error(PROG, "%s: cannot start the reference engine: %s", o->store,
+                           hlod_result_str(r));
+            hlod_engine_destroy(e);
+            return 1;
+        }
+    }
+
+    uint64_t total = hlod_path_frame_count(&c->path, o->dt);
+    if (o->frames > 0 && (uint64_t)o->frames < total)
+        total = (uint64_t)o->frames;
+    frame_rec *rec = calloc(total ? total : 1, sizeof *rec);
+    if (!rec) {
+        hlod_cli_error(PROG, "out of memory for %llu frames", (unsigned long long)total);
+        hlod_engine_destroy(e);
+        hlod_engine_destroy(ref);
+        return 1;
+    }
+    size_t npix = (size_t)o->width * o->height * 3;
+    int need_images = o->reference;
+    int have_prev = 0, have_prev_ref = 0;
+    hlod_cli_progress bar;
+    hlod_cli_progress_begin(&bar, "frames", 1);
+    int status = 0;
+    for (uint64_t f = 0; f < total; f++) {
+        hlod_camera cam;
+        frame_rec *fr = &rec[f];
+        path_camera(c, f, &cam, &fr->t);
+        fr->psnr = fr->ssim = fr->luma = fr->ref_luma = NAN;
+        r = hlod_engine_frame(e, &cam, o->dt, &fr->st);
+        if (r != HLOD_OK) {
+            hlod_cli_progress_clear(&bar);
+            hlod_cli_error(PROG, "%s: frame %llu failed: %s", o->store, (unsigned long long)f,
+                           hlod_result_str(r));
+            status = 1;
+            break;
+        }
+        if (need_images) {
+            hlod_osmesa_read_rgb(c->gl, c->img);
+            if (have_prev)
+                hlod_luma_change_rgb8(c->prev_img, c->img, o->width, o->height, &fr->luma);
+            uint8_t *t = c->prev_img;
+            c->prev_img = c->img;
+            c->img = t;
+            have_prev = 1;
+        }
+        if (ref && f % (uint64_t)o->reference_every == 0) {
+            hlod_frame_stats rs;
+            if (hlod_engine_load_all_leaves(ref, &cam) != HLOD_OK ||
+                hlod_engine_frame(ref, &cam, o->dt, &rs) != HLOD_OK) {
+                hlod_cli_progress_clear(&bar);
+                hlod_cli_error(PROG, "%s: reference frame %llu failed", o->store,
+                               (unsigned long long)f);
+                status = 1;
+                break;
+            }
+            hlod_osmesa_read_rgb(c->gl, c->ref);
+            hlod_psnr_rgb8(c->prev_img, c->ref, o->width, o->height, &fr->psnr);
+            hlod_ssim_rgb8(c->prev_img, c->ref, o->width, o->height, &fr->ssim);
+            if (have_prev_ref && o->reference_every == 1)
+                hlod_luma_change_rgb8(c->prev_ref, c->ref, o->width, o->height, &fr->ref_luma);
+            uint8_t *t = c->prev_ref;
+            c->prev_ref = c->ref;
+            c->ref = t;
+            have_prev_ref = 1;
+        }
+        hlod_cli_progress_fn(&bar, (double)(f + 1), (double)total);
+    }
+    hlod_cli_progress_clear(&bar);
+    hlod_engine_destroy(ref);
+    hlod_engine_destroy(e);
+    (void)npix;
+    if (status) {
+        free(rec);
+        return status;
+    }
+
+    summarise(rec, (long)total, d.target_ms, out);
+    moving_averages(rec, (long)total);
+    uint32_t depths = h->depth_count < HLOD_STATS_MAX_DEPTH ? h->depth_count : HLOD_STATS_MAX_DEPTH;
+    if (write_frames_csv(dir, rec, (long)total, depths, &c->lg) != HLOD_OK ||
+        write_summary(dir, out, hlod_policy_name(policy), c->path_name, o, &c->lg) != HLOD_OK)
+        status = 1;
+    free(rec);
+    if (!status && o->plots)
+        status = plot_run(dir, depths, o->reference, d.target_ms);
+    fprintf(stderr, "%s: %s: %ld frames, mean %.2f ms (p95 %.2f, p99 %.2f) for %.1f target, "
+            "%.0f%% within 10%%, %.3f toggles/frame, psnr %.2f dB -> %s\n", PROG,
+            hlod_policy_name(policy), out->frames, out->mean, out->p95, out->p99, d.target_ms,
+            100 * out->within, out->toggles_per_frame, out->psnr_mean, dir);
+    return status;
+}
+
+/* ---- main ---- */
+
+static int make_dir(const char *dir)
+{
+    char buf[4096];
+    snprintf(buf, sizeof buf, "%s", dir);
+    for (char *p = buf + 1; *p; p++)
+        if (*p == '/') {
+            *p = 0;
+            if (mkdir(buf, 0777) != 0 && errno != EEXIST)
+                return -1;
+            *p = '/';
+        }
+    if (mkdir(buf, 0777) != 0 && errno != EEXIST)
+        return -1;
+    return 0;
+}
+
+static int file_exists(const char *p)
+{
+    struct stat sb;
+    return stat(p, &sb) == 0 && S_ISREG(sb.st_mode);
+}
+
+int main(int argc, char **argv)
+{
+    options o;
+    int rc = parse_args(argc, argv, &o);
+    if (rc >= 0)
+        return rc;
+
+    hlod_cli_log log_state = {PROG, HLOD_LOG_WARN, NULL};
+    context c;
+    memset(&c, 0, sizeof c);
+    c.o = &o;
+    c.lg = hlod_cli_logger(&log_state);
+
+    /* the path: a file, or a built-in name */
+    char path_file[4096];
+    snprintf(path_file, sizeof path_file, "%s", o.path);
+    if (!file_exists(path_file) && !strchr(o.path, '/'))
+        snprintf(path_file, sizeof path_file, "%s/%s.path", o.paths_dir, o.path);
+    c.path_name = o.path;
+    if (hlod_path_load(path_file, &c.lg, &c.path) != HLOD_OK)
+        return 1; /* the loader named the file and line */
+
+    if (hlod_store_open(o.store, &c.lg, &c.store) != HLOD_OK) {
+        hlod_path_free(&c.path);
+        return 1;
+    }
+    if (make_dir(o.out) != 0) {
+        hlod_cli_error(PROG, "%s: cannot create the output folder: %s", o.out, strerror(errno));
+        hlod_store_close(c.store);
+        hlod_path_free(&c.path);
+        return 1;
+    }
+    hlod_result r = hlod_osmesa_create(o.width, o.height, &c.lg, &c.gl);
+    if (r == HLOD_OK)
+        r = hlod_renderer_create(hlod_osmesa_get_proc(), &c.lg, &c.renderer);
+    size_t npix = (size_t)o.width * o.height * 3;
+    c.img = malloc(npix);
+    c.prev_img = malloc(npix);
+    c.ref = malloc(npix);
+    c.prev_ref = malloc(npix);
+    if (r != HLOD_OK || !c.img || !c.prev_img || !c.ref || !c.prev_ref) {
+        hlod_cli_error(PROG, "cannot set up headless OpenGL (OSMesa, GL 3.3): %s",
+                       hlod_result_str(r != HLOD_OK ? r : HLOD_ERR_NOMEM));
+        rc = 1;
+        goto done;
+    }
+
+    int multi = o.npolicies > 1 || o.sweep_key;
+    FILE *sweep_fp = NULL;
+    hlod_atomic_file sweep_af;
+    if (multi) {
+        char p[4096];
+        snprintf(p, sizeof p, "%s/sweep.csv", o.out);
+        if (hlod_atomic_open(&sweep_af, p, &c.lg) != HLOD_OK) {
+            rc = 1;
+            goto done;
+        }
+        sweep_fp = sweep_af.fp;
+        fprintf(sweep_fp, "policy,key,value,frames,target_ms,frame_ms_mean,frame_ms_p95,"
+                          "frame_ms_p99,within_10pct,over_target_frac,toggles_per_frame,"
+                          "oscillations,psnr_mean,psnr_min,ssim_mean,tris_mean,loads,evictions,"
+                          "peak_resident_bytes,run_dir\n");
+    }
+    rc = 0;
+    summary last;
+    int nvalues = o.sweep_key ? o.nsweep : 1;
+    for (int pi = 0; pi < o.npolicies && rc == 0; pi++)
+        for (int vi = 0; vi < nvalues && rc == 0; vi++) {
+            char dir[4096];
+            setting extra = {o.sweep_key, o.sweep_key ? o.sweep[vi] : 0};
+            const char *pname = hlod_policy_name(o.policies[pi]);
+            if (!multi)
+                snprintf(dir, sizeof dir, "%s", o.out);
+            else if (o.sweep_key)
+                snprintf(dir, sizeof dir, "%s/%s-%s=%g", o.out, pname, o.sweep_key, o.sweep[vi]);
+            else
+                snprintf(dir, sizeof dir, "%s/%s", o.out, pname);
+            if (make_dir(dir) != 0) {
+                hlod_cli_error(PROG, "%s: cannot create: %s", dir, strerror(errno));
+                rc = 1;
+                break;
+            }
+            rc = run(&c, o.policies[pi], dir, o.sweep_key ? &extra : NULL, &last);
+            if (rc == 0 && sweep_fp)
+                fprintf(sweep_fp, "%s,%s,%g,%ld,%g,%.4f,%.4f,%.4f,%.4f,%.4f,%.5f,%llu,%.4f,%.4f,"
+                        "%.5f,%.1f,%llu,%llu,%llu,%s\n", pname, o.sweep_key ? o.sweep_key : "",
+                        o.sweep_key ? o.sweep[vi] : 0, last.frames, last.target_ms, last.mean,
+                        last.p95, last.p99, last.within, last.over, last.toggles_per_frame,
+                        (unsigned long long)last.osc, last.psnr_mean, last.psnr_min,
+                        last.ssim_mean, last.tris_mean, (unsigned long long)last.loads,
+                        (unsigned long long)last.evictions,
+                        (unsigned long long)last.peak_resident, dir);
+        }
+    if (sweep_fp) {
+        if (rc == 0) {
+            if (hlod_atomic_commit(&sweep_af, &c.lg) != HLOD_OK)
+                rc = 1;
+        } else {
+            hlod_atomic_abort(&sweep_af);
+        }
+        if (rc == 0 && o.plots) {
+            char s[2048];
+            snprintf(s, sizeof s,
+                     "set datafile separator ','\nset terminal pngcairo size 900,600\n"
+                     "set grid\nset key outside\nset xlabel 'mean frame time (ms)'\n"
+                     "set ylabel 'mean PSNR (dB)'\nset output 'pareto.png'\n"
+                     "set title 'Run time vs error, one curve per policy'\n"
+                     "plot for [p in '%s%s%s%s%s'] '< grep ^'.p.', sweep.csv' using 6:13 "
+                     "with linespoints title p\n"
+                     "set output 'sweep_frame_time.png'\nset ylabel 'ms'\n"
+                     "set xlabel 'run'\nset title 'Mean and p95 frame time per run'\n"
+                     "plot 'sweep.csv' every ::1 using 0:6 with linespoints title 'mean', "
+                     "'' every ::1 using 0:7 with linespoints title 'p95', '' every ::1 using "
+                     "0:5 with lines dt 2 title 'target'\n",
+                     hlod_policy_name(o.policies[0]), o.npolicies > 1 ? " " : "",
+                     o.npolicies > 1 ? hlod_policy_name(o.policies[1]) : "",
+                     o.npolicies > 2 ? " " : "",
+                     o.npolicies > 2 ? hlod_policy_name(o.policies[2]) : "");
+            rc = run_gnuplot(o.out, "sweep", s);
+        }
+    }
+    if (rc == 0 && o.json) {
+        hlod_json j;
+        hlod_json_begin(&j, stdout);
+        json_summary(&j, &last, hlod_policy_name(o.policies[o.npolicies - 1]), o.path, &o);
+        if (hlod_json_end(&j) != 0)
+            rc = 1;
+    }
+
+done:
+    free(c.img);
+    free(c.prev_img);
+    free(c.ref);
+    free(c.prev_ref);
+    hlod_renderer_destroy(c.renderer);
+    hlod_osmesa_destroy(c.gl);
+    hlod_store_close(c.store);
+    hlod_path_free(&c.path);
+    return rc;
+}
