@@ -27,8 +27,10 @@ typedef struct hlod_gpu_node {
 } hlod_gpu_node;
 
 /* Uploads a payload.  HLOD_ERR_NOMEM when GL runs out of memory (the node
- * stays absent), HLOD_ERR_INVALID_ARG for an empty payload.  *out zeroed on
- * failure. */
+ * stays absent), HLOD_ERR_INVALID_ARG for an empty payload,
+ * HLOD_ERR_UNSUPPORTED (logged) for a texture over GL_MAX_TEXTURE_SIZE or
+ * any other GL error.  Indices must be < vertex_count (the store reader
+ * checks them).  *out zeroed on failure. */
 hlod_result hlod_gpu_upload(hlod_renderer *r, const hlod_store_payload *p, hlod_gpu_node *out);
 void hlod_gpu_release(hlod_renderer *r, hlod_gpu_node *g);   /* zeroes g; g may be zeroed */
 

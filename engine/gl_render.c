@@ -1,0 +1,549 @@
+/*
+ * gl_render.c - the OpenGL 3.3 core renderer (gl_render.h, engine.h).
+ *
+ * Design:
+ * - No GL library is linked: every entry point is loaded through the
+ *   caller's hlod_gl_get_proc into a table inside the renderer (GL_FUNCS
+ *   below lists them), so two renderers, in one context or two, share
+ *   nothing and the library holds no global state.
+ * - A node is one VAO, one VBO holding the payload's sections one after the
+ *   other exactly as stored (positions, normals, UVs, colours; no CPU
+ *   interleaving, so an upload is one glBufferData plus one glBufferSubData
+ *   per section), one 32-bit IBO, and a mipmapped, trilinear, repeating
+ *   texture.  Missing sections are constant attributes set in begin: normal
+ *   0 (the fragment shader then uses the face normal from derivatives) and
+ *   light grey colour.
+ * - Camera-relative rendering: positions are floats relative to the node's
+ *   origin; the vertex shader adds `offset` = origin - eye (double, rounded
+ *   once by the caller) and applies proj * view-rotation, so no float ever
+ *   holds a world coordinate.
+ * - UVs follow OBJ/OpenGL (v = 0 at the image's bottom row, see
+ *   preprocess/build_common.c and gltf_write.c) while pixels are stored top
+ *   row first, so the top row lands at t = 0: the shader samples (u, 1 - v).
+ * - Shading: a headlight (light at the eye) plus a hemispheric sky term with
+ *   +z up (the generated city's up; for other data it is only a soft
+ *   gradient), applied to texture, vertex colour or depth colour alike.
+ *   Back faces are lit like front faces (scanned meshes are not closed).
+ */
+#include <assert.h>
+#include <stdint.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include <GL/glcorearb.h>
+
+#include "gl_render.h"
+
+/* Every GL function the renderer calls: (typedef, name without "gl"). */
+#define GL_FUNCS(X)                                                  \
+    X(PFNGLGETSTRINGPROC, GetString)                                 \
+    X(PFNGLGETINTEGERVPROC, GetIntegerv)                             \
+    X(PFNGLGETERRORPROC, GetError)                                   \
+    X(PFNGLCREATESHADERPROC, CreateShader)                           \
+    X(PFNGLSHADERSOURCEPROC, ShaderSource)                           \
+    X(PFNGLCOMPILESHADERPROC, CompileShader)                         \
+    X(PFNGLGETSHADERIVPROC, GetShaderiv)                             \
+    X(PFNGLGETSHADERINFOLOGPROC, GetShaderInfoLog)                   \
+    X(PFNGLDELETESHADERPROC, DeleteShader)                           \
+    X(PFNGLCREATEPROGRAMPROC, CreateProgram)                         \
+    X(PFNGLATTACHSHADERPROC, AttachShader)                           \
+    X(PFNGLLINKPROGRAMPROC, LinkProgram)                             \
+    X(PFNGLGETPROGRAMIVPROC, GetProgramiv)                           \
+    X(PFNGLGETPROGRAMINFOLOGPROC, GetProgramInfoLog)                 \
+    X(PFNGLDELETEPROGRAMPROC, DeleteProgram)                         \
+    X(PFNGLGETUNIFORMLOCATIONPROC, GetUniformLocation)               \
+    X(PFNGLUSEPROGRAMPROC, UseProgram)                               \
+    X(PFNGLUNIFORM1IPROC, Uniform1i)                                 \
+    X(PFNGLUNIFORM3FPROC, Uniform3f)                                 \
+    X(PFNGLUNIFORMMATRIX4FVPROC, UniformMatrix4fv)                   \
+    X(PFNGLGENVERTEXARRAYSPROC, GenVertexArrays)                     \
+    X(PFNGLBINDVERTEXARRAYPROC, BindVertexArray)                     \
+    X(PFNGLDELETEVERTEXARRAYSPROC, DeleteVertexArrays)               \
+    X(PFNGLGENBUFFERSPROC, GenBuffers)                               \
+    X(PFNGLBINDBUFFERPROC, BindBuffer)                               \
+    X(PFNGLBUFFERDATAPROC, BufferData)                               \
+    X(PFNGLBUFFERSUBDATAPROC, BufferSubData)                         \
+    X(PFNGLDELETEBUFFERSPROC, DeleteBuffers)                         \
+    X(PFNGLVERTEXATTRIBPOINTERPROC, VertexAttribPointer)             \
+    X(PFNGLENABLEVERTEXATTRIBARRAYPROC, EnableVertexAttribArray)     \
+    X(PFNGLVERTEXATTRIB4FPROC, VertexAttrib4f)                       \
+    X(PFNGLGENTEXTURESPROC, GenTextures)                             \
+    X(PFNGLBINDTEXTUREPROC, BindTexture)                             \
+    X(PFNGLACTIVETEXTUREPROC, ActiveTexture)                         \
+    X(PFNGLTEXIMAGE2DPROC, TexImage2D)                               \
+    X(PFNGLTEXPARAMETERIPROC, TexParameteri)                         \
+    X(PFNGLGENERATEMIPMAPPROC, GenerateMipmap)                       \
+    X(PFNGLDELETETEXTURESPROC, DeleteTextures)                       \
+    X(PFNGLPIXELSTOREIPROC, PixelStorei)                             \
+    X(PFNGLVIEWPORTPROC, Viewport)                                   \
+    X(PFNGLCLEARCOLORPROC, ClearColor)                               \
+    X(PFNGLCLEARPROC, Clear)                                         \
+    X(PFNGLENABLEPROC, Enable)                                       \
+    X(PFNGLDISABLEPROC, Disable)                                     \
+    X(PFNGLDEPTHFUNCPROC, DepthFunc)                                 \
+    X(PFNGLPOLYGONMODEPROC, PolygonMode)                             \
+    X(PFNGLDRAWELEMENTSPROC, DrawElements)                           \
+    X(PFNGLFLUSHPROC, Flush)                                         \
+    X(PFNGLFINISHPROC, Finish)
+
+typedef struct gl_table {
+#define GL_MEMBER(type, name) type name;
+    GL_FUNCS(GL_MEMBER)
+#undef GL_MEMBER
+} gl_table;
+
+/* Vertex attribute locations (the shader's layout qualifiers). */
+enum { ATTR_POSITION = 0, ATTR_NORMAL = 1, ATTR_UV = 2, ATTR_COLOR = 3 };
+
+/* Fragment colour source (u_mode). */
+enum { MODE_TEXTURE = 0, MODE_VERTEX_COLOR = 1, MODE_FLAT = 2 };
+
+/* Colour of untextured geometry without vertex colours: hlod_material's
+ * default diffuse. */
+#define DEFAULT_GREY 0.8f
+
+struct hlod_renderer {
+    gl_table gl;
+    hlod_logger lg;
+    GLuint program;
+    GLint u_viewproj, u_offset, u_mode, u_flat, u_tex;
+    GLint max_texture;          /* GL_MAX_TEXTURE_SIZE */
+    int depth_colors, wireframe;
+    float clear[3];
+};
+
+static const char *vertex_src =
+    "#version 330 core\n"
+    "layout(location = 0) in vec3 a_position;\n"
+    "layout(location = 1) in vec3 a_normal;\n"
+    "layout(location = 2) in vec2 a_uv;\n"
+    "layout(location = 3) in vec4 a_color;\n"
+    "uniform mat4 u_viewproj;\n"
+    "uniform vec3 u_offset;\n"
+    "out vec3 v_rel;\n"
+    "out vec3 v_normal;\n"
+    "out vec2 v_uv;\n"
+    "out vec4 v_color;\n"
+    "void main() {\n"
+    "    vec3 rel = a_position + u_offset;\n"
+    "    v_rel = rel;\n"
+    "    v_normal = a_normal;\n"
+    "    v_uv = vec2(a_uv.x, 1.0 - a_uv.y);\n"  /* v = 0 is the bottom row */
+    "    v_color = a_color;\n"
+    "    gl_Position = u_viewproj * vec4(rel, 1.0);\n"
+    "}\n";
+
+static const char *fragment_src =
+    "#version 330 core\n"
+    "in vec3 v_rel;\n"
+    "in vec3 v_normal;\n"
+    "in vec2 v_uv;\n"
+    "in vec4 v_color;\n"
+    "uniform int u_mode;\n"
+    "uniform vec3 u_flat;\n"
+    "uniform sampler2D u_tex;\n"
+    "out vec4 o_color;\n"
+    "void main() {\n"
+    "    vec3 to_eye = -v_rel;\n"
+    "    float d = length(to_eye);\n"
+    "    to_eye = d > 0.0 ? to_eye / d : vec3(0.0, 0.0, 1.0);\n"
+    "    vec3 n = v_normal;\n"
+    "    if (dot(n, n) < 1e-12) {\n"
+    /*       no normals in the payload: the face normal, towards the eye */
+    "        n = cross(dFdx(v_rel), dFdy(v_rel));\n"
+    "        if (dot(n, to_eye) < 0.0) n = -n;\n"
+    "    } else if (!gl_FrontFacing) {\n"
+    "        n = -n;\n"
+    "    }\n"
+    "    float len = length(n);\n"
+    "    n = len > 0.0 ? n / len : to_eye;\n"
+    "    float head = abs(dot(n, to_eye));\n"
+    "    float sky = 0.5 + 0.5 * n.z;\n"
+    /*   1.0 for a face seen head-on whose normal is straight up */
+    "    float light = 0.20 + 0.55 * head + 0.25 * sky;\n"
+    "    vec3 base = u_mode == 0 ? texture(u_tex, v_uv).rgb\n"
+    "              : u_mode == 1 ? v_color.rgb : u_flat;\n"
+    "    o_color = vec4(base * light, 1.0);\n"
+    "}\n";
+
+/* Depth-colour mode: one colour per hierarchy level, cycling. */
+static const float depth_palette[8][3] = {
+    {0.90f, 0.30f, 0.25f}, {0.95f, 0.65f, 0.20f}, {0.90f, 0.90f, 0.30f},
+    {0.40f, 0.80f, 0.35f}, {0.30f, 0.75f, 0.85f}, {0.35f, 0.45f, 0.90f},
+    {0.70f, 0.40f, 0.85f}, {0.90f, 0.50f, 0.70f},
+};
+
+/* Converts a loader's object pointer to a function pointer without a cast
+ * between the two kinds (not defined by ISO C, defined by POSIX). */
+#define LOAD_PROC(dst, ptr) memcpy(&(dst), &(ptr), sizeof(dst))
+
+static int load_table(gl_table *gl, hlod_gl_get_proc get_proc, const hlod_logger *lg)
+{
+    static_assert(sizeof(void *) == sizeof(PFNGLCLEARPROC), "function and object pointers differ");
+#define GL_LOAD(type, name)                                                    \
+    {                                                                          \
+        void *p_ = get_proc("gl" #name);                                       \
+        if (!p_) {                                                             \
+            hlod_logf(lg, HLOD_LOG_ERROR, "renderer: no GL function gl%s", #name); \
+            return 0;                                                          \
+        }                                                                      \
+        LOAD_PROC(gl->name, p_);                                               \
+    }
+    GL_FUNCS(GL_LOAD)
+#undef GL_LOAD
+    return 1;
+}
+
+/* Returns GL_NO_ERROR, GL_OUT_OF_MEMORY if any pending error is that, else
+ * the first pending error; clears them all. */
+static GLenum take_errors(const gl_table *gl)
+{
+    GLenum first = GL_NO_ERROR, e;
+    for (int i = 0; i < 16 && (e = gl->GetError()) != GL_NO_ERROR; i++)
+        if (first == GL_NO_ERROR || e == GL_OUT_OF_MEMORY)
+            first = e;
+    return first;
+}
+
+static GLuint compile(hlod_renderer *r, GLenum type, const char *src)
+{
+    const gl_table *gl = &r->gl;
+    GLuint sh = gl->CreateShader(type);
+    if (!sh)
+        return 0;
+    gl->ShaderSource(sh, 1, &src, NULL);
+    gl->CompileShader(sh);
+    GLint ok = 0;
+    gl->GetShaderiv(sh, GL_COMPILE_STATUS, &ok);
+    if (!ok) {
+        char log[1024] = "";
+        gl->GetShaderInfoLog(sh, sizeof log, NULL, log);
+        hlod_logf(&r->lg, HLOD_LOG_ERROR, "renderer: %s shader: %s",
+                  type == GL_VERTEX_SHADER ? "vertex" : "fragment", log);
+        gl->DeleteShader(sh);
+        return 0;
+    }
+    return sh;
+}
+
+static int build_program(hlod_renderer *r)
+{
+    const gl_table *gl = &r->gl;
+    GLuint vs = compile(r, GL_VERTEX_SHADER, vertex_src);
+    GLuint fs = vs ? compile(r, GL_FRAGMENT_SHADER, fragment_src) : 0;
+    GLuint prog = fs ? gl->CreateProgram() : 0;
+    if (prog) {
+        gl->AttachShader(prog, vs);
+        gl->AttachShader(prog, fs);
+        gl->LinkProgram(prog);
+        GLint ok = 0;
+        gl->GetProgramiv(prog, GL_LINK_STATUS, &ok);
+        if (!ok) {
+            char log[1024] = "";
+            gl->GetProgramInfoLog(prog, sizeof log, NULL, log);
+            hlod_logf(&r->lg, HLOD_LOG_ERROR, "renderer: link: %s", log);
+            gl->DeleteProgram(prog);
+            prog = 0;
+        }
+    }
+    /* flagged for deletion; they live on while attached to the program */
+    if (vs)
+        gl->DeleteShader(vs);
+    if (fs)
+        gl->DeleteShader(fs);
+    if (!prog)
+        return 0;
+    r->program = prog;
+    r->u_viewproj = gl->GetUniformLocation(prog, "u_viewproj");
+    r->u_offset = gl->GetUniformLocation(prog, "u_offset");
+    r->u_mode = gl->GetUniformLocation(prog, "u_mode");
+    r->u_flat = gl->GetUniformLocation(prog, "u_flat");
+    r->u_tex = gl->GetUniformLocation(prog, "u_tex");
+    gl->UseProgram(prog);
+    gl->Uniform1i(r->u_tex, 0);
+    gl->UseProgram(0);
+    return 1;
+}
+
+/* called from the render thread, context current */
+hlod_result hlod_renderer_create(hlod_gl_get_proc get_proc, const hlod_logger *lg,
+                                 hlod_renderer **out)
+{
+    if (out)
+        *out = NULL;
+    if (!get_proc || !out)
+        return HLOD_ERR_INVALID_ARG;
+    hlod_renderer *r = calloc(1, sizeof *r);
+    if (!r)
+        return HLOD_ERR_NOMEM;
+    if (lg)
+        r->lg = *lg;
+    if (!load_table(&r->gl, get_proc, &r->lg)) {
+        free(r);
+        return HLOD_ERR_UNSUPPORTED;
+    }
+    const gl_table *gl = &r->gl;
+    const GLubyte *version = gl->GetString(GL_VERSION);
+    if (!version) {
+        hlod_logf(&r->lg, HLOD_LOG_ERROR, "renderer: no current GL context");
+        free(r);
+        return HLOD_ERR_UNSUPPORTED;
+    }
+    take_errors(gl);
+    GLint major = 0, minor = 0;
+    gl->GetIntegerv(GL_MAJOR_VERSION, &major);   /* an error (left 0) before 3.0 */
+    gl->GetIntegerv(GL_MINOR_VERSION, &minor);
+    take_errors(gl);
+    if (major * 10 + minor < 33) {
+        hlod_logf(&r->lg, HLOD_LOG_ERROR, "renderer: needs OpenGL 3.3, context is %s",
+                  (const char *)version);
+        free(r);
+        return HLOD_ERR_UNSUPPORTED;
+    }
+    gl->GetIntegerv(GL_MAX_TEXTURE_SIZE, &r->max_texture);
+    if (r->max_texture < 1024)
+        r->max_texture = 1024;   /* the 3.3 minimum, should the query fail */
+    if (!build_program(r)) {
+        free(r);
+        return HLOD_ERR_UNSUPPORTED;
+    }
+    r->clear[0] = 0.62f;   /* a pale sky */
+    r->clear[1] = 0.74f;
+    r->clear[2] = 0.86f;
+    *out = r;
+    return HLOD_OK;
+}
+
+/* called from the render thread, context current */
+void hlod_renderer_destroy(hlod_renderer *r)
+{
+    if (!r)
+        return;
+    r->gl.UseProgram(0);
+    r->gl.DeleteProgram(r->program);
+    free(r);
+}
+
+void hlod_renderer_set_depth_colors(hlod_renderer *r, int on)
+{
+    if (r)
+        r->depth_colors = on != 0;
+}
+
+void hlod_renderer_set_wireframe(hlod_renderer *r, int on)
+{
+    if (r)
+        r->wireframe = on != 0;
+}
+
+void hlod_renderer_set_clear_color(hlod_renderer *r, float red, float green, float blue)
+{
+    if (r) {
+        r->clear[0] = red;
+        r->clear[1] = green;
+        r->clear[2] = blue;
+    }
+}
+
+/* ---- nodes ---- */
+
+/* called from the render thread */
+void hlod_gpu_release(hlod_renderer *r, hlod_gpu_node *g)
+{
+    if (!g)
+        return;
+    assert(r || (!g->vao && !g->vbo && !g->ibo && !g->tex));
+    if (r) {
+        const gl_table *gl = &r->gl;
+        if (g->vao)
+            gl->DeleteVertexArrays(1, &g->vao);
+        if (g->vbo)
+            gl->DeleteBuffers(1, &g->vbo);
+        if (g->ibo)
+            gl->DeleteBuffers(1, &g->ibo);
+        if (g->tex)
+            gl->DeleteTextures(1, &g->tex);
+    }
+    memset(g, 0, sizeof *g);
+}
+
+/* Adds one payload section to the bound VBO at *offset and points attribute
+ * `attr` at it. */
+static void add_section(const gl_table *gl, GLuint attr, GLint size, GLenum type,
+                        GLboolean normalized, const void *data, size_t bytes, size_t *offset)
+{
+    gl->BufferSubData(GL_ARRAY_BUFFER, (GLintptr)*offset, (GLsizeiptr)bytes, data);
+    gl->VertexAttribPointer(attr, size, type, normalized, 0, (const void *)(uintptr_t)*offset);
+    gl->EnableVertexAttribArray(attr);
+    *offset += bytes;
+}
+
+/* Texture of 1..4 channels: grey, grey + alpha, RGB, RGBA. */
+static uint64_t upload_texture(const gl_table *gl, const hlod_store_payload *p, GLuint tex)
+{
+    static const GLenum internal[4] = {GL_R8, GL_RG8, GL_RGB8, GL_RGBA8};
+    static const GLenum format[4] = {GL_RED, GL_RG, GL_RGB, GL_RGBA};
+    int c = (int)p->tex_channels - 1;
+    gl->BindTexture(GL_TEXTURE_2D, tex);
+    gl->PixelStorei(GL_UNPACK_ALIGNMENT, 1);   /* rows are w * channels bytes */
+    gl->TexImage2D(GL_TEXTURE_2D, 0, (GLint)internal[c], (GLsizei)p->tex_width,
+                   (GLsizei)p->tex_height, 0, format[c], GL_UNSIGNED_BYTE, p->pixels);
+    if (c <= 1) {   /* grey in red (alpha in green): replicate, as luminance did */
+        gl->TexParameteri(GL_TEXTURE_2D, GL_TEXTURE_SWIZZLE_G, GL_RED);
+        gl->TexParameteri(GL_TEXTURE_2D, GL_TEXTURE_SWIZZLE_B, GL_RED);
+        gl->TexParameteri(GL_TEXTURE_2D, GL_TEXTURE_SWIZZLE_A, c == 1 ? GL_GREEN : GL_ONE);
+    }
+    gl->TexParameteri(GL_TEXTURE_2D, GL_TEXTURE_MIN_FILTER, GL_LINEAR_MIPMAP_LINEAR);
+    gl->TexParameteri(GL_TEXTURE_2D, GL_TEXTURE_MAG_FILTER, GL_LINEAR);
+    gl->TexParameteri(GL_TEXTURE_2D, GL_TEXTURE_WRAP_S, GL_REPEAT);
+    gl->TexParameteri(GL_TEXTURE_2D, GL_TEXTURE_WRAP_T, GL_REPEAT);
+    gl->GenerateMipmap(GL_TEXTURE_2D);
+    gl->BindTexture(GL_TEXTURE_2D, 0);
+    /* drivers pad RGB8 texels to 4 bytes; the mip chain adds a third */
+    uint64_t texel = c == 2 ? 4 : (uint64_t)c + 1;
+    uint64_t base = (uint64_t)p->tex_width * p->tex_height * texel;
+    return base + base / 3;
+}
+
+/* called from the render thread, context current */
+hlod_result hlod_gpu_upload(hlod_renderer *r, const hlod_store_payload *p, hlod_gpu_node *out)
+{
+    if (out)
+        memset(out, 0, sizeof *out);
+    if (!r || !p || !out || !p->vertex_count || !p->index_count || p->index_count % 3 ||
+        !p->positions || !p->indices || (uint64_t)p->tex_tri_count * 3 > p->index_count)
+        return HLOD_ERR_INVALID_ARG;
+    if (p->pixels && (!p->tex_width || !p->tex_height || p->tex_channels < 1 ||
+                      p->tex_channels > 4))
+        return HLOD_ERR_INVALID_ARG;
+    if (p->index_count > INT32_MAX) {
+        hlod_logf(&r->lg, HLOD_LOG_ERROR, "renderer: node %u: %u indices are too many to draw",
+                  p->node, p->index_count);
+        return HLOD_ERR_UNSUPPORTED;
+    }
+    /* textured triangles without a texture (or UVs) draw with their colour */
+    int textured = p->pixels && p->uvs && p->tex_tri_count;
+    if (textured && (p->tex_width > (uint32_t)r->max_texture ||
+                     p->tex_height > (uint32_t)r->max_texture)) {
+        hlod_logf(&r->lg, HLOD_LOG_ERROR, "renderer: node %u: texture %ux%u over the GL limit %d",
+                  p->node, p->tex_width, p->tex_height, r->max_texture);
+        return HLOD_ERR_UNSUPPORTED;
+    }
+    const gl_table *gl = &r->gl;
+    take_errors(gl);   /* errors from before are not this upload's */
+
+    size_t n = p->vertex_count;
+    size_t vbo_bytes = n * 12 + (p->normals ? n * 12 : 0) + (p->uvs ? n * 8 : 0) +
+                       (p->colors ? n * 4 : 0);
+    size_t ibo_bytes = (size_t)p->index_count * 4;
+    gl->GenVertexArrays(1, &out->vao);
+    gl->BindVertexArray(out->vao);
+    gl->GenBuffers(1, &out->vbo);
+    gl->BindBuffer(GL_ARRAY_BUFFER, out->vbo);
+    gl->BufferData(GL_ARRAY_BUFFER, (GLsizeiptr)vbo_bytes, NULL, GL_STATIC_DRAW);
+    size_t off = 0;
+    add_section(gl, ATTR_POSITION, 3, GL_FLOAT, GL_FALSE, p->positions, n * 12, &off);
+    if (p->normals)
+        add_section(gl, ATTR_NORMAL, 3, GL_FLOAT, GL_FALSE, p->normals, n * 12, &off);
+    if (p->uvs)
+        add_section(gl, ATTR_UV, 2, GL_FLOAT, GL_FALSE, p->uvs, n * 8, &off);
+    if (p->colors)
+        add_section(gl, ATTR_COLOR, 4, GL_UNSIGNED_BYTE, GL_TRUE, p->colors, n * 4, &off);
+    gl->GenBuffers(1, &out->ibo);
+    gl->BindBuffer(GL_ELEMENT_ARRAY_BUFFER, out->ibo);   /* VAO state */
+    gl->BufferData(GL_ELEMENT_ARRAY_BUFFER, (GLsizeiptr)ibo_bytes, p->indices, GL_STATIC_DRAW);
+    gl->BindVertexArray(0);
+    gl->BindBuffer(GL_ARRAY_BUFFER, 0);
+    out->bytes = vbo_bytes + ibo_bytes;
+    if (textured) {
+        gl->GenTextures(1, &out->tex);
+        out->bytes += upload_texture(gl, p, out->tex);
+    }
+    out->index_count = p->index_count;
+    out->tex_index_count = textured ? 3 * p->tex_tri_count : 0;
+
+    GLenum err = take_errors(gl);
+    if (err == GL_NO_ERROR)
+        return HLOD_OK;
+    hlod_gpu_release(r, out);
+    if (err == GL_OUT_OF_MEMORY) {
+        hlod_logf(&r->lg, HLOD_LOG_WARN, "renderer: node %u: out of GPU memory", p->node);
+        return HLOD_ERR_NOMEM;
+    }
+    hlod_logf(&r->lg, HLOD_LOG_ERROR, "renderer: node %u: GL error 0x%04x on upload", p->node,
+              (unsigned)err);
+    return HLOD_ERR_UNSUPPORTED;
+}
+
+/* ---- frame ---- */
+
+/* called from the render thread, context current */
+void hlod_gpu_begin(hlod_renderer *r, const hlod_camera *cam)
+{
+    assert(r && cam);
+    const gl_table *gl = &r->gl;
+    /* camera-relative view-projection: proj * rotation, in double */
+    float vp[16];
+    for (int c = 0; c < 4; c++)
+        for (int row = 0; row < 4; row++) {
+            double s = 0;
+            for (int k = 0; k < 4; k++)
+                s += cam->proj[k * 4 + row] * cam->view[c * 4 + k];
+            vp[c * 4 + row] = (float)s;
+        }
+    gl->Viewport(0, 0, (GLsizei)cam->width, (GLsizei)cam->height);
+    gl->ClearColor(r->clear[0], r->clear[1], r->clear[2], 1.0f);
+    gl->Enable(GL_DEPTH_TEST);
+    gl->DepthFunc(GL_LESS);
+    gl->Disable(GL_CULL_FACE);
+    gl->Disable(GL_BLEND);
+    gl->PolygonMode(GL_FRONT_AND_BACK, r->wireframe ? GL_LINE : GL_FILL);
+    gl->Clear(GL_COLOR_BUFFER_BIT | GL_DEPTH_BUFFER_BIT);
+    gl->UseProgram(r->program);
+    gl->UniformMatrix4fv(r->u_viewproj, 1, GL_FALSE, vp);
+    gl->ActiveTexture(GL_TEXTURE0);
+    /* what nodes without these sections read (current attribute values) */
+    gl->VertexAttrib4f(ATTR_NORMAL, 0, 0, 0, 0);
+    gl->VertexAttrib4f(ATTR_UV, 0, 0, 0, 1);
+    gl->VertexAttrib4f(ATTR_COLOR, DEFAULT_GREY, DEFAULT_GREY, DEFAULT_GREY, 1);
+}
+
+/* called from the render thread, between begin and end */
+void hlod_gpu_draw(hlod_renderer *r, const hlod_gpu_node *g, const double offset[3],
+                   uint32_t depth)
+{
+    assert(r && g && offset);
+    if (!g->vao || !g->index_count)
+        return;
+    const gl_table *gl = &r->gl;
+    gl->Uniform3f(r->u_offset, (float)offset[0], (float)offset[1], (float)offset[2]);
+    gl->BindVertexArray(g->vao);
+    if (r->depth_colors) {
+        const float *c = depth_palette[depth % 8];
+        gl->Uniform1i(r->u_mode, MODE_FLAT);
+        gl->Uniform3f(r->u_flat, c[0], c[1], c[2]);
+        gl->DrawElements(GL_TRIANGLES, (GLsizei)g->index_count, GL_UNSIGNED_INT, NULL);
+        return;
+    }
+    if (g->tex_index_count) {
+        gl->BindTexture(GL_TEXTURE_2D, g->tex);
+        gl->Uniform1i(r->u_mode, MODE_TEXTURE);
+        gl->DrawElements(GL_TRIANGLES, (GLsizei)g->tex_index_count, GL_UNSIGNED_INT, NULL);
+    }
+    if (g->index_count > g->tex_index_count) {
+        gl->Uniform1i(r->u_mode, MODE_VERTEX_COLOR);
+        gl->DrawElements(GL_TRIANGLES, (GLsizei)(g->index_count - g->tex_index_count),
+                         GL_UNSIGNED_INT, (const void *)(uintptr_t)(4 * (size_t)g->tex_index_count));
+    }
+}
+
+/* called from the render thread */
+void hlod_gpu_end(hlod_renderer *r, int finish)
+{
+    assert(r);
+    r->gl.BindVertexArray(0);
+    if (finish)
+        r->gl.Finish();
+    else
+        r->gl.Flush();
+}
