@@ -3,7 +3,13 @@
  *
  *   hlod-gen-city -o OUT.{obj,gltf,glb} [--preset default|small|tiny]
  *                 [--blocks N] [--tris-per-block M] [--texture-size S]
- *                 [--seed K] [--origin X Y Z] [--untextured] [--json] [--quiet]
+ *                 [--seed K] [--origin X Y Z] [--untextured] [--paths DIR]
+ *                 [--json] [--quiet]
+ *   hlod-gen-city --paths DIR [--preset P] [--blocks N] [--origin X Y Z]
+ *
+ * --paths writes the built-in camera paths for this city's streets
+ * (preprocess/city_paths.h) to DIR/NAME.path, after the mesh; without -o
+ * it writes only the paths (in milliseconds).
  *
  * Textures go to OUT's stem + "_tex/" (block_0000.png ..., ground.png), each
  * through a temporary file; the mesh is written last, so it is the commit
@@ -23,6 +29,7 @@
 #include <unistd.h>
 
 #include "../city.h"
+#include "../city_paths.h"
 #include "cli.h"
 #include "hlod/mesh_io.h"
 
@@ -33,7 +40,9 @@ static void usage(FILE *fp)
     fprintf(fp,
         "usage: hlod-gen-city -o OUT.{obj,gltf,glb} [--preset default|small|tiny]\n"
         "                     [--blocks N] [--tris-per-block M] [--texture-size S]\n"
-        "                     [--seed K] [--origin X Y Z] [--untextured] [--json] [--quiet]\n"
+        "                     [--seed K] [--origin X Y Z] [--untextured] [--paths DIR]\n"
+        "                     [--json] [--quiet]\n"
+        "       hlod-gen-city --paths DIR [--preset P] [--blocks N] [--origin X Y Z]\n"
         "\n"
         "Writes a synthetic city: N blocks of buildings on a street grid, each block\n"
         "one object (block_0000, ...) with dense, scan-like facades (window recesses,\n"
@@ -60,6 +69,10 @@ static void usage(FILE *fp)
         "  --origin X Y Z       added to every position exactly; the city is centred\n"
         "                       on (X, Y) with its ground at Z, e.g. 5e5 4.1e6 0\n"
         "  --untextured         no UVs and no textures; one diffuse colour per block\n"
+        "  --paths DIR          also write the built-in camera paths for this city's\n"
+        "                       streets to DIR/NAME.path (walk, walk-drive,\n"
+        "                       walk-to-fly, fly, orbit, still; model coordinates,\n"
+        "                       origin included); without -o only the paths\n"
         "  --json               print one JSON object on stdout: blocks, tris,\n"
         "                       vertices, textures, texture_pixels, bytes_written,\n"
         "                       seconds, origin and more\n"
@@ -72,6 +85,7 @@ static void usage(FILE *fp)
 typedef struct options {
     const char *out;
     const char *preset;
+    const char *paths;
     int have_blocks, have_tris, have_size;
     size_t blocks, tris, size, seed;
     double origin[3];
@@ -115,6 +129,10 @@ static int parse_args(int argc, char **argv, options *o)
             if (!v || !*v)
                 return usage_error("%s needs an output file name", a);
             o->out = v;
+        } else if (match_flag(argc, argv, &i, "--paths", &v)) {
+            if (!v || !*v)
+                return usage_error("%s needs a folder name", a);
+            o->paths = v;
         } else if (match_flag(argc, argv, &i, "--preset", &v)) {
             hlod_city_desc probe = {0};
             if (!v || !hlod_city_preset(v, &probe))
@@ -142,6 +160,8 @@ static int parse_args(int argc, char **argv, options *o)
             return usage_error("unexpected argument '%s'", a);
         }
     }
+    if (!o->out && o->paths)
+        return 0;
     if (!o->out)
         return usage_error("%s", "no output file given (-o OUT.obj)");
     const char *slash = strrchr(o->out, '/');
@@ -217,6 +237,34 @@ static void remove_textures(const char *dir, size_t blocks)
     rmdir(dir);
 }
 
+/* The camera paths for d's streets into o->paths; 1 on success. */
+static int write_paths(const options *o, const hlod_city_desc *d)
+{
+    hlod_cli_log log_state = {PROG, o->quiet ? HLOD_LOG_ERROR : HLOD_LOG_WARN, NULL};
+    hlod_logger lg = hlod_cli_logger(&log_state);
+    hlod_result r = hlod_city_paths_write(d, o->paths, &lg);
+    if (r != HLOD_OK) {
+        hlod_cli_error(PROG, "%s: cannot write the camera paths: %s", o->paths,
+                       hlod_result_str(r));
+        return 0;
+    }
+    if (!o->quiet)
+        fprintf(stderr, "%s: %s: %d camera paths for %zu blocks\n", PROG, o->paths,
+                HLOD_CITY_PATH_COUNT, d->blocks);
+    if (o->json && !o->out) {
+        hlod_json j;
+        hlod_json_begin(&j, stdout);
+        hlod_json_string(&j, "paths_dir", o->paths);
+        hlod_json_int(&j, "paths", HLOD_CITY_PATH_COUNT);
+        hlod_json_size(&j, "blocks", d->blocks);
+        if (hlod_json_end(&j) != 0) {
+            hlod_cli_error(PROG, "cannot write the JSON record to standard output");
+            return 0;
+        }
+    }
+    return 1;
+}
+
 int main(int argc, char **argv)
 {
     options o;
@@ -225,7 +273,7 @@ int main(int argc, char **argv)
         return 0;
     if (rc)
         return rc;
-    if (!output_folder_ok(o.out))
+    if (o.out && !output_folder_ok(o.out))
         return 1;
 
     hlod_city_desc d = {0};
@@ -239,6 +287,8 @@ int main(int argc, char **argv)
     d.seed = o.seed;
     memcpy(d.origin, o.origin, sizeof d.origin);
     d.untextured = o.untextured;
+    if (!o.out)
+        return write_paths(&o, &d) ? 0 : 1;
 
     char *tex_dir = stem_with(o.out, "_tex");
     const char *ext = strrchr(o.out, '.');
@@ -289,6 +339,8 @@ int main(int argc, char **argv)
         goto done;
     }
     committed = 1;
+    if (o.paths && !write_paths(&o, &d))
+        goto done;
     double seconds = hlod_cli_now() - t0;
     uint64_t bytes = st.texture_bytes + file_size(o.out) + file_size(side);
     if (!o.quiet)
@@ -318,6 +370,8 @@ int main(int argc, char **argv)
         hlod_json_double(&j, "seconds_export", t_export);
         hlod_json_size(&j, "seed", o.seed);
         hlod_json_size(&j, "peak_rss_bytes", hlod_cli_peak_rss());
+        if (o.paths)
+            hlod_json_string(&j, "paths_dir", o.paths);
         /* The flat writer has no arrays; this follows its own format. */
         fprintf(j.fp, ", \"origin\": [%.17g, %.17g, %.17g]", d.origin[0], d.origin[1],
                 d.origin[2]);
