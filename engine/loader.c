@@ -1,0 +1,562 @@
+/*
+ * loader.c - the loader thread (Lakhia III-D): incremental, preemptive
+ * payload reads in the order the render thread asks for.
+ *
+ * Who owns what:
+ *   - shared, under mu: the inbox (the last posted list, until the loader
+ *     takes it), a spare list buffer handed back to post for reuse, and the
+ *     result queue.  mu is held only to swap pointers and copy short arrays:
+ *     never across I/O, hashing, parsing or the hook, never while
+ *     allocating.  post and collect only trylock it.
+ *   - atomics: the post version (the cheap "anything new?" check the loader
+ *     makes between increments), the stop flag and the counters.
+ *   - the loader's own (the loader thread; in synchronous mode whoever calls
+ *     hlod_loader_pump): the current list, the open reads and per-node
+ *     stamps.
+ *
+ * A list's order is its priority order (the priority values are not read).
+ * Each list the loader takes gets a new generation `gen`.  A node whose read
+ * finished or failed under the current list has done_gen == gen and is not
+ * read again until a later list asks for it (the render thread decides about
+ * retries).  The work is always the first request of the list that is not
+ * done: the loader reads it one chunk at a time and re-checks the version
+ * between chunks.  When a new list puts another node first, the current read
+ * is left open (its bytes and hash state stay in its hlod_store_read) and
+ * resumes where it stopped if its node comes first again; a read whose node
+ * is not in the new list is cancelled, and at most LOADER_MAX_SUSPENDED reads
+ * wait suspended (the least urgent is cancelled to open another).
+ *
+ * A result the render thread had not collected when it posted a list was
+ * unknown to it when it built that list, so its node counts as done under
+ * that list too: otherwise a read finishing between the render thread's
+ * collect and its post would be read twice.  The loader keeps the sequence
+ * numbers of the results it queued (`sent`) and post records how many had
+ * been collected (`inbox_seen`).
+ *
+ * Every list of n requests yields at most n results, so when the loader
+ * takes a list it reserves queue room for the results still queued plus n:
+ * queueing a result never allocates and never fails.
+ */
+#include "loader.h"
+
+#include <assert.h>
+#include <pthread.h>
+#include <stdatomic.h>
+#include <stdlib.h>
+#include <string.h>
+
+#define LOADER_MAX_SUSPENDED 8
+#define LOADER_SLOTS (LOADER_MAX_SUSPENDED + 1) /* the current read and the suspended */
+#define LOADER_DEFAULT_CHUNK 65536u
+
+/* Loader's per-node stamps. */
+typedef struct loader_node {
+    uint32_t list_gen;      /* == gen: in the current list, at index rank */
+    uint32_t rank;
+    uint32_t done_gen;      /* == gen: finished or failed under the current list */
+    uint32_t logged;        /* a failure of this node was logged */
+} loader_node;
+
+/* A result the loader queued: its sequence number and node. */
+typedef struct loader_sent {
+    uint64_t seq;
+    uint32_t node;
+} loader_sent;
+
+struct hlod_loader {
+    const hlod_store *store;
+    uint32_t node_count;
+    hlod_loader_desc d;
+
+    pthread_mutex_t mu;
+    pthread_cond_t wake;        /* signalled by post and destroy */
+    pthread_t thread;
+    int has_thread;
+
+    /* shared, under mu */
+    hlod_load_request *inbox;   /* the last posted list; NULL once taken */
+    size_t inbox_n, inbox_cap;
+    uint64_t inbox_seen;        /* results collected when the inbox was posted */
+    hlod_load_request *spare;   /* a list buffer handed back to post */
+    size_t spare_cap;
+    hlod_load_result *res;      /* the queue: [res_head, res_n) */
+    size_t res_head, res_n, res_cap; /* res_cap is written by the loader only */
+    uint64_t collected;         /* results collected so far */
+
+    /* render thread only */
+    hlod_load_request *post_buf;
+    size_t post_cap;
+
+    /* the loader's own */
+    hlod_load_request *list;
+    size_t list_n, list_cap;
+    size_t cursor;              /* the requests before it are done */
+    uint64_t list_version;      /* version of the list taken */
+    uint32_t gen;
+    loader_node *nodes;         /* node_count */
+    hlod_store_read reads[LOADER_SLOTS]; /* open when .store != NULL */
+    hlod_store_read *cur;       /* the read stepped last, if still open */
+    loader_sent *sent;          /* queued results the render thread may not have seen */
+    size_t sent_n, sent_cap;
+    uint64_t pushed;            /* results queued so far */
+
+    atomic_uint_fast64_t version; /* lists posted so far */
+    atomic_int stop;
+    atomic_uint_fast64_t bytes_read, reads_done, reads_failed, switches;
+};
+
+/* ---- the loader's side (loader thread, or the pump caller) ---- */
+
+static size_t grow_cap(size_t cap, size_t need)
+{
+    if (cap < 16)
+        cap = 16;
+    while (cap < need)
+        cap *= 2;
+    return cap;
+}
+
+/* loader thread: room for every result the current list can produce (see
+ * the top of the file).  pending: results queued when the list was taken.
+ * On allocation failure the list is cut to what fits; the render thread
+ * posts the rest again next frame. */
+static void reserve_results(hlod_loader *l, size_t pending)
+{
+    size_t need = pending + l->list_n;
+    if (need > l->res_cap) {
+        size_t cap = grow_cap(l->res_cap, need);
+        hlod_load_result *a = malloc(cap * sizeof *a);
+        if (a) {
+            /* collect may have taken some meanwhile: copy what is left */
+            pthread_mutex_lock(&l->mu);
+            hlod_load_result *old = l->res;
+            size_t k = l->res_n - l->res_head;
+            if (k)
+                memcpy(a, old + l->res_head, k * sizeof *a);
+            l->res = a;
+            l->res_head = 0;
+            l->res_n = k;
+            l->res_cap = cap;
+            pthread_mutex_unlock(&l->mu);
+            free(old);
+        }
+    }
+    need = l->sent_n + l->list_n;
+    if (need > l->sent_cap) {
+        size_t cap = grow_cap(l->sent_cap, need);
+        loader_sent *a = realloc(l->sent, cap * sizeof *a);
+        if (a) {
+            l->sent = a;
+            l->sent_cap = cap;
+        }
+    }
+    size_t fit = l->res_cap - pending;
+    if (l->sent_cap - l->sent_n < fit)
+        fit = l->sent_cap - l->sent_n;
+    if (fit < l->list_n) {
+        hlod_logf(&l->d.logger, HLOD_LOG_ERROR,
+                  "loader: out of memory: reading only %zu of %zu requests", fit, l->list_n);
+        l->list_n = fit;
+    }
+}
+
+/* loader thread */
+static void close_read(hlod_loader *l, hlod_store_read *rd)
+{
+    if (l->cur == rd)
+        l->cur = NULL;
+    hlod_store_read_cancel(rd);
+}
+
+/* loader thread: swaps the posted list in and re-stamps the nodes. */
+static void take_list(hlod_loader *l)
+{
+    hlod_load_request *old = l->list;
+    size_t old_cap = l->list_cap;
+
+    pthread_mutex_lock(&l->mu);
+    l->list_version = atomic_load(&l->version);
+    l->list = l->inbox;
+    l->list_n = l->inbox_n;
+    l->list_cap = l->inbox_cap;
+    uint64_t seen = l->inbox_seen;
+    size_t pending = l->res_n - l->res_head;
+    l->inbox = NULL;
+    l->inbox_n = l->inbox_cap = 0;
+    if (!l->spare) {
+        l->spare = old;
+        l->spare_cap = old_cap;
+        old = NULL;
+    }
+    pthread_mutex_unlock(&l->mu);
+    free(old);
+
+    l->cursor = 0;
+    if (++l->gen == 0) {
+        /* wrapped after 2^32 lists: old stamps could alias the new ones */
+        for (uint32_t i = 0; i < l->node_count; i++)
+            l->nodes[i].list_gen = l->nodes[i].done_gen = 0;
+        l->gen = 1;
+    }
+
+    /* forget the results the render thread had seen when it posted */
+    size_t k = 0;
+    while (k < l->sent_n && l->sent[k].seq < seen)
+        k++;
+    if (k) {
+        l->sent_n -= k;
+        memmove(l->sent, l->sent + k, l->sent_n * sizeof *l->sent);
+    }
+
+    reserve_results(l, pending);
+
+    for (size_t i = 0; i < l->list_n; i++) {
+        uint32_t node = l->list[i].node;
+        if (node < l->node_count && l->nodes[node].list_gen != l->gen) {
+            l->nodes[node].list_gen = l->gen;
+            l->nodes[node].rank = (uint32_t)i;
+        }
+    }
+    for (size_t i = 0; i < l->sent_n; i++)
+        if (l->sent[i].node < l->node_count)
+            l->nodes[l->sent[i].node].done_gen = l->gen;
+
+    for (int i = 0; i < LOADER_SLOTS; i++) {
+        hlod_store_read *rd = &l->reads[i];
+        if (rd->store && (l->nodes[rd->node].list_gen != l->gen ||
+                          l->nodes[rd->node].done_gen == l->gen))
+            close_read(l, rd);      /* dropped from the list */
+    }
+}
+
+/* loader thread: queues a result; room was reserved by take_list. */
+static void push_result(hlod_loader *l, uint32_t node, hlod_result r,
+                        const hlod_store_payload *p)
+{
+    hlod_load_result res;
+    memset(&res, 0, sizeof res);
+    res.node = node;
+    res.result = r;
+    if (p)
+        res.payload = *p;
+
+    pthread_mutex_lock(&l->mu);
+    if (l->res_n == l->res_cap && l->res_head > 0) {
+        l->res_n -= l->res_head;
+        memmove(l->res, l->res + l->res_head, l->res_n * sizeof *l->res);
+        l->res_head = 0;
+    }
+    assert(l->res_n < l->res_cap);
+    l->res[l->res_n++] = res;
+    pthread_mutex_unlock(&l->mu);
+
+    assert(l->sent_n < l->sent_cap);
+    l->sent[l->sent_n].seq = l->pushed++;
+    l->sent[l->sent_n].node = node;
+    l->sent_n++;
+    if (node < l->node_count)
+        l->nodes[node].done_gen = l->gen;
+}
+
+/* loader thread: reports a failed read (logged once per node). */
+static void fail_node(hlod_loader *l, uint32_t node, hlod_result r)
+{
+    atomic_fetch_add_explicit(&l->reads_failed, 1, memory_order_relaxed);
+    int valid = node < l->node_count;
+    if (!valid || !l->nodes[node].logged) {
+        if (valid)
+            l->nodes[node].logged = 1;
+        hlod_logf(&l->d.logger, r == HLOD_ERR_IO ? HLOD_LOG_WARN : HLOD_LOG_ERROR,
+                  "loader: %s: node %u: read failed: %s", hlod_store_path(l->store), node,
+                  hlod_result_str(r));
+    }
+    push_result(l, node, r, NULL);
+}
+
+/* loader thread: a free slot for a new read; when all are taken, cancels the
+ * least urgent open read (every open read's node is in the list). */
+static hlod_store_read *free_slot(hlod_loader *l)
+{
+    hlod_store_read *worst = NULL;
+    for (int i = 0; i < LOADER_SLOTS; i++) {
+        hlod_store_read *rd = &l->reads[i];
+        if (!rd->store)
+            return rd;
+        assert(l->nodes[rd->node].list_gen == l->gen);
+        if (!worst || l->nodes[rd->node].rank > l->nodes[worst->node].rank)
+            worst = rd;
+    }
+    close_read(l, worst);
+    return worst;
+}
+
+/* loader thread: the open read of node, or NULL */
+static hlod_store_read *find_read(hlod_loader *l, uint32_t node)
+{
+    for (int i = 0; i < LOADER_SLOTS; i++)
+        if (l->reads[i].store && l->reads[i].node == node)
+            return &l->reads[i];
+    return NULL;
+}
+
+/* loader thread (or the pump caller): one increment of the most urgent
+ * request not done (hook, one hlod_store_read_step of at most chunk_bytes
+ * and budget bytes, and the finish when that completes it), or one failure.
+ * Adds the bytes read to *bytes.  Returns 0 when the list is done. */
+static int work(hlod_loader *l, uint64_t budget, uint64_t *bytes)
+{
+    assert(budget > 0);
+    if (atomic_load(&l->version) != l->list_version)
+        take_list(l);
+
+    uint32_t node;
+    for (;; l->cursor++) {
+        if (l->cursor == l->list_n)
+            return 0;
+        node = l->list[l->cursor].node;
+        if (node >= l->node_count) {
+            l->cursor++;
+            fail_node(l, node, HLOD_ERR_INVALID_ARG);
+            return 1;
+        }
+        if (l->nodes[node].done_gen != l->gen)
+            break;
+    }
+
+    hlod_store_read *rd = find_read(l, node);
+    if (!rd) {
+        rd = free_slot(l);
+        hlod_result r = hlod_store_read_begin(l->store, node, rd);
+        if (r != HLOD_OK) {
+            fail_node(l, node, r);
+            return 1;
+        }
+    }
+    if (l->cur && l->cur != rd)
+        atomic_fetch_add_explicit(&l->switches, 1, memory_order_relaxed);
+    l->cur = rd;
+
+    uint64_t left = rd->size - rd->done;
+    uint64_t want = l->d.chunk_bytes;
+    if (left < want)
+        want = left;
+    if (budget < want)
+        want = budget;
+    if (want == 0)
+        want = 1;       /* an empty remainder: the step just reports completion */
+
+    hlod_result r = HLOD_OK;
+    if (l->d.hook)
+        r = l->d.hook(l->d.hook_user, node, rd->done, (size_t)want);
+    int complete = 0;
+    if (r == HLOD_OK) {
+        uint64_t before = rd->done;
+        r = hlod_store_read_step(rd, (size_t)want, &complete);
+        atomic_fetch_add_explicit(&l->bytes_read, rd->done - before, memory_order_relaxed);
+        *bytes += rd->done - before;
+    }
+    if (r != HLOD_OK) {
+        close_read(l, rd);
+        fail_node(l, node, r);
+        return 1;
+    }
+    if (complete) {
+        hlod_store_payload p;
+        l->cur = NULL;
+        r = hlod_store_read_finish(rd, &p);     /* verifies the checksum; zeroes rd */
+        if (r != HLOD_OK) {
+            fail_node(l, node, r);
+        } else {
+            atomic_fetch_add_explicit(&l->reads_done, 1, memory_order_relaxed);
+            push_result(l, node, HLOD_OK, &p);
+        }
+    }
+    return 1;
+}
+
+/* loader thread */
+static void *loader_main(void *arg)
+{
+    hlod_loader *l = arg;
+    while (!atomic_load(&l->stop)) {
+        uint64_t bytes = 0;
+        if (work(l, UINT64_MAX, &bytes))
+            continue;
+        /* post bumps the version under mu, so a post between the work and
+         * this check is seen here, and one after it signals the wait */
+        pthread_mutex_lock(&l->mu);
+        while (!atomic_load(&l->stop) && atomic_load(&l->version) == l->list_version)
+            pthread_cond_wait(&l->wake, &l->mu);
+        pthread_mutex_unlock(&l->mu);
+    }
+    return NULL;
+}
+
+/* ---- public ---- */
+
+/* called from the render thread */
+hlod_result hlod_loader_create(const hlod_store *s, const hlod_loader_desc *d,
+                               hlod_loader **out)
+{
+    if (!out)
+        return HLOD_ERR_INVALID_ARG;
+    *out = NULL;
+    if (!s || !d)
+        return HLOD_ERR_INVALID_ARG;
+    hlod_loader *l = calloc(1, sizeof *l);
+    if (!l)
+        return HLOD_ERR_NOMEM;
+    l->store = s;
+    l->node_count = hlod_store_node_count(s);
+    l->d = *d;
+    if (!l->d.chunk_bytes)
+        l->d.chunk_bytes = LOADER_DEFAULT_CHUNK;
+    l->nodes = calloc(l->node_count ? l->node_count : 1, sizeof *l->nodes);
+    atomic_init(&l->version, 0);
+    atomic_init(&l->stop, 0);
+    atomic_init(&l->bytes_read, 0);
+    atomic_init(&l->reads_done, 0);
+    atomic_init(&l->reads_failed, 0);
+    atomic_init(&l->switches, 0);
+    if (!l->nodes) {
+        free(l);
+        return HLOD_ERR_NOMEM;
+    }
+    if (pthread_mutex_init(&l->mu, NULL) != 0) {
+        free(l->nodes);
+        free(l);
+        return HLOD_ERR_NOMEM;
+    }
+    if (pthread_cond_init(&l->wake, NULL) != 0) {
+        pthread_mutex_destroy(&l->mu);
+        free(l->nodes);
+        free(l);
+        return HLOD_ERR_NOMEM;
+    }
+    if (d->threaded) {
+        if (pthread_create(&l->thread, NULL, loader_main, l) != 0) {
+            hlod_logf(&l->d.logger, HLOD_LOG_ERROR, "loader: cannot start the loader thread");
+            hlod_loader_destroy(l);
+            return HLOD_ERR_NOMEM;
+        }
+        l->has_thread = 1;
+    }
+    *out = l;
+    return HLOD_OK;
+}
+
+/* called from the render thread */
+void hlod_loader_destroy(hlod_loader *l)
+{
+    if (!l)
+        return;
+    if (l->has_thread) {
+        atomic_store(&l->stop, 1);
+        /* a loader between its stop check and its wait holds mu: once we got
+         * mu it is waiting (and the broadcast wakes it) or will see stop */
+        pthread_mutex_lock(&l->mu);
+        pthread_mutex_unlock(&l->mu);
+        pthread_cond_broadcast(&l->wake);
+        pthread_join(l->thread, NULL);
+    }
+    for (int i = 0; i < LOADER_SLOTS; i++)
+        hlod_store_read_cancel(&l->reads[i]);
+    for (size_t i = l->res_head; i < l->res_n; i++)
+        hlod_store_payload_free(&l->res[i].payload);
+    free(l->res);
+    free(l->inbox);
+    free(l->spare);
+    free(l->post_buf);
+    free(l->list);
+    free(l->sent);
+    free(l->nodes);
+    pthread_cond_destroy(&l->wake);
+    pthread_mutex_destroy(&l->mu);
+    free(l);
+}
+
+/* called from the render thread: copies reqs outside the lock, then swaps
+ * buffers under a trylock */
+int hlod_loader_post(hlod_loader *l, const hlod_load_request *reqs, size_t n)
+{
+    if (!l || (n && !reqs))
+        return 0;
+    if (n > l->post_cap) {
+        size_t cap = grow_cap(l->post_cap, n);
+        hlod_load_request *a = malloc(cap * sizeof *a);
+        if (!a)
+            return 0;
+        free(l->post_buf);
+        l->post_buf = a;
+        l->post_cap = cap;
+    }
+    if (n)
+        memcpy(l->post_buf, reqs, n * sizeof *reqs);
+
+    if (pthread_mutex_trylock(&l->mu) != 0)
+        return 0;
+    hlod_load_request *give = l->post_buf;
+    size_t give_cap = l->post_cap;
+    if (l->inbox) {                 /* superseded before the loader took it */
+        l->post_buf = l->inbox;
+        l->post_cap = l->inbox_cap;
+    } else {
+        l->post_buf = l->spare;
+        l->post_cap = l->spare_cap;
+        l->spare = NULL;
+        l->spare_cap = 0;
+    }
+    l->inbox = give;
+    l->inbox_n = n;
+    l->inbox_cap = give_cap;
+    l->inbox_seen = l->collected;
+    atomic_fetch_add(&l->version, 1);
+    pthread_mutex_unlock(&l->mu);
+    pthread_cond_signal(&l->wake);
+    return 1;
+}
+
+/* called from the render thread */
+size_t hlod_loader_collect(hlod_loader *l, hlod_load_result *out, size_t max)
+{
+    if (!l || !out || !max)
+        return 0;
+    if (pthread_mutex_trylock(&l->mu) != 0)
+        return 0;
+    size_t k = l->res_n - l->res_head;
+    if (k > max)
+        k = max;
+    if (k)
+        memcpy(out, l->res + l->res_head, k * sizeof *out);
+    l->res_head += k;
+    l->collected += k;
+    if (l->res_head == l->res_n)
+        l->res_head = l->res_n = 0;
+    pthread_mutex_unlock(&l->mu);
+    return k;
+}
+
+/* called from the render thread (synchronous mode) */
+uint64_t hlod_loader_pump(hlod_loader *l, uint64_t max_bytes)
+{
+    if (!l || l->has_thread)
+        return 0;
+    uint64_t bytes = 0;
+    while (bytes < max_bytes && work(l, max_bytes - bytes, &bytes))
+        ;
+    return bytes;
+}
+
+/* any thread */
+void hlod_loader_get_counters(const hlod_loader *l, hlod_loader_counters *out)
+{
+    if (!out)
+        return;
+    memset(out, 0, sizeof *out);
+    if (!l)
+        return;
+    out->bytes_read = atomic_load_explicit(&l->bytes_read, memory_order_relaxed);
+    out->reads_done = atomic_load_explicit(&l->reads_done, memory_order_relaxed);
+    out->reads_failed = atomic_load_explicit(&l->reads_failed, memory_order_relaxed);
+    out->switches = atomic_load_explicit(&l->switches, memory_order_relaxed);
+}
