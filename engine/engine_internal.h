@@ -87,10 +87,13 @@ struct hlod_engine {
     hlod_req_vec post;      /* what was handed to the loader */
 
     /* cost model: frame ms = fixed + v_time * drawn cost (SPEC 3) */
-    double v_time, fixed_ms;
+    double v_time, fixed_ms;     /* published: what the traversal uses */
+    double fit_v, fit_fixed;     /* the fit's own current values */
     double s0, sx, sy, sxx, sxy; /* exponentially weighted sums */
     double sse_pixels;
-    double share_gain;      /* root shareTime = gain * budget (see engine.c) */
+    double share_gain;      /* roots' shareTime = gain * budget (engine.c) */
+    uint32_t cap_hits;      /* refinements the budget bound refused this frame */
+    uint32_t slice_denied;  /* refinements near but refused by time slices */
 
     /* camera motion */
     double prev_eye[3];
@@ -120,7 +123,8 @@ void hlod_view_init(hlod_view *v, const hlod_camera *cam, const double velocity[
  * and the selection fields of e->st (drawn, per depth, toggles, visited,
  * wanted_missing, estimated_ms).  budget_ms is what the traversal shares
  * out (target minus the fixed part): the estimate of the front never
- * exceeds it.  share_ms is the roots' shareTime (eq. 4).  O(nodes visited). */
+ * exceeds it.  share_ms is the roots' shareTime (eq. 4).  Counts cap_hits
+ * and slice_denied.  O(nodes visited). */
 hlod_result hlod_traverse(hlod_engine *e, const hlod_view *v, double budget_ms,
                           double share_ms);
 

@@ -169,6 +169,10 @@ static double frustum_vis(const hlod_engine *e, const hlod_view *v, uint32_t i)
     return 1 - out / fall;
 }
 
+/* Refinements already made keep their place against bounds that a new one
+ * must meet with this much to spare (see visit). */
+#define KEEP_MARGIN 0.05
+
 /* ---- bookkeeping ---- */
 
 static void note_toggle(hlod_engine *e, uint32_t i, int dir)
@@ -247,13 +251,20 @@ typedef struct front {
 
 /* Decides node p of the front: draw it, or append its visible children to
  * e->next.  Returns 0 on allocation failure. */
+/* Draws p as part of the front. */
+static int settle(hlod_engine *e, front *fr, uint32_t p)
+{
+    (void)fr;
+    return draw_node(e, p);
+}
+
 static int visit(hlod_engine *e, const hlod_view *v, front *fr, uint32_t p)
 {
     const hlod_store_node *nodes = e->nodes;
     hlod_node_frame *pf = &e->fr[p];
     uint32_t c0 = hlod_store_first_child(nodes, p), c1 = hlod_store_child_end(nodes, p);
     if (c0 == c1)
-        return draw_node(e, p);
+        return settle(e, fr, p);
 
     const hlod_policy pol = e->d.policy;
     const double vt = e->v_time;
@@ -282,7 +293,7 @@ static int visit(hlod_engine *e, const hlod_view *v, front *fr, uint32_t p)
         /* The box meets the frustum but no child's does: nothing of the
          * children would show; drawing p is the safe choice. */
         e->next.n = mark;
-        return draw_node(e, p);
+        return settle(e, fr, p);
     }
 
     /* eq. 4 among the visible siblings, timeNeeded = v_time * cost. */
@@ -311,7 +322,8 @@ static int visit(hlod_engine *e, const hlod_view *v, front *fr, uint32_t p)
     case HLOD_POLICY_LAKHIA:
         /* cumHyst < 0 draws the parent; the safety clamp draws it too when
          * the children clearly do not fit the shared time (SPEC 3). */
-        refine = cum >= 0 && sum_needed <= share * (1 + e->d.c_safety_slack);
+        refine = cum >= 0 && sum_needed <= share * (1 + e->d.c_safety_slack) *
+                                            (pf->refined + 1 == e->frame ? 1 + KEEP_MARGIN : 1);
         near = sum_needed <= 2 * share;
         break;
     case HLOD_POLICY_NOHYST:
@@ -328,10 +340,21 @@ static int visit(hlod_engine *e, const hlod_view *v, front *fr, uint32_t p)
         refine = near = 1;
         break;
     }
-    /* The frame estimate never exceeds the budget (time-based policies). */
-    if (refine && (pol == HLOD_POLICY_LAKHIA || pol == HLOD_POLICY_NOHYST) &&
-        fr->est - pf->needed + sum_needed > fr->budget)
-        refine = 0;
+    /* The frame estimate never exceeds the budget (time-based policies).
+     * A new refinement must fit in KEEP_MARGIN less than the budget, one
+     * already made may use all of it: the bound itself has hysteresis, so
+     * frame-time noise moving the budget by a few percent does not flip a
+     * marginal node every frame. */
+    int was_refined = pf->refined && pf->refined + 1 == e->frame;
+    if (pol == HLOD_POLICY_LAKHIA || pol == HLOD_POLICY_NOHYST) {
+        double bound = was_refined ? fr->budget : fr->budget * (1 - KEEP_MARGIN);
+        if (refine && fr->est - pf->needed + sum_needed > bound) {
+            refine = 0;
+            e->cap_hits++;
+        } else if (!refine && near) {
+            e->slice_denied++;
+        }
+    }
 
     /* Ask for the children that are not resident when refining is near. */
     if (near && !all_resident)
@@ -346,7 +369,7 @@ static int visit(hlod_engine *e, const hlod_view *v, front *fr, uint32_t p)
     }
     if (!refine) {
         e->next.n = mark;
-        return draw_node(e, p);
+        return settle(e, fr, p);
     }
     fr->est += sum_needed - pf->needed;
     if (pf->drawn && pf->drawn + 1 == e->frame)
@@ -360,11 +383,12 @@ hlod_result hlod_traverse(hlod_engine *e, const hlod_view *v, double budget_ms,
 {
     assert(e && v);
     e->draw.n = e->level.n = e->next.n = e->want.n = 0;
+    e->cap_hits = e->slice_denied = 0;
     front fr = {0, budget_ms};
 
-    /* hlod_0: the visible roots share share_ms (shareTime = c_targetTime
-     * less the fixed frame part, times the engine's share gain); they are
-     * always resident and drawn. */
+    /* hlod_0: the visible roots share share_ms (shareTime: c_targetTime less
+     * the fixed frame part, times the engine's share gain); they are always
+     * resident and drawn. */
     double sum_pr = 0;
     for (uint32_t r = 0; r < e->root_count; r++) {
         double fv = frustum_vis(e, v, r);

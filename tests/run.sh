@@ -94,14 +94,16 @@ if step "build build-asan/" build build-asan -DCMAKE_BUILD_TYPE=RelWithDebInfo \
         "-DHLOD_SANITIZE=address,undefined" -DHLOD_BENCH=OFF; then
     step "ctest build-asan/" run_ctest build-asan
 fi
-# ThreadSanitizer over the code that runs threads: hlod-build's workers and
-# the store writer/readers.  OpenImageIO is not instrumented; its internal
+# ThreadSanitizer over the code that runs threads: hlod-build's workers,
+# the store writer/readers, the engine's loader thread and two engines in
+# two threads.  OpenImageIO is not instrumented; its internal
 # synchronisation is suppressed (tests/tsan.supp), ours is checked.
-TSAN_TESTS="test_build|test_store|test_metis"
+TSAN_TESTS="test_build|test_store|test_metis|test_engine\$|test_loader"
 build_tsan() {
     cmake -S "$ROOT" -B "$ROOT/build-tsan" -DCMAKE_BUILD_TYPE=RelWithDebInfo -DHLOD_SANITIZE=thread \
         -DHLOD_BENCH=OFF >/dev/null &&
-        make -C "$ROOT/build-tsan" -j"$JOBS" hlod-build hlod-gen-city hlod-info test_build test_store test_metis
+        make -C "$ROOT/build-tsan" -j"$JOBS" hlod-build hlod-gen-city hlod-info test_build test_store test_metis \
+            test_engine test_loader
 }
 run_tsan() {
     local log="$ROOT/out/test-logs/ctest-build-tsan.log"
