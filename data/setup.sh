@@ -13,6 +13,7 @@ PACKAGES=(
     libosmesa6-dev libglfw3-dev libmeshoptimizer-dev
     gnuplot-nox libxxhash-dev
     clang libclang-rt-14-dev
+    xvfb xauth
 )
 
 missing=()

@@ -84,6 +84,7 @@
     X(PFNGLPOLYGONMODEPROC, PolygonMode)                             \
     X(PFNGLDRAWELEMENTSPROC, DrawElements)                           \
     X(PFNGLFLUSHPROC, Flush)                                         \
+    X(PFNGLREADPIXELSPROC, ReadPixels)                               \
     X(PFNGLFINISHPROC, Finish)
 
 typedef struct gl_table {
@@ -546,4 +547,33 @@ void hlod_gpu_end(hlod_renderer *r, int finish)
         r->gl.Finish();
     else
         r->gl.Flush();
+}
+
+/* called from the render thread, context current, after hlod_gpu_end and
+ * before the buffer swap (a swap leaves the back buffer undefined) */
+hlod_result hlod_gpu_read_rgb(hlod_renderer *r, uint32_t width, uint32_t height, uint8_t *rgb)
+{
+    if (!r || !rgb || !width || !height)
+        return HLOD_ERR_INVALID_ARG;
+    const gl_table *gl = &r->gl;
+    take_errors(gl);   /* earlier errors are not this read's */
+    gl->PixelStorei(GL_PACK_ALIGNMENT, 1);
+    gl->ReadPixels(0, 0, (GLsizei)width, (GLsizei)height, GL_RGB, GL_UNSIGNED_BYTE, rgb);
+    gl->PixelStorei(GL_PACK_ALIGNMENT, 4);
+    if (take_errors(gl) != GL_NO_ERROR) {
+        hlod_logf(&r->lg, HLOD_LOG_ERROR, "renderer: glReadPixels %ux%u failed",
+                  (unsigned)width, (unsigned)height);
+        return HLOD_ERR_UNSUPPORTED;
+    }
+    /* GL rows are bottom first; swap in place to top first */
+    size_t row = (size_t)width * 3;
+    for (uint32_t y = 0; y < height / 2; y++) {
+        uint8_t *a = rgb + y * row, *b = rgb + (height - 1 - y) * row;
+        for (size_t i = 0; i < row; i++) {
+            uint8_t t = a[i];
+            a[i] = b[i];
+            b[i] = t;
+        }
+    }
+    return HLOD_OK;
 }
