@@ -41,41 +41,91 @@ static void piece_free(piece *p)
     memset(p, 0, sizeof *p);
 }
 
-/* Open-addressing map from an undirected edge to its split vertex. */
+/* Open-addressing map from an undirected edge to its split vertex.  Grows
+ * at half load: how many edges a plane crosses is not bounded by any
+ * fraction of the triangle count (a plane along a dense facade crosses
+ * most of its edges), and a full table would probe forever. */
 typedef struct edge_map {
     uint64_t *key;
     uint32_t *val;
-    size_t cap;
+    size_t cap, count;
 } edge_map;
+
+static int emap_alloc(edge_map *e, size_t cap)
+{
+    e->cap = cap;
+    e->count = 0;
+    e->key = malloc(e->cap * sizeof *e->key);
+    e->val = malloc(e->cap * sizeof *e->val);
+    if (!e->key || !e->val) {
+        free(e->key);
+        free(e->val);
+        e->key = NULL;
+        e->val = NULL;
+        return 0;
+    }
+    memset(e->key, 0xff, e->cap * sizeof *e->key);
+    return 1;
+}
 
 static int emap_init(edge_map *e, size_t n)
 {
-    e->cap = 64;
-    while (e->cap < n * 2)
-        e->cap *= 2;
-    e->key = malloc(e->cap * sizeof *e->key);
-    e->val = malloc(e->cap * sizeof *e->val);
-    if (!e->key || !e->val)
-        return 0;
-    memset(e->key, 0xff, e->cap * sizeof *e->key);
-    return 1;
+    size_t cap = 64;
+    while (cap < n * 2)
+        cap *= 2;
+    return emap_alloc(e, cap);
 }
 
 static void emap_free(edge_map *e)
 {
     free(e->key);
     free(e->val);
+    e->key = NULL;
+    e->val = NULL;
 }
 
-static uint32_t *emap_slot(edge_map *e, uint32_t a, uint32_t b, int *found)
+static size_t emap_index(const edge_map *e, uint64_t k)
 {
-    uint64_t k = a < b ? ((uint64_t)a << 32 | b) : ((uint64_t)b << 32 | a);
     uint64_t h = k * 0x9E3779B97F4A7C15ull;
     size_t i = (size_t)(h >> 17) & (e->cap - 1);
     while (e->key[i] != UINT64_MAX && e->key[i] != k)
         i = (i + 1) & (e->cap - 1);
+    return i;
+}
+
+/* Doubles the table; 0 when out of memory (the map is unchanged). */
+static int emap_grow(edge_map *e)
+{
+    edge_map n;
+    if (!emap_alloc(&n, e->cap * 2))
+        return 0;
+    for (size_t i = 0; i < e->cap; i++)
+        if (e->key[i] != UINT64_MAX) {
+            size_t j = emap_index(&n, e->key[i]);
+            n.key[j] = e->key[i];
+            n.val[j] = e->val[i];
+            n.count++;
+        }
+    emap_free(e);
+    *e = n;
+    return 1;
+}
+
+/* The slot for edge (a, b), inserted when new; NULL when out of memory. */
+static uint32_t *emap_slot(edge_map *e, uint32_t a, uint32_t b, int *found)
+{
+    uint64_t k = a < b ? ((uint64_t)a << 32 | b) : ((uint64_t)b << 32 | a);
+    size_t i = emap_index(e, k);
     *found = e->key[i] == k;
-    e->key[i] = k;
+    if (!*found) {
+        if (2 * (e->count + 1) > e->cap) {
+            if (!emap_grow(e))
+                return NULL;
+            i = emap_index(e, k);
+        }
+        e->key[i] = k;
+        e->count++;
+    }
     return &e->val[i];
 }
 
@@ -284,6 +334,8 @@ static hlod_result split(const piece *p, int axis, double c, piece *below, piece
                 for (int s = 0; s < 2; s++) {
                     int found;
                     uint32_t *slot = emap_slot(&em[s], a, b, &found);
+                    if (!slot)
+                        goto done; /* out of memory */
                     if (!found) {
                         *slot = (uint32_t)side[s].nv;
                         if (!b_vertex(&side[s], q, uv, n, 1))

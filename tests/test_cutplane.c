@@ -10,6 +10,8 @@
 
 #include <math.h>
 #include <stdint.h>
+#include <string.h>
+#include <unistd.h>
 
 /* A bumpy, irregular height field, n x n quads over 40 x 10 m, with UVs. */
 static void block_mesh(hlod_mesh *m, int n, int textured)
@@ -295,8 +297,37 @@ static void reproducible(void)
     hlod_mesh_free(&m);
 }
 
+/* Regression: every triangle of a comb of long slivers crosses every
+ * cutting plane, so the planes cross about two edges per triangle; the
+ * split-vertex map once had room for a quarter per triangle and probed
+ * forever when full (hlod-build hung on the default city at
+ * --desired-tris 400).  SIGALRM turns a hang into a failure. */
+static void plane_crossing_every_triangle(void)
+{
+    const int n = 4000;
+    hlod_mesh m = {0};
+    hlod_mesh_alloc(&m, (size_t)3 * n, (size_t)n, 0);
+    for (int i = 0; i < n; i++) {
+        double y = 0.02 * i, z = 0.3 * sin(0.1 * i);
+        double v[3][3] = {{0, y, z}, {40, y + 0.005, z}, {40, y + 0.01, z + 0.01}};
+        for (int k = 0; k < 3; k++) {
+            memcpy(m.positions + 3 * (3 * (size_t)i + k), v[k], sizeof v[k]);
+            m.indices[3 * (size_t)i + k] = (uint32_t)(3 * i + k);
+        }
+    }
+    hlod_build_params p = params();
+    hlod_btree t;
+    alarm(120);
+    CHECK(hlod_build_cutplane(&m, NULL, &p, &t) == HLOD_OK);
+    alarm(0);
+    CHECK(t.count > 1);
+    hlod_btree_free(&t);
+    hlod_mesh_free(&m);
+}
+
 int main(void)
 {
+    RUN(plane_crossing_every_triangle);
     RUN(leaves_keep_area_and_cover_the_block);
     RUN(siblings_share_boundaries);
     RUN(counts_follow_factors_and_errors_bound);
