@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
-# demo.sh - THE main job (for now): simplify real meshes and print a table,
-# then generate the default city and build its HLOD store.
+# demo.sh - THE main job: simplify real meshes and print a table, generate
+# the default city, build its HLOD store, fly through it and write a report.
 #
 #   bash data/demo.sh              (as root on Debian 12; safe to run again)
 #   HLOD_DEMO_CITY=small bash data/demo.sh    (a 50k-triangle city, quick)
@@ -15,8 +15,11 @@
 # (ours vs meshoptimizer; writes out/bench-simplify/).  Finally generates
 # the city (hlod-gen-city --preset default: 200 blocks, 7M triangles,
 # textured; out/demo/city/, kept between runs), builds its store with
-# hlod-build (cut-plane method) and prints hlod-info's tree statistics.
-# The fly-through and its report come with the runtime.
+# hlod-build (cut-plane method, 400 triangles per hlod_0 node) and prints
+# hlod-info's tree statistics.  Then replays the built-in camera paths with
+# hlod-bench (walk-to-fly, walk-drive with all three policies, still, and a
+# target sweep for the run-time-vs-error plot) and writes out/report/ with
+# the plots and report.md.
 # Exits non-zero if anything failed.
 set -uo pipefail
 
@@ -100,7 +103,11 @@ fi
 
 PRESET=${HLOD_DEMO_CITY:-default}
 CITY=$OUT/city/$PRESET
-mkdir -p "$OUT/city"
+REPORT=$ROOT/out/report
+mkdir -p "$OUT/city" "$REPORT"
+# The store's hlod_0 level must fit a software rasteriser's frame: 400
+# triangles per block (80k for the default city's 201 blocks).
+DESIRED=${HLOD_DEMO_DESIRED_TRIS:-400}
 echo
 if [ -s "$CITY.obj" ]; then
     echo "==> city: $CITY.obj exists (delete it to generate again)"
@@ -109,10 +116,67 @@ else
     "$ROOT/build/bin/hlod-gen-city" --preset "$PRESET" -o "$CITY.obj" ||
         { echo "demo: error: hlod-gen-city failed" >&2; exit 1; }
 fi
-echo "==> hlod-build $CITY.obj (cutplane)"
-"$ROOT/build/bin/hlod-build" "$CITY.obj" -o "$CITY.hlod" --json ||
-    { echo "demo: error: hlod-build failed" >&2; exit 1; }
-echo "==> hlod-info $CITY.hlod"
-"$ROOT/build/bin/hlod-info" "$CITY.hlod" || failed=1
+STORE=$CITY-$DESIRED.hlod
+if [ -s "$STORE" ] && [ "$STORE" -nt "$CITY.obj" ] && "$ROOT/build/bin/hlod-info" "$STORE" >/dev/null 2>&1; then
+    echo "==> store: $STORE exists (delete it to build again)"
+else
+    echo "==> hlod-build $CITY.obj (cutplane, --desired-tris $DESIRED)"
+    "$ROOT/build/bin/hlod-build" "$CITY.obj" -o "$STORE" --desired-tris "$DESIRED" --json ||
+        { echo "demo: error: hlod-build failed" >&2; exit 1; }
+fi
+echo "==> hlod-info $STORE"
+"$ROOT/build/bin/hlod-info" "$STORE" || failed=1
+
+# Fly-throughs (SPEC section 4 measurements), headless at 1280x720, 33 ms.
+BENCHBIN=$ROOT/build/bin/hlod-bench
+PATHS=$ROOT/data/paths/$PRESET
+REF_EVERY=${HLOD_DEMO_REF_EVERY:-10}
+run_bench() { # name, then extra flags
+    local name=$1
+    shift
+    echo
+    echo "==> hlod-bench $name"
+    "$BENCHBIN" "$STORE" --paths-dir "$PATHS" --out "$REPORT/$name" "$@" ||
+        { echo "demo: error: hlod-bench $name failed" >&2; failed=1; }
+}
+run_bench walk-to-fly --path walk-to-fly --target-ms 33 --reference --reference-every "$REF_EVERY"
+run_bench walk-drive --path walk-drive --target-ms 33 --reference --reference-every "$REF_EVERY" \
+    --policy lakhia,nohyst,sse
+run_bench still --path still --target-ms 33
+# Run time against error: one curve per policy over a sweep of targets,
+# smaller frames so the sweep stays within the demo's time.
+run_bench sweep --path walk-drive --width 640 --height 360 --reference \
+    --reference-every "$REF_EVERY" --policy lakhia,nohyst,sse --sweep target_ms=15,25,40
+
+# report.md: the headline numbers from the summaries.
+perl -MJSON::PP -e '
+    my ($dir, $md) = @ARGV;
+    sub load { my $f = shift; open my $h, "<", $f or return undef; local $/;
+               return JSON::PP->new->decode(<$h>); }
+    open my $o, ">", "$md.tmp" or die "$md: $!\n";
+    print $o "# hlod fly-through report\n\n";
+    print $o "Default city, 1280x720 headless (OSMesa llvmpipe), target 33 ms, budget 25% of the store.\n\n";
+    print $o "| run | policy | frames | mean ms | p95 ms | p99 ms | within 10% | toggles/frame | PSNR dB | SSIM | peak resident MiB | budget MiB | render waits | traversal ms |\n";
+    print $o "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|\n";
+    for my $run (["walk-to-fly", ""], ["walk-drive", "lakhia"], ["walk-drive", "nohyst"],
+                 ["walk-drive", "sse"], ["still", ""]) {
+        my ($name, $pol) = @$run;
+        my $j = load($pol ? "$dir/$name/$pol/summary.json" : "$dir/$name/summary.json") or next;
+        my $f = sub { my $v = shift; defined $v ? sprintf("%.2f", $v) : "-" };
+        printf $o "| %s | %s | %d | %s | %s | %s | %.0f%% | %.3f | %s | %s | %.0f | %.0f | %d | %.3f |\n",
+            $name, $j->{policy}, $j->{frames}, $f->($j->{frame_ms_mean}), $f->($j->{frame_ms_p95}),
+            $f->($j->{frame_ms_p99}), 100 * $j->{within_10pct}, $j->{toggles_per_frame},
+            $f->($j->{psnr_mean}), defined $j->{ssim_mean} ? sprintf("%.3f", $j->{ssim_mean}) : "-",
+            $j->{peak_resident_bytes} / 1048576, $j->{memory_budget_bytes} / 1048576,
+            $j->{render_waits}, $j->{traversal_ms_mean};
+    }
+    print $o "\nPlots: walk-to-fly/frame_time.png (Lakhia Fig. 9), walk-to-fly/nodes_per_depth.png (Fig. 7), ";
+    print $o "walk-drive/*/toggles.png (Fig. 8), */psnr.png, */memory.png, sweep/pareto.png (run time vs error).\n";
+    close $o or die;
+    rename "$md.tmp", $md or die;
+' "$REPORT" "$REPORT/report.md" || failed=1
+echo
+[ -f "$REPORT/report.md" ] && cat "$REPORT/report.md"
+echo "(report, plots and per-frame CSVs in out/report/)"
 
 exit $failed
