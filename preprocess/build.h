@@ -23,9 +23,10 @@ typedef struct hlod_bnode {
     hlod_mesh mesh;        /* world coordinates (double); no objects; UVs when
                               textured, addressing `tex` */
     hlod_image tex;        /* this node's texture (width 0 when none): the
-                              block texture cropped to the node's UVs and
-                              downsampled by the node's simplification
-                              factor (sqrt of the triangle ratio per side) */
+                              block texture's texels the node's UVs cover,
+                              repacked (hlod_node_texture), downsampled by
+                              the node's simplification factor (sqrt of
+                              the triangle ratio per side) */
     uint32_t parent;       /* index in the tree, HLOD_BNODE_NONE for node 0 */
     uint32_t depth;        /* 0 for node 0 */
     size_t source_tris;    /* original triangles this node stands for */
@@ -70,11 +71,18 @@ hlod_result hlod_build_cutplane(const hlod_mesh *block, const hlod_image *tex,
 hlod_result hlod_build_metis(const hlod_mesh *block, const hlod_image *tex,
                              const hlod_build_params *p, hlod_btree *out);
 
-/* The texture of a node: crops tex to the UV box of m's UVs (rewriting
- * m->uvs into the crop) and shrinks it by sqrt(factor) per side (factor =
- * source triangles / node triangles, >= 1), at least 4x4 pixels.  Wrapping
- * UVs (outside [0, 1]) keep the whole texture.  Leaves out->width 0 and
- * touches nothing when tex is NULL or m has no UVs. */
+/* The texture of a node: the node's own atlas, made of the texel
+ * rectangles its UV charts (triangles connected through shared vertices)
+ * cover in tex, each with a gutter, packed together -- or the crop of tex
+ * to m's UV box when that is no larger -- then shrunk by sqrt(factor) per
+ * side (factor = source triangles / node triangles, >= 1), at least 4x4
+ * pixels.  Rewrites m->uvs into the result (v = 0 stays the bottom row);
+ * a vertex no triangle uses gets UV (0, 0).  Wrapping UVs (outside
+ * [0, 1]) keep the whole texture and their UVs.  Leaves out->width 0 and
+ * touches nothing when tex is NULL or m has no UVs.  Deterministic (a
+ * function of m, tex and factor), reentrant; out is malloc'ed, free with
+ * hlod_image_free().  Cost: O(vertices + triangles + output texels), plus
+ * a resize when factor > 1.  Design: build_common.c. */
 hlod_result hlod_node_texture(const hlod_image *tex, hlod_mesh *m, double factor, hlod_image *out);
 
 /* Certified error of a node against the original triangles it stands for
