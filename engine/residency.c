@@ -277,7 +277,8 @@ void hlod_residency_schedule(hlod_engine *e)
 {
     const uint64_t budget = e->d.memory_budget_bytes;
     hlod_req_vec *want = &e->want;
-    qsort(want->v, want->n, sizeof *want->v, cmp_request);
+    if (want->n > 1) /* want->v is NULL until something was wanted: qsort(NULL) is UB */
+        qsort(want->v, want->n, sizeof *want->v, cmp_request);
 
     /* The previous list: queued nodes the traversal stopped asking for stay
      * queued for a few frames (a partial read survives a brief dip), then

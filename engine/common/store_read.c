@@ -49,6 +49,8 @@ struct hlod_store {
     hlod_logger logger;         /* copy; func may be NULL */
     hlod_store_header header;
     hlod_store_node *nodes;     /* node_count + 1 */
+    hlod_store_pread_fn pread_fn; /* test hook; NULL: pread */
+    void *pread_user;
 };
 
 /* ---- shared helpers ---- */
@@ -484,7 +486,17 @@ hlod_result hlod_store_read_begin(const hlod_store *s, uint32_t node, hlod_store
     return HLOD_OK;
 }
 
-/* called from the thread owning rd; one pread of at most max_bytes */
+void hlod_store_set_pread(hlod_store *s, hlod_store_pread_fn fn, void *user)
+{
+    if (!s)
+        return;
+    s->pread_fn = fn;
+    s->pread_user = fn ? user : NULL;
+}
+
+/* called from the thread owning rd: reads min(max_bytes, left), looping over
+ * short reads (pread may return fewer bytes than asked without an error) and
+ * retrying EINTR; the bytes are hashed once they are all in */
 hlod_result hlod_store_read_step(hlod_store_read *rd, size_t max_bytes, int *complete)
 {
     if (!rd || !rd->store || !rd->buf || max_bytes == 0)
@@ -494,20 +506,34 @@ hlod_result hlod_store_read_step(hlod_store_read *rd, size_t max_bytes, int *com
     uint64_t left = rd->size - rd->done;
     if (left) {
         size_t want = left < max_bytes ? (size_t)left : max_bytes;
+        uint8_t *dst = rd->buf + rd->done;
         uint64_t off = s->nodes[rd->node].payload_offset + rd->done;
-        ssize_t k;
-        do
-            k = pread(s->fd, rd->buf + rd->done, want, (off_t)off);
-        while (k < 0 && errno == EINTR);
-        if (k <= 0) {
-            hlod_logf(lg, HLOD_LOG_ERROR, "%s: node %u: cannot read payload at offset %llu: %s",
-                      s->path, rd->node, (unsigned long long)off,
-                      k < 0 ? strerror(errno) : "unexpected end of file (file shrank?)");
-            return HLOD_ERR_IO;
+        size_t got = 0;
+        while (got < want) {
+            ssize_t k;
+            errno = 0;
+            if (s->pread_fn)
+                k = s->pread_fn(s->pread_user, s->fd, dst + got, want - got,
+                                (off_t)(off + got));
+            else
+                k = pread(s->fd, dst + got, want - got, (off_t)(off + got));
+            if (k < 0 && errno == EINTR)
+                continue;
+            if (k <= 0 || (size_t)k > want - got) {
+                int err = errno;
+                hlod_logf(lg, HLOD_LOG_ERROR,
+                          "%s: node %u: cannot read payload at offset %llu: %s", s->path,
+                          rd->node, (unsigned long long)(off + got),
+                          k < 0 ? strerror(err ? err : EIO)
+                          : k == 0 ? "unexpected end of file (file shrank?)"
+                                   : "read returned more bytes than asked");
+                return HLOD_ERR_IO;
+            }
+            got += (size_t)k;
         }
-        if (XXH3_64bits_update(rd->hash_state, rd->buf + rd->done, (size_t)k) != XXH_OK)
+        if (XXH3_64bits_update(rd->hash_state, dst, want) != XXH_OK)
             return HLOD_ERR_INVALID_ARG;
-        rd->done += (uint64_t)k;
+        rd->done += want;
     }
     if (complete)
         *complete = rd->done == rd->size;

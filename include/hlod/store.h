@@ -63,6 +63,8 @@
 
 #include "hlod/hlod.h"
 
+#include <sys/types.h> /* ssize_t, off_t: the pread test hook */
+
 #ifdef __cplusplus
 extern "C" {
 #endif
@@ -259,10 +261,10 @@ void hlod_store_payload_free(hlod_store_payload *p);   /* p may be zeroed */
  *     hlod_store_read_begin(s, node, &rd);
  *     while (!rd_complete) hlod_store_read_step(&rd, 65536, &rd_complete);
  *     hlod_store_read_finish(&rd, &payload);
- * Each step reads at most max_bytes with one pread and hashes them; the
- * bytes read stay read, so a read may be left for another node's read and
- * resumed later without re-reading.  A read that is not finished must be
- * cancelled.  Fields are read-only to the caller. */
+ * Each step reads at most max_bytes (pread, continued over short reads)
+ * and hashes them; the bytes read stay read, so a read may be left for
+ * another node's read and resumed later without re-reading.  A read that is
+ * not finished must be cancelled.  Fields are read-only to the caller. */
 typedef struct hlod_store_read {
     const hlod_store *store;
     uint32_t node;
@@ -278,8 +280,12 @@ typedef struct hlod_store_read {
 hlod_result hlod_store_read_begin(const hlod_store *s, uint32_t node, hlod_store_read *rd);
 
 /* Reads up to max_bytes (>= 1) more; *complete becomes non-zero when all
- * bytes are in.  HLOD_ERR_IO on a read error or when the file ended early
- * (it shrank after open).  After an error the read must be cancelled. */
+ * bytes are in.  A short pread (fewer bytes than asked, as from a pipe-like
+ * file system or a signal) is continued within the step, and EINTR is
+ * retried, so a step returns HLOD_OK having read exactly
+ * min(max_bytes, bytes left).  HLOD_ERR_IO on a read error or when the file
+ * ended early (it shrank after open).  After an error the read must be
+ * cancelled. */
 hlod_result hlod_store_read_step(hlod_store_read *rd, size_t max_bytes, int *complete);
 
 /* Verifies the checksum (HLOD_ERR_CHECKSUM), then parses: header and counts
@@ -296,6 +302,19 @@ void hlod_store_read_cancel(hlod_store_read *rd);
 /* begin + steps of max_bytes + finish, for tools and tests. */
 hlod_result hlod_store_read_node(const hlod_store *s, uint32_t node, size_t max_bytes,
                                  hlod_store_payload *out);
+
+/* ---- test hook (fault injection; not for production use) ---- */
+
+/* The function payload reads call instead of pread(2): same contract (bytes
+ * read, 0 at end of file, -1 with errno set on error).  Tests use it to
+ * inject short reads, EINTR and errors behind the reader; user is passed
+ * back.  fn NULL restores pread.  Only payload reads (read_step) go through
+ * it, not hlod_store_open.  Set it before any read starts (e.g. before an
+ * engine is created on s) and not while reads are in flight: it is a plain
+ * field, read without synchronisation by every reading thread.  fn itself
+ * must be thread safe when several threads read. */
+typedef ssize_t (*hlod_store_pread_fn)(void *user, int fd, void *buf, size_t n, off_t off);
+void hlod_store_set_pread(hlod_store *s, hlod_store_pread_fn fn, void *user);
 
 #ifdef __cplusplus
 }
