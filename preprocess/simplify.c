@@ -1613,8 +1613,13 @@ hlod_result hlod_simplify(const hlod_mesh *in, const hlod_simplify_desc *desc,
                 continue;
             for (int k = 0; k < 3; k++)
                 m[k] /= lm;
+            /* Weighted by the edge's length squared, or by twice its
+             * face's area when that is larger: a short border edge of a
+             * long face must still hold its corner in place (a flat grid
+             * graded from 1e-3 to 1e7 otherwise slid a corner along the
+             * other border for free and lost half its area). */
             quadric q = {0};
-            q_plane(&q, m, -dot3(m, s.vx[a].x), BORDER_WEIGHT * dot3(ed, ed));
+            q_plane(&q, m, -dot3(m, s.vx[a].x), BORDER_WEIGHT * fmax(dot3(ed, ed), ln));
             q_add(&s.vx[a].q, &q);
             q_add(&s.vx[b].q, &q);
         }

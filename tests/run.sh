@@ -9,7 +9,9 @@
 # 4. configures and builds build-asan/ (ASan + UBSan, no benchmarks) and
 #    runs ctest again;
 # 5. builds the threaded tools and their tests with ThreadSanitizer
-#    (build-tsan/) and runs those tests.
+#    (build-tsan/) and runs those tests;
+# 6. builds the libFuzzer harnesses with clang (build-fuzz/), replays their
+#    corpora and fuzzes each for 20 s (tests/fuzz/run.sh).
 # Prints a summary and exits non-zero if any step or any test failed.
 # .ci/run calls exactly this script.
 set -uo pipefail
@@ -96,14 +98,15 @@ if step "build build-asan/" build build-asan -DCMAKE_BUILD_TYPE=RelWithDebInfo \
 fi
 # ThreadSanitizer over the code that runs threads: hlod-build's workers,
 # the store writer/readers, the engine's loader thread and two engines in
-# two threads.  OpenImageIO is not instrumented; its internal
-# synchronisation is suppressed (tests/tsan.supp), ours is checked.
-TSAN_TESTS="test_build|test_store|test_metis|test_engine\$|test_loader"
+# two threads, the loader under injected faults and the soak.  OpenImageIO
+# is not instrumented; its internal synchronisation is suppressed
+# (tests/tsan.supp), ours is checked.
+TSAN_TESTS="test_build|test_store|test_metis|test_engine\$|test_loader|test_faults|test_soak"
 build_tsan() {
     cmake -S "$ROOT" -B "$ROOT/build-tsan" -DCMAKE_BUILD_TYPE=RelWithDebInfo -DHLOD_SANITIZE=thread \
         -DHLOD_BENCH=OFF >/dev/null &&
         make -C "$ROOT/build-tsan" -j"$JOBS" hlod-build hlod-gen-city hlod-info test_build test_store test_metis \
-            test_engine test_loader
+            test_engine test_loader test_faults test_soak
 }
 run_tsan() {
     local log="$ROOT/out/test-logs/ctest-build-tsan.log"
@@ -118,4 +121,16 @@ run_tsan() {
 if step "build build-tsan/" build_tsan; then
     step "ctest build-tsan/" run_tsan
 fi
+# libFuzzer (clang, ASan + UBSan) over the parsers of untrusted bytes: the
+# store reader, the camera path parser and the OBJ/PLY/OFF import; each
+# harness replays its corpus, then fuzzes for FUZZ_SECONDS (default 20).
+run_fuzz() {
+    local log="$ROOT/out/test-logs/fuzz.log"
+    FUZZ_JOBS=$JOBS bash "$ROOT/tests/fuzz/run.sh" 2>&1 | tee "$log"
+    local rc=${PIPESTATUS[0]}
+    note=$(grep -E '^fuzz: .* execs' "$log" | tail -n 1)
+    note=${note:-no fuzz summary, see $log}
+    return "$rc"
+}
+step "fuzz build-fuzz/" run_fuzz
 finish

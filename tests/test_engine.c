@@ -437,7 +437,6 @@ static void test_budget_random_jumps(void)
     }
     CHECKF(over == 0, "%llu frames over budget", (unsigned long long)over);
     CHECK(loads > 50 && evictions > 10); /* it did stream */
-    CHECK(st.render_waits == 0);
     fprintf(stderr, "  %d frames: %llu loads, %llu evictions, peak %llu of %llu bytes\n", frames,
             (unsigned long long)loads, (unsigned long long)evictions, (unsigned long long)peak,
             (unsigned long long)d.memory_budget_bytes);

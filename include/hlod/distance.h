@@ -37,13 +37,19 @@ hlod_result hlod_mesh_distance(const hlod_mesh *a, const hlod_mesh *b,
 
 /* A certified two-sided Hausdorff distance: *lower <= H(a, b) <= *upper,
  * with *upper <= *lower * (1 + rel_tol) + max(abs_tol, 1e-9 * diagonal)
- * unless a region needed more than 30 levels of splitting.  Branch and bound over each surface: the
+ * unless a region needed more than 30 levels of splitting, or more than
+ * 5e4 + 512 (n_a + n_b) splits per side (surfaces apart by about the
+ * tolerance but not coplanar: folds, layers or noise that fine): then
+ * *upper is the bound of the deepest refinement within that budget, still
+ * certified but looser.  Branch and bound over each surface: the
  * distance is 1-Lipschitz, so a triangle whose corners are all at most f
  * from the other surface lies within f + (longest edge)/sqrt(3) of it;
  * triangles that cannot beat the best value found are dropped, the others
  * split in four.  Where the surfaces coincide, two coplanar neighbours of
- * the other surface with a convex union bound a piece that straddles their
- * shared edge, so a flat region resolves to the floor cheaply.  Unlike sampling, it cannot miss a peak: the simplifier
+ * the other surface bound a piece that straddles their shared edge (through
+ * their union when it is convex, else through a convex triangle of it
+ * along that edge), so a flat or creased region resolves to the floor
+ * cheaply.  Unlike sampling, it cannot miss a peak: the simplifier
  * reports this upper bound.  Cost: a few closest-point queries per vertex
  * plus the refinement near the worst regions. */
 hlod_result hlod_mesh_hausdorff_bound(const hlod_mesh *a, const hlod_mesh *b, double rel_tol,

@@ -319,7 +319,8 @@ static hlod_result read_mtllib(obj_reader *r, const char *lib, hlod_material *ma
 {
     io_stream s;
     hlod_logger quiet = {0};
-    if (io_open(&s, lib, &quiet) != HLOD_OK) {
+    /* Regular files only: "mtllib /dev/stdin" (or a FIFO) would block. */
+    if (!io_file_exists(lib) || io_open(&s, lib, &quiet) != HLOD_OK) {
         hlod_logf(r->lg, HLOD_LOG_WARN, "%s: material library %s cannot be read; its materials "
                   "stay grey and untextured", r->path, lib);
         return HLOD_OK;

@@ -1,0 +1,103 @@
+/*
+ * seed_store.c - writes the tiny stores that seed fuzz_store's corpus.
+ *
+ *   fuzz_seed_store DIR      (tests/fuzz/run.sh --seeds runs it)
+ *
+ * Real stores from hlod-build are megabytes, mostly payload padding at 4096
+ * bytes; these use the smallest alignment (64) and a handful of triangles,
+ * so each seed is a few hundred bytes to a few KB and every mutation lands
+ * on a header, a node record or a payload section.  They cover every
+ * payload section: normals, UVs, colours, a texture, and the tree rule with
+ * several roots and two levels.
+ */
+#include "hlod/store_write.h"
+
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+/* A quad split in two triangles over [x0, x0 + s] x [y0, y0 + s], z = 0. */
+static hlod_result add_quad(hlod_store_writer *w, double x0, double y0, double s, int textured,
+                            hlod_store_node *node)
+{
+    double pos[12] = {x0, y0, 0, x0 + s, y0, 0, x0 + s, y0 + s, 0, x0, y0 + s, 0};
+    float nrm[12] = {0, 0, 1, 0, 0, 1, 0, 0, 1, 0, 0, 1};
+    float uv[8] = {0, 0, 1, 0, 1, 1, 0, 1};
+    uint8_t col[16] = {200, 10, 10, 255, 10, 200, 10, 255, 10, 10, 200, 255, 90, 90, 90, 255};
+    uint8_t tex[2 * 2 * 3] = {255, 0, 0, 0, 255, 0, 0, 0, 255, 255, 255, 255};
+    uint32_t idx[6] = {0, 1, 2, 0, 2, 3};
+    hlod_store_payload_desc d;
+    memset(&d, 0, sizeof d);
+    d.vertex_count = 4;
+    d.positions = pos;
+    d.origin[0] = x0;
+    d.origin[1] = y0;
+    d.normals = nrm;
+    d.tri_count = 2;
+    d.indices = idx;
+    if (textured) {
+        d.uvs = uv;
+        d.tex_tri_count = 2;
+        d.tex_width = d.tex_height = 2;
+        d.tex_channels = 3;
+        d.pixels = tex;
+    } else {
+        d.colors = col;
+    }
+    return hlod_store_writer_add(w, &d, node);
+}
+
+/* roots blocks side by side, each a quad with `children` child quads. */
+static int write_store(const char *dir, const char *name, uint32_t roots, uint32_t children,
+                       int textured)
+{
+    char path[4096];
+    snprintf(path, sizeof path, "%s/%s", dir, name);
+    hlod_store_writer_desc wd;
+    memset(&wd, 0, sizeof wd);
+    wd.build.method = HLOD_STORE_METHOD_CUTPLANE;
+    wd.build.desired_tris = 2;
+    wd.build.level_factor = 2;
+    wd.build.c_tex = 0.5;
+    wd.payload_align = 64;
+    hlod_store_writer *w;
+    if (hlod_store_writer_open(path, &wd, &w) != HLOD_OK)
+        return 1;
+    hlod_store_node nodes[16];
+    uint32_t n = 0;
+    hlod_result r = HLOD_OK;
+    for (uint32_t b = 0; b < roots && r == HLOD_OK; b++) {
+        uint32_t root = n++;
+        r = add_quad(w, 2.0 * b, 0, 1, textured, &nodes[root]);
+        nodes[root].parent = HLOD_STORE_NO_PARENT;
+        nodes[root].block = b;
+        nodes[root].error = 0.5;
+        for (uint32_t c = 0; c < children && r == HLOD_OK; c++) {
+            uint32_t k = n++;
+            r = add_quad(w, 2.0 * b + 0.5 * c, 0, 0.5, textured && c == 0, &nodes[k]);
+            nodes[k].parent = root;
+            nodes[k].error = 0.25;
+        }
+    }
+    if (r != HLOD_OK) {
+        hlod_store_writer_abort(w);
+        return 1;
+    }
+    if (hlod_store_writer_finish(w, nodes, n, NULL) != HLOD_OK)
+        return 1;
+    printf("%s\n", path);
+    return 0;
+}
+
+int main(int argc, char **argv)
+{
+    if (argc != 2) {
+        fprintf(stderr, "usage: fuzz_seed_store DIR\n");
+        return 2;
+    }
+    int bad = 0;
+    bad |= write_store(argv[1], "one-node.hlod", 1, 0, 0);
+    bad |= write_store(argv[1], "textured-tree.hlod", 1, 2, 1);
+    bad |= write_store(argv[1], "two-roots.hlod", 2, 1, 0);
+    return bad;
+}

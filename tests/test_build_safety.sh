@@ -1,0 +1,172 @@
+#!/usr/bin/env bash
+# test_build_safety.sh - hlod-build never leaves a partial store (ctest:
+# build_safety).
+#
+# 1. Killed: hlod-build runs on a tiny city and is sent SIGKILL after a
+#    random 0.05-2 s, KILLS times (default 10), alternately over an existing
+#    store and into an empty place.  Afterwards the output path must hold
+#    either the old store, byte for byte, or the complete new one (byte for
+#    byte the store an uninterrupted run writes), or nothing when there was
+#    no old store.  Leftover temporary files are allowed only as
+#    OUT.tmp-XXXXXX; the test reports how many accumulate and checks that
+#    hlod-info --verify refuses each of them.
+# 2. Full disk: a write limit (ulimit -f, with SIGXFSZ ignored so the write
+#    fails with EFBIG) and, when running as root and mount is allowed, a
+#    tmpfs smaller than the store (ENOSPC).  hlod-build must exit non-zero
+#    with an error naming the output file, and leave no output file and no
+#    temporary file.
+#
+# Environment: HLOD_BIN_DIR (default build/bin), HLOD_SOURCE_DIR (default .),
+# KILLS (10), SEED (random seed of the kill times, default 6).
+set -uo pipefail
+
+SRC=${HLOD_SOURCE_DIR:-.}
+BIN=${HLOD_BIN_DIR:-$SRC/build/bin}
+KILLS=${KILLS:-10}
+RANDOM=${SEED:-6}
+
+T=$(mktemp -d "${TMPDIR:-/tmp}/hlod-test-build-safety.XXXXXX")
+MNT=""
+cleanup() {
+    [ -n "$MNT" ] && umount "$MNT" 2>/dev/null
+    rm -rf "$T"
+}
+trap cleanup EXIT
+
+failed=0
+passed=0
+pass() { passed=$((passed + 1)); echo "ok   $1"; }
+fail() { failed=$((failed + 1)); echo "FAIL $1"; }
+
+for tool in hlod-gen-city hlod-build hlod-info; do
+    if [ ! -x "$BIN/$tool" ]; then
+        echo "FAIL $BIN/$tool not built"
+        exit 1
+    fi
+done
+
+# A tiny city; stores built from it with two settings: "old" is what sits at
+# the output path before a run, "new" what a complete run writes.
+if ! "$BIN/hlod-gen-city" -o "$T/city.obj" --preset tiny --quiet; then
+    echo "FAIL hlod-gen-city"
+    exit 1
+fi
+BUILD_NEW=("$BIN/hlod-build" "$T/city.obj" --desired-tris 300 --quiet --threads 2)
+"$BIN/hlod-build" "$T/city.obj" -o "$T/old.hlod" --desired-tris 600 --quiet --threads 2 &&
+    "${BUILD_NEW[@]}" -o "$T/new.hlod" &&
+    "${BUILD_NEW[@]}" -o "$T/new2.hlod"
+if [ $? -ne 0 ] || ! cmp -s "$T/new.hlod" "$T/new2.hlod"; then
+    echo "FAIL reference stores (hlod-build failed or is not deterministic)"
+    exit 1
+fi
+if cmp -s "$T/old.hlod" "$T/new.hlod"; then
+    echo "FAIL the old and new reference stores are identical: the test would prove nothing"
+    exit 1
+fi
+pass "reference stores built ($(wc -c <"$T/old.hlod") and $(wc -c <"$T/new.hlod") bytes)"
+
+# ---- 1. SIGKILL at random points ----
+D=$T/kill
+mkdir -p "$D"
+OUT=$D/out.hlod
+finished_early=0
+outcomes=""
+for i in $(seq 1 "$KILLS"); do
+    with_old=$((i % 2))
+    rm -f "$OUT"
+    [ $with_old -eq 1 ] && cp "$T/old.hlod" "$OUT"
+    ms=$((50 + RANDOM % 1951))
+    "${BUILD_NEW[@]}" -o "$OUT" 2>"$D/err" &
+    pid=$!
+    sleep "$((ms / 1000)).$(printf '%03d' $((ms % 1000)))"
+    if kill -KILL "$pid" 2>/dev/null; then
+        wait "$pid" 2>/dev/null
+        how=killed
+    else
+        wait "$pid"
+        how=finished
+        finished_early=$((finished_early + 1))
+    fi
+    if [ ! -e "$OUT" ]; then
+        state=none
+    elif cmp -s "$OUT" "$T/old.hlod"; then
+        state=old
+    elif cmp -s "$OUT" "$T/new.hlod"; then
+        state=new
+    else
+        state=OTHER
+    fi
+    outcomes="$outcomes $state"
+    ok=0
+    case "$state" in
+    old) [ $with_old -eq 1 ] && ok=1 ;;
+    none) [ $with_old -eq 0 ] && [ "$how" = killed ] && ok=1 ;;
+    new) ok=1 ;;
+    esac
+    where="into an empty place"
+    [ $with_old -eq 1 ] && where="over an old store"
+    label="run $i, $where"
+    if [ $ok -eq 1 ]; then
+        pass "$label, $how after ${ms} ms: output is $state"
+    else
+        verdict=$("$BIN/hlod-info" "$OUT" --verify >/dev/null 2>&1 && echo "accepts it" || echo "refuses it")
+        fail "$label, $how after ${ms} ms: output is $state (hlod-info --verify $verdict)"
+    fi
+done
+
+# Leftovers: only OUT.tmp-XXXXXX, never accepted as a store.
+stray=$(ls "$D" | grep -v -e '^out\.hlod$' -e '^out\.hlod\.tmp-......$' -e '^err$')
+tmps=$(ls "$D" | grep -c '^out\.hlod\.tmp-' || true)
+if [ -z "$stray" ]; then pass "no stray files besides out.hlod.tmp-*"
+else fail "stray files: $stray"; fi
+accepted=0
+for f in "$D"/out.hlod.tmp-*; do
+    [ -e "$f" ] || continue
+    "$BIN/hlod-info" "$f" --verify >/dev/null 2>&1 && accepted=$((accepted + 1))
+done
+if [ $accepted -eq 0 ]; then pass "hlod-info --verify refuses every leftover temporary file"
+else fail "$accepted leftover temporary files pass hlod-info --verify"; fi
+echo "     $KILLS runs: $((KILLS - finished_early)) killed, $finished_early finished first;" \
+     "outputs:$outcomes; $tmps temporary files accumulated (one per run killed while writing;" \
+     "hlod-build does not clean them up)"
+
+# ---- 2. full disk ----
+# full_disk NAME OUT PREFIX...: runs hlod-build (through PREFIX) into OUT and
+# expects a clean failure.
+full_disk() {
+    local name=$1 out=$2
+    shift 2
+    "$@" "${BUILD_NEW[@]}" -o "$out" 2>"$T/$name.err"
+    local rc=$?
+    local dir left
+    dir=$(dirname "$out")
+    left=$(ls "$dir" | grep -F "$(basename "$out")" || true)
+    if [ $rc -ne 0 ] && grep -qF "$out" "$T/$name.err" && [ -z "$left" ]; then
+        pass "$name: exit $rc, names the output, nothing left: $(grep -F "$out" "$T/$name.err" | head -n 1)"
+    else
+        fail "$name: exit $rc, left '${left}', stderr: $(cat "$T/$name.err")"
+    fi
+}
+
+size_kb=$(($(wc -c <"$T/new.hlod") / 1024))
+limit_kb=$((size_kb / 2))
+mkdir -p "$T/limit"
+limited() { (trap '' XFSZ; ulimit -f "$limit_kb" && exec "$@"); }
+full_disk "write limit ${limit_kb} KiB (EFBIG)" "$T/limit/out.hlod" limited
+
+if [ "$(id -u)" -ne 0 ]; then
+    echo "skip tmpfs full disk: not running as root (mount needs it)"
+else
+    MNT=$T/tmpfs
+    mkdir -p "$MNT"
+    if mount -t tmpfs -o "size=${limit_kb}k" tmpfs "$MNT" 2>"$T/mount.err"; then
+        full_disk "tmpfs of ${limit_kb} KiB (ENOSPC)" "$MNT/out.hlod"
+        umount "$MNT" && MNT=""
+    else
+        MNT=""
+        echo "skip tmpfs full disk: mount not permitted here ($(cat "$T/mount.err"))"
+    fi
+fi
+
+echo "$passed passed, $failed failed"
+[ $failed -eq 0 ]
