@@ -48,6 +48,10 @@ for a in "$@"; do
     esac
 done
 [ ${#harnesses[@]} -gt 0 ] || harnesses=("${ALL[@]}")
+if ! [[ $SECONDS_EACH =~ ^[1-9][0-9]*$ ]]; then
+    echo "fuzz: FUZZ_SECONDS must be a whole number of seconds >= 1, not '$SECONDS_EACH'" >&2
+    exit 2
+fi
 
 CC=${CC:-clang}
 CXX=${CXX:-clang++}
