@@ -251,20 +251,13 @@ typedef struct front {
 
 /* Decides node p of the front: draw it, or append its visible children to
  * e->next.  Returns 0 on allocation failure. */
-/* Draws p as part of the front. */
-static int settle(hlod_engine *e, front *fr, uint32_t p)
-{
-    (void)fr;
-    return draw_node(e, p);
-}
-
 static int visit(hlod_engine *e, const hlod_view *v, front *fr, uint32_t p)
 {
     const hlod_store_node *nodes = e->nodes;
     hlod_node_frame *pf = &e->fr[p];
     uint32_t c0 = hlod_store_first_child(nodes, p), c1 = hlod_store_child_end(nodes, p);
     if (c0 == c1)
-        return settle(e, fr, p);
+        return draw_node(e, p);
 
     const hlod_policy pol = e->d.policy;
     const double vt = e->v_time;
@@ -293,7 +286,7 @@ static int visit(hlod_engine *e, const hlod_view *v, front *fr, uint32_t p)
         /* The box meets the frustum but no child's does: nothing of the
          * children would show; drawing p is the safe choice. */
         e->next.n = mark;
-        return settle(e, fr, p);
+        return draw_node(e, p);
     }
 
     /* eq. 4 among the visible siblings, timeNeeded = v_time * cost. */
@@ -369,7 +362,7 @@ static int visit(hlod_engine *e, const hlod_view *v, front *fr, uint32_t p)
     }
     if (!refine) {
         e->next.n = mark;
-        return settle(e, fr, p);
+        return draw_node(e, p);
     }
     fr->est += sum_needed - pf->needed;
     if (pf->drawn && pf->drawn + 1 == e->frame)
