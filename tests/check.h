@@ -3,7 +3,7 @@
  *
  * CHECK(cond) records a failure with file:line and keeps going; RUN(fn)
  * runs one test function; check_done() prints "N passed, N failed" and
- * returns the exit code.  Each test program is one ctest test.
+ * returns the exit code (non-zero if any CHECK failed anywhere).  Each test program is one ctest test.
  */
 #ifndef HLOD_CHECK_H
 #define HLOD_CHECK_H
@@ -45,10 +45,15 @@ static int check_failures_, check_passed_, check_failed_;
         }                                                                             \
     } while (0)
 
+/* Fails when any CHECK failed, inside a RUN or not: a failed set-up check
+ * in main (tools missing, a store not built) must not let the program
+ * pass with nothing tested. */
 static inline int check_done(void)
 {
     printf("%d passed, %d failed\n", check_passed_, check_failed_);
-    return check_failed_ ? 1 : 0;
+    if (check_failures_ && !check_failed_)
+        printf("%d checks failed outside the tests\n", check_failures_);
+    return check_failures_ ? 1 : 0;
 }
 
 /* Path of a file under the source tree ($HLOD_SOURCE_DIR, else "."). */
