@@ -255,7 +255,6 @@ static int parse_args(int argc, char **argv, options *o)
     for (int i = 1; i < argc; i++) {
         const char *v = NULL;
         const char *a = argv[i];
-        double x;
         size_t n;
         if (!strcmp(a, "-h") || !strcmp(a, "--help")) {
             usage(stdout);
@@ -361,7 +360,6 @@ static int parse_args(int argc, char **argv, options *o)
         }
 #undef FLAG
 #undef NEED
-        (void)x;
     }
     if (!o->store)
         return hlod_cli_usage_error(PROG, "no store given%s", "");
@@ -369,7 +367,6 @@ static int parse_args(int argc, char **argv, options *o)
         return hlod_cli_usage_error(PROG, "--path is required%s", "");
     if (!o->out)
         return hlod_cli_usage_error(PROG, "--out is required%s", "");
-    (void)argc;
     return -1;
 }
 
@@ -789,7 +786,6 @@ static int run(context *c, hlod_policy policy, const char *dir, const setting *e
         hlod_engine_destroy(ref);
         return 1;
     }
-    size_t npix = (size_t)o->width * o->height * 3;
     int need_images = o->reference;
     int have_prev = 0, have_prev_ref = 0;
     hlod_cli_progress bar;
@@ -842,7 +838,6 @@ static int run(context *c, hlod_policy policy, const char *dir, const setting *e
     hlod_cli_progress_clear(&bar);
     hlod_engine_destroy(ref);
     hlod_engine_destroy(e);
-    (void)npix;
     if (status) {
         free(rec);
         return status;
