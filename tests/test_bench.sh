@@ -89,5 +89,22 @@ ok $? "--deterministic: identical selection columns in two runs"
     [ -s "$T/sweep/nohyst-target_ms=30/summary.json" ]
 ok $? "sweep: 3 policies x 2 targets in sweep.csv, pareto.png"
 
+# Reference frames are rendered once per invocation and reused by later
+# runs: a deterministic nohyst run after a lakhia run must score exactly as
+# the same nohyst run alone.
+DET=(--deterministic --set v_time=0.002 --set fixed_ms=5 --io-mbps 20 --no-plots --reference
+    --reference-every 5)
+"$BIN/hlod-bench" "$T/city.hlod" --path "$P" --out "$T/refpair" --target-ms 33 "${COMMON[@]}" \
+    "${DET[@]}" --policy lakhia,nohyst 2>/dev/null &&
+    "$BIN/hlod-bench" "$T/city.hlod" --path "$P" --out "$T/refone" --target-ms 33 "${COMMON[@]}" \
+        "${DET[@]}" --policy nohyst 2>/dev/null
+rc=$?
+col() { awk -F, -v k="$2" 'NR == 1 { for (i = 1; i <= NF; i++) if ($i == k) c = i; next }
+    c && $c != "" && $c != "nan" { print $c }' "$1/frames.csv"; }
+[ $rc -eq 0 ] && [ "$(col "$T/refpair/nohyst" psnr | wc -l)" -ge 5 ] &&
+    [ "$(col "$T/refpair/nohyst" psnr)" = "$(col "$T/refone" psnr)" ] &&
+    [ "$(col "$T/refpair/nohyst" ssim)" = "$(col "$T/refone" ssim)" ]
+ok $? "cached reference frames score a later run exactly as a run of its own"
+
 echo "$pass passed, $fail failed"
 [ "$fail" -eq 0 ]

@@ -652,7 +652,18 @@ typedef struct context {
     hlod_renderer *renderer;
     hlod_logger lg;
     uint8_t *img, *prev_img, *ref, *prev_ref;
+    /* Reference frames depend on the camera alone, not on the policy or a
+     * swept constant, so one invocation renders each frame's reference
+     * once and keeps it (up to REF_CACHE_BYTES): a policy comparison or a
+     * sweep pays for the full-detail renders only once. */
+    hlod_engine *ref_engine;
+    uint8_t **ref_cache; /* per frame index, NULL until rendered */
+    uint64_t ref_cache_frames;
+    size_t ref_cache_bytes;
+    int ref_flip;
 } context;
+
+#define REF_CACHE_BYTES ((size_t)3 << 30)
 
 static void path_camera(const context *c, uint64_t f, hlod_camera *cam, double *t_out)
 {
@@ -708,6 +719,51 @@ static hlod_result calibrate(context *c, const hlod_engine_desc *base, double *v
     return r;
 }
 
+/* The full-detail image of frame f: from the cache, or drawn by the
+ * reference engine (created on first use, kept for the whole invocation
+ * so its loaded leaves serve every run).  The result stays valid until
+ * the next call at least.  NULL on failure. */
+static const uint8_t *reference_image(context *c, uint64_t f, const hlod_camera *cam)
+{
+    const options *o = c->o;
+    if (f < c->ref_cache_frames && c->ref_cache[f])
+        return c->ref_cache[f];
+    if (!c->ref_engine) {
+        hlod_engine_desc rd = {0};
+        rd.policy = HLOD_POLICY_FULL;
+        rd.renderer = c->renderer;
+        rd.logger = c->lg;
+        rd.deterministic = 1; /* no loader thread: load_all_leaves loads */
+        rd.memory_budget_bytes = UINT64_MAX / 4;
+        hlod_result r = hlod_engine_create(c->store, &rd, &c->ref_engine);
+        if (r != HLOD_OK) {
+            hlod_cli_error(PROG, "%s: cannot start the reference engine: %s", o->store,
+                           hlod_result_str(r));
+            c->ref_engine = NULL;
+            return NULL;
+        }
+    }
+    hlod_frame_stats rs;
+    if (hlod_engine_load_all_leaves(c->ref_engine, cam) != HLOD_OK ||
+        hlod_engine_frame(c->ref_engine, cam, o->dt, &rs) != HLOD_OK)
+        return NULL;
+    size_t npix = (size_t)o->width * o->height * 3;
+    uint8_t *dst = NULL;
+    if (f < c->ref_cache_frames && c->ref_cache_bytes + npix <= REF_CACHE_BYTES) {
+        dst = malloc(npix);
+        if (dst) {
+            c->ref_cache[f] = dst;
+            c->ref_cache_bytes += npix;
+        }
+    }
+    if (!dst) { /* not cached: two scratch images in turn */
+        dst = c->ref_flip ? c->prev_ref : c->ref;
+        c->ref_flip ^= 1;
+    }
+    hlod_osmesa_read_rgb(c->gl, dst);
+    return dst;
+}
+
 static int run(context *c, hlod_policy policy, const char *dir, const setting *extra,
                summary *out)
 {
@@ -754,28 +810,12 @@ static int run(context *c, hlod_policy policy, const char *dir, const setting *e
             d.deterministic_load_bytes = 1;
     }
 
-    hlod_engine *e = NULL, *ref = NULL;
+    hlod_engine *e = NULL;
     hlod_result r = hlod_engine_create(c->store, &d, &e);
     if (r != HLOD_OK) {
         hlod_cli_error(PROG, "%s: cannot start the engine: %s", o->store, hlod_result_str(r));
         return 1;
     }
-    if (o->reference) {
-        hlod_engine_desc rd = {0};
-        rd.policy = HLOD_POLICY_FULL;
-        rd.renderer = c->renderer;
-        rd.logger = c->lg;
-        rd.deterministic = 1; /* no loader thread: load_all_leaves loads */
-        rd.memory_budget_bytes = UINT64_MAX / 4;
-        r = hlod_engine_create(c->store, &rd, &ref);
-        if (r != HLOD_OK) {
-            hlod_cli_error(PROG, "%s: cannot start the reference engine: %s", o->store,
-                           hlod_result_str(r));
-            hlod_engine_destroy(e);
-            return 1;
-        }
-    }
-
     uint64_t total = hlod_path_frame_count(&c->path, o->dt);
     if (o->frames > 0 && (uint64_t)o->frames < total)
         total = (uint64_t)o->frames;
@@ -783,11 +823,11 @@ static int run(context *c, hlod_policy policy, const char *dir, const setting *e
     if (!rec) {
         hlod_cli_error(PROG, "out of memory for %llu frames", (unsigned long long)total);
         hlod_engine_destroy(e);
-        hlod_engine_destroy(ref);
         return 1;
     }
     int need_images = o->reference;
-    int have_prev = 0, have_prev_ref = 0;
+    int have_prev = 0;
+    const uint8_t *prev_ref = NULL;
     hlod_cli_progress bar;
     hlod_cli_progress_begin(&bar, "frames", 1);
     int status = 0;
@@ -813,30 +853,24 @@ static int run(context *c, hlod_policy policy, const char *dir, const setting *e
             c->img = t;
             have_prev = 1;
         }
-        if (ref && f % (uint64_t)o->reference_every == 0) {
-            hlod_frame_stats rs;
-            if (hlod_engine_load_all_leaves(ref, &cam) != HLOD_OK ||
-                hlod_engine_frame(ref, &cam, o->dt, &rs) != HLOD_OK) {
+        if (o->reference && f % (uint64_t)o->reference_every == 0) {
+            const uint8_t *ref = reference_image(c, f, &cam);
+            if (!ref) {
                 hlod_cli_progress_clear(&bar);
                 hlod_cli_error(PROG, "%s: reference frame %llu failed", o->store,
                                (unsigned long long)f);
                 status = 1;
                 break;
             }
-            hlod_osmesa_read_rgb(c->gl, c->ref);
-            hlod_psnr_rgb8(c->prev_img, c->ref, o->width, o->height, &fr->psnr);
-            hlod_ssim_rgb8(c->prev_img, c->ref, o->width, o->height, &fr->ssim);
-            if (have_prev_ref && o->reference_every == 1)
-                hlod_luma_change_rgb8(c->prev_ref, c->ref, o->width, o->height, &fr->ref_luma);
-            uint8_t *t = c->prev_ref;
-            c->prev_ref = c->ref;
-            c->ref = t;
-            have_prev_ref = 1;
+            hlod_psnr_rgb8(c->prev_img, ref, o->width, o->height, &fr->psnr);
+            hlod_ssim_rgb8(c->prev_img, ref, o->width, o->height, &fr->ssim);
+            if (prev_ref && o->reference_every == 1)
+                hlod_luma_change_rgb8(prev_ref, ref, o->width, o->height, &fr->ref_luma);
+            prev_ref = ref;
         }
         hlod_cli_progress_fn(&bar, (double)(f + 1), (double)total);
     }
     hlod_cli_progress_clear(&bar);
-    hlod_engine_destroy(ref);
     hlod_engine_destroy(e);
     if (status) {
         free(rec);
@@ -930,6 +964,13 @@ int main(int argc, char **argv)
         goto done;
     }
 
+    if (o.reference) {
+        uint64_t n = hlod_path_frame_count(&c.path, o.dt);
+        if (o.frames > 0 && (uint64_t)o.frames < n)
+            n = (uint64_t)o.frames;
+        c.ref_cache = calloc(n ? n : 1, sizeof *c.ref_cache);
+        c.ref_cache_frames = c.ref_cache ? n : 0; /* no cache: draw each time */
+    }
     int multi = o.npolicies > 1 || o.sweep_key;
     FILE *sweep_fp = NULL;
     hlod_atomic_file sweep_af;
@@ -1013,6 +1054,10 @@ int main(int argc, char **argv)
     }
 
 done:
+    hlod_engine_destroy(c.ref_engine);
+    for (uint64_t f = 0; f < c.ref_cache_frames; f++)
+        free(c.ref_cache[f]);
+    free(c.ref_cache);
     free(c.img);
     free(c.prev_img);
     free(c.ref);
