@@ -82,6 +82,8 @@ struct hlod_engine {
 
     /* frame scratch */
     hlod_u32_vec draw;      /* nodes drawn this frame */
+    struct draw_key *draw_keys; /* sort scratch (engine.c) */
+    size_t draw_keys_cap;
     hlod_u32_vec level, next; /* breadth-first levels */
     hlod_req_vec want;      /* non-resident nodes priced this frame */
     hlod_req_vec post;      /* what was handed to the loader */

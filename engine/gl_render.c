@@ -10,9 +10,9 @@
  *   other exactly as stored (positions, normals, UVs, colours; no CPU
  *   interleaving, so an upload is one glBufferData plus one glBufferSubData
  *   per section), one 32-bit IBO, and a mipmapped, trilinear, repeating
- *   texture.  Missing sections are constant attributes set in begin: normal
- *   0 (the fragment shader then uses the face normal from derivatives) and
- *   light grey colour.
+ *   texture.  Missing sections are constant attributes set in begin (light
+ *   grey colour); without normals a shader variant lights the face normal
+ *   from derivatives.
  * - Camera-relative rendering: positions are floats relative to the node's
  *   origin; the vertex shader adds `offset` = origin - eye (double, rounded
  *   once by the caller) and applies proj * view-rotation, so no float ever
@@ -27,6 +27,7 @@
  */
 #include <assert.h>
 #include <stdint.h>
+#include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 
@@ -81,6 +82,8 @@
     X(PFNGLENABLEPROC, Enable)                                       \
     X(PFNGLDISABLEPROC, Disable)                                     \
     X(PFNGLDEPTHFUNCPROC, DepthFunc)                                 \
+    X(PFNGLCULLFACEPROC, CullFace)                                   \
+    X(PFNGLFRONTFACEPROC, FrontFace)                                 \
     X(PFNGLPOLYGONMODEPROC, PolygonMode)                             \
     X(PFNGLDRAWELEMENTSPROC, DrawElements)                           \
     X(PFNGLFLUSHPROC, Flush)                                         \
@@ -106,64 +109,90 @@ enum { MODE_TEXTURE = 0, MODE_VERTEX_COLOR = 1, MODE_FLAT = 2 };
 struct hlod_renderer {
     gl_table gl;
     hlod_logger lg;
-    GLuint program;
-    GLint u_viewproj, u_offset, u_mode, u_flat, u_tex;
+    struct program {
+        GLuint id;
+        GLint u_viewproj, u_offset, u_flat;
+    } prog[2][3];               /* [normals][MODE_*] */
+    const struct program *cur;  /* in use, between begin and end */
+    int culling;                /* GL_CULL_FACE on, between begin and end */
+    int no_culling;             /* hlod_renderer_set_backface_culling(0) */
+    float vp[16];               /* this frame's view-projection */
     GLint max_texture;          /* GL_MAX_TEXTURE_SIZE */
     int depth_colors, wireframe;
     float clear[3];
 };
 
+/* The shaders come in variants chosen per draw (compiled once): NORMALS
+ * when the payload has vertex normals, and the colour source MODE.  A
+ * software rasteriser runs both sides of a branch for every fragment, so
+ * nothing per draw is left to a runtime branch, and with normals the
+ * lighting is computed per vertex: the fragment shader is one texture
+ * fetch and one multiply. */
 static const char *vertex_src =
-    "#version 330 core\n"
     "layout(location = 0) in vec3 a_position;\n"
     "layout(location = 1) in vec3 a_normal;\n"
     "layout(location = 2) in vec2 a_uv;\n"
     "layout(location = 3) in vec4 a_color;\n"
     "uniform mat4 u_viewproj;\n"
     "uniform vec3 u_offset;\n"
+    "#if NORMALS\n"
+    "out float v_light;\n"
+    "#else\n"
     "out vec3 v_rel;\n"
-    "out vec3 v_normal;\n"
+    "#endif\n"
     "out vec2 v_uv;\n"
     "out vec4 v_color;\n"
     "void main() {\n"
     "    vec3 rel = a_position + u_offset;\n"
+    "#if NORMALS\n"
+    "    float d = length(rel);\n"
+    "    vec3 to_eye = d > 0.0 ? -rel / d : vec3(0.0, 0.0, 1.0);\n"
+    "    float len = length(a_normal);\n"
+    "    vec3 n = len > 0.0 ? a_normal / len : to_eye;\n"
+    /*   back faces are lit like front faces */
+    "    if (dot(n, to_eye) < 0.0) n = -n;\n"
+    "    v_light = 0.20 + 0.55 * abs(dot(n, to_eye)) + 0.25 * (0.5 + 0.5 * n.z);\n"
+    "#else\n"
     "    v_rel = rel;\n"
-    "    v_normal = a_normal;\n"
+    "#endif\n"
     "    v_uv = vec2(a_uv.x, 1.0 - a_uv.y);\n"  /* v = 0 is the bottom row */
     "    v_color = a_color;\n"
     "    gl_Position = u_viewproj * vec4(rel, 1.0);\n"
     "}\n";
 
 static const char *fragment_src =
-    "#version 330 core\n"
+    "#if NORMALS\n"
+    "in float v_light;\n"
+    "#else\n"
     "in vec3 v_rel;\n"
-    "in vec3 v_normal;\n"
+    "#endif\n"
     "in vec2 v_uv;\n"
     "in vec4 v_color;\n"
-    "uniform int u_mode;\n"
     "uniform vec3 u_flat;\n"
     "uniform sampler2D u_tex;\n"
     "out vec4 o_color;\n"
     "void main() {\n"
+    "#if NORMALS\n"
+    "    float light = v_light;\n"
+    "#else\n"
+    /*   no normals in the payload: the face normal, towards the eye */
     "    vec3 to_eye = -v_rel;\n"
     "    float d = length(to_eye);\n"
     "    to_eye = d > 0.0 ? to_eye / d : vec3(0.0, 0.0, 1.0);\n"
-    "    vec3 n = v_normal;\n"
-    "    if (dot(n, n) < 1e-12) {\n"
-    /*       no normals in the payload: the face normal, towards the eye */
-    "        n = cross(dFdx(v_rel), dFdy(v_rel));\n"
-    "        if (dot(n, to_eye) < 0.0) n = -n;\n"
-    "    } else if (!gl_FrontFacing) {\n"
-    "        n = -n;\n"
-    "    }\n"
+    "    vec3 n = cross(dFdx(v_rel), dFdy(v_rel));\n"
+    "    if (dot(n, to_eye) < 0.0) n = -n;\n"
     "    float len = length(n);\n"
     "    n = len > 0.0 ? n / len : to_eye;\n"
-    "    float head = abs(dot(n, to_eye));\n"
-    "    float sky = 0.5 + 0.5 * n.z;\n"
     /*   1.0 for a face seen head-on whose normal is straight up */
-    "    float light = 0.20 + 0.55 * head + 0.25 * sky;\n"
-    "    vec3 base = u_mode == 0 ? texture(u_tex, v_uv).rgb\n"
-    "              : u_mode == 1 ? v_color.rgb : u_flat;\n"
+    "    float light = 0.20 + 0.55 * abs(dot(n, to_eye)) + 0.25 * (0.5 + 0.5 * n.z);\n"
+    "#endif\n"
+    "#if MODE == 0\n"
+    "    vec3 base = texture(u_tex, v_uv).rgb;\n"
+    "#elif MODE == 1\n"
+    "    vec3 base = v_color.rgb;\n"
+    "#else\n"
+    "    vec3 base = u_flat;\n"
+    "#endif\n"
     "    o_color = vec4(base * light, 1.0);\n"
     "}\n";
 
@@ -206,32 +235,35 @@ static GLenum take_errors(const gl_table *gl)
     return first;
 }
 
-static GLuint compile(hlod_renderer *r, GLenum type, const char *src)
+static GLuint compile(hlod_renderer *r, GLenum type, const char *defines, const char *src)
 {
     const gl_table *gl = &r->gl;
     GLuint sh = gl->CreateShader(type);
     if (!sh)
         return 0;
-    gl->ShaderSource(sh, 1, &src, NULL);
+    const char *parts[3] = {"#version 330 core\n", defines, src};
+    gl->ShaderSource(sh, 3, parts, NULL);
     gl->CompileShader(sh);
     GLint ok = 0;
     gl->GetShaderiv(sh, GL_COMPILE_STATUS, &ok);
     if (!ok) {
         char log[1024] = "";
         gl->GetShaderInfoLog(sh, sizeof log, NULL, log);
-        hlod_logf(&r->lg, HLOD_LOG_ERROR, "renderer: %s shader: %s",
-                  type == GL_VERTEX_SHADER ? "vertex" : "fragment", log);
+        hlod_logf(&r->lg, HLOD_LOG_ERROR, "renderer: %s shader (%s): %s",
+                  type == GL_VERTEX_SHADER ? "vertex" : "fragment", defines, log);
         gl->DeleteShader(sh);
         return 0;
     }
     return sh;
 }
 
-static int build_program(hlod_renderer *r)
+static int build_program(hlod_renderer *r, int normals, int mode, struct program *out)
 {
     const gl_table *gl = &r->gl;
-    GLuint vs = compile(r, GL_VERTEX_SHADER, vertex_src);
-    GLuint fs = vs ? compile(r, GL_FRAGMENT_SHADER, fragment_src) : 0;
+    char defines[64];
+    snprintf(defines, sizeof defines, "#define NORMALS %d\n#define MODE %d\n", normals, mode);
+    GLuint vs = compile(r, GL_VERTEX_SHADER, defines, vertex_src);
+    GLuint fs = vs ? compile(r, GL_FRAGMENT_SHADER, defines, fragment_src) : 0;
     GLuint prog = fs ? gl->CreateProgram() : 0;
     if (prog) {
         gl->AttachShader(prog, vs);
@@ -254,15 +286,33 @@ static int build_program(hlod_renderer *r)
         gl->DeleteShader(fs);
     if (!prog)
         return 0;
-    r->program = prog;
-    r->u_viewproj = gl->GetUniformLocation(prog, "u_viewproj");
-    r->u_offset = gl->GetUniformLocation(prog, "u_offset");
-    r->u_mode = gl->GetUniformLocation(prog, "u_mode");
-    r->u_flat = gl->GetUniformLocation(prog, "u_flat");
-    r->u_tex = gl->GetUniformLocation(prog, "u_tex");
+    out->id = prog;
+    out->u_viewproj = gl->GetUniformLocation(prog, "u_viewproj");
+    out->u_offset = gl->GetUniformLocation(prog, "u_offset");
+    out->u_flat = gl->GetUniformLocation(prog, "u_flat");
     gl->UseProgram(prog);
-    gl->Uniform1i(r->u_tex, 0);
+    gl->Uniform1i(gl->GetUniformLocation(prog, "u_tex"), 0);
     gl->UseProgram(0);
+    return 1;
+}
+
+static void delete_programs(hlod_renderer *r)
+{
+    r->gl.UseProgram(0);
+    for (int n = 0; n < 2; n++)
+        for (int m = 0; m < 3; m++)
+            if (r->prog[n][m].id)
+                r->gl.DeleteProgram(r->prog[n][m].id);
+}
+
+static int build_programs(hlod_renderer *r)
+{
+    for (int n = 0; n < 2; n++)
+        for (int m = 0; m < 3; m++)
+            if (!build_program(r, n, m, &r->prog[n][m])) {
+                delete_programs(r);
+                return 0;
+            }
     return 1;
 }
 
@@ -304,7 +354,7 @@ hlod_result hlod_renderer_create(hlod_gl_get_proc get_proc, const hlod_logger *l
     gl->GetIntegerv(GL_MAX_TEXTURE_SIZE, &r->max_texture);
     if (r->max_texture < 1024)
         r->max_texture = 1024;   /* the 3.3 minimum, should the query fail */
-    if (!build_program(r)) {
+    if (!build_programs(r)) {
         free(r);
         return HLOD_ERR_UNSUPPORTED;
     }
@@ -320,8 +370,7 @@ void hlod_renderer_destroy(hlod_renderer *r)
 {
     if (!r)
         return;
-    r->gl.UseProgram(0);
-    r->gl.DeleteProgram(r->program);
+    delete_programs(r);
     free(r);
 }
 
@@ -329,6 +378,12 @@ void hlod_renderer_set_depth_colors(hlod_renderer *r, int on)
 {
     if (r)
         r->depth_colors = on != 0;
+}
+
+void hlod_renderer_set_backface_culling(hlod_renderer *r, int on)
+{
+    if (r)
+        r->no_culling = on == 0;
 }
 
 void hlod_renderer_set_wireframe(hlod_renderer *r, int on)
@@ -382,7 +437,7 @@ static void add_section(const gl_table *gl, GLuint attr, GLint size, GLenum type
 /* Texture of 1..4 channels: grey, grey + alpha, RGB, RGBA. */
 static uint64_t upload_texture(const gl_table *gl, const hlod_store_payload *p, GLuint tex)
 {
-    static const GLenum internal[4] = {GL_R8, GL_RG8, GL_RGB8, GL_RGBA8};
+    static const GLenum internal[4] = {GL_R8, GL_RG8, GL_RGBA8, GL_RGBA8};
     static const GLenum format[4] = {GL_RED, GL_RG, GL_RGB, GL_RGBA};
     int c = (int)p->tex_channels - 1;
     gl->BindTexture(GL_TEXTURE_2D, tex);
@@ -462,6 +517,7 @@ hlod_result hlod_gpu_upload(hlod_renderer *r, const hlod_store_payload *p, hlod_
     }
     out->index_count = p->index_count;
     out->tex_index_count = textured ? 3 * p->tex_tri_count : 0;
+    out->flags = p->normals ? HLOD_GPU_NORMALS : 0;
 
     GLenum err = take_errors(gl);
     if (err == GL_NO_ERROR)
@@ -496,17 +552,36 @@ void hlod_gpu_begin(hlod_renderer *r, const hlod_camera *cam)
     gl->ClearColor(r->clear[0], r->clear[1], r->clear[2], 1.0f);
     gl->Enable(GL_DEPTH_TEST);
     gl->DepthFunc(GL_LESS);
+    gl->CullFace(GL_BACK);
+    gl->FrontFace(GL_CCW);
     gl->Disable(GL_CULL_FACE);
+    r->culling = 0;
     gl->Disable(GL_BLEND);
     gl->PolygonMode(GL_FRONT_AND_BACK, r->wireframe ? GL_LINE : GL_FILL);
     gl->Clear(GL_COLOR_BUFFER_BIT | GL_DEPTH_BUFFER_BIT);
-    gl->UseProgram(r->program);
-    gl->UniformMatrix4fv(r->u_viewproj, 1, GL_FALSE, vp);
+    for (int n = 0; n < 2; n++)
+        for (int m = 0; m < 3; m++) {
+            gl->UseProgram(r->prog[n][m].id);
+            gl->UniformMatrix4fv(r->prog[n][m].u_viewproj, 1, GL_FALSE, vp);
+        }
+    r->cur = &r->prog[0][0];
     gl->ActiveTexture(GL_TEXTURE0);
     /* what nodes without these sections read (current attribute values) */
     gl->VertexAttrib4f(ATTR_NORMAL, 0, 0, 0, 0);
     gl->VertexAttrib4f(ATTR_UV, 0, 0, 0, 1);
     gl->VertexAttrib4f(ATTR_COLOR, DEFAULT_GREY, DEFAULT_GREY, DEFAULT_GREY, 1);
+}
+
+/* Makes program [normals][mode] current and places the node. */
+static const struct program *use(hlod_renderer *r, int normals, int mode, const float off[3])
+{
+    const struct program *p = &r->prog[normals][mode];
+    if (p != r->cur) {
+        r->gl.UseProgram(p->id);
+        r->cur = p;
+    }
+    r->gl.Uniform3f(p->u_offset, off[0], off[1], off[2]);
+    return p;
 }
 
 /* called from the render thread, between begin and end */
@@ -517,22 +592,31 @@ void hlod_gpu_draw(hlod_renderer *r, const hlod_gpu_node *g, const double offset
     if (!g->vao || !g->index_count)
         return;
     const gl_table *gl = &r->gl;
-    gl->Uniform3f(r->u_offset, (float)offset[0], (float)offset[1], (float)offset[2]);
+    const float off[3] = {(float)offset[0], (float)offset[1], (float)offset[2]};
+    int normals = (g->flags & HLOD_GPU_NORMALS) != 0;
+    int cull = (g->flags & HLOD_GPU_CULL) && !r->wireframe && !r->no_culling;
+    if (cull != r->culling) {
+        if (cull)
+            gl->Enable(GL_CULL_FACE);
+        else
+            gl->Disable(GL_CULL_FACE);
+        r->culling = cull;
+    }
     gl->BindVertexArray(g->vao);
     if (r->depth_colors) {
         const float *c = depth_palette[depth % 8];
-        gl->Uniform1i(r->u_mode, MODE_FLAT);
-        gl->Uniform3f(r->u_flat, c[0], c[1], c[2]);
+        const struct program *p = use(r, normals, MODE_FLAT, off);
+        gl->Uniform3f(p->u_flat, c[0], c[1], c[2]);
         gl->DrawElements(GL_TRIANGLES, (GLsizei)g->index_count, GL_UNSIGNED_INT, NULL);
         return;
     }
     if (g->tex_index_count) {
         gl->BindTexture(GL_TEXTURE_2D, g->tex);
-        gl->Uniform1i(r->u_mode, MODE_TEXTURE);
+        use(r, normals, MODE_TEXTURE, off);
         gl->DrawElements(GL_TRIANGLES, (GLsizei)g->tex_index_count, GL_UNSIGNED_INT, NULL);
     }
     if (g->index_count > g->tex_index_count) {
-        gl->Uniform1i(r->u_mode, MODE_VERTEX_COLOR);
+        use(r, normals, MODE_VERTEX_COLOR, off);
         gl->DrawElements(GL_TRIANGLES, (GLsizei)(g->index_count - g->tex_index_count),
                          GL_UNSIGNED_INT, (const void *)(uintptr_t)(4 * (size_t)g->tex_index_count));
     }

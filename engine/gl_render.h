@@ -24,7 +24,12 @@ typedef struct hlod_gpu_node {
     uint32_t index_count;
     uint32_t tex_index_count;       /* the first tex_index_count indices are textured */
     uint64_t bytes;                 /* GPU bytes (buffers + texture with mipmaps) */
+    uint32_t flags;                 /* HLOD_GPU_* */
 } hlod_gpu_node;
+
+#define HLOD_GPU_NORMALS 1u         /* vertex normals: lit per vertex */
+#define HLOD_GPU_CULL 2u            /* closed and outward: cull back faces
+                                       (the caller sets it) */
 
 /* Uploads a payload.  HLOD_ERR_NOMEM when GL runs out of memory (the node
  * stays absent), HLOD_ERR_INVALID_ARG for an empty payload,

@@ -60,6 +60,8 @@ static hlod_result make_resident(hlod_engine *e, uint32_t node, hlod_store_paylo
     hlod_store_payload_free(p);
     if (res != HLOD_OK)
         return res;
+    if (e->nodes[node].render_flags & HLOD_RENDER_SOLID)
+        r->gpu.flags |= HLOD_GPU_CULL;
     if (!hlod_u32_push(e, &e->resident, node)) {
         if (e->d.renderer)
             hlod_gpu_release(e->d.renderer, &r->gpu);

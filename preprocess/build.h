@@ -90,4 +90,14 @@ hlod_result hlod_node_texture(const hlod_image *tex, hlod_mesh *m, double factor
  * size), in model units. */
 hlod_result hlod_node_error(const hlod_mesh *node, const hlod_mesh *original, double *error);
 
+/* Is m a closed, consistently outward-wound surface, so that a renderer
+ * may cull its back faces?  Positions are welded exactly (UV seams split
+ * vertices); then no directed edge may occur twice (an inconsistent
+ * winding or a non-manifold edge), at least 99% of directed edges must
+ * have their reverse (a few open edges, such as a building's bottom on
+ * the ground, are allowed) and the enclosed volume must be positive and
+ * at least 5% of the bounding box's (outward, and a solid rather than a
+ * folded sheet).  O(n log n) in the triangles. */
+int hlod_mesh_is_solid(const hlod_mesh *m);
+
 #endif

@@ -488,3 +488,95 @@ hlod_result hlod_node_error(const hlod_mesh *node, const hlod_mesh *original, do
         *error = upper;
     return r;
 }
+
+/* ---- solidity (back-face culling) ---- */
+
+typedef struct pos_key {
+    double p[3];
+    uint32_t v;
+} pos_key;
+
+static int cmp_pos_key(const void *pa, const void *pb)
+{
+    const pos_key *a = pa, *b = pb;
+    for (int k = 0; k < 3; k++)
+        if (a->p[k] != b->p[k])
+            return a->p[k] < b->p[k] ? -1 : 1;
+    return (a->v > b->v) - (a->v < b->v);
+}
+
+static int cmp_u64(const void *pa, const void *pb)
+{
+    uint64_t a = *(const uint64_t *)pa, b = *(const uint64_t *)pb;
+    return (a > b) - (a < b);
+}
+
+static int has_u64(const uint64_t *v, size_t n, uint64_t key)
+{
+    size_t lo = 0, hi = n;
+    while (lo < hi) {
+        size_t mid = lo + (hi - lo) / 2;
+        if (v[mid] < key)
+            lo = mid + 1;
+        else
+            hi = mid;
+    }
+    return lo < n && v[lo] == key;
+}
+
+int hlod_mesh_is_solid(const hlod_mesh *m)
+{
+    if (!m || !m->tri_count || !m->vertex_count || m->vertex_count > UINT32_MAX)
+        return 0;
+    size_t nv = m->vertex_count, ne = 3 * m->tri_count;
+    pos_key *keys = malloc(nv * sizeof *keys);
+    uint32_t *weld = malloc(nv * sizeof *weld);
+    uint64_t *edges = malloc(ne * sizeof *edges);
+    int solid = 0;
+    if (!keys || !weld || !edges)
+        goto done;
+    for (size_t v = 0; v < nv; v++) {
+        memcpy(keys[v].p, m->positions + 3 * v, sizeof keys[v].p);
+        keys[v].v = (uint32_t)v;
+    }
+    qsort(keys, nv, sizeof *keys, cmp_pos_key);
+    for (size_t i = 0, id = 0; i < nv; i++) {
+        if (i && memcmp(keys[i].p, keys[i - 1].p, sizeof keys[i].p) != 0)
+            id++;
+        weld[keys[i].v] = (uint32_t)id;
+    }
+    double lo[3], hi[3], c[3], vol = 0;
+    hlod_mesh_bounds(m, lo, hi);
+    for (int k = 0; k < 3; k++)
+        c[k] = 0.5 * (lo[k] + hi[k]);
+    size_t n = 0;
+    for (size_t t = 0; t < m->tri_count; t++) {
+        const uint32_t *ix = m->indices + 3 * t;
+        double p[3][3];
+        for (int j = 0; j < 3; j++)
+            for (int k = 0; k < 3; k++)
+                p[j][k] = m->positions[3 * (size_t)ix[j] + k] - c[k];
+        vol += (p[0][0] * (p[1][1] * p[2][2] - p[1][2] * p[2][1]) -
+                p[0][1] * (p[1][0] * p[2][2] - p[1][2] * p[2][0]) +
+                p[0][2] * (p[1][0] * p[2][1] - p[1][1] * p[2][0])) / 6;
+        for (int j = 0; j < 3; j++) {
+            uint64_t a = weld[ix[j]], b = weld[ix[(j + 1) % 3]];
+            if (a != b) /* a collapsed edge says nothing */
+                edges[n++] = a << 32 | b;
+        }
+    }
+    qsort(edges, n, sizeof *edges, cmp_u64);
+    size_t paired = 0;
+    for (size_t i = 0; i < n; i++) {
+        if (i && edges[i] == edges[i - 1])
+            goto done; /* the same directed edge twice */
+        paired += has_u64(edges, n, edges[i] << 32 | edges[i] >> 32);
+    }
+    double box = (hi[0] - lo[0]) * (hi[1] - lo[1]) * (hi[2] - lo[2]);
+    solid = n > 0 && (double)paired >= 0.99 * (double)n && vol > 0 && vol >= 0.05 * box;
+done:
+    free(keys);
+    free(weld);
+    free(edges);
+    return solid;
+}

@@ -9,7 +9,8 @@
  *     at full detail and under the lakhia policy;
  *   - with a generous target, lakhia refines to full detail and its image
  *     converges to the reference;
- *   - a frame's pixels are not blank.
+ *   - a frame's pixels are not blank;
+ *   - culling the back faces of solid blocks changes no visible pixel.
  * Failing images are written next to the store for a human to look at.
  */
 #include "check.h"
@@ -272,6 +273,45 @@ static void far_origin_same_image(void)
     hlod_engine_destroy(eb);
 }
 
+/* The generated blocks are closed and outward-wound, the ground is not:
+ * hlod-build flags the blocks' nodes solid, and culling their back faces
+ * changes no visible pixel (from above and from street level). */
+static void solid_blocks_cull_invisibly(void)
+{
+    const hlod_store_header *h = hlod_store_get_header(g_near);
+    const hlod_store_node *n = hlod_store_nodes(g_near);
+    uint32_t solid = 0;
+    for (uint32_t i = 0; i < h->node_count; i++)
+        solid += (n[i].render_flags & HLOD_RENDER_SOLID) != 0;
+    uint32_t ground = n[h->root_count - 1].block; /* the ground is the last object */
+    fprintf(stderr, "  %u of %u nodes solid\n", solid, h->node_count);
+    CHECK(solid > h->node_count / 2);
+    CHECK(!(n[ground].render_flags & HLOD_RENDER_SOLID));
+    static uint8_t a[W * H * 3], b[W * H * 3];
+    double o[3] = {0, 0, 0};
+    const double views[2][2] = {{70, 40}, {30, 1.7}};
+    for (int v = 0; v < 2; v++) {
+        hlod_camera cam;
+        city_camera(&cam, o, views[v][0], views[v][1]);
+        hlod_frame_stats st;
+        render_full(g_r, g_gl, g_near, &cam, a, &st);
+        hlod_renderer_set_backface_culling(g_r, 0);
+        render_full(g_r, g_gl, g_near, &cam, b, &st);
+        hlod_renderer_set_backface_culling(g_r, 1);
+        size_t differ = 0;
+        for (size_t i = 0; i < sizeof a; i++)
+            differ += abs((int)a[i] - (int)b[i]) > 8;
+        double p = psnr(a, b);
+        fprintf(stderr, "  view %d: culled vs all faces PSNR %.2f dB, %zu channel values differ\n",
+                v, p, differ);
+        CHECKF(p > 45 && differ < sizeof a / 1000, "view %d: PSNR %.2f, %zu differ", v, p, differ);
+        if (p <= 45 || differ >= sizeof a / 1000) {
+            save("culled", a);
+            save("all_faces", b);
+        }
+    }
+}
+
 static void generous_target_converges(void)
 {
     static uint8_t a[W * H * 3], b[W * H * 3];
@@ -328,6 +368,7 @@ int main(void)
         RUN(full_detail_matches_source);
         RUN(far_origin_same_image);
         RUN(generous_target_converges);
+        RUN(solid_blocks_cull_invisibly);
     }
     hlod_renderer_destroy(g_r);
     hlod_osmesa_destroy(g_gl);

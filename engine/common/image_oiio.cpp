@@ -160,6 +160,9 @@ extern "C" hlod_result hlod_image_write(const char *path, const hlod_image *img,
         }
         ImageSpec spec(img->width, img->height, img->channels, TypeDesc::UINT8);
         spec.attribute("oiio:UnassociatedAlpha", 1); /* pixels hold straight alpha */
+        /* zlib's fastest level: PNG encoding was 40% of generating the
+         * default city at the default level 6, for files about 10% smaller */
+        spec.attribute("png:compressionLevel", 1);
         if (!out->open(tmp, spec)) {
             std::string why = out->geterror();
             unlink(tmp.c_str());

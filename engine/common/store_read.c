@@ -131,7 +131,7 @@ static hlod_result check_node_fields(const hlod_store_header *h, const hlod_stor
                                      uint32_t i, uint64_t file_size, const char *name,
                                      const hlod_logger *lg)
 {
-    if (n->reserved0 || n->reserved1)
+    if ((n->render_flags & ~HLOD_RENDER_ALL_FLAGS) || n->reserved1)
         BAD(HLOD_ERR_FORMAT, "%s: node %u: reserved fields are not zero", name, i);
     if (n->tri_count == 0)
         BAD(HLOD_ERR_FORMAT, "%s: node %u: no triangles", name, i);

@@ -78,6 +78,9 @@ void hlod_renderer_destroy(hlod_renderer *r);   /* context current; r may be NUL
 /* Colour nodes by depth instead of texture/material (viewer toggle). */
 void hlod_renderer_set_depth_colors(hlod_renderer *r, int on);
 void hlod_renderer_set_wireframe(hlod_renderer *r, int on);
+/* Cull back faces of nodes whose block is solid (HLOD_RENDER_SOLID); on by
+ * default.  Off draws every face (for checking that culling hides nothing). */
+void hlod_renderer_set_backface_culling(hlod_renderer *r, int on);
 void hlod_renderer_set_clear_color(hlod_renderer *r, float red, float green, float blue);
 
 /* A headless OSMesa context with its own colour and depth buffer. */

@@ -135,6 +135,11 @@ typedef struct hlod_store_header {
 #define HLOD_NODE_TEXTURE 8u    /* requires HLOD_NODE_UVS */
 #define HLOD_NODE_ALL_FLAGS 15u
 
+/* node.render_flags: how the node may be drawn */
+#define HLOD_RENDER_SOLID 1u    /* its block is a closed, outward-wound
+                                   surface: back faces may be culled */
+#define HLOD_RENDER_ALL_FLAGS 1u
+
 typedef struct hlod_store_node {
     uint32_t first_child;       /*   0 see the tree rule above */
     uint32_t parent;            /*   4 HLOD_STORE_NO_PARENT for roots */
@@ -157,7 +162,7 @@ typedef struct hlod_store_node {
                                    error is >= each child's */
     float avg_normal[3];        /* 144 Lakhia eq. 3 (unit, or 0 when the
                                    area-weighted normals cancel out) */
-    uint32_t reserved0;         /* 156 0 */
+    uint32_t render_flags;      /* 156 HLOD_RENDER_* */
     uint64_t payload_offset;    /* 160 multiple of payload_align */
     uint64_t payload_size;      /* 168 exact bytes, see the payload layout */
     uint64_t payload_hash;      /* 176 XXH3-64 of the payload */

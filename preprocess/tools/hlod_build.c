@@ -91,6 +91,7 @@ typedef struct block {
     const char *texture;    /* borrowed from the input's material, or NULL */
     float color[4];
     char name[96];
+    int solid;              /* hlod_mesh_is_solid: nodes may cull back faces */
 } block;
 
 typedef struct blocks {
@@ -417,6 +418,7 @@ static hlod_result emit_block(job *J, size_t bi, hlod_btree *t)
         if (r != HLOD_OK)
             return r;
         o->nodes[k].error = n->error;
+        o->nodes[k].render_flags = b->solid ? HLOD_RENDER_SOLID : 0;
         o->parent[k] = n->parent;
         o->tris_total += m->tri_count;
         if (n->depth + 1 > o->depth)
@@ -482,6 +484,7 @@ static void *worker(void *arg)
                 r = HLOD_OK;
             }
         }
+        b->solid = hlod_mesh_is_solid(&b->mesh);
         hlod_btree t = {0};
         hlod_build_params bp = J->opt->bp;
         bp.logger = J->lg;
