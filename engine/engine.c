@@ -161,6 +161,8 @@ static hlod_result check_desc(const hlod_engine_desc *d, const hlod_logger *lg)
             "engine: c_hyst_deadband %g is above 1", d->c_hyst_deadband);
     REQUIRE(isfinite(d->velocity_lookahead_s) && d->velocity_lookahead_s >= 0,
             "engine: velocity_lookahead_s %g < 0", d->velocity_lookahead_s);
+    REQUIRE(isfinite(d->upload_budget_ms) && d->upload_budget_ms >= 0,
+            "engine: upload_budget_ms %g < 0", d->upload_budget_ms);
     REQUIRE(isfinite(d->sse_pixels) && d->sse_pixels > 0, "engine: sse_pixels %g <= 0",
             d->sse_pixels);
     REQUIRE((unsigned)d->policy < HLOD_POLICY_COUNT, "engine: unknown policy %d", (int)d->policy);
@@ -504,8 +506,12 @@ hlod_result hlod_engine_frame(hlod_engine *e, const hlod_camera *cam, double dt,
     hlod_residency_collect(e);
     e->st.upload_ms = now_ms() - t0;
 
+    /* This frame's uploads are done and timed: the traversal gets what is
+     * left, and the fit sees the frame without them (not when
+     * deterministic: a measured time would make the selection vary). */
     const double target = e->d.target_ms;
-    double budget = target - e->fixed_ms;
+    const double upload = e->d.deterministic ? 0 : e->st.upload_ms;
+    double budget = target - e->fixed_ms - upload;
     if (budget < 0.1 * target)
         budget = 0.1 * target;
     hlod_view view;
@@ -529,12 +535,12 @@ hlod_result hlod_engine_frame(hlod_engine *e, const hlod_camera *cam, double dt,
     e->st.fixed_ms = e->fixed_ms;
     e->st.budget_ms = budget;
     e->st.share_gain = e->share_gain;
-    e->st.estimated_ms = e->fixed_ms + e->v_time * e->st.cost_drawn;
+    e->st.estimated_ms = e->fixed_ms + e->v_time * e->st.cost_drawn + upload;
     e->st.sse_pixels = e->sse_pixels;
 
     if (!e->d.deterministic)
-        fit_cost_model(e, e->st.cost_drawn, measured);
-    adapt_share_gain(e, e->st.estimated_ms - e->st.fixed_ms, budget, moved);
+        fit_cost_model(e, e->st.cost_drawn, measured - upload);
+    adapt_share_gain(e, e->v_time * e->st.cost_drawn, budget, moved);
     if (e->d.policy == HLOD_POLICY_SSE) {
         /* Adapt the pixel threshold to the frame time: coarser when over
          * target, finer when under; square root damps the response. */

@@ -27,6 +27,7 @@
 #include "engine_internal.h"
 
 #include <assert.h>
+#include <math.h>
 #include <stdlib.h>
 #include <string.h>
 #include <time.h>
@@ -191,6 +192,12 @@ void hlod_residency_collect(hlod_engine *e)
         e->st.render_waits++;
     e->pending_n += got;
 
+    /* Uploads stop at the byte budget or, measured, at the time budget: a
+     * software GL copies and mipmaps every texture on this thread. */
+    double up_ms = e->d.upload_budget_ms > 0 ? e->d.upload_budget_ms : 0.1 * e->d.target_ms;
+    if (e->d.deterministic)
+        up_ms = INFINITY; /* reproducible: bytes alone decide */
+    double t_up = now_ms();
     uint64_t uploaded = 0;
     size_t keep = 0;
     for (size_t k = 0; k < e->pending_n; k++) {
@@ -206,7 +213,8 @@ void hlod_residency_collect(hlod_engine *e)
             load_failed(e, lr->node, lr->result);
             continue;
         }
-        if (uploaded && uploaded + lr->payload.bytes > e->d.upload_budget_bytes) {
+        if (uploaded && (uploaded + lr->payload.bytes > e->d.upload_budget_bytes ||
+                         now_ms() - t_up >= up_ms)) {
             e->pending[keep++] = *lr; /* next frame */
             continue;
         }

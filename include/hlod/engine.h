@@ -152,6 +152,9 @@ typedef struct hlod_engine_desc {
     hlod_policy policy;          /* default HLOD_POLICY_LAKHIA */
     uint32_t read_chunk_bytes;   /* loader increment; default 64 KiB */
     uint64_t upload_budget_bytes;/* GL uploads per frame; default 16 MiB */
+    double upload_budget_ms;     /* GL upload time per frame (at least one
+                                    upload is made); default 0 = 10% of
+                                    target_ms; not applied when deterministic */
     uint32_t max_inflight;       /* requests handed to the loader at once; default 32 */
 
     /* Reproducible runs: v_time and the fixed frame part are held at these
