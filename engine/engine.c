@@ -449,7 +449,12 @@ static void sort_draws(hlod_engine *e, const hlod_camera *cam)
             box += o * o;
             centre += c * c;
         }
-        keys[k].inside = !(box > 0);
+        /* a flat node below the eye (z up: the ground, streets) is covered
+         * by whatever stands on it, from any height */
+        double h = nd->bbox_max[2] - nd->bbox_min[2];
+        double w = fmax(nd->bbox_max[0] - nd->bbox_min[0], nd->bbox_max[1] - nd->bbox_min[1]);
+        int under = h <= 0.02 * w && nd->bbox_max[2] <= cam->position[2];
+        keys[k].inside = !(box > 0) || under;
         keys[k].d2 = box > 0 ? box : centre;
         keys[k].node = e->draw.v[k];
     }
