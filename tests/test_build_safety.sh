@@ -9,7 +9,8 @@
 #    byte the store an uninterrupted run writes), or nothing when there was
 #    no old store.  Leftover temporary files are allowed only as
 #    OUT.tmp-XXXXXX; the test reports how many accumulate and checks that
-#    hlod-info --verify refuses each of them.
+#    hlod-info --verify refuses each of them, and that the next run removes
+#    the stale ones (unlocked, over a minute old) and only those.
 # 2. Full disk: a write limit (ulimit -f, with SIGXFSZ ignored so the write
 #    fails with EFBIG) and, when running as root and mount is allowed, a
 #    tmpfs smaller than the store (ENOSPC).  hlod-build must exit non-zero
@@ -127,8 +128,29 @@ done
 if [ $accepted -eq 0 ]; then pass "hlod-info --verify refuses every leftover temporary file"
 else fail "$accepted leftover temporary files pass hlod-info --verify"; fi
 echo "     $KILLS runs: $((KILLS - finished_early)) killed, $finished_early finished first;" \
-     "outputs:$outcomes; $tmps temporary files accumulated (one per run killed while writing;" \
-     "hlod-build does not clean them up)"
+     "outputs:$outcomes; $tmps temporary files left (one per run killed while writing)"
+
+# The next run removes what killed runs left: every OUT.tmp-?????? that no
+# live writer holds (flock) and that is over a minute old.  A held one and
+# a fresh one (a writer between mkstemp and flock) stay.
+printf 'stale' >"$D/out.hlod.tmp-STALE1"
+printf 'held' >"$D/out.hlod.tmp-HELD01"
+touch -d '2 minutes ago' "$D"/out.hlod.tmp-*
+flock "$D/out.hlod.tmp-HELD01" sleep 60 &
+holder=$!
+sleep 0.3
+printf 'young' >"$D/out.hlod.tmp-YOUNG1"
+"${BUILD_NEW[@]}" -o "$OUT" 2>"$D/err"
+rc=$?
+kill "$holder" 2>/dev/null
+wait "$holder" 2>/dev/null
+left=$(cd "$D" && ls out.hlod.tmp-* 2>/dev/null | tr '\n' ' ')
+if [ $rc -eq 0 ] && cmp -s "$OUT" "$T/new.hlod" && [ "$left" = "out.hlod.tmp-HELD01 out.hlod.tmp-YOUNG1 " ]; then
+    pass "the next build removed $((tmps + 1)) stale temporary files, kept a held and a fresh one"
+else
+    fail "after the next build (exit $rc) temporary files left: $left"
+fi
+rm -f "$D"/out.hlod.tmp-*
 
 # ---- 2. full disk ----
 # full_disk NAME OUT PREFIX...: runs hlod-build (through PREFIX) into OUT and

@@ -1,12 +1,61 @@
 /* Temporary-file-and-rename writes: see atomic_file.h. */
 #include "atomic_file.h"
 
+#include <dirent.h>
 #include <errno.h>
 #include <fcntl.h>
 #include <stdlib.h>
 #include <string.h>
+#include <sys/file.h>
 #include <sys/stat.h>
+#include <time.h>
 #include <unistd.h>
+
+/* Removes the temporary files of path that killed writers left: named
+ * "<name>.tmp-" plus six characters, not ours, unlocked, over a minute old. */
+static void sweep_stale(const char *path, const char *ours, const hlod_logger *lg)
+{
+    const char *slash = strrchr(path, '/');
+    size_t dlen = slash ? (size_t)(slash - path) : 0;
+    const char *name = slash ? slash + 1 : path;
+    char dir[4096];
+    if (dlen >= sizeof dir)
+        return;
+    if (slash) {
+        memcpy(dir, path, dlen);
+        dir[dlen] = 0;
+        if (!dlen)
+            strcpy(dir, "/");
+    } else {
+        strcpy(dir, ".");
+    }
+    DIR *d = opendir(dir);
+    if (!d)
+        return;
+    size_t nlen = strlen(name);
+    struct dirent *de;
+    while ((de = readdir(d)) != NULL) {
+        const char *e = de->d_name;
+        if (strncmp(e, name, nlen) != 0 || strncmp(e + nlen, ".tmp-", 5) != 0 ||
+            strlen(e + nlen + 5) != 6)
+            continue;
+        char full[8192];
+        if (snprintf(full, sizeof full, "%s/%s", dir, e) >= (int)sizeof full ||
+            (ours && strcmp(strrchr(ours, '/') ? strrchr(ours, '/') + 1 : ours, e) == 0))
+            continue;
+        int fd = open(full, O_RDONLY | O_NOFOLLOW | O_CLOEXEC);
+        if (fd < 0)
+            continue;
+        struct stat sb;
+        if (fstat(fd, &sb) == 0 && S_ISREG(sb.st_mode) && time(NULL) - sb.st_mtime > 60 &&
+            flock(fd, LOCK_EX | LOCK_NB) == 0) {
+            if (unlink(full) == 0)
+                hlod_logf(lg, HLOD_LOG_INFO, "%s: removed %s, left by a killed run", path, e);
+        }
+        close(fd); /* drops our lock, if any */
+    }
+    closedir(d);
+}
 
 hlod_result hlod_atomic_open(hlod_atomic_file *f, const char *path, const hlod_logger *lg)
 {
@@ -31,6 +80,8 @@ hlod_result hlod_atomic_open(hlod_atomic_file *f, const char *path, const hlod_l
         return HLOD_ERR_IO;
     }
     fchmod(fd, 0644);
+    flock(fd, LOCK_EX | LOCK_NB); /* ours alone: nobody else opened it yet */
+    sweep_stale(path, f->tmp_path, lg);
     f->fp = fdopen(fd, "wb");
     if (!f->fp) {
         close(fd);

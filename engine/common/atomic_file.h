@@ -4,6 +4,11 @@
  * Opens "PATH.tmp-XXXXXX" in PATH's folder; commit flushes, fsyncs and
  * renames it over PATH; abort removes it.  A killed process leaves at most a
  * stray .tmp- file, never a half-written PATH.
+ *
+ * Stray files do not pile up: the writer holds an exclusive flock on its
+ * temporary file (the kernel drops it when the process dies), and open
+ * removes any "PATH.tmp-??????" that nobody holds and that is over a
+ * minute old (older than the moment between mkstemp and flock).
  */
 #ifndef HLOD_ATOMIC_FILE_H
 #define HLOD_ATOMIC_FILE_H
