@@ -220,6 +220,31 @@ perl -MJSON::PP -e '
         while (<$c>) { my @v = split /,/; $late += $v[$i{toggles_up}] + $v[$i{toggles_down}] if $v[0] >= 60; }
         $row->("still: no toggles after frame 60", "$late toggles", $late == 0);
     }
+    # Graceful degradation (Lakhia Fig. 7): the mean nodes per depth while
+    # walking (the first 5 s) and at the top (the last 3 s) of walk-to-fly.
+    if (open my $c, "<", "$dir/walk-to-fly/frames.csv") {
+        my @h = split /,/, scalar <$c>; chomp $h[-1];
+        my @d = grep { $h[$_] =~ /^depth\d+$/ } 0 .. $#h;
+        my (@rows, %sum, %n);
+        push @rows, [split /,/] while <$c>;
+        my $last = $rows[-1][0];
+        for my $r (@rows) {
+            my $part = $r->[0] < 150 ? "walk" : $r->[0] > $last - 90 ? "top" : next;
+            $n{$part}++;
+            $sum{$part}[$_] += $r->[$d[$_]] for 0 .. $#d;
+        }
+        my $fmt = sub { my $p = shift; return "-" unless $n{$p};
+                        join(" ", map { sprintf("d%d %.1f", $_, $sum{$p}[$_] / $n{$p}) } 0 .. $#d) };
+        my ($w, $t) = ($sum{walk} || [], $sum{top} || []);
+        my ($deep, $walked) = (0, 0);
+        $deep += $w->[$_] // 0 for 2 .. $#d;
+        $walked += $_ // 0 for @$w;
+        my $coarse = ($t->[0] // 0) + ($t->[1] // 0); my $all = 0; $all += $_ // 0 for @$t;
+        $row->("walk-to-fly: deep nodes (depth 2+) while walking, at least 10% of those drawn",
+               $fmt->("walk"), $walked > 0 && $deep >= 0.1 * $walked);
+        $row->("walk-to-fly: mostly hlod_0 and hlod_1 at the top", $fmt->("top"),
+               $all > 0 && $coarse >= 0.8 * $all);
+    }
     if (open my $c, "<", "$dir/sweep/sweep.csv") {
         my %p; <$c>;
         while (<$c>) { my @v = split /,/; $p{$v[2]}{$v[0]} = [$v[5], $v[12]]; }
