@@ -397,6 +397,64 @@ done:
     return res;
 }
 
+static int imod(long a, int n)
+{
+    long r = a % n;
+    return (int)(r < 0 ? r + n : r);
+}
+
+/* A node whose UVs leave [0, 1] (a repeating texture, like the ground's):
+ * per axis, when its UVs span less than one period, shift them by whole
+ * periods to start in [0, 1) and crop the texels they cover, reading the
+ * image modulo its size (the crop may straddle the image's edge), with
+ * one texel of margin; an axis spanning a period or more keeps the whole
+ * image and its UVs.  Leaves *crop empty (and m untouched) when neither
+ * axis can be cropped or a UV is not finite. */
+static hlod_result wrapped_crop(const hlod_image *tex, hlod_mesh *m, const float lo[2],
+                                const float hi[2], hlod_image *crop)
+{
+    memset(crop, 0, sizeof *crop);
+    int size[2] = {tex->width, tex->height}, p0[2], n[2], cut[2];
+    double shift[2];
+    for (int k = 0; k < 2; k++) {
+        if (!isfinite(lo[k]) || !isfinite(hi[k]))
+            return HLOD_OK;
+        shift[k] = floor(lo[k]);
+        double a = lo[k] - shift[k], b = hi[k] - shift[k];
+        /* texels covered, in image space (x right; rows from the bottom
+         * here, flipped on copy), plus a margin */
+        long t0 = (long)floor(a * size[k]) - 1, t1 = (long)ceil(b * size[k]) + 1;
+        cut[k] = t1 - t0 < size[k];
+        p0[k] = cut[k] ? (int)t0 : 0;
+        n[k] = cut[k] ? (int)(t1 - t0) : size[k];
+        if (!cut[k])
+            shift[k] = 0;
+    }
+    if (!cut[0] && !cut[1])
+        return HLOD_OK;
+    int c = tex->channels;
+    uint8_t *px = malloc((size_t)n[0] * n[1] * c);
+    if (!px)
+        return HLOD_ERR_NOMEM;
+    /* crop row r (top first) holds image-space row p0[1] + n[1] - 1 - r
+     * counted from the bottom, i.e. stored row H - 1 - that */
+    for (int r = 0; r < n[1]; r++) {
+        int up = imod((long)p0[1] + n[1] - 1 - r, size[1]);
+        const uint8_t *src_row = tex->pixels + (size_t)(size[1] - 1 - up) * size[0] * c;
+        for (int x = 0; x < n[0]; x++)
+            memcpy(px + ((size_t)r * n[0] + x) * c, src_row + (size_t)imod((long)p0[0] + x, size[0]) * c,
+                   (size_t)c);
+    }
+    for (size_t v = 0; v < m->vertex_count; v++)
+        for (int k = 0; k < 2; k++)
+            if (cut[k]) {
+                float *uv = m->uvs + 2 * v + k;
+                *uv = (float)(((*uv - shift[k]) * size[k] - p0[k]) / n[k]);
+            }
+    *crop = (hlod_image){n[0], n[1], c, px};
+    return HLOD_OK;
+}
+
 hlod_result hlod_node_texture(const hlod_image *tex, hlod_mesh *m, double factor, hlod_image *out)
 {
     memset(out, 0, sizeof *out);
@@ -434,6 +492,11 @@ hlod_result hlod_node_texture(const hlod_image *tex, hlod_mesh *m, double factor
     }
     int cw = x1 - x0, ch = y1 - y0, c = tex->channels;
     hlod_image crop = {0};
+    if (!inside) {
+        hlod_result r = wrapped_crop(tex, m, lo, hi, &crop);
+        if (r != HLOD_OK)
+            return r;
+    }
     if (inside) {
         hlod_result r = repack(tex, m, factor, (int64_t)cw * ch, &crop);
         if (r != HLOD_OK)

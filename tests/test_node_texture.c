@@ -246,15 +246,17 @@ static void charts_on_the_same_texels_share_them(void)
     hlod_mesh_free(&m);
 }
 
-/* UVs outside [0, 1] (a repeating texture) keep the whole image and their
- * UVs, shrunk by sqrt(factor) per side. */
+/* UVs outside [0, 1] spanning a period or more on both axes (a repeating
+ * texture) keep the whole image and their UVs, shrunk by sqrt(factor) per
+ * side. */
 static void wrapping_uvs_keep_the_whole_image(void)
 {
     hlod_image src = {0};
     coded_atlas(&src);
     hlod_mesh m = {0};
     walls(&m, 0, 2);
-    m.uvs[0] = 1.5f;
+    m.uvs[0] = 2.0f; /* u spans 0.53 .. 2, v 0.03 .. 2 */
+    m.uvs[1] = 2.0f;
     float *orig = malloc(m.vertex_count * 2 * sizeof *orig);
     memcpy(orig, m.uvs, m.vertex_count * 2 * sizeof *orig);
     hlod_image t = {0};
@@ -264,6 +266,61 @@ static void wrapping_uvs_keep_the_whole_image(void)
     hlod_image_free(&t);
     CHECK(hlod_node_texture(&src, &m, 4, &t) == HLOD_OK);
     CHECK(t.width == SRC / 2 && t.height == SRC / 2);
+    free(orig);
+    hlod_image_free(&t);
+    hlod_image_free(&src);
+    hlod_mesh_free(&m);
+}
+
+/* The texel of img under (u, v), v up, repeating. */
+static const uint8_t *texel_at(const hlod_image *img, double u, double v)
+{
+    long x = (long)floor(u * img->width), yb = (long)floor(v * img->height);
+    x %= img->width;
+    yb %= img->height;
+    x += x < 0 ? img->width : 0;
+    yb += yb < 0 ? img->height : 0;
+    return img->pixels + ((size_t)(img->height - 1 - yb) * img->width + (size_t)x) * img->channels;
+}
+
+/* A node of a repeating texture whose UVs lie within one period, placed
+ * whole periods away and straddling the image's edge on both axes (the
+ * ground's leaves): it gets a small crop read across the edge, and every
+ * triangle's centre samples the texel it sampled in the source. */
+static void wrapping_uvs_within_a_period_are_cropped_across_the_edge(void)
+{
+    hlod_image src = {0};
+    coded_atlas(&src);
+    hlod_mesh m = {0};
+    walls(&m, 0, 1);
+    int cx, cy;
+    chart_origin(0, &cx, &cy);
+    /* the chart's corner to (3 + 0.9, -2 + 0.95): past both edges */
+    double du = 3.9 - (double)cx / SRC, dv = -2 + 0.95 - (double)cy / SRC;
+    for (size_t v = 0; v < m.vertex_count; v++) {
+        m.uvs[2 * v] = (float)(m.uvs[2 * v] + du);
+        m.uvs[2 * v + 1] = (float)(m.uvs[2 * v + 1] + dv);
+    }
+    float *orig = malloc(m.vertex_count * 2 * sizeof *orig);
+    memcpy(orig, m.uvs, m.vertex_count * 2 * sizeof *orig);
+    hlod_image t = {0};
+    CHECK(hlod_node_texture(&src, &m, 1, &t) == HLOD_OK);
+    CHECKF(t.width <= CHART + 4 && t.height <= CHART + 4, "crop %dx%d for a %d-texel chart",
+           t.width, t.height, CHART);
+    int bad = 0;
+    for (size_t f = 0; f < m.tri_count && t.pixels; f++) {
+        double u0 = 0, v0 = 0, u1 = 0, v1 = 0;
+        for (int k = 0; k < 3; k++) {
+            uint32_t i = m.indices[3 * f + k];
+            u0 += orig[2 * i] / 3.0;
+            v0 += orig[2 * i + 1] / 3.0;
+            u1 += m.uvs[2 * i] / 3.0;
+            v1 += m.uvs[2 * i + 1] / 3.0;
+        }
+        CHECK(u1 >= 0 && u1 <= 1 && v1 >= 0 && v1 <= 1);
+        bad += memcmp(texel_at(&src, u0, v0), texel_at(&t, u1, v1), 3) != 0;
+    }
+    CHECKF(bad == 0, "%d of %zu triangle centres sample another texel", bad, m.tri_count);
     free(orig);
     hlod_image_free(&t);
     hlod_image_free(&src);
@@ -371,6 +428,7 @@ int main(void)
     RUN(gutter_copies_the_source);
     RUN(charts_on_the_same_texels_share_them);
     RUN(wrapping_uvs_keep_the_whole_image);
+    RUN(wrapping_uvs_within_a_period_are_cropped_across_the_edge);
     RUN(coarse_node_shrinks_the_packed_atlas);
     RUN(cutplane_leaves_get_small_correct_textures);
     RUN(repacking_is_deterministic);
