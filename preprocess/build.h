@@ -78,7 +78,10 @@ hlod_result hlod_build_metis(const hlod_mesh *block, const hlod_image *tex,
  * side (factor = source triangles / node triangles, >= 1), at least 4x4
  * pixels.  Rewrites m->uvs into the result (v = 0 stays the bottom row);
  * a vertex no triangle uses gets UV (0, 0).  Wrapping UVs (outside
- * [0, 1]) keep the whole texture and their UVs.  Leaves out->width 0 and
+ * [0, 1], a repeating texture) are cropped per axis when they span less
+ * than one period (shifted by whole periods, the crop read across the
+ * image's edge); an axis spanning a period or more keeps the whole image
+ * and its UVs.  Leaves out->width 0 and
  * touches nothing when tex is NULL or m has no UVs.  Deterministic (a
  * function of m, tex and factor), reentrant; out is malloc'ed, free with
  * hlod_image_free().  Cost: O(vertices + triangles + output texels), plus
