@@ -8,9 +8,11 @@
 #ifndef HLOD_CHECK_H
 #define HLOD_CHECK_H
 
+#include <stdarg.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <sys/wait.h>
 
 static int check_failures_, check_passed_, check_failed_;
 
@@ -62,6 +64,24 @@ static inline const char *check_src_path(const char *rel, char *buf, size_t n)
     const char *root = getenv("HLOD_SOURCE_DIR");
     snprintf(buf, n, "%s/%s", root ? root : ".", rel);
     return buf;
+}
+
+/* Runs a shell command built printf-style; its exit status, or -1 when it
+ * did not exit normally. */
+static inline int check_sh(const char *fmt, ...)
+#if defined(__GNUC__)
+    __attribute__((format(printf, 1, 2)))
+#endif
+    ;
+static inline int check_sh(const char *fmt, ...)
+{
+    char cmd[4096];
+    va_list ap;
+    va_start(ap, fmt);
+    vsnprintf(cmd, sizeof cmd, fmt, ap);
+    va_end(ap);
+    int rc = system(cmd);
+    return WIFEXITED(rc) ? WEXITSTATUS(rc) : -1;
 }
 
 #endif

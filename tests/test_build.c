@@ -15,22 +15,6 @@
 
 static char bin[1024], tmp[1024];
 
-static int sh(const char *fmt, ...)
-#if defined(__GNUC__)
-    __attribute__((format(printf, 1, 2)))
-#endif
-    ;
-static int sh(const char *fmt, ...)
-{
-    char cmd[4096];
-    va_list ap;
-    va_start(ap, fmt);
-    vsnprintf(cmd, sizeof cmd, fmt, ap);
-    va_end(ap);
-    int rc = system(cmd);
-    return WIFEXITED(rc) ? WEXITSTATUS(rc) : -1;
-}
-
 static long file_size(const char *path)
 {
     struct stat st;
@@ -39,18 +23,18 @@ static long file_size(const char *path)
 
 static int same_file(const char *a, const char *b)
 {
-    return sh("cmp -s '%s' '%s'", a, b) == 0;
+    return check_sh("cmp -s '%s' '%s'", a, b) == 0;
 }
 
 static void city(const char *name, const char *extra)
 {
-    CHECKF(sh("'%s/hlod-gen-city' --preset tiny --blocks 4 --quiet %s -o '%s/%s.obj'", bin, extra, tmp, name) == 0,
+    CHECKF(check_sh("'%s/hlod-gen-city' --preset tiny --blocks 4 --quiet %s -o '%s/%s.obj'", bin, extra, tmp, name) == 0,
            "hlod-gen-city %s", name);
 }
 
 static int build(const char *in, const char *out, const char *extra)
 {
-    return sh("'%s/hlod-build' '%s/%s.obj' -o '%s/%s' --desired-tris 500 --quiet %s", bin, tmp, in, tmp, out,
+    return check_sh("'%s/hlod-build' '%s/%s.obj' -o '%s/%s' --desired-tris 500 --quiet %s", bin, tmp, in, tmp, out,
               extra);
 }
 
@@ -61,9 +45,9 @@ static void builds_and_verifies_both_methods(void)
     CHECK(build("c", "metis.hlod", "--method metis --leaf-tris 1000 --node-tris 500 --voxel-tris 200") == 0);
     char p[2048];
     snprintf(p, sizeof p, "%s/cut.hlod", tmp);
-    CHECK(sh("'%s/hlod-info' --verify '%s' > /dev/null", bin, p) == 0);
+    CHECK(check_sh("'%s/hlod-info' --verify '%s' > /dev/null", bin, p) == 0);
     snprintf(p, sizeof p, "%s/metis.hlod", tmp);
-    CHECK(sh("'%s/hlod-info' --verify '%s' > /dev/null", bin, p) == 0);
+    CHECK(check_sh("'%s/hlod-info' --verify '%s' > /dev/null", bin, p) == 0);
     /* the tree has more than one level and textures */
     hlod_store *s = NULL;
     snprintf(p, sizeof p, "%s/cut.hlod", tmp);
@@ -81,7 +65,7 @@ static void json_keys(void)
 {
     char out[2048];
     snprintf(out, sizeof out, "%s/json.txt", tmp);
-    CHECK(sh("cd '%s' && '%s/hlod-build' c.obj -o j.hlod --desired-tris 500 --quiet --json > json.txt", tmp, bin) ==
+    CHECK(check_sh("cd '%s' && '%s/hlod-build' c.obj -o j.hlod --desired-tris 500 --quiet --json > json.txt", tmp, bin) ==
           0);
     FILE *fp = fopen(out, "r");
     char line[4096] = {0};
@@ -167,19 +151,19 @@ static void bad_input_leaves_nothing(void)
 {
     char out[2048];
     snprintf(out, sizeof out, "%s/bad.hlod", tmp);
-    CHECK(sh("'%s/hlod-build' '%s/missing.obj' -o '%s' --quiet 2> /dev/null", bin, tmp, out) == 1);
+    CHECK(check_sh("'%s/hlod-build' '%s/missing.obj' -o '%s' --quiet 2> /dev/null", bin, tmp, out) == 1);
     CHECK(file_size(out) < 0);
-    CHECK(sh("'%s/hlod-build' '%s/c.obj' -o '%s' --method bogus 2> /dev/null", bin, tmp, out) == 2);
-    CHECK(sh("'%s/hlod-build' '%s/c.obj' -o '%s' --level-factor 1 2> /dev/null", bin, tmp, out) == 2);
-    CHECK(sh("'%s/hlod-build' '%s/c.obj' 2> /dev/null", bin, tmp) == 2);
+    CHECK(check_sh("'%s/hlod-build' '%s/c.obj' -o '%s' --method bogus 2> /dev/null", bin, tmp, out) == 2);
+    CHECK(check_sh("'%s/hlod-build' '%s/c.obj' -o '%s' --level-factor 1 2> /dev/null", bin, tmp, out) == 2);
+    CHECK(check_sh("'%s/hlod-build' '%s/c.obj' 2> /dev/null", bin, tmp) == 2);
     CHECK(file_size(out) < 0);
     /* an existing store survives a failed build */
     char good[2048];
     snprintf(good, sizeof good, "%s/cut.hlod", tmp);
     long before = file_size(good);
-    CHECK(sh("'%s/hlod-build' '%s/missing.obj' -o '%s' --quiet 2> /dev/null", bin, tmp, good) == 1);
+    CHECK(check_sh("'%s/hlod-build' '%s/missing.obj' -o '%s' --quiet 2> /dev/null", bin, tmp, good) == 1);
     CHECK(file_size(good) == before);
-    CHECK(sh("'%s/hlod-info' --verify '%s' > /dev/null", bin, good) == 0);
+    CHECK(check_sh("'%s/hlod-info' --verify '%s' > /dev/null", bin, good) == 0);
 }
 
 int main(void)
@@ -187,12 +171,12 @@ int main(void)
     const char *b = getenv("HLOD_BIN_DIR");
     snprintf(bin, sizeof bin, "%s", b ? b : "build/bin");
     snprintf(tmp, sizeof tmp, "/tmp/hlod-test-build-%ld", (long)getpid());
-    sh("rm -rf '%s' && mkdir -p '%s'", tmp, tmp);
+    check_sh("rm -rf '%s' && mkdir -p '%s'", tmp, tmp);
     RUN(builds_and_verifies_both_methods);
     RUN(json_keys);
     RUN(reproducible_byte_for_byte);
     RUN(large_coordinates);
     RUN(bad_input_leaves_nothing);
-    sh("rm -rf '%s'", tmp);
+    check_sh("rm -rf '%s'", tmp);
     return check_done();
 }

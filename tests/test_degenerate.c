@@ -22,6 +22,7 @@
  */
 #include "check.h"
 #include "engine_internal.h"
+#include "engine_check.h"
 #include "store_fixture.h"
 
 #include <math.h>
@@ -178,17 +179,6 @@ static hlod_store *make_degenerate(void)
 
 /* ---- frame validity ---- */
 
-static int finite_stats(const hlod_frame_stats *s)
-{
-    const double v[] = {s->measured_ms,  s->estimated_ms, s->v_time,       s->fixed_ms,
-                        s->budget_ms,    s->share_gain,   s->traversal_ms, s->upload_ms,
-                        s->sse_pixels,   s->cost_drawn,   s->resident_cost};
-    for (size_t k = 0; k < sizeof v / sizeof *v; k++)
-        if (!isfinite(v[k]))
-            return 0;
-    return 1;
-}
-
 static int close_to(double a, double b)
 {
     return fabs(a - b) <= 1e-9 * fmax(fabs(a), fabs(b)) + 1e-300;
@@ -216,7 +206,7 @@ static int check_frame(const hlod_engine *e, const hlod_store *s, const hlod_fra
             }                                                                    \
         }                                                                        \
     } while (0)
-    EXPECT(finite_stats(st), "non-finite stats: est %g v %g fixed %g budget %g gain %g",
+    EXPECT(stats_finite(st), "non-finite stats: est %g v %g fixed %g budget %g gain %g",
            st->estimated_ms, st->v_time, st->fixed_ms, st->budget_ms, st->share_gain);
     uint32_t drawn = 0, per_depth = 0;
     for (int k = 0; k < HLOD_STATS_MAX_DEPTH; k++)

@@ -13,6 +13,7 @@
  */
 #include "check.h"
 #include "engine_internal.h"
+#include "engine_check.h"
 #include "store_fixture.h"
 
 #include <math.h>
@@ -21,12 +22,6 @@
 #include <unistd.h>
 
 static char g_dir[256];
-
-static void sleep_us(long us)
-{
-    struct timespec ts = {us / 1000000, (us % 1000000) * 1000};
-    nanosleep(&ts, NULL);
-}
 
 static const char *tmp_path(const char *name, char *buf, size_t n)
 {
@@ -69,13 +64,6 @@ static void random_camera(hlod_camera *cam, double ox, double oy)
     double ex = ox - 200 + 840 * frand(), ey = oy - 200 + 500 * frand(), ez = 1 + 300 * frand();
     double tx = ox + 440 * frand(), ty = oy + 100 * frand();
     look(cam, ex, ey, ez, tx, ty, 0);
-}
-
-static int stats_finite(const hlod_frame_stats *s)
-{
-    return isfinite(s->measured_ms) && isfinite(s->estimated_ms) && isfinite(s->v_time) &&
-           isfinite(s->fixed_ms) && isfinite(s->budget_ms) && isfinite(s->traversal_ms) &&
-           isfinite(s->sse_pixels) && isfinite(s->cost_drawn) && isfinite(s->resident_cost);
 }
 
 /* A synthetic machine: fixed + per-cost time, with optional noise. */
@@ -557,13 +545,6 @@ static hlod_result slow_disk(void *user, uint32_t node, uint64_t offset, size_t 
     (void)bytes;
     sleep_us(20000);
     return HLOD_OK;
-}
-
-static double now_ms(void)
-{
-    struct timespec ts;
-    clock_gettime(CLOCK_MONOTONIC, &ts);
-    return (double)ts.tv_sec * 1e3 + (double)ts.tv_nsec * 1e-6;
 }
 
 static void test_slow_disk_no_stall(void)

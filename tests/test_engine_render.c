@@ -29,17 +29,6 @@
 
 static char bin[1024], tmp[1024];
 
-static int sh(const char *fmt, ...)
-{
-    char cmd[4096];
-    va_list ap;
-    va_start(ap, fmt);
-    vsnprintf(cmd, sizeof cmd, fmt, ap);
-    va_end(ap);
-    int rc = system(cmd);
-    return WIFEXITED(rc) ? WEXITSTATUS(rc) : -1;
-}
-
 static void save(const char *name, const uint8_t *rgb)
 {
     char p[2048];
@@ -346,14 +335,14 @@ int main(void)
     const char *b = getenv("HLOD_BIN_DIR");
     snprintf(bin, sizeof bin, "%s", b ? b : "build/bin");
     snprintf(tmp, sizeof tmp, "/tmp/hlod-test-engine-render-%ld", (long)getpid());
-    sh("rm -rf '%s' && mkdir -p '%s'", tmp, tmp);
+    check_sh("rm -rf '%s' && mkdir -p '%s'", tmp, tmp);
     snprintf(g_obj, sizeof g_obj, "%s/near.obj", tmp);
-    int ok = sh("'%s/hlod-gen-city' --preset tiny -o '%s/near.obj' --quiet", bin, tmp) == 0 &&
-             sh("'%s/hlod-gen-city' --preset tiny --origin 5e5 4.1e6 0 -o '%s/far.obj' --quiet",
+    int ok = check_sh("'%s/hlod-gen-city' --preset tiny -o '%s/near.obj' --quiet", bin, tmp) == 0 &&
+             check_sh("'%s/hlod-gen-city' --preset tiny --origin 5e5 4.1e6 0 -o '%s/far.obj' --quiet",
                 bin, tmp) == 0 &&
-             sh("'%s/hlod-build' '%s/near.obj' -o '%s/near.hlod' --desired-tris 300 --quiet", bin,
+             check_sh("'%s/hlod-build' '%s/near.obj' -o '%s/near.hlod' --desired-tris 300 --quiet", bin,
                 tmp, tmp) == 0 &&
-             sh("'%s/hlod-build' '%s/far.obj' -o '%s/far.hlod' --desired-tris 300 --quiet", bin,
+             check_sh("'%s/hlod-build' '%s/far.obj' -o '%s/far.hlod' --desired-tris 300 --quiet", bin,
                 tmp, tmp) == 0;
     CHECK(ok);
     char p[2048];
@@ -375,6 +364,6 @@ int main(void)
     hlod_store_close(g_near);
     hlod_store_close(g_far);
     if (check_failures_ == 0)
-        sh("rm -rf '%s'", tmp);
+        check_sh("rm -rf '%s'", tmp);
     return check_done();
 }

@@ -32,6 +32,7 @@
 #define _GNU_SOURCE /* RUSAGE_THREAD */
 #include "check.h"
 #include "engine_internal.h"
+#include "engine_check.h"
 #include "store_fixture.h"
 
 #include <errno.h>
@@ -49,29 +50,6 @@
 #define FRAME_MS 20.0       /* a frame() call longer than this is a stall */
 
 static char g_dir[256];
-
-static void sleep_us(long us)
-{
-    struct timespec ts = {us / 1000000, (us % 1000000) * 1000};
-    nanosleep(&ts, NULL);
-}
-
-static double now_ms(void)
-{
-    struct timespec ts;
-    clock_gettime(CLOCK_MONOTONIC, &ts);
-    return (double)ts.tv_sec * 1e3 + (double)ts.tv_nsec * 1e-6;
-}
-
-/* Context switches of the calling thread: voluntary (it blocked) and
- * involuntary (the scheduler preempted it). */
-static void thread_switches(long *vol, long *invol)
-{
-    struct rusage ru;
-    getrusage(RUSAGE_THREAD, &ru);
-    *vol = ru.ru_nvcsw;
-    *invol = ru.ru_nivcsw;
-}
 
 static const char *tmp_path(const char *name, char *buf, size_t n)
 {
@@ -281,17 +259,6 @@ typedef struct tally {
     uint32_t unexplained_waits;
     int unexplained_slow;
 } tally;
-
-static int stats_finite(const hlod_frame_stats *s)
-{
-    const double v[] = {s->measured_ms,  s->estimated_ms, s->v_time,     s->fixed_ms,
-                        s->budget_ms,    s->share_gain,   s->traversal_ms, s->upload_ms,
-                        s->sse_pixels,   s->cost_drawn,   s->resident_cost};
-    for (size_t k = 0; k < sizeof v / sizeof *v; k++)
-        if (!isfinite(v[k]))
-            return 0;
-    return 1;
-}
 
 /* n frames from cam; frame() is timed on the wall clock; 1 ms between frames
  * lets the loader thread run (as a real frame would). */

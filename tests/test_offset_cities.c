@@ -46,17 +46,6 @@ static const char *const g_names[CITIES] = {"origin", "utm", "far"};
 static char g_bin[1024], g_dir[1024];
 static uint32_t W = 320, H = 180;
 
-static int sh(const char *fmt, ...)
-{
-    char cmd[4096];
-    va_list ap;
-    va_start(ap, fmt);
-    vsnprintf(cmd, sizeof cmd, fmt, ap);
-    va_end(ap);
-    int rc = system(cmd);
-    return WIFEXITED(rc) ? WEXITSTATUS(rc) : -1;
-}
-
 static const char *env(const char *name, const char *def)
 {
     const char *v = getenv(name);
@@ -85,10 +74,10 @@ static int build_city(int k, const char *preset, const char *tris)
     if (exists(store))
         return 1;
     const double *o = g_origins[k];
-    if (sh("'%s/hlod-gen-city' --preset %s --origin %.17g %.17g %.17g -o '%s' --quiet", g_bin,
+    if (check_sh("'%s/hlod-gen-city' --preset %s --origin %.17g %.17g %.17g -o '%s' --quiet", g_bin,
            preset, o[0], o[1], o[2], obj) != 0)
         return 0;
-    return sh("'%s/hlod-build' '%s' -o '%s' --desired-tris %s --quiet", g_bin, obj, store,
+    return check_sh("'%s/hlod-build' '%s' -o '%s' --desired-tris %s --quiet", g_bin, obj, store,
               tris) == 0;
 }
 
@@ -173,10 +162,10 @@ static void offset_cities_match(void)
     int keep = getenv("HLOD_OFFSET_DIR") != NULL;
     if (keep) {
         snprintf(g_dir, sizeof g_dir, "%s", getenv("HLOD_OFFSET_DIR"));
-        sh("mkdir -p '%s'", g_dir);
+        check_sh("mkdir -p '%s'", g_dir);
     } else {
         snprintf(g_dir, sizeof g_dir, "/tmp/hlod-test-offset-%ld", (long)getpid());
-        sh("rm -rf '%s' && mkdir -p '%s'", g_dir, g_dir);
+        check_sh("rm -rf '%s' && mkdir -p '%s'", g_dir, g_dir);
     }
     char path_file[2048];
     if (getenv("HLOD_OFFSET_PATH"))
@@ -295,7 +284,7 @@ static void offset_cities_match(void)
     for (int k = 0; k < CITIES; k++)
         hlod_store_close(s[k]);
     if (check_failures_ == 0 && !keep)
-        sh("rm -rf '%s'", g_dir);
+        check_sh("rm -rf '%s'", g_dir);
 }
 
 int main(void)

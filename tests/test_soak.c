@@ -24,6 +24,7 @@
 #define _GNU_SOURCE /* RUSAGE_THREAD */
 #include "check.h"
 #include "engine_internal.h"
+#include "engine_check.h"
 #include "store_fixture.h"
 
 #include <math.h>
@@ -60,19 +61,6 @@
 
 static char g_dir[256];
 
-static void sleep_us(long us)
-{
-    struct timespec ts = {us / 1000000, (us % 1000000) * 1000};
-    nanosleep(&ts, NULL);
-}
-
-static double now_ms(void)
-{
-    struct timespec ts;
-    clock_gettime(CLOCK_MONOTONIC, &ts);
-    return (double)ts.tv_sec * 1e3 + (double)ts.tv_nsec * 1e-6;
-}
-
 /* Resident set size in KiB (/proc/self/statm, second field, in pages). */
 static long rss_kb(void)
 {
@@ -84,16 +72,6 @@ static long rss_kb(void)
         resident = -1;
     fclose(fp);
     return resident < 0 ? -1 : resident * (sysconf(_SC_PAGESIZE) / 1024);
-}
-
-/* Context switches of the calling thread: voluntary (it blocked) and
- * involuntary (the scheduler preempted it). */
-static void thread_switches(long *vol, long *invol)
-{
-    struct rusage ru;
-    getrusage(RUSAGE_THREAD, &ru);
-    *vol = ru.ru_nvcsw;
-    *invol = ru.ru_nivcsw;
 }
 
 static int soak_frames(void)
@@ -161,17 +139,6 @@ static double frand(uint64_t *s)
     *s ^= *s >> 7;
     *s ^= *s << 17;
     return (double)(*s >> 11) / 9007199254740992.0;
-}
-
-static int stats_finite(const hlod_frame_stats *s)
-{
-    const double v[] = {s->measured_ms,  s->estimated_ms, s->v_time,       s->fixed_ms,
-                        s->budget_ms,    s->share_gain,   s->traversal_ms, s->upload_ms,
-                        s->sse_pixels,   s->cost_drawn,   s->resident_cost};
-    for (size_t k = 0; k < sizeof v / sizeof *v; k++)
-        if (!isfinite(v[k]))
-            return 0;
-    return 1;
 }
 
 static int stats_zero(const hlod_frame_stats *s)

@@ -1,0 +1,54 @@
+/*
+ * engine_check.h - helpers shared by the engine's tests (test_engine,
+ * test_faults, test_soak, test_degenerate): wall clock, sleeping, the
+ * calling thread's context switches, and the finiteness of a frame's
+ * stats.
+ */
+#ifndef HLOD_ENGINE_CHECK_H
+#define HLOD_ENGINE_CHECK_H
+
+#include "hlod/engine.h"
+
+#include <math.h>
+#include <stddef.h>
+#include <sys/resource.h>
+#include <time.h>
+
+static inline double now_ms(void)
+{
+    struct timespec ts;
+    clock_gettime(CLOCK_MONOTONIC, &ts);
+    return (double)ts.tv_sec * 1e3 + (double)ts.tv_nsec * 1e-6;
+}
+
+static inline void sleep_us(long us)
+{
+    struct timespec ts = {us / 1000000, (us % 1000000) * 1000};
+    nanosleep(&ts, NULL);
+}
+
+#ifdef RUSAGE_THREAD /* _GNU_SOURCE before the first include */
+/* Context switches of the calling thread: voluntary (it blocked) and
+ * involuntary (the scheduler preempted it). */
+static inline void thread_switches(long *vol, long *invol)
+{
+    struct rusage ru;
+    getrusage(RUSAGE_THREAD, &ru);
+    *vol = ru.ru_nvcsw;
+    *invol = ru.ru_nivcsw;
+}
+#endif
+
+/* Every floating-point field of a frame's stats is finite. */
+static inline int stats_finite(const hlod_frame_stats *s)
+{
+    const double v[] = {s->measured_ms,  s->estimated_ms, s->v_time,       s->fixed_ms,
+                        s->budget_ms,    s->share_gain,   s->traversal_ms, s->upload_ms,
+                        s->sse_pixels,   s->cost_drawn,   s->resident_cost};
+    for (size_t k = 0; k < sizeof v / sizeof *v; k++)
+        if (!isfinite(v[k]))
+            return 0;
+    return 1;
+}
+
+#endif
