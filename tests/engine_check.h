@@ -2,7 +2,7 @@
  * engine_check.h - helpers shared by the engine's tests (test_engine,
  * test_faults, test_soak, test_degenerate): wall clock, sleeping, the
  * calling thread's context switches, and the finiteness of a frame's
- * stats.
+ * stats, and a synthetic machine for the engine's time_model.
  */
 #ifndef HLOD_ENGINE_CHECK_H
 #define HLOD_ENGINE_CHECK_H
@@ -11,6 +11,7 @@
 
 #include <math.h>
 #include <stddef.h>
+#include <stdint.h>
 #include <sys/resource.h>
 #include <time.h>
 
@@ -38,6 +39,19 @@ static inline void thread_switches(long *vol, long *invol)
     *invol = ru.ru_nivcsw;
 }
 #endif
+
+/* A synthetic machine without noise: a frame takes fixed + per_cost * cost
+ * ms.  Pass fixed_machine_time as time_model and the machine as its user. */
+typedef struct fixed_machine {
+    double fixed, per_cost;
+} fixed_machine;
+
+static inline double fixed_machine_time(void *user, double cost, uint64_t tris)
+{
+    const fixed_machine *m = user;
+    (void)tris;
+    return m->fixed + m->per_cost * cost;
+}
 
 /* Every floating-point field of a frame's stats is finite. */
 static inline int stats_finite(const hlod_frame_stats *s)

@@ -459,26 +459,14 @@ static void random_views(view *v, int n)
     }
 }
 
-/* A machine for the threaded runs: the fit sees real feedback. */
-typedef struct machine {
-    double fixed, per_cost;
-} machine;
-
-static double machine_time(void *user, double cost, uint64_t tris)
-{
-    const machine *m = user;
-    (void)tris;
-    return m->fixed + m->per_cost * cost;
-}
-
 /* Threaded engine with a machine, random views, every policy. */
-static int run_machine(const hlod_store *s, hlod_engine_desc d, machine *m, int frames,
+static int run_machine(const hlod_store *s, hlod_engine_desc d, fixed_machine *m, int frames,
                        const char *what)
 {
     int bad = 0;
     view v[40];
     random_views(v, 40);
-    d.time_model = machine_time;
+    d.time_model = fixed_machine_time;
     d.time_model_user = m;
     for (int pol = HLOD_POLICY_LAKHIA; pol <= HLOD_POLICY_SSE; pol++) {
         d.policy = (hlod_policy)pol;
@@ -517,7 +505,7 @@ static void test_target_extremes(void)
         CHECK(run_views(s, &d, v, 40, 5, what) == 0);
         hlod_engine_desc t = {0};
         t.target_ms = targets[k];
-        machine m = {2, 0.01};
+        fixed_machine m = {2, 0.01};
         CHECK(run_machine(s, t, &m, 300, what) == 0);
     }
     hlod_store_close(s);
@@ -545,7 +533,7 @@ static void test_hyst_switch_limits(void)
             t.c_hyst_limit = d.c_hyst_limit;
             t.c_hyst_switch = d.c_hyst_switch;
             t.target_ms = 20;
-            machine m = {3, 0.02};
+            fixed_machine m = {3, 0.02};
             CHECK(run_machine(s, t, &m, 200, what) == 0);
         }
     hlod_store_close(s);

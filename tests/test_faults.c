@@ -180,19 +180,7 @@ static hlod_result fault_hook(void *user, uint32_t node, uint64_t offset, size_t
 
 /* ---- engine runs ---- */
 
-/* A synthetic machine: the frame takes fixed + per_cost * cost ms. */
-typedef struct machine {
-    double fixed, per_cost;
-} machine;
-
-static double machine_time(void *user, double cost, uint64_t tris)
-{
-    const machine *m = user;
-    (void)tris;
-    return m->fixed + m->per_cost * cost;
-}
-
-static machine g_machine = {2, 1e-5}; /* the whole fixture fits in a frame */
+static fixed_machine g_machine = {2, 1e-5}; /* the whole fixture fits in a frame */
 
 static hlod_store *open_fixture(const char *name, const fixture_opts *o, const hlod_logger *lg)
 {
@@ -221,7 +209,7 @@ static hlod_engine *start_engine(hlod_store *s, faults *fx, logrec *lg)
 {
     hlod_engine_desc d = {0};
     d.target_ms = 33;
-    d.time_model = machine_time;
+    d.time_model = fixed_machine_time;
     d.time_model_user = &g_machine;
     d.read_hook = fault_hook;
     d.read_hook_user = fx;

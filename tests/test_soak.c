@@ -83,17 +83,6 @@ static int soak_frames(void)
 
 /* ---- the run ---- */
 
-typedef struct machine {
-    double fixed, per_cost;
-} machine;
-
-static double machine_time(void *user, double cost, uint64_t tris)
-{
-    const machine *m = user;
-    (void)tris;
-    return m->fixed + m->per_cost * cost;
-}
-
 typedef struct counting_log {
     atomic_long errors, warnings, other;
 } counting_log;
@@ -234,10 +223,10 @@ static void *soak_main(void *arg)
     atomic_init(&lg.errors, 0);
     atomic_init(&lg.warnings, 0);
     atomic_init(&lg.other, 0);
-    machine m = {3, 0.002};
+    fixed_machine m = {3, 0.002};
     hlod_engine_desc d = {0};
     d.target_ms = 20;
-    d.time_model = machine_time;
+    d.time_model = fixed_machine_time;
     d.time_model_user = &m;
     d.memory_budget_bytes = k->budget;
     d.logger.func = log_count;
