@@ -459,21 +459,24 @@ static void test_bound_finds_interior_peak(void)
 }
 
 /* On random height fields the bound is never below a dense sampling and
- * stays within its tolerance of its own lower bound. */
+ * stays within its tolerance of its own lower bound: at the simplifier's
+ * tolerance (1%), and at the builder's (25% and 1e-3 of the size), where
+ * most midpoints keep a corner triangle's distance instead of a query. */
 static void test_bound_dominates_sampling(void)
 {
     uint64_t rng = 12345;
-    for (int it = 0; it < 20; it++) {
+    for (int it = 0; it < 40; it++) {
+        double rel = it < 20 ? 0.01 : 0.25, abs_tol = it < 20 ? 0 : 1e-3 * 10;
         hlod_mesh a, b;
         make_terrain(&a, 6 + it % 5, 10.0, 0.5 + rng_unit(&rng));
         make_terrain(&b, 3 + it % 4, 10.0, 0.5 + rng_unit(&rng));
         translate(&b, 0, 0, (rng_unit(&rng) - 0.5) * 0.3);
         double lo, up;
-        CHECK(hlod_mesh_hausdorff_bound(&a, &b, 0.01, 0, &lo, &up) == HLOD_OK);
+        CHECK(hlod_mesh_hausdorff_bound(&a, &b, rel, abs_tol, &lo, &up) == HLOD_OK);
         hlod_distance d;
         CHECK(hlod_mesh_distance(&a, &b, 100000, SEED + (uint64_t)it, &d) == HLOD_OK);
         CHECKF(d.max <= up * (1 + 1e-12), "it %d: sampled %.17g above bound %.17g", it, d.max, up);
-        CHECKF(lo <= up && up <= lo * 1.01 + 1e-7, "it %d: [%.17g, %.17g]", it, lo, up);
+        CHECKF(lo <= up && up <= lo * (1 + rel) + abs_tol + 1e-7, "it %d: [%.17g, %.17g]", it, lo, up);
         hlod_mesh_free(&a);
         hlod_mesh_free(&b);
     }
