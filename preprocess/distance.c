@@ -1130,26 +1130,29 @@ static double subtri_upper(const hlod_dgrid *g, const subtri *t, double enough)
                 mid[e][k] = 0.5 * (t->p[e][k] + t->p[(e + 1) % 3][k]);
         for (int k = 0; k < 3; k++)
             cen[k] = (t->p[0][k] + t->p[1][k] + t->p[2][k]) * (1.0 / 3.0);
-        double worst_region = 0;
-        for (int i = 0; i < 3 && worst_region <= enough; i++) {
+        /* Only settling matters here: a quad no triangle settles ends the
+         * test, and each triangle is tried at its own corner's quad first. */
+        double worst2 = 0, enough2 = enough * enough;
+        int settled = 1;
+        for (int i = 0; i < 3 && settled; i++) {
             /* quad of corner i: p[i], mid[i] (edge i, i+1), cen, mid[i-1] */
             const double *q[3] = {mid[i], cen, mid[(i + 2) % 3]};
-            double region = INFINITY;
-            for (int j = 0; j < 3 && region > enough; j++) {
-                if (j && (t->near[j] == t->near[0] || (j == 2 && t->near[2] == t->near[1])))
+            double region2 = INFINITY;
+            for (int o = 0; o < 3 && region2 > enough2; o++) {
+                int j = (i + o) % 3;
+                if ((o > 0 && t->near[j] == t->near[i]) || (o == 2 && t->near[j] == t->near[(i + 1) % 3]))
                     continue;
                 const hlod_dgrid_tri *tr = &g->tris[t->near[j]];
-                double w2 = i == j ? t->f[i] * t->f[i] : hlod_dgrid_tri_dist2(t->p[i], tr);
-                for (int c = 0; c < 3 && w2 < region * region; c++)
+                double w2 = o == 0 ? t->f[i] * t->f[i] : hlod_dgrid_tri_dist2(t->p[i], tr);
+                for (int c = 0; c < 3 && w2 <= enough2; c++)
                     w2 = dmax(w2, hlod_dgrid_tri_dist2(q[c], tr));
-                region = dmin(region, sqrt(w2));
+                region2 = dmin(region2, w2);
             }
-            worst_region = dmax(worst_region, region);
+            settled = region2 <= enough2;
+            worst2 = dmax(worst2, region2);
         }
-        if (worst_region < best)
-            best = worst_region;
-        if (best <= enough)
-            return best;
+        if (settled)
+            return dmin(best, sqrt(worst2));
     }
     /* Where the two surfaces coincide the corners often sit on two
      * neighbouring triangles, and neither alone is near all three corners.
