@@ -7,8 +7,9 @@
  * each result must
  *   - be a valid mesh with finite positions and normals (never a NaN);
  *   - flip no face: each output face's normal must agree (positive dot)
- *     with the normal of some input face nearest its centroid (within a
- *     rounding tolerance), and for planar input with the plane's normal;
+ *     with the normal of some input face nearest its centroid, or nearest
+ *     a point halfway from the centroid to a corner (within a rounding
+ *     tolerance), and for planar input with the plane's normal;
  *   - report an error that bounds the measured one: the sampled two-sided
  *     Hausdorff distance (hlod_mesh_distance) is at most stats.error, the
  *     certified bound hlod_simplify reports.
@@ -168,23 +169,32 @@ static void judge(const hlod_mesh *in, const hlod_mesh *out, const double *plane
         double c[3];
         for (int k = 0; k < 3; k++)
             c[k] = (corner(out, t, 0)[k] + corner(out, t, 1)[k] + corner(out, t, 2)[k]) / 3;
-        /* input faces nearest the centroid, up to a rounding tolerance */
-        double best = INFINITY;
+        /* input faces nearest the centroid, up to a rounding tolerance, or
+         * nearest a point halfway from it to a corner: a face resting
+         * between two layers closer than its error (the hairpin at 2
+         * triangles) is nearer the other layer at its centroid but lies on
+         * its own at a corner.  A face turned over disagrees everywhere. */
         double *d2 = malloc(in->tri_count * sizeof *d2);
-        for (size_t s = 0; s < in->tri_count; s++) {
-            d2[s] = point_tri_dist2(c, corner(in, s, 0), corner(in, s, 1), corner(in, s, 2));
-            best = fmin(best, d2[s]);
-        }
-        double tol = sqrt(best) + 1e-9 * diag;
         double agree = -INFINITY;
-        for (size_t s = 0; s < in->tri_count; s++) {
-            if (d2[s] > tol * tol)
-                continue;
-            double m[3];
-            tri_normal(in, s, m);
-            double lm = sqrt(dot3(m, m));
-            if (lm > 0)
-                agree = fmax(agree, dot3(n, m) / (ln * lm));
+        for (int q = 0; q < 4 && !(agree > 0); q++) {
+            double x[3];
+            for (int k = 0; k < 3; k++)
+                x[k] = q == 0 ? c[k] : 0.5 * (c[k] + corner(out, t, q - 1)[k]);
+            double best = INFINITY;
+            for (size_t s = 0; s < in->tri_count; s++) {
+                d2[s] = point_tri_dist2(x, corner(in, s, 0), corner(in, s, 1), corner(in, s, 2));
+                best = fmin(best, d2[s]);
+            }
+            double tol = sqrt(best) + 1e-9 * diag;
+            for (size_t s = 0; s < in->tri_count; s++) {
+                if (d2[s] > tol * tol)
+                    continue;
+                double m[3];
+                tri_normal(in, s, m);
+                double lm = sqrt(dot3(m, m));
+                if (lm > 0)
+                    agree = fmax(agree, dot3(n, m) / (ln * lm));
+            }
         }
         free(d2);
         v->flipped += !(agree > 0);
