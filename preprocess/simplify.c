@@ -132,11 +132,11 @@ static cand rheap_pop(rheap *h)
     return top;
 }
 
-/* Everything the hot loop reads about a position vertex, in one place:
- * two cache lines instead of nine scattered arrays. */
+/* What pricing and collapsing read about a position vertex, in one place
+ * (two cache lines instead of nine scattered arrays); the position itself
+ * is in state.px. */
 typedef struct pvert {
     quadric q;         /* geometric quadric (faces + feature constraints) */
-    double x[3];       /* position, normalized frame */
     double w;          /* area weight sum, for error estimates */
     uint8_t alive;
     uint8_t locked;    /* never moves (user, border lock, corner, complex) */
@@ -150,6 +150,9 @@ typedef struct state {
     size_t nw;                 /* wedges (= input vertices) */
     size_t nt;
     pvert *vx;                 /* position vertices */
+    double (*px)[3];           /* their positions, normalized frame: apart
+                                  from vx, so the flip tests that read a
+                                  whole ring stay in cache */
     uint32_t *rep;             /* pv -> an input vertex carrying its position */
     /* adjacency: pv -> live triangles */
     uint32_t *adj_start, *adj_count, *adj_cap;
@@ -710,7 +713,7 @@ static void evaluate(state *s, uint32_t a, uint32_t b, int edge_feature,
         }
     }
 
-    const double *pa = s->vx[a].x, *pb = s->vx[b].x;
+    const double *pa = s->px[a], *pb = s->px[b];
     if (e->forced) {
         add_candidate(e, e->forced == 1 ? pa : pb);
         return;
@@ -769,7 +772,7 @@ static double price_plain(const state *s, uint32_t a, uint32_t b)
     quadric q = {qa->a00 + qb->a00, qa->a01 + qb->a01, qa->a02 + qb->a02, qa->a11 + qb->a11,
                  qa->a12 + qb->a12, qa->a22 + qb->a22, qa->b0 + qb->b0,   qa->b1 + qb->b1,
                  qa->b2 + qb->b2,   qa->c + qb->c};
-    const double *pa = s->vx[a].x, *pb = s->vx[b].x;
+    const double *pa = s->px[a], *pb = s->px[b];
     double ab[3] = {pb[0] - pa[0], pb[1] - pa[1], pb[2] - pa[2]};
     double l2 = dot3(ab, ab);
     double opt[3];
@@ -818,14 +821,14 @@ static double best_cost(const eval *e)
 static int star_ok(const state *s, uint32_t v, uint32_t other, const uint32_t *f, size_t nf,
                    const double x[3])
 {
-    const double *pv = s->vx[v].x;
+    const double *pv = s->px[v];
     for (size_t i = 0; i < nf; i++) {
         uint32_t t = f[i];
         const uint32_t *tv = s->tv + 3 * (size_t)t;
         if (tv[0] == other || tv[1] == other || tv[2] == other)
             continue;
         int c = corner_of(s, t, v);
-        const double *p1 = s->vx[tv[(c + 1) % 3]].x, *p2 = s->vx[tv[(c + 2) % 3]].x;
+        const double *p1 = s->px[tv[(c + 1) % 3]], *p2 = s->px[tv[(c + 2) % 3]];
         double d[3], a0[3], a1[3], n0[3], n1[3];
         sub3(d, p2, p1);
         sub3(a0, pv, p1);
@@ -956,10 +959,10 @@ static int try_edge(state *s, uint32_t a, uint32_t b, eval *e, size_t *na_, size
 static int collapse(state *s, uint32_t a, uint32_t b, const double x[3], const uint32_t *fa, size_t na,
                     const uint32_t *fb, size_t nb, size_t *live_tris, nrec **recs, size_t *rcap)
 {
-    int moved = x[0] != s->vx[b].x[0] || x[1] != s->vx[b].x[1] || x[2] != s->vx[b].x[2];
+    int moved = x[0] != s->px[b][0] || x[1] != s->px[b][1] || x[2] != s->px[b][2];
     int had_features = s->vx[a].fdeg || s->vx[b].fdeg;
     /* distinct pvs never share a position, so a_stays implies moved */
-    int a_stays = x[0] == s->vx[a].x[0] && x[1] == s->vx[a].x[1] && x[2] == s->vx[a].x[2];
+    int a_stays = x[0] == s->px[a][0] && x[1] == s->px[a][1] && x[2] == s->px[a][2];
     /* Wedge merges through the edge faces: wa -> wb. */
     wgroup g[MAX_GROUPS];
     int ng;
@@ -1047,7 +1050,7 @@ static int collapse(state *s, uint32_t a, uint32_t b, const double x[3], const u
     } else if (moved) {
         s->vx[b].moved = 1;
     }
-    memcpy(s->vx[b].x, x, sizeof s->vx[b].x);
+    memcpy(s->px[b], x, sizeof s->px[b]);
     s->vx[b].ulock |= s->vx[a].ulock;
     /* UVs of wedges whose data or position changed. */
     if (s->aq) {
@@ -1056,7 +1059,7 @@ static int collapse(state *s, uint32_t a, uint32_t b, const double x[3], const u
             int c = corner_of(s, t, b);
             uint32_t w = s->tw[3 * t + c];
             if (s->wtouched[w]) {
-                aq_uv(&s->aq[w], s->vx[b].x, s->uv[w]);
+                aq_uv(&s->aq[w], s->px[b], s->uv[w]);
                 s->wtouched[w] = 0;
             }
         }
@@ -1226,7 +1229,7 @@ static void state_free(state *s)
     free(s->rep);
     free(s->adj_start); free(s->adj_count); free(s->adj_cap); free(s->pool);
     free(s->tv); free(s->tw); free(s->tmat); free(s->tpos); free(s->talive); free(s->wpv); free(s->uv); free(s->aq);
-    free(s->wtouched); free(s->cand); free(s->ctmp); free(s->rh.e); free(s->mark); free(s->pass_lock); free(s->stale); free(s->sa); free(s->sb); free(s->ring);
+    free(s->wtouched); free(s->cand); free(s->ctmp); free(s->rh.e); free(s->mark); free(s->pass_lock); free(s->px); free(s->stale); free(s->sa); free(s->sb); free(s->ring);
 }
 
 static double now_s(void)
@@ -1272,7 +1275,7 @@ static hlod_result emit(const state *s, const hlod_mesh *in, const double centre
             memcpy(m.positions + 3 * (size_t)o, in->positions + 3 * (size_t)s->rep[v], 3 * sizeof(double));
         } else {
             for (int k = 0; k < 3; k++)
-                m.positions[3 * (size_t)o + k] = s->vx[v].x[k] * scale + centre[k];
+                m.positions[3 * (size_t)o + k] = s->px[v][k] * scale + centre[k];
         }
         if (m.uvs) {
             m.uvs[2 * (size_t)o] = s->uv[w][0];
@@ -1446,10 +1449,11 @@ hlod_result hlod_simplify(const hlod_mesh *in, const hlod_simplify_desc *desc,
     if (!spatial_order(&s, in, centre, inv_scale))
         goto done;
     s.vx = calloc(nv, sizeof *s.vx);
+    s.px = malloc(nv * sizeof *s.px);
     s.adj_start = malloc(nv * sizeof *s.adj_start);
     s.adj_count = calloc(nv, sizeof *s.adj_count);
     s.adj_cap = malloc(nv * sizeof *s.adj_cap);
-    if (!s.vx || !s.adj_start || !s.adj_count || !s.adj_cap)
+    if (!s.vx || !s.px || !s.adj_start || !s.adj_count || !s.adj_cap)
         goto done;
     for (size_t v = 0; v < nv; v++)
         s.vx[v].alive = 1;
@@ -1460,7 +1464,7 @@ hlod_result hlod_simplify(const hlod_mesh *in, const hlod_simplify_desc *desc,
         goto done;
     for (size_t v = 0; v < nv; v++)
         for (int k = 0; k < 3; k++)
-            s.vx[v].x[k] = (in->positions[3 * (size_t)s.rep[v] + k] - centre[k]) * inv_scale;
+            s.px[v][k] = (in->positions[3 * (size_t)s.rep[v] + k] - centre[k]) * inv_scale;
     if (desc->vertex_lock)
         for (size_t w = 0; w < nw; w++)
             if (desc->vertex_lock[w])
@@ -1546,7 +1550,7 @@ hlod_result hlod_simplify(const hlod_mesh *in, const hlod_simplify_desc *desc,
         if (!s.talive[t])
             continue;
         const uint32_t *tv = s.tv + 3 * t;
-        const double *p0 = s.vx[tv[0]].x, *p1 = s.vx[tv[1]].x, *p2 = s.vx[tv[2]].x;
+        const double *p0 = s.px[tv[0]], *p1 = s.px[tv[1]], *p2 = s.px[tv[2]];
         double e1[3], e2[3], n[3];
         sub3(e1, p1, p0);
         sub3(e2, p2, p0);
@@ -1605,9 +1609,12 @@ hlod_result hlod_simplify(const hlod_mesh *in, const hlod_simplify_desc *desc,
         if (!s.talive[t])
             continue;
         const uint32_t *tv = s.tv + 3 * t;
+        /* a feature edge has feature vertices at both ends */
+        if ((!s.vx[tv[0]].fdeg) + (!s.vx[tv[1]].fdeg) + (!s.vx[tv[2]].fdeg) >= 2)
+            continue;
         double e1[3], e2[3], n[3];
-        sub3(e1, s.vx[tv[1]].x, s.vx[tv[0]].x);
-        sub3(e2, s.vx[tv[2]].x, s.vx[tv[0]].x);
+        sub3(e1, s.px[tv[1]], s.px[tv[0]]);
+        sub3(e2, s.px[tv[2]], s.px[tv[0]]);
         cross3(n, e1, e2);
         double ln = sqrt(dot3(n, n));
         if (!(ln > 0))
@@ -1637,7 +1644,7 @@ hlod_result hlod_simplify(const hlod_mesh *in, const hlod_simplify_desc *desc,
             if (!feature)
                 continue;
             double ed[3], m[3];
-            sub3(ed, s.vx[b].x, s.vx[a].x);
+            sub3(ed, s.px[b], s.px[a]);
             cross3(m, ed, n);
             double lm = sqrt(dot3(m, m));
             if (!(lm > 0))
@@ -1650,7 +1657,7 @@ hlod_result hlod_simplify(const hlod_mesh *in, const hlod_simplify_desc *desc,
              * graded from 1e-3 to 1e7 otherwise slid a corner along the
              * other border for free and lost half its area). */
             quadric q = {0};
-            q_plane(&q, m, -dot3(m, s.vx[a].x), BORDER_WEIGHT * fmax(dot3(ed, ed), ln));
+            q_plane(&q, m, -dot3(m, s.px[a]), BORDER_WEIGHT * fmax(dot3(ed, ed), ln));
             q_add(&s.vx[a].q, &q);
             q_add(&s.vx[b].q, &q);
         }
