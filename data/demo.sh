@@ -246,14 +246,25 @@ perl -MJSON::PP -e '
                $all > 0 && $coarse >= 0.8 * $all);
     }
     if (open my $c, "<", "$dir/sweep/sweep.csv") {
+        # At equal mean frame time, as the issue asks: each lakhia point
+        # against sse\x27s curve (mean ms, PSNR) read at lakhia\x27s mean ms,
+        # linear between sse\x27s points, extended along its end segments.
         my %p; <$c>;
-        while (<$c>) { my @v = split /,/; $p{$v[2]}{$v[0]} = [$v[5], $v[12]]; }
-        for my $t (sort { $a <=> $b } keys %p) {
-            my ($l, $q) = @{$p{$t}}{"lakhia", "sse"};
-            next unless $l && $q;
-            $row->("sweep target $t ms: lakhia PSNR at least sse\x27s",
-                   sprintf("%.2f dB at %.1f ms vs %.2f dB at %.1f ms", $l->[1], $l->[0], $q->[1], $q->[0]),
-                   $l->[1] >= $q->[1]);
+        while (<$c>) { my @v = split /,/; $p{$v[0]}{$v[2]} = [$v[5], $v[12]]; }
+        my @sse = sort { $a->[0] <=> $b->[0] } values %{$p{sse} // {}};
+        my $at = sub { my $x = shift;
+                       return $sse[0][1] if @sse == 1;
+                       my $i = 0; $i++ while $i < $#sse - 1 && $x > $sse[$i + 1][0];
+                       my ($u, $w) = @sse[$i, $i + 1];
+                       return $u->[1] if $w->[0] == $u->[0];
+                       return $u->[1] + ($w->[1] - $u->[1]) * ($x - $u->[0]) / ($w->[0] - $u->[0]); };
+        for my $t (sort { $a <=> $b } keys %{$p{lakhia} // {}}) {
+            next unless @sse;
+            my $l = $p{lakhia}{$t};
+            my $q = $at->($l->[0]);
+            $row->("sweep target $t ms: lakhia PSNR at least sse\x27s at equal mean frame time",
+                   sprintf("%.2f dB at %.1f ms vs sse %.2f dB at that time", $l->[1], $l->[0], $q),
+                   $l->[1] >= $q);
         }
     }
     $row->("demo under 15 minutes", sprintf("%.1f min", $secs / 60), $secs < 900) if $secs;
