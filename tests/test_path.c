@@ -20,32 +20,12 @@
 #include <unistd.h>
 
 #include "check.h"
+#include "rec_log.h"
 #include "city.h"
 #include "city_paths.h"
 #include "hlod/path.h"
 
 /* ---------- helpers ---------- */
-
-typedef struct rec_log {
-    char last[1024];
-    int count;
-} rec_log;
-
-/* called from the test thread */
-static void rec_fn(void *user, hlod_log_level level, const char *msg)
-{
-    rec_log *r = user;
-    (void)level;
-    snprintf(r->last, sizeof r->last, "%s", msg);
-    r->count++;
-}
-
-static hlod_logger rec_logger(rec_log *r)
-{
-    memset(r, 0, sizeof *r);
-    hlod_logger lg = {rec_fn, r};
-    return lg;
-}
 
 static char g_dir[256];
 

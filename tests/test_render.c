@@ -11,6 +11,7 @@
  * keeps every compared image.
  */
 #include "check.h"
+#include "rec_log.h"
 #include "city.h"
 #include "gl_render.h"
 #include "hlod/engine.h"
@@ -27,19 +28,6 @@
 #define NPIX ((size_t)W * H)
 
 /* ---------- helpers ---------- */
-
-typedef struct rec_log {
-    char last[1024];
-    int count;
-} rec_log;
-
-static void rec_fn(void *user, hlod_log_level level, const char *msg)
-{
-    rec_log *r = user;
-    (void)level;
-    snprintf(r->last, sizeof r->last, "%s", msg);
-    r->count++;
-}
 
 static double psnr(const uint8_t *a, const uint8_t *b, size_t bytes)
 {

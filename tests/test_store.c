@@ -11,6 +11,7 @@
  * crash the reader.
  */
 #include "check.h"
+#include "rec_log.h"
 #include "hlod/store.h"
 #include "hlod/store_write.h"
 
@@ -25,27 +26,6 @@
 #include <unistd.h>
 
 /* ---------- helpers ---------- */
-
-typedef struct rec_log {
-    char last[1024];
-    int count;
-} rec_log;
-
-/* called from the test thread only (the threaded tests pass no logger) */
-static void rec_fn(void *user, hlod_log_level level, const char *msg)
-{
-    rec_log *r = user;
-    (void)level;
-    snprintf(r->last, sizeof r->last, "%s", msg);
-    r->count++;
-}
-
-static hlod_logger rec_logger(rec_log *r)
-{
-    memset(r, 0, sizeof *r);
-    hlod_logger lg = {rec_fn, r};
-    return lg;
-}
 
 static char g_dir[512];
 
