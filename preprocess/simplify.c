@@ -1592,7 +1592,12 @@ hlod_result hlod_simplify(const hlod_mesh *in, const hlod_simplify_desc *desc,
         }
     }
 
-    /* Classify vertices and add constraint planes along feature edges. */
+    /* Classify vertices and add constraint planes along feature edges.
+     * (pass_lock, cleared before each pass's walk, first flags the
+     * feature vertices in a byte each: the triangle loop below then reads
+     * a small array instead of every corner's pvert.) */
+    size_t nfeat = 0;
+    memset(s.pass_lock, 0, nv);
     for (size_t v = 0; v < nv; v++) {
         if (!s.adj_count[v])
             continue;
@@ -1604,13 +1609,17 @@ hlod_result hlod_simplify(const hlod_mesh *in, const hlod_simplify_desc *desc,
                 if (recs[j].faces == 1)
                     s.vx[v].ulock = s.vx[v].locked = 1;
         }
+        if (s.vx[v].fdeg) {
+            s.pass_lock[v] = 1;
+            nfeat++;
+        }
     }
-    for (size_t t = 0; t < nt; t++) {
+    for (size_t t = 0; t < nt && nfeat; t++) {
         if (!s.talive[t])
             continue;
         const uint32_t *tv = s.tv + 3 * t;
         /* a feature edge has feature vertices at both ends */
-        if ((!s.vx[tv[0]].fdeg) + (!s.vx[tv[1]].fdeg) + (!s.vx[tv[2]].fdeg) >= 2)
+        if (s.pass_lock[tv[0]] + s.pass_lock[tv[1]] + s.pass_lock[tv[2]] < 2)
             continue;
         double e1[3], e2[3], n[3];
         sub3(e1, s.px[tv[1]], s.px[tv[0]]);
