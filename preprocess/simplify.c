@@ -42,6 +42,7 @@
 #include <assert.h>
 #include <float.h>
 #include <math.h>
+#include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 #include <time.h>
@@ -143,6 +144,7 @@ typedef struct pvert {
     uint8_t ulock;     /* sticky user / complex lock */
     uint8_t moved;     /* position differs from its input */
     uint8_t fdeg;      /* feature edges here (capped at 255) */
+    uint8_t plain;     /* plain_interior() at the last classification */
 } pvert;
 
 typedef struct state {
@@ -483,12 +485,14 @@ static long neighbours(state *s, uint32_t v, nrec **recs, size_t *rcap)
     return cnt;
 }
 
-/* neighbours() for pricing: a vertex without feature edges has a closed
- * manifold fan, where every neighbour follows v in exactly one face, so
- * the O(deg^2) matching is not needed. */
+/* neighbours() for pricing: a plain interior vertex has a closed manifold
+ * fan, where every neighbour follows v in exactly one face, so the
+ * O(deg^2) matching is not needed.  (Not every vertex without feature
+ * edges: where the winding flips, two faces can both follow v with the
+ * same neighbour, and the fast path would list one twice and miss one.) */
 static long edges_of(state *s, uint32_t v, nrec **recs, size_t *rcap)
 {
-    if (s->vx[v].fdeg)
+    if (!s->vx[v].plain)
         return neighbours(s, v, recs, rcap);
     uint32_t *faces = s->pool + s->adj_start[v];
     uint32_t nf = s->adj_count[v];
@@ -542,6 +546,10 @@ static int plain_interior(const state *s, uint32_t v)
     if (k < 3)
         return 0;
     for (uint32_t i = 0; i < k; i++) {
+        /* each neighbour follows v in one face only (consistent winding) */
+        for (uint32_t j = i + 1; j < k; j++)
+            if (nx[j] == nx[i])
+                return 0;
         int match = 0;
         for (uint32_t j = 0; j < k; j++)
             if (pv[j] == nx[i]) {
@@ -558,7 +566,8 @@ static int plain_interior(const state *s, uint32_t v)
 /* Recomputes fdeg/locked of v from its current star. */
 static int classify(state *s, uint32_t v, nrec **recs, size_t *rcap)
 {
-    if (plain_interior(s, v)) {
+    s->vx[v].plain = (uint8_t)plain_interior(s, v);
+    if (s->vx[v].plain) {
         s->vx[v].fdeg = 0;
         s->vx[v].locked = s->vx[v].ulock;
         return 1;
@@ -811,6 +820,63 @@ static double best_cost(const eval *e)
     return c;
 }
 
+#ifdef HLOD_SELFCHECK
+/* The candidates of a pass must be exactly what pricing every edge anew
+ * would give: the same edges, each once, at the same prices.  Aborts
+ * otherwise (the incremental pricing in the pass loop relies on it). */
+static void selfcheck_prices(state *s, nrec **recs, size_t *rcap)
+{
+    size_t n = s->nc, found = 0;
+    cand *sorted = malloc((n ? n : 1) * sizeof *sorted);
+    if (!sorted)
+        return;
+    memcpy(sorted, s->cand, n * sizeof *sorted);
+    qsort(sorted, n, sizeof *sorted, cand_edge_order);
+    for (size_t i = 1; i < n; i++)
+        if (sorted[i].a == sorted[i - 1].a && sorted[i].b == sorted[i - 1].b) {
+            fprintf(stderr, "simplify selfcheck: edge %u-%u listed twice\n", sorted[i].a, sorted[i].b);
+            abort();
+        }
+    for (size_t v = 0; v < s->nv; v++) {
+        if (!s->vx[v].alive || !s->adj_count[v])
+            continue;
+        long cnt = neighbours(s, (uint32_t)v, recs, rcap);
+        for (long j = 0; j < cnt; j++) {
+            nrec r = (*recs)[j];
+            if (r.n < v || r.faces > 2)
+                continue;
+            uint32_t a = (uint32_t)v, b = r.n;
+            double price;
+            if (!s->aq && !r.feature && !s->vx[a].fdeg && !s->vx[b].fdeg && !s->vx[a].locked &&
+                !s->vx[b].locked) {
+                price = price_plain(s, a, b);
+            } else {
+                int need = s->aq && (s->vx[a].fdeg || s->vx[b].fdeg);
+                size_t na = need ? star(s, a, 0) : 0, nb = need ? star(s, b, 1) : 0;
+                eval e;
+                evaluate(s, a, b, r.feature, s->sa, na, s->sb, nb, 0, &e);
+                if (!e.allowed)
+                    continue;
+                price = best_cost(&e);
+            }
+            cand key = {0, a, b};
+            const cand *c = bsearch(&key, sorted, n, sizeof *sorted, cand_edge_order);
+            if (!c || c->cost != (float)price) {
+                fprintf(stderr, "simplify selfcheck: edge %u-%u %s (%g, fresh %g)\n", a, b,
+                        c ? "mispriced" : "missing", c ? c->cost : 0.0, price);
+                abort();
+            }
+            found++;
+        }
+    }
+    if (found != n) {
+        fprintf(stderr, "simplify selfcheck: %zu candidates, %zu edges\n", n, found);
+        abort();
+    }
+    free(sorted);
+}
+#endif
+
 /* ---------- validity checks ---------- */
 
 /* Do the faces around v (other than those holding `other`) keep their
@@ -960,7 +1026,7 @@ static int collapse(state *s, uint32_t a, uint32_t b, const double x[3], const u
                     const uint32_t *fb, size_t nb, size_t *live_tris, nrec **recs, size_t *rcap)
 {
     int moved = x[0] != s->px[b][0] || x[1] != s->px[b][1] || x[2] != s->px[b][2];
-    int had_features = s->vx[a].fdeg || s->vx[b].fdeg;
+    int had_features = !s->vx[a].plain || !s->vx[b].plain;
     /* distinct pvs never share a position, so a_stays implies moved */
     int a_stays = x[0] == s->px[a][0] && x[1] == s->px[a][1] && x[2] == s->px[a][2];
     /* Wedge merges through the edge faces: wa -> wb. */
@@ -1739,6 +1805,9 @@ hlod_result hlod_simplify(const hlod_mesh *in, const hlod_simplify_desc *desc,
                     goto done;
             }
         }
+#ifdef HLOD_SELFCHECK
+        selfcheck_prices(&s, &recs, &rcap);
+#endif
         first_pass = 0;
         if (!s.nc)
             break;
@@ -1794,7 +1863,7 @@ hlod_result hlod_simplify(const hlod_mesh *in, const hlod_simplify_desc *desc,
             }
             if (est2 > max_est)
                 max_est = est2;
-            int had_features = s.vx[a].fdeg || s.vx[b].fdeg;
+            int had_features = !s.vx[a].plain || !s.vx[b].plain;
             double x[3] = {chosen->x[0], chosen->x[1], chosen->x[2]};
             if (!collapse(&s, a, b, x, s.sa, na, s.sb, nb, &live, &recs, &rcap))
                 goto done;

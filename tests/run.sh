@@ -93,7 +93,7 @@ if step "build build/" build build -DCMAKE_BUILD_TYPE=RelWithDebInfo -DHLOD_SANI
     step "ctest build/" run_ctest build
 fi
 if step "build build-asan/" build build-asan -DCMAKE_BUILD_TYPE=RelWithDebInfo \
-        "-DHLOD_SANITIZE=address,undefined" -DHLOD_BENCH=OFF; then
+        "-DHLOD_SANITIZE=address,undefined" -DHLOD_BENCH=OFF -DHLOD_SELFCHECK=ON; then
     step "ctest build-asan/" run_ctest build-asan
 fi
 # ThreadSanitizer over the code that runs threads: hlod-build's workers,
