@@ -820,6 +820,27 @@ static double best_cost(const eval *e)
     return c;
 }
 
+/* The price of collapsing edge (a, b), a < b, as a pass ranks it: 1 with
+ * *price set, 0 when no placement is allowed, -1 when out of memory. */
+static int price_edge(state *s, uint32_t a, uint32_t b, int feature, double *price)
+{
+    if (!s->aq && !feature && !s->vx[a].fdeg && !s->vx[b].fdeg && !s->vx[a].locked && !s->vx[b].locked) {
+        *price = price_plain(s, a, b);
+        return 1;
+    }
+    /* stars feed the wedge groups of seam vertices only */
+    int need = s->aq && (s->vx[a].fdeg || s->vx[b].fdeg);
+    size_t na = need ? star(s, a, 0) : 0, nb = need ? star(s, b, 1) : 0;
+    if (na == (size_t)-1 || nb == (size_t)-1)
+        return -1;
+    eval e;
+    evaluate(s, a, b, feature, s->sa, na, s->sb, nb, 0, &e);
+    if (!e.allowed)
+        return 0;
+    *price = best_cost(&e);
+    return 1;
+}
+
 #ifdef HLOD_SELFCHECK
 /* The candidates of a pass must be exactly what pricing every edge anew
  * would give: the same edges, each once, at the same prices.  Aborts
@@ -841,24 +862,19 @@ static void selfcheck_prices(state *s, nrec **recs, size_t *rcap)
         if (!s->vx[v].alive || !s->adj_count[v])
             continue;
         long cnt = neighbours(s, (uint32_t)v, recs, rcap);
+        if (cnt < 0)
+            goto out_of_memory;
         for (long j = 0; j < cnt; j++) {
             nrec r = (*recs)[j];
             if (r.n < v || r.faces > 2)
                 continue;
             uint32_t a = (uint32_t)v, b = r.n;
             double price;
-            if (!s->aq && !r.feature && !s->vx[a].fdeg && !s->vx[b].fdeg && !s->vx[a].locked &&
-                !s->vx[b].locked) {
-                price = price_plain(s, a, b);
-            } else {
-                int need = s->aq && (s->vx[a].fdeg || s->vx[b].fdeg);
-                size_t na = need ? star(s, a, 0) : 0, nb = need ? star(s, b, 1) : 0;
-                eval e;
-                evaluate(s, a, b, r.feature, s->sa, na, s->sb, nb, 0, &e);
-                if (!e.allowed)
-                    continue;
-                price = best_cost(&e);
-            }
+            int k = price_edge(s, a, b, r.feature, &price);
+            if (k < 0)
+                goto out_of_memory;
+            if (k == 0)
+                continue;
             cand key = {0, a, b};
             const cand *c = bsearch(&key, sorted, n, sizeof *sorted, cand_edge_order);
             if (!c || c->cost != (float)price) {
@@ -873,6 +889,7 @@ static void selfcheck_prices(state *s, nrec **recs, size_t *rcap)
         fprintf(stderr, "simplify selfcheck: %zu candidates, %zu edges\n", n, found);
         abort();
     }
+out_of_memory: /* no verdict */
     free(sorted);
 }
 #endif
@@ -1785,21 +1802,11 @@ hlod_result hlod_simplify(const hlod_mesh *in, const hlod_simplify_desc *desc,
                     continue;
                 uint32_t a = (uint32_t)v < r.n ? (uint32_t)v : r.n, b = (uint32_t)v < r.n ? r.n : (uint32_t)v;
                 double price;
-                if (!s.aq && !r.feature && !s.vx[a].fdeg && !s.vx[b].fdeg && !s.vx[a].locked &&
-                    !s.vx[b].locked) {
-                    price = price_plain(&s, a, b);
-                } else {
-                    /* stars feed the wedge groups of seam vertices only */
-                    int need = s.aq && (s.vx[a].fdeg || s.vx[b].fdeg);
-                    size_t na = need ? star(&s, a, 0) : 0, nb = need ? star(&s, b, 1) : 0;
-                    if (na == (size_t)-1 || nb == (size_t)-1)
-                        goto done;
-                    eval e;
-                    evaluate(&s, a, b, r.feature, s.sa, na, s.sb, nb, 0, &e);
-                    if (!e.allowed)
-                        continue;
-                    price = best_cost(&e);
-                }
+                int k = price_edge(&s, a, b, r.feature, &price);
+                if (k < 0)
+                    goto done;
+                if (k == 0)
+                    continue;
                 cand c = {(float)price, a, b};
                 if (!cand_push(&s, c))
                     goto done;
