@@ -18,6 +18,7 @@
 
 #include <math.h>
 #include <pthread.h>
+#include <stdatomic.h>
 #include <time.h>
 #include <unistd.h>
 
@@ -537,13 +538,36 @@ static void test_transient_backoff(void)
 }
 
 /* A slow disk never stalls the render thread. */
+/*
+ * A slow disk that proves the render thread never waits for it.  Each read
+ * is held until the render thread has finished SLOW_FRAMES more frames (or
+ * SLOW_TIMEOUT_MS pass).  A frame() that waited for a read could never
+ * finish those frames, so the read times out: the verdict counts frames,
+ * not milliseconds, and a loaded machine cannot fake or hide a stall.
+ */
+enum { SLOW_FRAMES = 3, SLOW_TIMEOUT_MS = 2000 };
+
+typedef struct slow_disk_state {
+    atomic_uint frames_done; /* frames the render thread has finished */
+    atomic_uint reads, timeouts;
+} slow_disk_state;
+
 static hlod_result slow_disk(void *user, uint32_t node, uint64_t offset, size_t bytes)
 {
-    (void)user;
+    slow_disk_state *sd = user;
     (void)node;
     (void)offset;
     (void)bytes;
-    sleep_us(20000);
+    unsigned start = atomic_load(&sd->frames_done);
+    double t_end = now_ms() + SLOW_TIMEOUT_MS;
+    while (atomic_load(&sd->frames_done) < start + SLOW_FRAMES) {
+        if (now_ms() > t_end) {
+            atomic_fetch_add(&sd->timeouts, 1);
+            break;
+        }
+        sleep_us(500);
+    }
+    atomic_fetch_add(&sd->reads, 1);
     return HLOD_OK;
 }
 
@@ -552,36 +576,39 @@ static void test_slow_disk_no_stall(void)
     fixture_opts o = {0};
     hlod_store *s = make_store("slow.hlod", &o, NULL);
     machine m = {2, 0.001, 0, 0};
+    slow_disk_state sd;
+    atomic_init(&sd.frames_done, 0);
+    atomic_init(&sd.reads, 0);
+    atomic_init(&sd.timeouts, 0);
     hlod_engine_desc d = {0};
     d.time_model = machine_time;
     d.time_model_user = &m;
     d.read_hook = slow_disk;
+    d.read_hook_user = &sd;
     hlod_engine *e = NULL;
     CHECK(hlod_engine_create(s, &d, &e) == HLOD_OK);
     hlod_camera cam;
     hlod_frame_stats st;
-    double worst = 0;
     uint32_t loads = 0, waits = 0;
-    double t_end = now_ms() + 600;
-    int f = 0;
-    while (now_ms() < t_end) {
-        if (f++ % 10 == 0)
+    int f;
+    for (f = 0; f < 400; f++) {
+        if (f % 10 == 0)
             random_camera(&cam, 0, 0);
-        double t0 = now_ms();
         CHECK(hlod_engine_frame(e, &cam, 1.0 / 30, &st) == HLOD_OK);
-        double dt = now_ms() - t0;
-        worst = dt > worst ? dt : worst;
+        atomic_fetch_add(&sd.frames_done, 1);
         loads += st.loads;
         waits += st.render_waits;
         sleep_us(1000);
     }
-    /* a frame with a 20 ms read in flight must not take anywhere near it */
-    CHECKF(worst < 10, "worst frame %.2f ms", worst);
+    /* let a read still held finish before the engine goes */
+    atomic_fetch_add(&sd.frames_done, 1u << 20);
+    hlod_engine_destroy(e);
+    unsigned reads = atomic_load(&sd.reads), timeouts = atomic_load(&sd.timeouts);
+    fprintf(stderr, "  %d frames, each read held for %d frames: %u reads, %u timed out, %u loads\n",
+            f, SLOW_FRAMES, reads, timeouts, loads);
+    CHECKF(timeouts == 0, "%u reads waited on a frame() that never finished", timeouts);
     CHECK(waits == 0);
     CHECK(loads > 3); /* the loader got through some */
-    fprintf(stderr, "  %d frames with a 20 ms/read disk: worst frame() %.2f ms, %u loads\n", f,
-            worst, loads);
-    hlod_engine_destroy(e);
     hlod_store_close(s);
 }
 

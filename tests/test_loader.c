@@ -750,13 +750,14 @@ static void test_threaded_preempt(void)
     hlod_loader_destroy(l);
 }
 
-/* While the loader sits in a 50 ms hook, 1000 post + collect pairs each
- * return at once (a call that waited for the hook would take up to 50 ms). */
+/* While the loader sits in a 400 ms hook, 1000 post + collect pairs each
+ * return at once (a call that waited for the hook would take up to 400 ms;
+ * the bound on the slowest call sits far above any scheduler delay). */
 static void test_render_never_blocks(void)
 {
     hook_ctx h;
     hook_init(&h);
-    atomic_store(&h.sleep_us, 50000);
+    atomic_store(&h.sleep_us, 400000);
     hlod_loader *l = make_loader(1, 4096, &h, NULL);
     if (!l)
         return;
@@ -789,7 +790,7 @@ static void test_render_never_blocks(void)
     /* a few slow calls are the scheduler's doing on a busy machine; waiting
      * for the hook would make most calls slow or fail most posts */
     CHECKF(slow <= 10, "%d of 2000 calls over 2 ms", slow);
-    CHECKF(worst < 0.025, "slowest call %.1f ms", worst * 1e3);
+    CHECKF(worst < 0.2, "slowest call %.1f ms", worst * 1e3);
     CHECKF(posted >= 900, "only %d of 1000 posts went through", posted);
     hlod_loader_destroy(l);
 }
