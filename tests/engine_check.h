@@ -40,6 +40,23 @@ static inline void thread_switches(long *vol, long *invol)
 }
 #endif
 
+/* CPU time of the calling thread, in ms. */
+static inline double thread_cpu_ms(void)
+{
+    struct timespec ts;
+    clock_gettime(CLOCK_THREAD_CPUTIME_ID, &ts);
+    return (double)ts.tv_sec * 1e3 + (double)ts.tv_nsec * 1e-6;
+}
+
+/* Did the thread run for most of a wall-clock interval?  On a virtual
+ * machine the host can take the CPU away (steal time) without any context
+ * switch in the guest: such a frame is long on the wall clock but short in
+ * CPU time, and the runtime did not make it slow. */
+static inline int ran_most_of(double wall_ms, double cpu_ms)
+{
+    return cpu_ms >= 0.5 * wall_ms;
+}
+
 /* A synthetic machine without noise: a frame takes fixed + per_cost * cost
  * ms.  Pass fixed_machine_time as time_model and the machine as its user. */
 typedef struct fixed_machine {
