@@ -1250,19 +1250,34 @@ static int collapse(state *s, uint32_t a, uint32_t b, const double x[3], const u
     }
     if (!classify(s, b, recs, rcap))
         return 0;
-    long cnt = neighbours(s, b, recs, rcap);
-    if (cnt < 0)
-        return 0;
-    if ((size_t)cnt > s->ring_cap) {
-        uint32_t *nr = realloc(s->ring, (size_t)cnt * 2 * sizeof *nr);
-        if (!nr)
-            return 0;
-        s->ring = nr;
-        s->ring_cap = (size_t)cnt * 2;
+    /* Of the ring, only a's old neighbours see a change: the faces that
+     * moved from a to b changed a corner and maybe a wedge, while b's own
+     * faces are as they were, and a vertex's class reads nothing but the
+     * corners, wedges and materials of its faces. */
+    uint32_t stamp = ++s->mark_clock;
+    s->mark[b] = stamp;
+    size_t cnt = 0;
+    for (size_t i = 0; i < na; i++) {
+        const uint32_t *tv = s->tv + 3 * (size_t)fa[i];
+        if (!s->talive[fa[i]])
+            continue;
+        for (int c = 0; c < 3; c++) {
+            uint32_t v = tv[c];
+            if (s->mark[v] == stamp)
+                continue;
+            s->mark[v] = stamp;
+            if (cnt == s->ring_cap) {
+                size_t nc = s->ring_cap ? s->ring_cap * 2 : 64;
+                uint32_t *nr = realloc(s->ring, nc * sizeof *nr);
+                if (!nr)
+                    return 0;
+                s->ring = nr;
+                s->ring_cap = nc;
+            }
+            s->ring[cnt++] = v;
+        }
     }
-    for (long j = 0; j < cnt; j++)
-        s->ring[j] = (*recs)[j].n;
-    for (long j = 0; j < cnt; j++) {
+    for (size_t j = 0; j < cnt; j++) {
         uint32_t v = s->ring[j];
         uint8_t fdeg = s->vx[v].fdeg, locked = s->vx[v].locked;
         if (!classify(s, v, recs, rcap))
