@@ -292,33 +292,23 @@ static void aq_uv(const attrq *a, const double x[3], float uv[2])
 
 /* ---------- heap ---------- */
 
-static int cand_push(state *s, cand c)
+/* Appends c to a growable candidate array (*v, *n, *cap). */
+static int cands_push(cand **v, size_t *n, size_t *cap, cand c)
 {
-    if (s->nc == s->ccap) {
-        size_t nc = s->ccap ? s->ccap * 2 : 4096;
-        cand *n = realloc(s->cand, nc * sizeof *n);
-        if (!n)
+    if (*n == *cap) {
+        size_t nc = *cap ? *cap * 2 : 1024;
+        cand *nv = realloc(*v, nc * sizeof *nv);
+        if (!nv)
             return 0;
-        s->cand = n;
-        s->ccap = nc;
+        *v = nv;
+        *cap = nc;
     }
-    s->cand[s->nc++] = c;
+    (*v)[(*n)++] = c;
     return 1;
 }
 
-static int park(state *s, cand c)
-{
-    if (s->np == s->pcap) {
-        size_t nc = s->pcap ? s->pcap * 2 : 256;
-        cand *n = realloc(s->parked, nc * sizeof *n);
-        if (!n)
-            return 0;
-        s->parked = n;
-        s->pcap = nc;
-    }
-    s->parked[s->np++] = c;
-    return 1;
-}
+static int cand_push(state *s, cand c) { return cands_push(&s->cand, &s->nc, &s->ccap, c); }
+static int park(state *s, cand c) { return cands_push(&s->parked, &s->np, &s->pcap, c); }
 
 static int cand_edge_order(const void *pa, const void *pb)
 {
@@ -1254,6 +1244,13 @@ static int collapse(state *s, uint32_t a, uint32_t b, const double x[3], const u
      * moved from a to b changed a corner and maybe a wedge, while b's own
      * faces are as they were, and a vertex's class reads nothing but the
      * corners, wedges and materials of its faces. */
+    if (2 * na > s->ring_cap) { /* each face adds at most two */
+        uint32_t *nr = realloc(s->ring, (2 * na + 16) * sizeof *nr);
+        if (!nr)
+            return 0;
+        s->ring = nr;
+        s->ring_cap = 2 * na + 16;
+    }
     uint32_t stamp = ++s->mark_clock;
     s->mark[b] = stamp;
     size_t cnt = 0;
@@ -1266,14 +1263,6 @@ static int collapse(state *s, uint32_t a, uint32_t b, const double x[3], const u
             if (s->mark[v] == stamp)
                 continue;
             s->mark[v] = stamp;
-            if (cnt == s->ring_cap) {
-                size_t nc = s->ring_cap ? s->ring_cap * 2 : 64;
-                uint32_t *nr = realloc(s->ring, nc * sizeof *nr);
-                if (!nr)
-                    return 0;
-                s->ring = nr;
-                s->ring_cap = nc;
-            }
             s->ring[cnt++] = v;
         }
     }
