@@ -171,6 +171,8 @@ typedef struct state {
     float (*uv)[2];            /* NULL when untextured */
     attrq *aq;                 /* NULL when untextured */
     uint8_t *wtouched;         /* uv must be recomputed from aq */
+    uint32_t *wmark;           /* wedge scratch stamps (edge_groups) */
+    uint32_t wclock;
     double uv_w;
     cand *cand;                /* this pass's candidates */
     size_t nc, ccap;
@@ -178,7 +180,7 @@ typedef struct state {
     rheap rh;                  /* re-priced candidates of this pass */
     size_t ocap;
     uint32_t *mark;            /* pv scratch stamps (link_ok, plain_interior) */
-    uint8_t *slot;             /* pv scratch: a face index, under a stamp */
+    uint32_t *slot;            /* pv scratch: a face or record index, under a stamp */
     uint32_t mark_clock;
     uint8_t *pass_lock;        /* pv touched by this pass */
     uint8_t *stale;            /* pv whose edge prices this pass changed */
@@ -475,6 +477,7 @@ static long neighbours(state *s, uint32_t v, nrec **recs, size_t *rcap)
     }
     nrec *r = *recs;
     long cnt = 0;
+    uint32_t stamp = ++s->mark_clock; /* a stamped neighbour's record is slot[n] */
     for (uint32_t i = 0; i < nf; i++) {
         uint32_t t = faces[i];
         if (!s->talive[t])
@@ -486,11 +489,10 @@ static long neighbours(state *s, uint32_t v, nrec **recs, size_t *rcap)
         for (int k = 1; k <= 2; k++) {
             int cn = (c + k) % 3;
             uint32_t n = s->tv[3 * t + cn], wn = s->tw[3 * t + cn];
-            long j;
-            for (j = 0; j < cnt; j++)
-                if (r[j].n == n)
-                    break;
+            long j = s->mark[n] == stamp ? (long)s->slot[n] : cnt;
             if (j == cnt) {
+                s->mark[n] = stamp;
+                s->slot[n] = (uint32_t)cnt;
                 r[cnt].n = n;
                 r[cnt].wv = wv;
                 r[cnt].wn = wn;
@@ -569,7 +571,7 @@ static int plain_interior(state *s, uint32_t v)
         if (s->mark[nx] == stamp)
             return 0;
         s->mark[nx] = stamp;
-        s->slot[nx] = (uint8_t)k;
+        s->slot[nx] = k;
         pv[k] = s->tv[3 * t + c2];
         wv[k] = s->tw[3 * t + c];
         wn[k] = s->tw[3 * t + c1];
@@ -644,9 +646,12 @@ typedef struct wgroup {
 
 #define MAX_GROUPS 64
 
-static int edge_groups(const state *s, uint32_t a, uint32_t b, const uint32_t *fa, size_t na,
+static int edge_groups(state *s, uint32_t a, uint32_t b, const uint32_t *fa, size_t na,
                        const uint32_t *fb, size_t nb, wgroup *g)
 {
+    /* A wedge already in a group is stamped (a's and b's wedges are
+     * distinct: a wedge belongs to one position vertex). */
+    uint32_t stamp = ++s->wclock;
     int ng = 0;
     /* Pairs through the faces containing both a and b. */
     for (size_t i = 0; i < na; i++) {
@@ -655,11 +660,8 @@ static int edge_groups(const state *s, uint32_t a, uint32_t b, const uint32_t *f
         if (cb < 0)
             continue;
         uint32_t wa = s->tw[3 * t + corner_of(s, t, a)], wb = s->tw[3 * t + cb];
-        int j;
-        for (j = 0; j < ng; j++)
-            if ((g[j].w[0] == wa) || (g[j].n == 2 && g[j].w[1] == wb))
-                break;
-        if (j == ng && ng < MAX_GROUPS) {
+        if (s->wmark[wa] != stamp && s->wmark[wb] != stamp && ng < MAX_GROUPS) {
+            s->wmark[wa] = s->wmark[wb] = stamp;
             g[ng].w[0] = wa;
             g[ng].w[1] = wb;
             g[ng].n = 2;
@@ -673,10 +675,8 @@ static int edge_groups(const state *s, uint32_t a, uint32_t b, const uint32_t *f
         uint32_t v = side ? b : a;
         for (size_t i = 0; i < nf; i++) {
             uint32_t w = s->tw[3 * f[i] + corner_of(s, f[i], v)];
-            int j, seen = 0;
-            for (j = 0; j < ng && !seen; j++)
-                seen = g[j].w[0] == w || (g[j].n == 2 && g[j].w[1] == w);
-            if (!seen && ng < MAX_GROUPS) {
+            if (s->wmark[w] != stamp && ng < MAX_GROUPS) {
+                s->wmark[w] = stamp;
                 g[ng].w[0] = w;
                 g[ng].n = 1;
                 ng++;
@@ -1454,7 +1454,7 @@ static void state_free(state *s)
     free(s->rep);
     free(s->adj_start); free(s->adj_count); free(s->adj_cap); free(s->pool);
     free(s->tv); free(s->tw); free(s->tmat); free(s->tpos); free(s->talive); free(s->wpv); free(s->uv); free(s->aq);
-    free(s->wtouched); free(s->cand); free(s->ctmp); free(s->rh.e); free(s->mark); free(s->slot); free(s->pass_lock); free(s->px); free(s->stale); free(s->touched); free(s->parked); free(s->sa); free(s->sb); free(s->ring);
+    free(s->wtouched); free(s->wmark); free(s->cand); free(s->ctmp); free(s->rh.e); free(s->mark); free(s->slot); free(s->pass_lock); free(s->px); free(s->stale); free(s->touched); free(s->parked); free(s->sa); free(s->sb); free(s->ring);
 }
 
 static double now_s(void)
@@ -1686,7 +1686,7 @@ hlod_result hlod_simplify(const hlod_mesh *in, const hlod_simplify_desc *desc,
     s.stale = calloc(nv, 1);
     s.touched = calloc(nv, 1);
     s.mark = calloc(nv, sizeof *s.mark);
-    s.slot = malloc(nv);
+    s.slot = malloc(nv * sizeof *s.slot);
     if (!s.pass_lock || !s.stale || !s.touched || !s.mark || !s.slot)
         goto done;
     for (size_t v = 0; v < nv; v++)
@@ -1757,12 +1757,13 @@ hlod_result hlod_simplify(const hlod_mesh *in, const hlod_simplify_desc *desc,
                 s.pool[s.adj_start[v] + s.adj_count[v]++] = (uint32_t)t;
             }
 
-    /* Attribute data. */
+    /* Attribute data (wedge groups are formed only when textured). */
     if (in->uvs) {
         s.uv = malloc(nw * sizeof *s.uv);
         s.aq = calloc(nw, sizeof *s.aq);
         s.wtouched = calloc(nw, 1);
-        if (!s.uv || !s.aq || !s.wtouched)
+        s.wmark = calloc(nw, sizeof *s.wmark);
+        if (!s.uv || !s.aq || !s.wtouched || !s.wmark)
             goto done;
         memcpy(s.uv, in->uvs, nw * sizeof *s.uv);
         s.uv_w = desc->uv_weight > 0 ? desc->uv_weight : 1.0;
