@@ -396,6 +396,17 @@ static int cand_sort(state *s)
     return 1;
 }
 
+/* A fresh stamp for a scratch array of n marks: a mark equal to it was set
+ * after this call.  (When the clock wraps, the marks are cleared.) */
+static uint32_t new_stamp(uint32_t *marks, uint32_t *clock, size_t n)
+{
+    if (++*clock == 0) {
+        memset(marks, 0, n * sizeof *marks);
+        *clock = 1;
+    }
+    return *clock;
+}
+
 /* ---------- adjacency ---------- */
 
 static int adj_reserve(state *s, uint32_t v, uint32_t need)
@@ -477,7 +488,7 @@ static long neighbours(state *s, uint32_t v, nrec **recs, size_t *rcap)
     }
     nrec *r = *recs;
     long cnt = 0;
-    uint32_t stamp = ++s->mark_clock; /* a stamped neighbour's record is slot[n] */
+    uint32_t stamp = new_stamp(s->mark, &s->mark_clock, s->nv); /* a stamped neighbour's record is slot[n] */
     for (uint32_t i = 0; i < nf; i++) {
         uint32_t t = faces[i];
         if (!s->talive[t])
@@ -557,7 +568,7 @@ static int plain_interior(state *s, uint32_t v)
     uint32_t nf = s->adj_count[v];
     uint32_t pv[32], wv[32], wn[32], wp[32], mt[32];
     uint32_t k = 0;
-    uint32_t stamp = ++s->mark_clock;
+    uint32_t stamp = new_stamp(s->mark, &s->mark_clock, s->nv);
     for (uint32_t i = 0; i < nf; i++) {
         uint32_t t = faces[i];
         if (!s->talive[t])
@@ -651,7 +662,7 @@ static int edge_groups(state *s, uint32_t a, uint32_t b, const uint32_t *fa, siz
 {
     /* A wedge already in a group is stamped (a's and b's wedges are
      * distinct: a wedge belongs to one position vertex). */
-    uint32_t stamp = ++s->wclock;
+    uint32_t stamp = new_stamp(s->wmark, &s->wclock, s->nw);
     int ng = 0;
     /* Pairs through the faces containing both a and b. */
     for (size_t i = 0; i < na; i++) {
@@ -872,10 +883,13 @@ static int price_edge(state *s, uint32_t a, uint32_t b, int feature, double *pri
 }
 
 #ifdef HLOD_SELFCHECK
-/* The candidates of a pass must be exactly what pricing every edge anew
- * would give: the same edges, each once, at the same prices.  Aborts
- * otherwise (the incremental pricing in the pass loop relies on it). */
 static int try_edge(state *s, uint32_t a, uint32_t b, eval *e, size_t *na_, size_t *nb_);
+
+/* The candidates of a pass must be exactly what pricing every edge anew
+ * would give: the same edges, each once, at the same prices; every kept
+ * vertex class must be what its faces say, and every parked edge must
+ * still be refused.  Aborts otherwise (the incremental pricing in the pass
+ * loop relies on it). */
 
 static void selfcheck_prices(state *s, nrec **recs, size_t *rcap)
 {
@@ -1022,7 +1036,7 @@ static int link_ok(state *s, uint32_t a, uint32_t b, const uint32_t *fa, size_t 
         return 0;
     /* Stamp b's link vertices, and note whether b has a face on the two
      * apexes (then a face of a on them too would close a tetrahedron). */
-    uint32_t stamp = ++s->mark_clock;
+    uint32_t stamp = new_stamp(s->mark, &s->mark_clock, s->nv);
     int b_apex_face = 0;
     for (size_t j = 0; j < nb; j++) {
         const uint32_t *tb = s->tv + 3 * (size_t)fb[j];
@@ -1251,7 +1265,7 @@ static int collapse(state *s, uint32_t a, uint32_t b, const double x[3], const u
         s->ring = nr;
         s->ring_cap = 2 * na + 16;
     }
-    uint32_t stamp = ++s->mark_clock;
+    uint32_t stamp = new_stamp(s->mark, &s->mark_clock, s->nv);
     s->mark[b] = stamp;
     size_t cnt = 0;
     for (size_t i = 0; i < na; i++) {
@@ -1686,6 +1700,10 @@ hlod_result hlod_simplify(const hlod_mesh *in, const hlod_simplify_desc *desc,
     s.stale = calloc(nv, 1);
     s.touched = calloc(nv, 1);
     s.mark = calloc(nv, sizeof *s.mark);
+#ifdef HLOD_SELFCHECK
+    /* the stamp clocks wrap within the first thousand stamps */
+    s.mark_clock = s.wclock = UINT32_MAX - 1000;
+#endif
     s.slot = malloc(nv * sizeof *s.slot);
     if (!s.pass_lock || !s.stale || !s.touched || !s.mark || !s.slot)
         goto done;
