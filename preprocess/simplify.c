@@ -1250,6 +1250,10 @@ static int collapse(state *s, uint32_t a, uint32_t b, const double x[3], const u
      * interior too and nothing around them changes. */
     if (!had_features) {
         s->vx[b].locked = s->vx[b].ulock;
+        /* (past 32 faces plain_interior() no longer looks: b is classed
+         * as a feature-free vertex that is not plain) */
+        if (k > 32)
+            return classify(s, b, recs, rcap);
         return 1;
     }
     if (!classify(s, b, recs, rcap))
