@@ -28,6 +28,7 @@
 
 #include "atomic_file.h"
 #include "cli.h"
+#include "view_flags.h"
 #include "hlod/engine.h"
 #include "hlod/metrics.h"
 #include "hlod/path.h"
@@ -253,6 +254,8 @@ static int parse_args(int argc, char **argv, options *o)
     o->policies[0] = HLOD_POLICY_LAKHIA;
     o->npolicies = 1;
     o->paths_dir = HLOD_DATA_DIR "/paths/default";
+    const view_flags vf = {&o->width, &o->height, &o->target_ms, &o->memory_mb, &o->fov,
+                           &o->path,  &o->paths_dir, &o->frames, &o->up_y};
     for (int i = 1; i < argc; i++) {
         const char *v = NULL;
         const char *a = argv[i];
@@ -261,65 +264,30 @@ static int parse_args(int argc, char **argv, options *o)
             usage(stdout);
             return 0;
         }
+        int shared = view_flags_parse(PROG, argc, argv, &i, &vf);
+        if (shared < 0)
+            return 2;
+        if (shared)
+            continue;
 #define FLAG(name) hlod_cli_match_flag(argc, argv, &i, name, &v)
 #define NEED(name)                                                              \
     if (!v)                                                                     \
         return hlod_cli_usage_error(PROG, "%s needs a value", name);
-        if (FLAG("--path")) {
-            NEED("--path");
-            o->path = v;
-        } else if (FLAG("--paths-dir")) {
-            NEED("--paths-dir");
-            o->paths_dir = v;
-        } else if (FLAG("--out")) {
+        if (FLAG("--out")) {
             NEED("--out");
             o->out = v;
-        } else if (FLAG("--target-ms")) {
-            NEED("--target-ms");
-            if (!hlod_cli_parse_double(PROG, "--target-ms", v, 0, 1e6, HLOD_CLI_MIN_OPEN,
-                                       &o->target_ms))
-                return 2;
-        } else if (FLAG("--width")) {
-            NEED("--width");
-            if (!hlod_cli_parse_size(PROG, "--width", v, 16, 16384, &n))
-                return 2;
-            o->width = (uint32_t)n;
-        } else if (FLAG("--height")) {
-            NEED("--height");
-            if (!hlod_cli_parse_size(PROG, "--height", v, 16, 16384, &n))
-                return 2;
-            o->height = (uint32_t)n;
-        } else if (FLAG("--fov")) {
-            NEED("--fov");
-            if (!hlod_cli_parse_double(PROG, "--fov", v, 1, 170, 0, &o->fov))
-                return 2;
         } else if (FLAG("--near")) {
             NEED("--near");
             if (!hlod_cli_parse_double(PROG, "--near", v, 0, 1e6, HLOD_CLI_MIN_OPEN,
                                        &o->near_plane))
                 return 2;
-        } else if (FLAG("--up")) {
-            NEED("--up");
-            if (strcmp(v, "z") && strcmp(v, "y"))
-                return hlod_cli_usage_error(PROG, "--up must be z or y, not '%s'", v);
-            o->up_y = v[0] == 'y';
         } else if (FLAG("--dt")) {
             NEED("--dt");
             if (!hlod_cli_parse_double(PROG, "--dt", v, 0, 10, HLOD_CLI_MIN_OPEN, &o->dt))
                 return 2;
-        } else if (FLAG("--frames")) {
-            NEED("--frames");
-            if (!hlod_cli_parse_size(PROG, "--frames", v, 1, 100000000, &n))
-                return 2;
-            o->frames = (long)n;
         } else if (FLAG("--policy")) {
             NEED("--policy");
             if (!parse_policies(v, o))
-                return 2;
-        } else if (FLAG("--memory-mb")) {
-            NEED("--memory-mb");
-            if (!hlod_cli_parse_double(PROG, "--memory-mb", v, 0, 1e9, HLOD_CLI_MIN_OPEN,
-                                       &o->memory_mb))
                 return 2;
         } else if (!strcmp(a, "--reference")) {
             o->reference = 1;
