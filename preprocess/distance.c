@@ -930,6 +930,16 @@ hlod_result hlod_mesh_distance(const hlod_mesh *a, const hlod_mesh *b, size_t sa
 
 /* ---- certified bound ------------------------------------------------------ */
 
+/* Corner triangles are tried in the order near[i], near[i+1], near[i+2]
+ * (indices mod 3): is the one at offset o the same as one tried before it? */
+static int tried_before(const uint32_t near[3], int i, int o)
+{
+    for (int k = 0; k < o; k++)
+        if (near[(i + o) % 3] == near[(i + k) % 3])
+            return 1;
+    return 0;
+}
+
 /* A sub-triangle of the measured surface with the distances at its corners. */
 typedef struct subtri {
     double p[3][3];
@@ -1140,7 +1150,7 @@ static double subtri_upper(const hlod_dgrid *g, const subtri *t, double enough)
             double region2 = INFINITY;
             for (int o = 0; o < 3 && region2 > enough2; o++) {
                 int j = (i + o) % 3;
-                if ((o > 0 && t->near[j] == t->near[i]) || (o == 2 && t->near[j] == t->near[(i + 1) % 3]))
+                if (tried_before(t->near, i, o))
                     continue;
                 const hlod_dgrid_tri *tr = &g->tris[t->near[j]];
                 double w2 = o == 0 ? t->f[i] * t->f[i] : hlod_dgrid_tri_dist2(t->p[i], tr);
@@ -1279,7 +1289,7 @@ static hlod_result bound_side(const hlod_mesh *m, hlod_dgrid *g, const double or
                 double u2 = INFINITY;
                 uint32_t un = t.near[0];
                 for (int j = 0; j < 3; j++) {
-                    if (j && (t.near[j] == t.near[0] || (j == 2 && t.near[2] == t.near[1])))
+                    if (tried_before(t.near, 0, j))
                         continue;
                     double d2 = hlod_dgrid_tri_dist2(mid[e], &g->tris[t.near[j]]);
                     if (d2 < u2) {
