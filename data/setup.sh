@@ -11,7 +11,7 @@ PACKAGES=(
     build-essential cmake pkg-config
     libassimp-dev libopenimageio-dev libmetis-dev
     libosmesa6-dev libglfw3-dev libmeshoptimizer-dev
-    gnuplot-nox libxxhash-dev
+    gnuplot-nox libxxhash-dev libfast-float-dev
     clang libclang-rt-14-dev
     xvfb xauth
 )

@@ -337,6 +337,44 @@ static void test_number_parser_is_exact(void)
     const char *bad = "1.5x";
     double d;
     CHECK(!io_parse_double(&bad, &d));
+    /* fast_float's refusals reach strtod: hex floats; overflow is inf */
+    const char *hex = "0x1.8p1", *huge = "+1e400";
+    CHECK(io_parse_double(&hex, &d) && d == 3.0);
+    CHECK(io_parse_double(&huge, &d) && isinf(d) && d > 0);
+    /* Random decimals, bit for bit against strtod: the 17-digit forms a
+     * lossless exporter writes (no fast path, fast_float's Eisel-Lemire),
+     * and long digit strings near halfway points (its big-decimal
+     * fallback). */
+    uint64_t s = 0x9e3779b97f4a7c15u;
+    int mismatches = 0;
+    for (int i = 0; i < 200000; i++) {
+        s ^= s << 13;
+        s ^= s >> 7;
+        s ^= s << 17;
+        char text[96];
+        if (i % 2) {
+            double x;
+            uint64_t bits = s & 0x7fefffffffffffffu;   /* finite, either sign */
+            memcpy(&x, &bits, sizeof x);
+            snprintf(text, sizeof text, i % 4 == 1 ? "%.17g" : "%.25e", x);
+        } else {
+            /* the exact midpoint between two neighbouring doubles (a
+             * long double holds it), whole or cut short just below it */
+            double x = (double)(s >> 11) * 0x1p-30;
+            long double mid = ((long double)x + (long double)nextafter(x, INFINITY)) / 2;
+            int n = snprintf(text, sizeof text, "%.45Lf", mid);
+            int cut = 12 + (int)(s % 48);
+            if (cut < n)
+                text[cut] = '\0';
+        }
+        const char *p = text;
+        double want = strtod(text, NULL);
+        if (!io_parse_double(&p, &d) || *p != '\0' || memcmp(&d, &want, sizeof d) != 0) {
+            if (mismatches++ < 5)
+                CHECKF(0, "%s: %.17g != %.17g", text, d, want);
+        }
+    }
+    CHECKF(mismatches == 0, "%d of 200000 random decimals differ from strtod", mismatches);
 }
 
 /* ---- round trips ---- */

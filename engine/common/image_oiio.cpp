@@ -1,5 +1,6 @@
 /*
- * image.h through OpenImageIO 2.4: the project's only C++ file.
+ * image.h through OpenImageIO 2.4 (with preprocess/io/parse_double.cpp,
+ * one of the two C++ files).
  *
  * Every entry point catches all exceptions, so no C++ exception ever
  * crosses into C.  Writes go to "<stem>.tmp-<pid>-<n>.<ext>" in the target's

@@ -6,8 +6,9 @@
  * that stay valid until the next call; neither ever holds the whole file
  * unless a single line is that long.  io_parse_double is exact: it takes
  * Clinger's fast path when the decimal fits a double's mantissa and a power
- * of ten that is itself exact, and otherwise hands the token to strtod,
- * which rounds correctly, so 17-digit decimals round-trip bit for bit.
+ * of ten that is itself exact, and otherwise hands the token to fast_float
+ * (io_from_chars, parse_double.cpp; strtod for hex floats), both correctly
+ * rounded, so 17-digit decimals round-trip bit for bit.
  *
  * Every reader fills an hlod_mesh and returns an hlod_result; it logs its
  * own errors (naming the file and line or element) through the logger.
@@ -47,6 +48,9 @@ uint64_t io_remaining(const io_stream *s);
  * number and advance *p past it; they return 0 when no number starts at *p
  * or the number is not followed by a blank, '/', or the end of the string. */
 int io_parse_double(const char **p, double *out);
+/* fast_float on exactly [first, last): 1 and *out when it is all one
+ * decimal (or nan/inf), else 0.  No leading '+'. */
+int io_from_chars(const char *first, const char *last, double *out);
 int io_parse_long(const char **p, long long *out);
 /* Skips blanks; returns the first non-blank character (0 at the end). */
 static inline char io_skip_blanks(const char **p)

@@ -146,17 +146,26 @@ static int is_end(char c)
     return c == '\0' || c == ' ' || c == '\t' || c == '\r' || c == '\n';
 }
 
-/* strtod on a copy of [start, end): rounds correctly, and reads nan/inf and
- * hex floats.  The copy lets us swap '.' for the locale's decimal point, so
- * a program that called setlocale() still reads "1.5" as 1.5. */
+/* fast_float's from_chars (parse_double.cpp) on [start, end): rounds
+ * correctly, reads nan/inf, never looks at the locale.  What it refuses
+ * (a leading '+' it does not take, hex floats) goes to strtod on a copy,
+ * with '.' swapped for the locale's decimal point, so a program that
+ * called setlocale() still reads "1.5" as 1.5. */
 static int parse_double_slow(const char *start, const char **pp, double *out)
 {
     const char *end = start;
     while (!is_end(*end))
         end++;
     size_t n = (size_t)(end - start);
+    if (n == 0)
+        return 0;
+    const char *first = start + (start[0] == '+' && n > 1 && start[1] != '-' && start[1] != '+');
+    if (io_from_chars(first, end, out)) {
+        *pp = end;
+        return 1;
+    }
     char tmp[512];
-    if (n == 0 || n >= sizeof tmp)
+    if (n >= sizeof tmp)
         return 0;
     const char *dp = localeconv()->decimal_point;
     char point = (dp && dp[0] && !dp[1]) ? dp[0] : '.';
