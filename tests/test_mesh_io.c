@@ -1223,6 +1223,50 @@ static void test_image_resize_keeps_flat_colour(void)
     hlod_image_free(&b);
 }
 
+/* Mean of src over [x0, x1) x [y0, y1) in texel units, partial texels by
+ * their overlap: what an area-averaging minification must give. */
+static double area_mean(const hlod_image *src, int ch, double x0, double x1, double y0, double y1)
+{
+    double sum = 0, area = 0;
+    for (int y = (int)floor(y0); y < (int)ceil(y1) && y < src->height; y++)
+        for (int x = (int)floor(x0); x < (int)ceil(x1) && x < src->width; x++) {
+            double wx = fmin(x + 1, x1) - fmax(x, x0), wy = fmin(y + 1, y1) - fmax(y, y0);
+            sum += wx * wy * src->pixels[((size_t)y * src->width + x) * src->channels + ch];
+            area += wx * wy;
+        }
+    return sum / area;
+}
+
+static void test_image_shrink_averages_covered_area(void)
+{
+    /* noise, so any misplaced or mis-weighted texel shows */
+    int sizes[][4] = {{64, 48, 32, 24}, {97, 61, 40, 17}, {50, 50, 7, 3}, {9, 5, 9, 2}, {33, 1, 4, 1}};
+    uint32_t s = 12345;
+    for (size_t k = 0; k < sizeof sizes / sizeof sizes[0]; k++)
+        for (int c = 1; c <= 4; c++) {
+            int W = sizes[k][0], H = sizes[k][1], w = sizes[k][2], h = sizes[k][3];
+            hlod_image a = {W, H, c, malloc((size_t)W * H * c)}, b = {0};
+            for (size_t i = 0; i < (size_t)W * H * c; i++) {
+                s = s * 1664525u + 1013904223u;
+                a.pixels[i] = (uint8_t)(s >> 24);
+            }
+            CHECK(hlod_image_resize(&a, w, h, &b) == HLOD_OK);
+            CHECK(b.width == w && b.height == h && b.channels == c);
+            int worst = 0;
+            for (int y = 0; b.pixels && y < h; y++)
+                for (int x = 0; x < w; x++)
+                    for (int ch = 0; ch < c; ch++) {
+                        double want = area_mean(&a, ch, x * (double)W / w, (x + 1) * (double)W / w,
+                                                y * (double)H / h, (y + 1) * (double)H / h);
+                        int d = abs(b.pixels[((size_t)y * w + x) * c + ch] - (int)lround(want));
+                        worst = d > worst ? d : worst;
+                    }
+            CHECKF(worst <= 1, "%dx%d -> %dx%d, %d channels: off by %d", W, H, w, h, c, worst);
+            hlod_image_free(&a);
+            hlod_image_free(&b);
+        }
+}
+
 int main(void)
 {
     snprintf(tmpdir, sizeof tmpdir, "/tmp/hlod-test-mesh-io-XXXXXX");
@@ -1269,6 +1313,7 @@ int main(void)
     RUN(test_image_png_round_trip_is_exact);
     RUN(test_image_errors_name_the_file);
     RUN(test_image_resize_keeps_flat_colour);
+    RUN(test_image_shrink_averages_covered_area);
     remove_tree(tmpdir);
     return check_done();
 }

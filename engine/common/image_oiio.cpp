@@ -16,12 +16,14 @@
 
 #include <atomic>
 #include <cerrno>
+#include <cmath>
 #include <cstdio>
 #include <cstdlib>
 #include <cstring>
 #include <fcntl.h>
 #include <string>
 #include <unistd.h>
+#include <vector>
 
 using namespace OIIO;
 
@@ -47,6 +49,116 @@ hlod_result open_error(const char *path, const std::string &why, const hlod_logg
 bool size_ok(int w, int h, int c)
 {
     return w > 0 && h > 0 && c >= 1 && c <= 4 && (size_t)w <= SIZE_MAX / (size_t)h / (size_t)c;
+}
+
+/* Per output column (or row) of a minification from n source texels to m
+ * <= n: the first source texel and the normalised weights of the ones its
+ * footprint [i n/m, (i+1) n/m) covers, by the length of the overlap. */
+struct box_axis {
+    std::vector<int> first, count;
+    std::vector<float> weight;   /* `taps` per output texel, zero-padded */
+    int taps = 0;
+};
+
+void box_weights(int n, int m, box_axis &ax)
+{
+    double step = (double)n / m;
+    ax.taps = (int)std::ceil(step) + 1;
+    ax.first.assign(m, 0);
+    ax.count.assign(m, 0);
+    ax.weight.assign((size_t)m * ax.taps, 0.0f);
+    for (int i = 0; i < m; i++) {
+        double a = i * step, b = (i + 1) * step;
+        int j0 = (int)std::floor(a), j1 = (int)std::ceil(b);
+        j1 = j1 > n ? n : j1;
+        ax.first[i] = j0;
+        ax.count[i] = j1 - j0;
+        for (int j = j0; j < j1; j++) {
+            double lo = j > a ? j : a, hi = j + 1 < b ? j + 1 : b;
+            ax.weight[(size_t)i * ax.taps + (j - j0)] = (float)((hi - lo) / step);
+        }
+    }
+}
+
+/* Area-averaging minification (an exact box filter: each output texel is
+ * the mean of the source area it covers, partial texels weighted by their
+ * overlap), separable: each source row is filtered across once and added
+ * into the one or two output rows it overlaps.  OpenImageIO's box resize
+ * point-samples its filter per tap through generic iterators: 20-60 ns per
+ * source texel on 8-bit RGB here, about 15% of a METIS build of the
+ * default city, and off by up to 47 levels from the area mean at ratios
+ * like 97 -> 40. */
+template <int C> void box_minify_c(const hlod_image *src, int w, int h, uint8_t *dst)
+{
+    const int W = src->width, H = src->height;
+    box_axis ax;
+    box_weights(W, w, ax);
+    const double step_y = (double)H / h;
+    /* a source row overlaps at most two output rows (step_y >= 1): two
+     * accumulating rows, each written out once no later source row can
+     * reach it */
+    std::vector<float> row((size_t)w * C), acc(2 * (size_t)w * C, 0.0f);
+    int flushed = 0;
+    auto flush_below = [&](int end) {
+        for (; flushed < end && flushed < h; flushed++) {
+            float *a = &acc[(size_t)(flushed & 1) * w * C];
+            uint8_t *o = dst + (size_t)flushed * w * C;
+            for (size_t i = 0; i < (size_t)w * C; i++) {
+                float v = a[i] + 0.5f;
+                o[i] = (uint8_t)(v < 0 ? 0 : v > 255 ? 255 : v);
+                a[i] = 0;
+            }
+        }
+    };
+    for (int sy = 0; sy < H; sy++) {
+        const uint8_t *in = src->pixels + (size_t)sy * W * C;
+        for (int x = 0; x < w; x++) {
+            const float *wx = &ax.weight[(size_t)x * ax.taps];
+            const uint8_t *p = in + (size_t)ax.first[x] * C;
+            /* channels in registers (a summed array went through memory) */
+            float s0 = 0, s1 = 0, s2 = 0, s3 = 0;
+            for (int k = 0; k < ax.count[x]; k++, p += C) {
+                float wk = wx[k];
+                s0 += wk * p[0];
+                if constexpr (C > 1)
+                    s1 += wk * p[1];
+                if constexpr (C > 2)
+                    s2 += wk * p[2];
+                if constexpr (C > 3)
+                    s3 += wk * p[3];
+            }
+            float *r = &row[(size_t)x * C];
+            r[0] = s0;
+            if constexpr (C > 1)
+                r[1] = s1;
+            if constexpr (C > 2)
+                r[2] = s2;
+            if constexpr (C > 3)
+                r[3] = s3;
+        }
+        for (int y = (int)(sy / step_y); y < h && y * step_y < sy + 1; y++) {
+            double lo = y * step_y > sy ? y * step_y : sy;
+            double hi = (y + 1) * step_y < sy + 1 ? (y + 1) * step_y : sy + 1;
+            float wy = (float)((hi - lo) / step_y);
+            if (!(wy > 0))
+                continue;
+            float *out = &acc[(size_t)(y & 1) * w * C];
+            for (size_t i = 0; i < (size_t)w * C; i++)
+                out[i] += wy * row[i];
+        }
+        /* the next source row starts at output row (sy + 1) / step_y */
+        flush_below(sy + 1 < H ? (int)((sy + 1) / step_y) : h);
+    }
+}
+
+void box_minify(const hlod_image *src, int w, int h, uint8_t *dst)
+{
+    switch (src->channels) {
+    case 1: box_minify_c<1>(src, w, h, dst); break;
+    case 2: box_minify_c<2>(src, w, h, dst); break;
+    case 3: box_minify_c<3>(src, w, h, dst); break;
+    default: box_minify_c<4>(src, w, h, dst); break;
+    }
 }
 
 } // namespace
@@ -215,6 +327,15 @@ extern "C" hlod_result hlod_image_resize(const hlod_image *src, int width, int h
         !size_ok(width, height, src->channels))
         return HLOD_ERR_INVALID_ARG;
     try {
+        if (width <= src->width && height <= src->height) {
+            size_t n = (size_t)width * height * src->channels;
+            uint8_t *px = static_cast<uint8_t *>(std::malloc(n));
+            if (!px)
+                return HLOD_ERR_NOMEM;
+            box_minify(src, width, height, px);
+            *out = hlod_image{width, height, src->channels, px};
+            return HLOD_OK;
+        }
         ImageSpec sspec(src->width, src->height, src->channels, TypeDesc::UINT8);
         /* ImageBuf wraps the caller's pixels without copying; it only reads. */
         ImageBuf in(sspec, const_cast<uint8_t *>(src->pixels));

@@ -36,8 +36,10 @@ hlod_result hlod_image_probe(const char *path, int *width, int *height, int *cha
  * into place. */
 hlod_result hlod_image_write(const char *path, const hlod_image *img, const hlod_logger *lg);
 
-/* Resamples src to width x height with a filtered resize (box/lanczos as
- * OpenImageIO's ImageBufAlgo::resize chooses). */
+/* Resamples src to width x height.  Shrinking on both axes (what the
+ * hierarchy builders do) averages the source area each output texel
+ * covers, partial texels by their overlap (an exact box filter); anything
+ * else goes through OpenImageIO's ImageBufAlgo::resize with a box filter. */
 hlod_result hlod_image_resize(const hlod_image *src, int width, int height, hlod_image *out);
 
 #ifdef __cplusplus
