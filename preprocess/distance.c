@@ -1302,6 +1302,9 @@ static hlod_result bound_side(const hlod_mesh *m, hlod_dgrid *g, const double or
                     nm[e] = un;
                     continue;
                 }
+                /* the best corner triangle is a tighter first bound than
+                 * the previous query's answer */
+                g->hint = un;
                 fm[e] = sqrt(hlod_dgrid_closest2(g, mid[e], &nm[e]));
                 if (fm[e] > lb)
                     lb = fm[e];
