@@ -114,71 +114,110 @@ static block *blocks_add(blocks *bs)
 }
 
 /* The mesh of the triangles tris[0..n) of m, with only the vertices they use. */
-static hlod_result extract(const hlod_mesh *m, const uint32_t *tris, size_t n, hlod_mesh *out)
+/* What splitting one input mesh into blocks needs across its blocks, sized
+ * once for the whole mesh: a block touches only its own vertices (remap is
+ * reset through verts), and each material's texture key is found once
+ * (a lookup per triangle; scanning the materials per triangle cost
+ * seconds on the 200-block default city, as did a whole-mesh remap per
+ * block). */
+typedef struct splitter {
+    const hlod_mesh *m;
+    uint32_t *remap;    /* per input vertex: its index in the block, or UINT32_MAX */
+    uint32_t *verts;    /* the block's input vertices, in first-use order */
+    long *mat_key;      /* per material: the first material with its texture, or -1 */
+} splitter;
+
+static void splitter_free(splitter *sp)
 {
-    uint32_t *remap = malloc((m->vertex_count ? m->vertex_count : 1) * sizeof *remap);
-    if (!remap)
+    free(sp->remap);
+    free(sp->verts);
+    free(sp->mat_key);
+}
+
+static hlod_result splitter_init(splitter *sp, const hlod_mesh *m)
+{
+    memset(sp, 0, sizeof *sp);
+    sp->m = m;
+    sp->remap = malloc((m->vertex_count ? m->vertex_count : 1) * sizeof *sp->remap);
+    sp->verts = malloc((m->vertex_count ? m->vertex_count : 1) * sizeof *sp->verts);
+    sp->mat_key = malloc((m->material_count ? m->material_count : 1) * sizeof *sp->mat_key);
+    if (!sp->remap || !sp->verts || !sp->mat_key) {
+        splitter_free(sp);
         return HLOD_ERR_NOMEM;
+    }
     for (size_t v = 0; v < m->vertex_count; v++)
-        remap[v] = UINT32_MAX;
+        sp->remap[v] = UINT32_MAX;
+    for (size_t mat = 0; mat < m->material_count; mat++) {
+        const char *path = m->materials[mat].texture_path;
+        sp->mat_key[mat] = -1;
+        for (size_t k = 0; path && k <= mat; k++)
+            if (m->materials[k].texture_path && !strcmp(m->materials[k].texture_path, path)) {
+                sp->mat_key[mat] = (long)k;
+                break;
+            }
+    }
+    return HLOD_OK;
+}
+
+static hlod_result extract(splitter *sp, const uint32_t *tris, size_t n, hlod_mesh *out)
+{
+    const hlod_mesh *m = sp->m;
+    uint32_t *remap = sp->remap;
     size_t nv = 0;
     for (size_t i = 0; i < n; i++)
         for (int c = 0; c < 3; c++) {
             uint32_t v = m->indices[3 * (size_t)tris[i] + c];
-            if (remap[v] == UINT32_MAX)
-                remap[v] = (uint32_t)nv++;
+            if (remap[v] == UINT32_MAX) {
+                remap[v] = (uint32_t)nv;
+                sp->verts[nv++] = v;
+            }
         }
     unsigned flags = (m->uvs ? HLOD_MESH_UVS : 0) | (m->normals ? HLOD_MESH_NORMALS : 0);
     hlod_result r = hlod_mesh_alloc(out, nv, n, flags);
-    if (r != HLOD_OK) {
-        free(remap);
-        return r;
+    if (r == HLOD_OK) {
+        for (size_t o = 0; o < nv; o++) {
+            size_t v = sp->verts[o];
+            memcpy(out->positions + 3 * o, m->positions + 3 * v, 3 * sizeof(double));
+            if (m->uvs)
+                memcpy(out->uvs + 2 * o, m->uvs + 2 * v, 2 * sizeof(float));
+            if (m->normals)
+                memcpy(out->normals + 3 * o, m->normals + 3 * v, 3 * sizeof(float));
+        }
+        for (size_t i = 0; i < n; i++)
+            for (int c = 0; c < 3; c++)
+                out->indices[3 * i + c] = remap[m->indices[3 * (size_t)tris[i] + c]];
+        if (!m->uvs || !out->uvs) {
+            free(out->uvs);
+            out->uvs = NULL;
+        }
     }
-    for (size_t v = 0; v < m->vertex_count; v++) {
-        uint32_t o = remap[v];
-        if (o == UINT32_MAX)
-            continue;
-        memcpy(out->positions + 3 * (size_t)o, m->positions + 3 * v, 3 * sizeof(double));
-        if (m->uvs)
-            memcpy(out->uvs + 2 * (size_t)o, m->uvs + 2 * v, 2 * sizeof(float));
-        if (m->normals)
-            memcpy(out->normals + 3 * (size_t)o, m->normals + 3 * v, 3 * sizeof(float));
-    }
-    for (size_t i = 0; i < n; i++)
-        for (int c = 0; c < 3; c++)
-            out->indices[3 * i + c] = remap[m->indices[3 * (size_t)tris[i] + c]];
-    if (!m->uvs || !out->uvs) {
-        free(out->uvs);
-        out->uvs = NULL;
-    }
-    free(remap);
-    return HLOD_OK;
+    for (size_t o = 0; o < nv; o++)
+        remap[sp->verts[o]] = UINT32_MAX;
+    return r;
 }
 
-/* Texture key of a triangle: its material's texture (index of the first
- * material with that path), or -1 when untextured. */
-static long tex_key(const hlod_mesh *m, size_t t)
+/* The texture key of triangle t: the first material with its texture, or
+ * -1 when it has none (or the mesh has no UVs). */
+static long tex_key(const splitter *sp, size_t t)
 {
+    const hlod_mesh *m = sp->m;
     uint32_t mat = m->tri_material ? m->tri_material[t] : 0;
-    if (!m->uvs || mat >= m->material_count || !m->materials[mat].texture_path)
+    if (!m->uvs || mat >= m->material_count)
         return -1;
-    const char *path = m->materials[mat].texture_path;
-    for (uint32_t k = 0; k <= mat; k++)
-        if (m->materials[k].texture_path && !strcmp(m->materials[k].texture_path, path))
-            return (long)k;
-    return -1;
+    return sp->mat_key[mat];
 }
 
 /* Splits triangle set tris (a group: an object or a cell) by texture and
  * appends one block per texture. */
-static hlod_result add_group(const hlod_mesh *m, uint32_t *tris, size_t n, const char *name, blocks *bs)
+static hlod_result add_group(splitter *sp, uint32_t *tris, size_t n, const char *name, blocks *bs)
 {
+    const hlod_mesh *m = sp->m;
     /* stable order: by texture key, then triangle order */
     long *key = malloc((n ? n : 1) * sizeof *key);
     if (!key)
         return HLOD_ERR_NOMEM;
     for (size_t i = 0; i < n; i++)
-        key[i] = tex_key(m, tris[i]);
+        key[i] = tex_key(sp, tris[i]);
     size_t done = 0;
     uint32_t *sel = malloc((n ? n : 1) * sizeof *sel);
     uint8_t *used = calloc(n ? n : 1, 1);
@@ -200,7 +239,7 @@ static hlod_result add_group(const hlod_mesh *m, uint32_t *tris, size_t n, const
             r = HLOD_ERR_NOMEM;
             break;
         }
-        r = extract(m, sel, cnt, &b->mesh);
+        r = extract(sp, sel, cnt, &b->mesh);
         if (r != HLOD_OK) {
             bs->n--;
             break;
@@ -225,8 +264,11 @@ static hlod_result add_group(const hlod_mesh *m, uint32_t *tris, size_t n, const
 static hlod_result make_blocks(const hlod_mesh *m, const char *file, double grid, blocks *bs)
 {
     uint32_t *tris = malloc((m->tri_count ? m->tri_count : 1) * sizeof *tris);
-    if (!tris)
+    splitter sp;
+    if (!tris || splitter_init(&sp, m) != HLOD_OK) {
+        free(tris);
         return HLOD_ERR_NOMEM;
+    }
     hlod_result r = HLOD_OK;
     if (grid <= 0) {
         size_t no = m->object_count ? m->object_count : 1;
@@ -238,7 +280,7 @@ static hlod_result make_blocks(const hlod_mesh *m, const char *file, double grid
             for (size_t i = 0; i < cnt; i++)
                 tris[i] = (uint32_t)(first + i);
             const char *name = m->object_count && m->objects[o].name ? m->objects[o].name : file;
-            r = add_group(m, tris, cnt, name, bs);
+            r = add_group(&sp, tris, cnt, name, bs);
         }
     } else {
         /* cells by centroid; cells sorted by (cy, cx) for a stable order */
@@ -247,6 +289,7 @@ static hlod_result make_blocks(const hlod_mesh *m, const char *file, double grid
         size_t nx = (size_t)floor((hi[0] - lo[0]) / grid) + 1, ny = (size_t)floor((hi[1] - lo[1]) / grid) + 1;
         if (nx * ny > 1000000) {
             free(tris);
+            splitter_free(&sp);
             return HLOD_ERR_INVALID_ARG;
         }
         uint32_t *cell = malloc((m->tri_count ? m->tri_count : 1) * sizeof *cell);
@@ -255,6 +298,7 @@ static hlod_result make_blocks(const hlod_mesh *m, const char *file, double grid
             free(cell);
             free(start);
             free(tris);
+            splitter_free(&sp);
             return HLOD_ERR_NOMEM;
         }
         for (size_t t = 0; t < m->tri_count; t++) {
@@ -283,7 +327,7 @@ static hlod_result make_blocks(const hlod_mesh *m, const char *file, double grid
                     continue;
                 char name[96];
                 snprintf(name, sizeof name, "cell_%zu_%zu", c % nx, c / nx);
-                r = add_group(m, tris + start[c], cnt, name, bs);
+                r = add_group(&sp, tris + start[c], cnt, name, bs);
             }
         }
         free(cur);
@@ -291,6 +335,7 @@ static hlod_result make_blocks(const hlod_mesh *m, const char *file, double grid
         free(start);
     }
     free(tris);
+    splitter_free(&sp);
     return r;
 }
 
