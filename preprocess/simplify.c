@@ -38,6 +38,7 @@
  */
 #include "hlod/simplify.h"
 #include "hlod/distance.h"
+#include "prefetch.h"
 
 #include <assert.h>
 #include <float.h>
@@ -1311,11 +1312,6 @@ static int collapse(state *s, uint32_t a, uint32_t b, const double x[3], const u
  * about 5% faster; the result does not change). */
 #define PREFETCH_FAR 16
 #define PREFETCH_NEAR 8
-#if defined(__GNUC__)
-#define PREFETCH(p) __builtin_prefetch(p)
-#else
-#define PREFETCH(p) ((void)(p))
-#endif
 
 static void prefetch_ahead(const state *s, size_t i)
 {
@@ -1323,19 +1319,19 @@ static void prefetch_ahead(const state *s, size_t i)
         const cand *c = &s->cand[i + PREFETCH_FAR];
         for (int k = 0; k < 2; k++) {
             uint32_t v = k ? c->b : c->a;
-            PREFETCH(&s->vx[v]);
-            PREFETCH((const char *)&s->vx[v] + 64);
-            PREFETCH(&s->px[v]);
-            PREFETCH(&s->adj_start[v]);
-            PREFETCH(&s->adj_count[v]);
-            PREFETCH(&s->pass_lock[v]);
+            HLOD_PREFETCH(&s->vx[v]);
+            HLOD_PREFETCH((const char *)&s->vx[v] + 64);
+            HLOD_PREFETCH(&s->px[v]);
+            HLOD_PREFETCH(&s->adj_start[v]);
+            HLOD_PREFETCH(&s->adj_count[v]);
+            HLOD_PREFETCH(&s->pass_lock[v]);
         }
     }
     if (i + PREFETCH_NEAR < s->nc) {
         const cand *c = &s->cand[i + PREFETCH_NEAR];
         if (!s->pass_lock[c->a] && !s->pass_lock[c->b]) {
-            PREFETCH(&s->pool[s->adj_start[c->a]]);
-            PREFETCH(&s->pool[s->adj_start[c->b]]);
+            HLOD_PREFETCH(&s->pool[s->adj_start[c->a]]);
+            HLOD_PREFETCH(&s->pool[s->adj_start[c->b]]);
         }
     }
 }

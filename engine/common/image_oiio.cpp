@@ -332,7 +332,12 @@ extern "C" hlod_result hlod_image_resize(const hlod_image *src, int width, int h
             uint8_t *px = static_cast<uint8_t *>(std::malloc(n));
             if (!px)
                 return HLOD_ERR_NOMEM;
-            box_minify(src, width, height, px);
+            try {
+                box_minify(src, width, height, px);
+            } catch (...) {
+                std::free(px);
+                throw;
+            }
             *out = hlod_image{width, height, src->channels, px};
             return HLOD_OK;
         }

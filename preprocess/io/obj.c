@@ -13,6 +13,7 @@
  * after the first usemtl.  Only materials that faces use enter the mesh.
  */
 #include "io_internal.h"
+#include "prefetch.h"
 
 #include <stdarg.h>
 #include <stdlib.h>
@@ -503,12 +504,12 @@ static hlod_result build_vertices(obj_reader *r, hlod_mesh *m)
             size_t nb = nc - i < BATCH ? nc - i : BATCH;
             for (size_t j = 0; j < nb; j++) {
                 hs[j] = (size_t)corner_hash(&cs[i + j]) & (cap - 1);
-                __builtin_prefetch(&table[hs[j]]);
+                HLOD_PREFETCH(&table[hs[j]]);
             }
             const tuple *u = uniq.data;
             for (size_t j = 0; j < nb; j++)
                 if (table[hs[j]])
-                    __builtin_prefetch(&u[table[hs[j]] - 1]);
+                    HLOD_PREFETCH(&u[table[hs[j]] - 1]);
         }
         size_t h = hs[i % BATCH];
         const tuple *u = uniq.data;
