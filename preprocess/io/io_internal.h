@@ -21,6 +21,10 @@
 
 #include "hlod/mesh_io.h"
 
+#ifdef __cplusplus
+extern "C" {
+#endif
+
 typedef struct io_stream {
     FILE *fp;
     const char *path;       /* for messages; not owned */
@@ -128,5 +132,9 @@ char *io_relative_path(const char *dir, const char *target);
  * (out of memory logged) the mesh is freed.  Returns the final result. */
 hlod_result io_finish_file_mesh(const char *path, const hlod_logger *lg, hlod_result res, hlod_mesh *out,
                                 hlod_import_stats *st);
+
+#ifdef __cplusplus
+}
+#endif
 
 #endif

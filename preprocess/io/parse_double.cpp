@@ -5,16 +5,16 @@
  * locale, and several times faster on the 17-digit decimals a lossless
  * exporter writes (Clinger's fast path in io_util.c takes at most 15-16).
  *
- * fast_float throws nothing; the function is noexcept so nothing can cross
- * into C.
+ * fast_float's from_chars throws nothing, so no exception can cross into
+ * C.  Declared (extern "C") in io_internal.h.
  */
+#include "io_internal.h"
+
 #include <fast_float/fast_float.h>
 
 #include <system_error>
 
-extern "C" int io_from_chars(const char *first, const char *last, double *out) noexcept;
-
-extern "C" int io_from_chars(const char *first, const char *last, double *out) noexcept
+int io_from_chars(const char *first, const char *last, double *out)
 {
     double v = 0;
     fast_float::from_chars_result r = fast_float::from_chars(first, last, v);
