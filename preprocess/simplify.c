@@ -148,6 +148,19 @@ typedef struct pvert {
     uint8_t plain;     /* plain_interior() at the last classification */
 } pvert;
 
+/* A position vertex's triangle list: pool[start .. start + count), room
+ * for cap.  (One record, so a lookup reads one cache line, not three.) */
+typedef struct adjrec {
+    uint32_t start, count, cap;
+} adjrec;
+
+/* Per-vertex flags of a pass (state.vflag). */
+enum {
+    VF_LOCK = 1,    /* changed by this pass: its queued prices are stale */
+    VF_STALE = 2,   /* its edges must be priced again next pass */
+    VF_TOUCHED = 4, /* its star changed: its parked edges may be valid */
+};
+
 typedef struct state {
     size_t nv;                 /* position vertices */
     size_t nw;                 /* wedges (= input vertices) */
@@ -157,8 +170,8 @@ typedef struct state {
                                   from vx, so the flip tests that read a
                                   whole ring stay in cache */
     uint32_t *rep;             /* pv -> an input vertex carrying its position */
-    /* adjacency: pv -> live triangles */
-    uint32_t *adj_start, *adj_count, *adj_cap;
+    /* adjacency: pv -> its triangles (dead ones are dropped lazily) */
+    adjrec *adj;
     uint32_t *pool;
     size_t pool_n, pool_cap;
     /* triangles */
@@ -183,7 +196,8 @@ typedef struct state {
     uint32_t *mark;            /* pv scratch stamps (link_ok, plain_interior) */
     uint32_t *slot;            /* pv scratch: a face or record index, under a stamp */
     uint32_t mark_clock;
-    uint8_t *pass_lock;        /* pv touched by this pass */
+    uint8_t *vflag;            /* pv flags of this pass, VF_* (one byte, so
+                                  the walk reads one line for all three) */
     uint8_t *stale;            /* pv whose edge prices this pass changed */
     uint8_t *touched;          /* pv whose star this pass changed */
     cand *parked;              /* refused edges (see the pass loop) */
@@ -412,7 +426,7 @@ static uint32_t new_stamp(uint32_t *marks, uint32_t *clock, size_t n)
 
 static int adj_reserve(state *s, uint32_t v, uint32_t need)
 {
-    if (s->adj_cap[v] >= need)
+    if (s->adj[v].cap >= need)
         return 1;
     uint32_t cap = need * 2;
     if (s->pool_n + cap > s->pool_cap) {
@@ -423,9 +437,9 @@ static int adj_reserve(state *s, uint32_t v, uint32_t need)
         s->pool = np;
         s->pool_cap = nc;
     }
-    memcpy(s->pool + s->pool_n, s->pool + s->adj_start[v], s->adj_count[v] * sizeof(uint32_t));
-    s->adj_start[v] = (uint32_t)s->pool_n;
-    s->adj_cap[v] = cap;
+    memcpy(s->pool + s->pool_n, s->pool + s->adj[v].start, s->adj[v].count * sizeof(uint32_t));
+    s->adj[v].start = (uint32_t)s->pool_n;
+    s->adj[v].cap = cap;
     s->pool_n += cap;
     return 1;
 }
@@ -435,7 +449,7 @@ static int adj_reserve(state *s, uint32_t v, uint32_t need)
  * memory. */
 static size_t star(state *s, uint32_t v, int which)
 {
-    uint32_t n = s->adj_count[v];
+    uint32_t n = s->adj[v].count;
     if (n > s->scap) {
         size_t nc = (size_t)n * 2;
         uint32_t *na = realloc(s->sa, nc * sizeof *na), *nb;
@@ -449,7 +463,7 @@ static size_t star(state *s, uint32_t v, int which)
         s->scap = nc;
     }
     uint32_t *buf = which ? s->sb : s->sa;
-    const uint32_t *list = s->pool + s->adj_start[v];
+    const uint32_t *list = s->pool + s->adj[v].start;
     size_t k = 0;
     for (uint32_t i = 0; i < n; i++)
         if (s->talive[list[i]])
@@ -477,8 +491,8 @@ typedef struct nrec {
  * on allocation failure.  *recs is a caller-owned growable buffer. */
 static long neighbours(state *s, uint32_t v, nrec **recs, size_t *rcap)
 {
-    uint32_t *faces = s->pool + s->adj_start[v];
-    uint32_t nf = s->adj_count[v];
+    uint32_t *faces = s->pool + s->adj[v].start;
+    uint32_t nf = s->adj[v].count;
     if ((size_t)nf * 2 > *rcap) {
         size_t nc = (size_t)nf * 4 + 16;
         nrec *nr = realloc(*recs, nc * sizeof *nr);
@@ -535,8 +549,8 @@ static long edges_of(state *s, uint32_t v, nrec **recs, size_t *rcap)
 {
     if (!s->vx[v].plain)
         return neighbours(s, v, recs, rcap);
-    uint32_t *faces = s->pool + s->adj_start[v];
-    uint32_t nf = s->adj_count[v];
+    uint32_t *faces = s->pool + s->adj[v].start;
+    uint32_t nf = s->adj[v].count;
     if ((size_t)nf > *rcap) {
         size_t nc = (size_t)nf * 4 + 16;
         nrec *nr = realloc(*recs, nc * sizeof *nr);
@@ -565,8 +579,8 @@ static long edges_of(state *s, uint32_t v, nrec **recs, size_t *rcap)
  * (In O(faces): the neighbours that follow v are stamped with their face.) */
 static int plain_interior(state *s, uint32_t v)
 {
-    const uint32_t *faces = s->pool + s->adj_start[v];
-    uint32_t nf = s->adj_count[v];
+    const uint32_t *faces = s->pool + s->adj[v].start;
+    uint32_t nf = s->adj[v].count;
     uint32_t pv[32], wv[32], wn[32], wp[32], mt[32];
     uint32_t k = 0;
     uint32_t stamp = new_stamp(s->mark, &s->mark_clock, s->nv);
@@ -701,8 +715,8 @@ static int edge_groups(state *s, uint32_t a, uint32_t b, const uint32_t *fa, siz
 /* The wedge of v in any live face (v's only wedge when fdeg is 0). */
 static uint32_t any_wedge(const state *s, uint32_t v)
 {
-    const uint32_t *f = s->pool + s->adj_start[v];
-    for (uint32_t i = 0; i < s->adj_count[v]; i++)
+    const uint32_t *f = s->pool + s->adj[v].start;
+    for (uint32_t i = 0; i < s->adj[v].count; i++)
         if (s->talive[f[i]])
             return s->tw[3 * (size_t)f[i] + corner_of(s, f[i], v)];
     assert(!"vertex without a live face");
@@ -903,7 +917,7 @@ static void selfcheck_prices(state *s, nrec **recs, size_t *rcap)
         memcpy(sorted + s->nc, s->parked, s->np * sizeof *sorted);
     /* every vertex's class is what its star says now */
     for (size_t v = 0; v < s->nv; v++) {
-        if (!s->vx[v].alive || !s->adj_count[v])
+        if (!s->vx[v].alive || !s->adj[v].count)
             continue;
         pvert kept = s->vx[v];
         if (!classify(s, (uint32_t)v, recs, rcap))
@@ -939,7 +953,7 @@ static void selfcheck_prices(state *s, nrec **recs, size_t *rcap)
             abort();
         }
     for (size_t v = 0; v < s->nv; v++) {
-        if (!s->vx[v].alive || !s->adj_count[v])
+        if (!s->vx[v].alive || !s->adj[v].count)
             continue;
         long cnt = neighbours(s, (uint32_t)v, recs, rcap);
         if (cnt < 0)
@@ -1158,7 +1172,7 @@ static int collapse(state *s, uint32_t a, uint32_t b, const double x[3], const u
             if (had_features) {
                 const uint32_t *tv = s->tv + 3 * (size_t)t;
                 uint32_t x = tv[0] != a && tv[0] != b ? tv[0] : tv[1] != a && tv[1] != b ? tv[1] : tv[2];
-                s->stale[x] = 1;
+                s->vflag[x] |= VF_STALE;
                 if (napex < 2)
                     apex[napex++] = x;
             }
@@ -1202,7 +1216,7 @@ static int collapse(state *s, uint32_t a, uint32_t b, const double x[3], const u
             need++;
     if (!adj_reserve(s, b, need))
         return 0;
-    uint32_t *list = s->pool + s->adj_start[b];
+    uint32_t *list = s->pool + s->adj[b].start;
     uint32_t k = 0;
     for (size_t i = 0; i < nb; i++)
         if (s->talive[fb[i]])
@@ -1216,12 +1230,14 @@ static int collapse(state *s, uint32_t a, uint32_t b, const double x[3], const u
         s->wpv[s->tw[3 * t + c]] = b;
         list[k++] = t;
     }
-    s->adj_count[b] = k;
-    s->adj_count[a] = 0;
+    s->adj[b].count = k;
+    s->adj[a].count = 0;
     /* every vertex whose star changed is on a face of b now */
     for (uint32_t i = 0; i < k; i++) {
         const uint32_t *tv = s->tv + 3 * (size_t)list[i];
-        s->touched[tv[0]] = s->touched[tv[1]] = s->touched[tv[2]] = 1;
+        s->vflag[tv[0]] |= VF_TOUCHED;
+        s->vflag[tv[1]] |= VF_TOUCHED;
+        s->vflag[tv[2]] |= VF_TOUCHED;
     }
     s->vx[a].alive = 0;
     q_add(&s->vx[b].q, &s->vx[a].q);
@@ -1292,7 +1308,7 @@ static int collapse(state *s, uint32_t a, uint32_t b, const double x[3], const u
             return 0;
         /* a reclassified vertex prices its edges differently */
         if (s->vx[v].fdeg != fdeg || s->vx[v].locked != locked)
-            s->stale[v] = 1;
+            s->vflag[v] |= VF_STALE;
     }
     /* An apex whose only faces on a and b were the removed ones is not in
      * the ring any more, but lost two (border) edges: classify it too
@@ -1322,16 +1338,15 @@ static void prefetch_ahead(const state *s, size_t i)
             HLOD_PREFETCH(&s->vx[v]);
             HLOD_PREFETCH((const char *)&s->vx[v] + 64);
             HLOD_PREFETCH(&s->px[v]);
-            HLOD_PREFETCH(&s->adj_start[v]);
-            HLOD_PREFETCH(&s->adj_count[v]);
-            HLOD_PREFETCH(&s->pass_lock[v]);
+            HLOD_PREFETCH(&s->adj[v]);
+            HLOD_PREFETCH(&s->vflag[v]);
         }
     }
     if (i + PREFETCH_NEAR < s->nc) {
         const cand *c = &s->cand[i + PREFETCH_NEAR];
-        if (!s->pass_lock[c->a] && !s->pass_lock[c->b]) {
-            HLOD_PREFETCH(&s->pool[s->adj_start[c->a]]);
-            HLOD_PREFETCH(&s->pool[s->adj_start[c->b]]);
+        if (!((s->vflag[c->a] | s->vflag[c->b]) & VF_LOCK)) {
+            HLOD_PREFETCH(&s->pool[s->adj[c->a].start]);
+            HLOD_PREFETCH(&s->pool[s->adj[c->b].start]);
         }
     }
 }
@@ -1466,9 +1481,9 @@ static void state_free(state *s)
 {
     free(s->vx);
     free(s->rep);
-    free(s->adj_start); free(s->adj_count); free(s->adj_cap); free(s->pool);
+    free(s->adj); free(s->pool);
     free(s->tv); free(s->tw); free(s->tmat); free(s->tpos); free(s->talive); free(s->wpv); free(s->uv); free(s->aq);
-    free(s->wtouched); free(s->wmark); free(s->cand); free(s->ctmp); free(s->rh.e); free(s->mark); free(s->slot); free(s->pass_lock); free(s->px); free(s->stale); free(s->touched); free(s->parked); free(s->sa); free(s->sb); free(s->ring);
+    free(s->wtouched); free(s->wmark); free(s->cand); free(s->ctmp); free(s->rh.e); free(s->mark); free(s->slot); free(s->vflag); free(s->px); free(s->parked); free(s->sa); free(s->sb); free(s->ring);
 }
 
 static double now_s(void)
@@ -1689,23 +1704,19 @@ hlod_result hlod_simplify(const hlod_mesh *in, const hlod_simplify_desc *desc,
         goto done;
     s.vx = calloc(nv, sizeof *s.vx);
     s.px = malloc(nv * sizeof *s.px);
-    s.adj_start = malloc(nv * sizeof *s.adj_start);
-    s.adj_count = calloc(nv, sizeof *s.adj_count);
-    s.adj_cap = malloc(nv * sizeof *s.adj_cap);
-    if (!s.vx || !s.px || !s.adj_start || !s.adj_count || !s.adj_cap)
+    s.adj = calloc(nv, sizeof *s.adj);
+    if (!s.vx || !s.px || !s.adj)
         goto done;
     for (size_t v = 0; v < nv; v++)
         s.vx[v].alive = 1;
-    s.pass_lock = malloc(nv);
-    s.stale = calloc(nv, 1);
-    s.touched = calloc(nv, 1);
+    s.vflag = calloc(nv, 1);
     s.mark = calloc(nv, sizeof *s.mark);
 #ifdef HLOD_SELFCHECK
     /* the stamp clocks wrap within the first thousand stamps */
     s.mark_clock = s.wclock = UINT32_MAX - 1000;
 #endif
     s.slot = malloc(nv * sizeof *s.slot);
-    if (!s.pass_lock || !s.stale || !s.touched || !s.mark || !s.slot)
+    if (!s.vflag || !s.mark || !s.slot)
         goto done;
     for (size_t v = 0; v < nv; v++)
         for (int k = 0; k < 3; k++)
@@ -1755,7 +1766,7 @@ hlod_result hlod_simplify(const hlod_mesh *in, const hlod_simplify_desc *desc,
         if (s.talive[t]) {
             live++;
             for (int c = 0; c < 3; c++)
-                s.adj_count[tv[c]]++;
+                s.adj[tv[c]].count++;
         }
     }
     s.pool_cap = live * 3 + 16;
@@ -1763,16 +1774,16 @@ hlod_result hlod_simplify(const hlod_mesh *in, const hlod_simplify_desc *desc,
     if (!s.pool)
         goto done;
     for (size_t v = 0; v < nv; v++) {
-        s.adj_start[v] = (uint32_t)s.pool_n;
-        s.adj_cap[v] = s.adj_count[v];
-        s.pool_n += s.adj_count[v];
-        s.adj_count[v] = 0;
+        s.adj[v].start = (uint32_t)s.pool_n;
+        s.adj[v].cap = s.adj[v].count;
+        s.pool_n += s.adj[v].count;
+        s.adj[v].count = 0;
     }
     for (size_t t = 0; t < nt; t++)
         if (s.talive[t])
             for (int c = 0; c < 3; c++) {
                 uint32_t v = s.tv[3 * t + c];
-                s.pool[s.adj_start[v] + s.adj_count[v]++] = (uint32_t)t;
+                s.pool[s.adj[v].start + s.adj[v].count++] = (uint32_t)t;
             }
 
     /* Attribute data (wedge groups are formed only when textured). */
@@ -1839,13 +1850,13 @@ hlod_result hlod_simplify(const hlod_mesh *in, const hlod_simplify_desc *desc,
     }
 
     /* Classify vertices and add constraint planes along feature edges.
-     * (pass_lock, cleared before each pass's walk, first flags the
+     * (VF_LOCK, cleared before each pass's walk, first flags the
      * feature vertices in a byte each: the triangle loop below then reads
      * a small array instead of every corner's pvert.) */
     size_t nfeat = 0;
-    memset(s.pass_lock, 0, nv);
+    memset(s.vflag, 0, nv);
     for (size_t v = 0; v < nv; v++) {
-        if (!s.adj_count[v])
+        if (!s.adj[v].count)
             continue;
         if (!classify(&s, (uint32_t)v, &recs, &rcap))
             goto done;
@@ -1856,7 +1867,7 @@ hlod_result hlod_simplify(const hlod_mesh *in, const hlod_simplify_desc *desc,
                     s.vx[v].ulock = s.vx[v].locked = 1;
         }
         if (s.vx[v].fdeg) {
-            s.pass_lock[v] = 1;
+            s.vflag[v] = VF_LOCK;
             nfeat++;
         }
     }
@@ -1865,7 +1876,7 @@ hlod_result hlod_simplify(const hlod_mesh *in, const hlod_simplify_desc *desc,
             continue;
         const uint32_t *tv = s.tv + 3 * t;
         /* a feature edge has feature vertices at both ends */
-        if (s.pass_lock[tv[0]] + s.pass_lock[tv[1]] + s.pass_lock[tv[2]] < 2)
+        if ((s.vflag[tv[0]] & VF_LOCK) + (s.vflag[tv[1]] & VF_LOCK) + (s.vflag[tv[2]] & VF_LOCK) < 2)
             continue;
         double e1[3], e2[3], n[3];
         sub3(e1, s.px[tv[1]], s.px[tv[0]]);
@@ -1880,8 +1891,8 @@ hlod_result hlod_simplify(const hlod_mesh *in, const hlod_simplify_desc *desc,
                 continue;
             /* Is (a, b) a feature edge?  Look for the other face. */
             int feature = 1, found = 0;
-            const uint32_t *fl = s.pool + s.adj_start[a];
-            for (uint32_t i = 0; i < s.adj_count[a]; i++) {
+            const uint32_t *fl = s.pool + s.adj[a].start;
+            for (uint32_t i = 0; i < s.adj[a].count; i++) {
                 uint32_t u = fl[i];
                 if (u == t || !s.talive[u])
                     continue;
@@ -1947,7 +1958,7 @@ hlod_result hlod_simplify(const hlod_mesh *in, const hlod_simplify_desc *desc,
             /* (a negative price marks an edge this pass parked) */
             size_t keep = 0;
             for (size_t i = 0; i < s.nc; i++)
-                if (s.cand[i].cost >= 0 && !s.stale[s.cand[i].a] && !s.stale[s.cand[i].b])
+                if (s.cand[i].cost >= 0 && !((s.vflag[s.cand[i].a] | s.vflag[s.cand[i].b]) & VF_STALE))
                     s.cand[keep++] = s.cand[i];
             s.nc = keep;
             /* A refused edge is parked: try_edge reads only the stars of
@@ -1961,9 +1972,9 @@ hlod_result hlod_simplify(const hlod_mesh *in, const hlod_simplify_desc *desc,
             size_t still = 0;
             for (size_t i = 0; i < s.np; i++) {
                 cand c = s.parked[i];
-                if (s.stale[c.a] || s.stale[c.b])
+                if ((s.vflag[c.a] | s.vflag[c.b]) & VF_STALE)
                     continue;
-                if (s.touched[c.a] || s.touched[c.b]) {
+                if ((s.vflag[c.a] | s.vflag[c.b]) & VF_TOUCHED) {
                     if (!cand_push(&s, c))
                         goto done;
                 } else {
@@ -1973,7 +1984,9 @@ hlod_result hlod_simplify(const hlod_mesh *in, const hlod_simplify_desc *desc,
             s.np = still;
         }
         for (size_t v = 0; v < nv; v++) {
-            if (!s.vx[v].alive || !s.adj_count[v] || (!first_pass && !s.stale[v]))
+            /* (the stale byte first: later passes then skip most
+             * vertices without reading their records) */
+            if ((!first_pass && !(s.vflag[v] & VF_STALE)) || !s.vx[v].alive || !s.adj[v].count)
                 continue;
             long cnt = edges_of(&s, (uint32_t)v, &recs, &rcap);
             if (cnt < 0)
@@ -1982,7 +1995,7 @@ hlod_result hlod_simplify(const hlod_mesh *in, const hlod_simplify_desc *desc,
                 nrec r = recs[j];
                 /* each edge once: from its lower end when both are to be
                  * priced, else from the marked one */
-                int other_priced = first_pass || s.stale[r.n];
+                int other_priced = first_pass || (s.vflag[r.n] & VF_STALE);
                 if ((other_priced && r.n < v) || r.faces > 2)
                     continue;
                 uint32_t a = (uint32_t)v < r.n ? (uint32_t)v : r.n, b = (uint32_t)v < r.n ? r.n : (uint32_t)v;
@@ -2010,9 +2023,7 @@ hlod_result hlod_simplify(const hlod_mesh *in, const hlod_simplify_desc *desc,
          * pass never runs far ahead of a strict priority order. */
         size_t goal = (live - target) / 2;
         float cost_goal = goal < s.nc && !unlimited ? s.cand[goal].cost * PASS_SLACK : FLT_MAX;
-        memset(s.pass_lock, 0, nv);
-        memset(s.stale, 0, nv);
-        memset(s.touched, 0, nv);
+        memset(s.vflag, 0, nv);
         size_t pass_collapses = 0;
         /* Walk the sorted prices.  A candidate whose cheapest placement is
          * refused (flip, sliver) but has a valid dearer one is re-queued at
@@ -2035,7 +2046,7 @@ hlod_result hlod_simplify(const hlod_mesh *in, const hlod_simplify_desc *desc,
                 break;
             uint32_t a = c.a, b = c.b;
             /* an endpoint changed in this pass: its price is stale */
-            if (s.pass_lock[a] || s.pass_lock[b])
+            if ((s.vflag[a] | s.vflag[b]) & VF_LOCK)
                 continue;
             size_t na, nb;
             eval e;
@@ -2075,8 +2086,8 @@ hlod_result hlod_simplify(const hlod_mesh *in, const hlod_simplify_desc *desc,
              * valid collapse, then bounds itself by that. */
             if (!pass_collapses++ && cost_goal == FLT_MAX)
                 cost_goal = c.cost * PASS_SLACK;
-            s.pass_lock[a] = s.pass_lock[b] = 1;
-            s.stale[a] = s.stale[b] = 1;
+            s.vflag[a] |= VF_LOCK | VF_STALE;
+            s.vflag[b] |= VF_LOCK | VF_STALE;
             /* A feature collapse may reclassify the ring: leave it to the
              * next pass.  (Only the vertices it did reclassify, and the
              * apexes, are stale: collapse() marked them.  Locking just
@@ -2085,7 +2096,7 @@ hlod_result hlod_simplify(const hlod_mesh *in, const hlod_simplify_desc *desc,
             if (had_features) {
                 long cnt = neighbours(&s, b, &recs, &rcap);
                 for (long j = 0; j < cnt; j++)
-                    s.pass_lock[recs[j].n] = 1;
+                    s.vflag[recs[j].n] |= VF_LOCK;
             }
         }
         /* When every candidate under the bound was refused, retry once
