@@ -350,9 +350,8 @@ static int cand_full_order(const void *pa, const void *pb)
  * full.  The pass then reads them in order, sequentially.  Equal prices
  * thus go in edge order, so the order does not depend on which prices were
  * kept from the last pass (planar regions tie at 0). */
-static int cand_sort(state *s)
+static int cand_sort(state *s, size_t n)
 {
-    size_t n = s->nc;
     if (n > s->ocap) {
         free(s->ctmp);
         s->ctmp = malloc(n * sizeof *s->ctmp);
@@ -409,6 +408,52 @@ static int cand_sort(state *s)
         i = j;
     }
     return 1;
+}
+
+/* The k-th smallest price of c[0..n), k < n: a radix select on the
+ * price's bits (11, 11 and 10 of them; non-negative floats order like
+ * their bit patterns). */
+static float cost_rank(const cand *c, size_t n, size_t k)
+{
+    uint32_t prefix = 0;
+    for (int level = 0; level < 3; level++) {
+        int shift = level == 0 ? 21 : level == 1 ? 10 : 0;
+        uint32_t width = level == 2 ? 1024 : 2048;
+        int known = 32 - (level == 0 ? 32 : level == 1 ? 21 : 10); /* bits of prefix fixed so far */
+        size_t hist[2048] = {0};
+        for (size_t i = 0; i < n; i++) {
+            uint32_t key;
+            memcpy(&key, &c[i].cost, 4);
+            if (known && key >> (32 - known) != prefix >> (32 - known))
+                continue;
+            hist[(key >> shift) & (width - 1)]++;
+        }
+        uint32_t bucket = 0;
+        while (k >= hist[bucket])
+            k -= hist[bucket++];
+        prefix |= bucket << shift;
+    }
+    float r;
+    memcpy(&r, &prefix, 4);
+    return r;
+}
+
+/* Moves the candidates priced at most bound to the front of c[0..n);
+ * returns their count. */
+static size_t cands_under(cand *c, size_t n, float bound)
+{
+    size_t lo = 0, hi = n;
+    for (;;) {
+        while (lo < hi && c[lo].cost <= bound)
+            lo++;
+        while (lo < hi && !(c[hi - 1].cost <= bound))
+            hi--;
+        if (lo >= hi)
+            return lo;
+        cand t = c[lo];
+        c[lo] = c[hi - 1];
+        c[hi - 1] = t;
+    }
 }
 
 /* A fresh stamp for a scratch array of n marks: a mark equal to it was set
@@ -2016,13 +2061,19 @@ hlod_result hlod_simplify(const hlod_mesh *in, const hlod_simplify_desc *desc,
         first_pass = 0;
         if (!s.nc)
             break;
-        if (!cand_sort(&s))
-            goto done;
         /* Each interior collapse removes two triangles.  Stop the pass at
          * 1.5x the cost of the collapse that would reach the goal, so a
-         * pass never runs far ahead of a strict priority order. */
+         * pass never runs far ahead of a strict priority order.  Only the
+         * candidates under that bound are sorted (about half): the walk
+         * stops at the first one over it, whichever it is, and the next
+         * pass sorts afresh. */
         size_t goal = (live - target) / 2;
-        float cost_goal = goal < s.nc && !unlimited ? s.cand[goal].cost * PASS_SLACK : FLT_MAX;
+        float cost_goal = goal < s.nc && !unlimited ? cost_rank(s.cand, s.nc, goal) * PASS_SLACK : FLT_MAX;
+        size_t nsorted = s.nc;
+        if (cost_goal < FLT_MAX)
+            nsorted = cands_under(s.cand, s.nc, cost_goal);
+        if (!cand_sort(&s, nsorted))
+            goto done;
         memset(s.vflag, 0, nv);
         size_t pass_collapses = 0;
         /* Walk the sorted prices.  A candidate whose cheapest placement is
