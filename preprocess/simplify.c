@@ -343,11 +343,11 @@ static int cand_full_order(const void *pa, const void *pb)
     return cand_edge_order(pa, pb);
 }
 
-/* Sorts the candidates by (price, a, b): an LSD radix sort of the
+/* Sorts s->cand[0..n) by (price, a, b): an LSD radix sort of the
  * candidates themselves on the price's top 22 bits (non-negative floats
- * order like their bit patterns), 2 passes of 11 bits, then each run with
- * equal top bits (prices within 2^-13 of each other, or tied) sorted in
- * full.  The pass then reads them in order, sequentially.  Equal prices
+ * order like their bit patterns), 2 passes of 11 bits (3 of 8 bits, on 24,
+ * for fewer than 8192), then each run with equal top bits (prices within
+ * 2^-13 of each other, or tied) sorted in full.  The pass then reads them in order, sequentially.  Equal prices
  * thus go in edge order, so the order does not depend on which prices were
  * kept from the last pass (planar regions tie at 0). */
 static int cand_sort(state *s, size_t n)
@@ -359,17 +359,24 @@ static int cand_sort(state *s, size_t n)
             return 0;
         s->ocap = n;
     }
+    /* Digits of 11 bits, or of 8 when there are few candidates (then the
+     * histograms would cost more than the candidates: small meshes' late
+     * passes).  Either way the runs below make the order total. */
+    int bits = n < 8192 ? 8 : 11, passes = n < 8192 ? 3 : 2;
+    int low = 32 - bits * passes;
+    size_t nb = (size_t)1 << bits, mask = nb - 1;
     cand *src = s->cand, *dst = s->ctmp;
-    for (int pass = 0; pass < 2; pass++) {
-        size_t hist[2048] = {0};
-        int shift = 10 + pass * 11;
+    for (int pass = 0; pass < passes; pass++) {
+        size_t hist[2048];
+        memset(hist, 0, nb * sizeof *hist);
+        int shift = low + pass * bits;
         for (size_t i = 0; i < n; i++) {
             uint32_t k;
             memcpy(&k, &src[i].cost, 4);
-            hist[(k >> shift) & 2047]++;
+            hist[(k >> shift) & mask]++;
         }
         size_t sum = 0;
-        for (int k = 0; k < 2048; k++) {
+        for (size_t k = 0; k < nb; k++) {
             size_t h = hist[k];
             hist[k] = sum;
             sum += h;
@@ -377,13 +384,14 @@ static int cand_sort(state *s, size_t n)
         for (size_t i = 0; i < n; i++) {
             uint32_t k;
             memcpy(&k, &src[i].cost, 4);
-            dst[hist[(k >> shift) & 2047]++] = src[i];
+            dst[hist[(k >> shift) & mask]++] = src[i];
         }
         cand *t = src;
         src = dst;
         dst = t;
     }
-    /* after two passes the sorted data is back in s->cand */
+    if (src != s->cand)
+        memcpy(s->cand, src, n * sizeof *src);
     for (size_t i = 0; i < n;) {
         uint32_t ki;
         memcpy(&ki, &s->cand[i].cost, 4);
@@ -391,7 +399,7 @@ static int cand_sort(state *s, size_t n)
         for (; j < n; j++) {
             uint32_t kj;
             memcpy(&kj, &s->cand[j].cost, 4);
-            if (kj >> 10 != ki >> 10)
+            if (kj >> low != ki >> low)
                 break;
         }
         if (j - i > 16) {
@@ -411,22 +419,20 @@ static int cand_sort(state *s, size_t n)
 }
 
 /* The k-th smallest price of c[0..n), k < n: a radix select on the
- * price's bits (11, 11 and 10 of them; non-negative floats order like
- * their bit patterns). */
+ * price's bits, 8 at a time (non-negative floats order like their bit
+ * patterns). */
 static float cost_rank(const cand *c, size_t n, size_t k)
 {
     uint32_t prefix = 0;
-    for (int level = 0; level < 3; level++) {
-        int shift = level == 0 ? 21 : level == 1 ? 10 : 0;
-        uint32_t width = level == 2 ? 1024 : 2048;
-        int known = 32 - (level == 0 ? 32 : level == 1 ? 21 : 10); /* bits of prefix fixed so far */
-        size_t hist[2048] = {0};
+    for (int level = 0; level < 4; level++) {
+        int shift = 24 - 8 * level; /* the bits above it are known */
+        size_t hist[256] = {0};
         for (size_t i = 0; i < n; i++) {
             uint32_t key;
             memcpy(&key, &c[i].cost, 4);
-            if (known && key >> (32 - known) != prefix >> (32 - known))
+            if (level && key >> (shift + 8) != prefix >> (shift + 8))
                 continue;
-            hist[(key >> shift) & (width - 1)]++;
+            hist[key >> shift & 255]++;
         }
         uint32_t bucket = 0;
         while (k >= hist[bucket])
