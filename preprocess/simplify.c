@@ -161,6 +161,14 @@ enum {
     VF_TOUCHED = 4, /* its star changed: its parked edges may be valid */
 };
 
+/* An adjacency entry (state.pool, state.sa/sb): a face and the corner of
+ * the list's own vertex in it, so walking a vertex's faces never searches
+ * for that corner. */
+#define ENT(t, c) ((uint32_t)(t) << 2 | (uint32_t)(c))
+#define ENT_T(e) ((e) >> 2)
+#define ENT_C(e) ((int)((e) & 3))
+#define NEXT3(c) ((c) == 2 ? 0 : (c) + 1)
+
 typedef struct state {
     size_t nv;                 /* position vertices */
     size_t nw;                 /* wedges (= input vertices) */
@@ -495,9 +503,9 @@ static int adj_reserve(state *s, uint32_t v, uint32_t need)
     return 1;
 }
 
-/* Copies the live faces around v into s->sa (which = 0) or s->sb (1),
- * both grown together as needed; returns the count, (size_t)-1 when out of
- * memory. */
+/* Copies the live face entries around v (see ENT) into s->sa (which = 0)
+ * or s->sb (1), both grown together as needed; returns the count,
+ * (size_t)-1 when out of memory. */
 static size_t star(state *s, uint32_t v, int which)
 {
     uint32_t n = s->adj[v].count;
@@ -517,7 +525,7 @@ static size_t star(state *s, uint32_t v, int which)
     const uint32_t *list = s->pool + s->adj[v].start;
     size_t k = 0;
     for (uint32_t i = 0; i < n; i++)
-        if (s->talive[list[i]])
+        if (s->talive[ENT_T(list[i])])
             buf[k++] = list[i];
     return k;
 }
@@ -556,11 +564,11 @@ static long neighbours(state *s, uint32_t v, nrec **recs, size_t *rcap)
     long cnt = 0;
     uint32_t stamp = new_stamp(s->mark, &s->mark_clock, s->nv); /* a stamped neighbour's record is slot[n] */
     for (uint32_t i = 0; i < nf; i++) {
-        uint32_t t = faces[i];
+        uint32_t t = ENT_T(faces[i]);
         if (!s->talive[t])
             continue;
-        int c = corner_of(s, t, v);
-        assert(c >= 0);
+        int c = ENT_C(faces[i]);
+        assert(s->tv[3 * (size_t)t + c] == v);
         uint32_t mat = s->tmat ? s->tmat[t] : 0;
         uint32_t wv = s->tw[3 * t + c];
         for (int k = 1; k <= 2; k++) {
@@ -612,11 +620,10 @@ static long edges_of(state *s, uint32_t v, nrec **recs, size_t *rcap)
     }
     long cnt = 0;
     for (uint32_t i = 0; i < nf; i++) {
-        uint32_t t = faces[i];
+        uint32_t t = ENT_T(faces[i]);
         if (!s->talive[t])
             continue;
-        const uint32_t *tv = s->tv + 3 * (size_t)t;
-        uint32_t n = tv[0] == v ? tv[1] : tv[1] == v ? tv[2] : tv[0];
+        uint32_t n = s->tv[3 * (size_t)t + NEXT3(ENT_C(faces[i]))];
         nrec *r = &(*recs)[cnt++];
         r->n = n;
         r->faces = 2;
@@ -636,13 +643,13 @@ static int plain_interior(state *s, uint32_t v)
     uint32_t k = 0;
     uint32_t stamp = new_stamp(s->mark, &s->mark_clock, s->nv);
     for (uint32_t i = 0; i < nf; i++) {
-        uint32_t t = faces[i];
+        uint32_t t = ENT_T(faces[i]);
         if (!s->talive[t])
             continue;
         if (k == 32)
             return 0;
-        int c = corner_of(s, t, v);
-        int c1 = (c + 1) % 3, c2 = (c + 2) % 3;
+        int c = ENT_C(faces[i]);
+        int c1 = NEXT3(c), c2 = NEXT3(c1);
         uint32_t nx = s->tv[3 * t + c1];
         /* each neighbour follows v in one face only (consistent winding) */
         if (s->mark[nx] == stamp)
@@ -723,7 +730,7 @@ typedef struct wgroup {
 
 #define MAX_GROUPS 64
 
-static int edge_groups(state *s, uint32_t a, uint32_t b, const uint32_t *fa, size_t na,
+static int edge_groups(state *s, uint32_t b, const uint32_t *fa, size_t na,
                        const uint32_t *fb, size_t nb, wgroup *g)
 {
     /* A wedge already in a group is stamped (a's and b's wedges are
@@ -732,11 +739,11 @@ static int edge_groups(state *s, uint32_t a, uint32_t b, const uint32_t *fa, siz
     int ng = 0;
     /* Pairs through the faces containing both a and b. */
     for (size_t i = 0; i < na; i++) {
-        uint32_t t = fa[i];
-        int cb = corner_of(s, t, b);
+        uint32_t t = ENT_T(fa[i]);
+        int cb = corner_of(s, ENT_T(fa[i]), b);
         if (cb < 0)
             continue;
-        uint32_t wa = s->tw[3 * t + corner_of(s, t, a)], wb = s->tw[3 * t + cb];
+        uint32_t wa = s->tw[3 * t + ENT_C(fa[i])], wb = s->tw[3 * t + cb];
         if (s->wmark[wa] != stamp && s->wmark[wb] != stamp && ng < MAX_GROUPS) {
             s->wmark[wa] = s->wmark[wb] = stamp;
             g[ng].w[0] = wa;
@@ -749,9 +756,8 @@ static int edge_groups(state *s, uint32_t a, uint32_t b, const uint32_t *fa, siz
     for (int side = 0; side < 2; side++) {
         const uint32_t *f = side ? fb : fa;
         size_t nf = side ? nb : na;
-        uint32_t v = side ? b : a;
         for (size_t i = 0; i < nf; i++) {
-            uint32_t w = s->tw[3 * f[i] + corner_of(s, f[i], v)];
+            uint32_t w = s->tw[3 * ENT_T(f[i]) + ENT_C(f[i])];
             if (s->wmark[w] != stamp && ng < MAX_GROUPS) {
                 s->wmark[w] = stamp;
                 g[ng].w[0] = w;
@@ -768,8 +774,8 @@ static uint32_t any_wedge(const state *s, uint32_t v)
 {
     const uint32_t *f = s->pool + s->adj[v].start;
     for (uint32_t i = 0; i < s->adj[v].count; i++)
-        if (s->talive[f[i]])
-            return s->tw[3 * (size_t)f[i] + corner_of(s, f[i], v)];
+        if (s->talive[ENT_T(f[i])])
+            return s->tw[3 * (size_t)ENT_T(f[i]) + ENT_C(f[i])];
     assert(!"vertex without a live face");
     return 0;
 }
@@ -819,7 +825,7 @@ static void evaluate(state *s, uint32_t a, uint32_t b, int edge_feature,
             g[0].n = 2;
             ng = 1;
         } else {
-            ng = edge_groups(s, a, b, fa, na, fb, nb, g);
+            ng = edge_groups(s, b, fa, na, fb, nb, g);
         }
         for (int i = 0; i < ng; i++) {
             attrq t = s->aq[g[i].w[0]];
@@ -1051,12 +1057,11 @@ static int star_ok(const state *s, uint32_t v, uint32_t other, const uint32_t *f
 {
     const double *pv = s->px[v];
     for (size_t i = 0; i < nf; i++) {
-        uint32_t t = f[i];
-        const uint32_t *tv = s->tv + 3 * (size_t)t;
-        if (tv[0] == other || tv[1] == other || tv[2] == other)
+        const uint32_t *tv = s->tv + 3 * (size_t)ENT_T(f[i]);
+        int c1 = NEXT3(ENT_C(f[i])), c2 = NEXT3(c1);
+        if (tv[c1] == other || tv[c2] == other)
             continue;
-        int c = corner_of(s, t, v);
-        const double *p1 = s->px[tv[(c + 1) % 3]], *p2 = s->px[tv[(c + 2) % 3]];
+        const double *p1 = s->px[tv[c1]], *p2 = s->px[tv[c2]];
         double d[3], a0[3], a1[3], n0[3], n1[3];
         sub3(d, p2, p1);
         sub3(a0, pv, p1);
@@ -1090,13 +1095,13 @@ static int link_ok(state *s, uint32_t a, uint32_t b, const uint32_t *fa, size_t 
     uint32_t apex[2];
     int napex = 0;
     for (size_t i = 0; i < na; i++) {
-        const uint32_t *tv = s->tv + 3 * (size_t)fa[i];
-        int cb = corner_of(s, fa[i], b);
+        const uint32_t *tv = s->tv + 3 * (size_t)ENT_T(fa[i]);
+        int cb = corner_of(s, ENT_T(fa[i]), b);
         if (cb < 0)
             continue;
         if (napex == 2)
             return 0;
-        apex[napex++] = tv[0] != a && tv[0] != b ? tv[0] : tv[1] != a && tv[1] != b ? tv[1] : tv[2];
+        apex[napex++] = tv[3 - ENT_C(fa[i]) - cb];
     }
     if (!napex)
         return 0;
@@ -1105,21 +1110,21 @@ static int link_ok(state *s, uint32_t a, uint32_t b, const uint32_t *fa, size_t 
     uint32_t stamp = new_stamp(s->mark, &s->mark_clock, s->nv);
     int b_apex_face = 0;
     for (size_t j = 0; j < nb; j++) {
-        const uint32_t *tb = s->tv + 3 * (size_t)fb[j];
-        if (tb[0] == a || tb[1] == a || tb[2] == a)
+        const uint32_t *tb = s->tv + 3 * (size_t)ENT_T(fb[j]);
+        int c1 = NEXT3(ENT_C(fb[j]));
+        uint32_t v0 = tb[c1], v1 = tb[NEXT3(c1)];
+        if (v0 == a || v1 == a)
             continue;
-        int cb = corner_of(s, fb[j], b);
-        uint32_t v0 = tb[(cb + 1) % 3], v1 = tb[(cb + 2) % 3];
         s->mark[v0] = s->mark[v1] = stamp;
         if (napex == 2 && ((v0 == apex[0] && v1 == apex[1]) || (v0 == apex[1] && v1 == apex[0])))
             b_apex_face = 1;
     }
     for (size_t i = 0; i < na; i++) {
-        const uint32_t *ta = s->tv + 3 * (size_t)fa[i];
-        if (ta[0] == b || ta[1] == b || ta[2] == b)
+        const uint32_t *ta = s->tv + 3 * (size_t)ENT_T(fa[i]);
+        int c1 = NEXT3(ENT_C(fa[i]));
+        uint32_t u[2] = {ta[c1], ta[NEXT3(c1)]};
+        if (u[0] == b || u[1] == b)
             continue;
-        int ca = corner_of(s, fa[i], a);
-        uint32_t u[2] = {ta[(ca + 1) % 3], ta[(ca + 2) % 3]};
         for (int p = 0; p < 2; p++)
             if (s->mark[u[p]] == stamp && u[p] != apex[0] && (napex < 2 || u[p] != apex[1]))
                 return 0;
@@ -1143,11 +1148,11 @@ static int try_edge(state *s, uint32_t a, uint32_t b, eval *e, size_t *na_, size
     int nfaces = 0, feature = 0;
     uint32_t wa0 = 0, wb0 = 0, m0 = 0;
     for (size_t k = 0; k < na; k++) {
-        uint32_t t = s->sa[k];
-        int cb = corner_of(s, t, b);
+        uint32_t t = ENT_T(s->sa[k]);
+        int cb = corner_of(s, ENT_T(s->sa[k]), b);
         if (cb < 0)
             continue;
-        uint32_t wa = s->tw[3 * t + corner_of(s, t, a)], wb = s->tw[3 * t + cb];
+        uint32_t wa = s->tw[3 * t + ENT_C(s->sa[k])], wb = s->tw[3 * t + cb];
         uint32_t m = s->tmat ? s->tmat[t] : 0;
         if (nfaces == 0) {
             wa0 = wa;
@@ -1204,25 +1209,25 @@ static int collapse(state *s, uint32_t a, uint32_t b, const double x[3], const u
     wgroup g[MAX_GROUPS];
     int ng;
     if (s->uv) {
-        ng = edge_groups(s, a, b, fa, na, fb, nb, g);
+        ng = edge_groups(s, b, fa, na, fb, nb, g);
     } else {
         /* untextured: one wedge per position vertex, so one merge */
-        g[0].w[0] = s->tw[3 * (size_t)fa[0] + corner_of(s, fa[0], a)];
-        g[0].w[1] = s->tw[3 * (size_t)fb[0] + corner_of(s, fb[0], b)];
+        g[0].w[0] = s->tw[3 * (size_t)ENT_T(fa[0]) + ENT_C(fa[0])];
+        g[0].w[1] = s->tw[3 * (size_t)ENT_T(fb[0]) + ENT_C(fb[0])];
         g[0].n = 2;
         ng = 1;
     }
     uint32_t apex[2];
     int napex = 0;
     for (size_t i = 0; i < na; i++) {
-        uint32_t t = fa[i];
-        if (corner_of(s, t, b) >= 0) {
+        uint32_t t = ENT_T(fa[i]);
+        int cb = corner_of(s, ENT_T(fa[i]), b);
+        if (cb >= 0) {
             s->talive[t] = 0;
             (*live_tris)--;
             /* the apex lost a face: its seams may have changed */
             if (had_features) {
-                const uint32_t *tv = s->tv + 3 * (size_t)t;
-                uint32_t x = tv[0] != a && tv[0] != b ? tv[0] : tv[1] != a && tv[1] != b ? tv[1] : tv[2];
+                uint32_t x = s->tv[3 * (size_t)t + 3 - ENT_C(fa[i]) - cb];
                 s->vflag[x] |= VF_STALE;
                 if (napex < 2)
                     apex[napex++] = x;
@@ -1242,7 +1247,7 @@ static int collapse(state *s, uint32_t a, uint32_t b, const double x[3], const u
                 s->wtouched[wb] = 1;
             s->wpv[wa] = UINT32_MAX;
             for (size_t k = 0; k < na; k++) {
-                uint32_t t = fa[k];
+                uint32_t t = ENT_T(fa[k]);
                 if (!s->talive[t])
                     continue;
                 for (int c = 0; c < 3; c++)
@@ -1260,32 +1265,32 @@ static int collapse(state *s, uint32_t a, uint32_t b, const double x[3], const u
     /* Move a's corners to b and merge adjacency. */
     uint32_t need = 0;
     for (size_t i = 0; i < na; i++)
-        if (s->talive[fa[i]])
+        if (s->talive[ENT_T(fa[i])])
             need++;
     for (size_t i = 0; i < nb; i++)
-        if (s->talive[fb[i]])
+        if (s->talive[ENT_T(fb[i])])
             need++;
     if (!adj_reserve(s, b, need))
         return 0;
     uint32_t *list = s->pool + s->adj[b].start;
     uint32_t k = 0;
     for (size_t i = 0; i < nb; i++)
-        if (s->talive[fb[i]])
+        if (s->talive[ENT_T(fb[i])])
             list[k++] = fb[i];
     for (size_t i = 0; i < na; i++) {
-        uint32_t t = fa[i];
+        uint32_t t = ENT_T(fa[i]);
         if (!s->talive[t])
             continue;
-        int c = corner_of(s, t, a);
+        int c = ENT_C(fa[i]); /* b takes a's corner: the entry stays */
         s->tv[3 * t + c] = b;
         s->wpv[s->tw[3 * t + c]] = b;
-        list[k++] = t;
+        list[k++] = fa[i];
     }
     s->adj[b].count = k;
     s->adj[a].count = 0;
     /* every vertex whose star changed is on a face of b now */
     for (uint32_t i = 0; i < k; i++) {
-        const uint32_t *tv = s->tv + 3 * (size_t)list[i];
+        const uint32_t *tv = s->tv + 3 * (size_t)ENT_T(list[i]);
         s->vflag[tv[0]] |= VF_TOUCHED;
         s->vflag[tv[1]] |= VF_TOUCHED;
         s->vflag[tv[2]] |= VF_TOUCHED;
@@ -1304,9 +1309,7 @@ static int collapse(state *s, uint32_t a, uint32_t b, const double x[3], const u
     /* UVs of wedges whose data or position changed. */
     if (s->aq) {
         for (uint32_t i = 0; i < k; i++) {
-            uint32_t t = list[i];
-            int c = corner_of(s, t, b);
-            uint32_t w = s->tw[3 * t + c];
+            uint32_t w = s->tw[3 * (size_t)ENT_T(list[i]) + ENT_C(list[i])];
             if (s->wtouched[w]) {
                 aq_uv(&s->aq[w], s->px[b], s->uv[w]);
                 s->wtouched[w] = 0;
@@ -1341,8 +1344,8 @@ static int collapse(state *s, uint32_t a, uint32_t b, const double x[3], const u
     s->mark[b] = stamp;
     size_t cnt = 0;
     for (size_t i = 0; i < na; i++) {
-        const uint32_t *tv = s->tv + 3 * (size_t)fa[i];
-        if (!s->talive[fa[i]])
+        const uint32_t *tv = s->tv + 3 * (size_t)ENT_T(fa[i]);
+        if (!s->talive[ENT_T(fa[i])])
             continue;
         for (int c = 0; c < 3; c++) {
             uint32_t v = tv[c];
@@ -1674,7 +1677,8 @@ hlod_result hlod_simplify(const hlod_mesh *in, const hlod_simplify_desc *desc,
     st.vertices_in = in->vertex_count;
     if (!in->tri_count || !in->vertex_count)
         return HLOD_ERR_EMPTY;
-    if (in->vertex_count >= UINT32_MAX || in->tri_count >= UINT32_MAX / 3)
+    /* (adjacency entries keep a face index in 30 bits, see ENT) */
+    if (in->vertex_count >= UINT32_MAX || in->tri_count >= (size_t)1 << 30)
         return HLOD_ERR_INVALID_ARG;
     for (size_t i = 0; i < in->tri_count * 3; i++)
         if (in->indices[i] >= in->vertex_count)
@@ -1834,7 +1838,7 @@ hlod_result hlod_simplify(const hlod_mesh *in, const hlod_simplify_desc *desc,
         if (s.talive[t])
             for (int c = 0; c < 3; c++) {
                 uint32_t v = s.tv[3 * t + c];
-                s.pool[s.adj[v].start + s.adj[v].count++] = (uint32_t)t;
+                s.pool[s.adj[v].start + s.adj[v].count++] = ENT(t, c);
             }
 
     /* Attribute data (wedge groups are formed only when textured). */
@@ -1944,10 +1948,10 @@ hlod_result hlod_simplify(const hlod_mesh *in, const hlod_simplify_desc *desc,
             int feature = 1, found = 0;
             const uint32_t *fl = s.pool + s.adj[a].start;
             for (uint32_t i = 0; i < s.adj[a].count; i++) {
-                uint32_t u = fl[i];
+                uint32_t u = ENT_T(fl[i]);
                 if (u == t || !s.talive[u])
                     continue;
-                int ca = corner_of(&s, u, a), cb = corner_of(&s, u, b);
+                int ca = ENT_C(fl[i]), cb = corner_of(&s, ENT_T(fl[i]), b);
                 if (cb < 0)
                     continue;
                 found++;
