@@ -70,7 +70,8 @@ typedef struct hlod_simplify_stats {
 
 /* Simplifies in into *out (freed first; may not alias in).  Materials,
  * objects, normals and UVs are carried over; vertex and triangle order
- * follow the input.  stats may be NULL. */
+ * follow the input.  stats may be NULL.  HLOD_ERR_INVALID_ARG for 2^30
+ * triangles or 2^32 - 1 vertices and more. */
 hlod_result hlod_simplify(const hlod_mesh *in, const hlod_simplify_desc *desc,
                           hlod_mesh *out, hlod_simplify_stats *stats);
 
