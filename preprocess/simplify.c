@@ -530,10 +530,14 @@ static size_t star(state *s, uint32_t v, int which)
     return k;
 }
 
+/* The corner of v in face t, -1 when v is not on it.  (Without branches:
+ * which corner it is, is a coin toss for the predictor.  A live face has
+ * three distinct corners, so at most one bit is set.) */
 static int corner_of(const state *s, uint32_t t, uint32_t v)
 {
+    static const signed char corner[8] = {-1, 0, 1, -1, 2, -1, -1, -1};
     const uint32_t *tv = s->tv + 3 * (size_t)t;
-    return tv[0] == v ? 0 : tv[1] == v ? 1 : tv[2] == v ? 2 : -1;
+    return corner[(tv[0] == v) | (tv[1] == v) << 1 | (tv[2] == v) << 2];
 }
 
 /* ---------- vertex classification ---------- */
@@ -1089,49 +1093,49 @@ static int star_ok(const state *s, uint32_t v, uint32_t other, const uint32_t *f
 /* Link condition: the common neighbours of a and b are exactly the apexes
  * of the edge's faces, and no face of a and face of b share an opposite
  * edge (which would fold the mesh onto itself, e.g. a tetrahedron). */
-static int link_ok(state *s, uint32_t a, uint32_t b, const uint32_t *fa, size_t na,
-                   const uint32_t *fb, size_t nb)
+static int link_ok(state *s, uint32_t b, const uint32_t *fa, size_t na, const uint32_t *fb, size_t nb)
 {
-    uint32_t apex[2];
-    int napex = 0;
+    /* the apexes of the faces on edge (a, b): one or two (a slot past the
+     * last found one takes the misses' throwaway reads) */
+    uint32_t apex[4];
+    size_t napex = 0;
     for (size_t i = 0; i < na; i++) {
         const uint32_t *tv = s->tv + 3 * (size_t)ENT_T(fa[i]);
         int cb = corner_of(s, ENT_T(fa[i]), b);
-        if (cb < 0)
-            continue;
-        if (napex == 2)
-            return 0;
-        apex[napex++] = tv[3 - ENT_C(fa[i]) - cb];
+        apex[napex & 3] = tv[cb >= 0 ? 3 - ENT_C(fa[i]) - cb : 0];
+        napex += cb >= 0;
     }
-    if (!napex)
+    if (!napex || napex > 2)
         return 0;
     /* Stamp b's link vertices, and note whether b has a face on the two
-     * apexes (then a face of a on them too would close a tetrahedron). */
+     * apexes (then a face of a on them too would close a tetrahedron).
+     * (Without branches, edge faces included: their links hold a and an
+     * apex, which the test below never counts, and the corners of a face
+     * are a coin toss for the predictor.) */
     uint32_t stamp = new_stamp(s->mark, &s->mark_clock, s->nv);
+    uint32_t ap0 = apex[0], ap1 = napex == 2 ? apex[1] : apex[0];
     int b_apex_face = 0;
     for (size_t j = 0; j < nb; j++) {
         const uint32_t *tb = s->tv + 3 * (size_t)ENT_T(fb[j]);
         int c1 = NEXT3(ENT_C(fb[j]));
         uint32_t v0 = tb[c1], v1 = tb[NEXT3(c1)];
-        if (v0 == a || v1 == a)
-            continue;
         s->mark[v0] = s->mark[v1] = stamp;
-        if (napex == 2 && ((v0 == apex[0] && v1 == apex[1]) || (v0 == apex[1] && v1 == apex[0])))
-            b_apex_face = 1;
+        b_apex_face |= ((v0 == ap0) & (v1 == ap1)) | ((v0 == ap1) & (v1 == ap0));
     }
+    b_apex_face &= napex == 2;
+    /* A link vertex of a (off the edge faces, whose links hold b and an
+     * apex: b is never stamped, an apex never counts) shared with b must
+     * be an apex, and no face of a may close the tetrahedron. */
+    int bad = 0;
     for (size_t i = 0; i < na; i++) {
         const uint32_t *ta = s->tv + 3 * (size_t)ENT_T(fa[i]);
         int c1 = NEXT3(ENT_C(fa[i]));
-        uint32_t u[2] = {ta[c1], ta[NEXT3(c1)]};
-        if (u[0] == b || u[1] == b)
-            continue;
-        for (int p = 0; p < 2; p++)
-            if (s->mark[u[p]] == stamp && u[p] != apex[0] && (napex < 2 || u[p] != apex[1]))
-                return 0;
-        if (b_apex_face && ((u[0] == apex[0] && u[1] == apex[1]) || (u[0] == apex[1] && u[1] == apex[0])))
-            return 0;
+        uint32_t u0 = ta[c1], u1 = ta[NEXT3(c1)];
+        bad |= (s->mark[u0] == stamp) & (u0 != ap0) & (u0 != ap1);
+        bad |= (s->mark[u1] == stamp) & (u1 != ap0) & (u1 != ap1);
+        bad |= b_apex_face & (((u0 == ap0) & (u1 == ap1)) | ((u0 == ap1) & (u1 == ap0)));
     }
-    return 1;
+    return !bad;
 }
 
 /* Everything a collapse of (a, b) must pass, for every placement: returns
@@ -1170,7 +1174,7 @@ static int try_edge(state *s, uint32_t a, uint32_t b, eval *e, size_t *na_, size
     /* The cheapest placement first: it is nearly always valid, and the
      * others are priced only when it is not. */
     evaluate(s, a, b, feature, s->sa, na, s->sb, nb, 0, e);
-    if (!e->allowed || !link_ok(s, a, b, s->sa, na, s->sb, nb))
+    if (!e->allowed || !link_ok(s, b, s->sa, na, s->sb, nb))
         return -1;
     int first = 0;
     for (int k = 1; k < e->ncand; k++)
@@ -1246,13 +1250,15 @@ static int collapse(state *s, uint32_t a, uint32_t b, const double x[3], const u
             else if (moved)
                 s->wtouched[wb] = 1;
             s->wpv[wa] = UINT32_MAX;
+            /* (a wedge belongs to one position vertex: only a's corner
+             * of a face can hold wa) */
             for (size_t k = 0; k < na; k++) {
                 uint32_t t = ENT_T(fa[k]);
                 if (!s->talive[t])
                     continue;
-                for (int c = 0; c < 3; c++)
-                    if (s->tw[3 * t + c] == wa)
-                        s->tw[3 * t + c] = wb;
+                uint32_t *w = &s->tw[3 * (size_t)t + ENT_C(fa[k])];
+                if (*w == wa)
+                    *w = wb;
             }
         } else {
             /* An unpaired wedge keeps its UV unless its position moves. */
