@@ -212,6 +212,7 @@ typedef struct state {
     size_t np, pcap;
     /* scratch */
     uint32_t *sa, *sb;         /* star faces of a, b */
+    uint32_t *ra, *rb;         /* of those, the ones off the edge (a, b) */
     size_t scap;
     uint32_t *ring;
     size_t ring_cap;
@@ -519,14 +520,21 @@ static size_t star(state *s, uint32_t v, int which)
         if (!nb)
             return (size_t)-1;
         s->sb = nb;
+        if (!(na = realloc(s->ra, nc * sizeof *na)))
+            return (size_t)-1;
+        s->ra = na;
+        if (!(nb = realloc(s->rb, nc * sizeof *nb)))
+            return (size_t)-1;
+        s->rb = nb;
         s->scap = nc;
     }
     uint32_t *buf = which ? s->sb : s->sa;
     const uint32_t *list = s->pool + s->adj[v].start;
     size_t k = 0;
-    for (uint32_t i = 0; i < n; i++)
-        if (s->talive[ENT_T(list[i])])
-            buf[k++] = list[i];
+    for (uint32_t i = 0; i < n; i++) {
+        buf[k] = list[i];
+        k += s->talive[ENT_T(list[i])];
+    }
     return k;
 }
 
@@ -1051,20 +1059,17 @@ out_of_memory: /* no verdict */
 
 /* ---------- validity checks ---------- */
 
-/* Do the faces around v (other than those holding `other`) keep their
+/* Do the faces f of v (those off the collapsing edge) keep their
  * orientation and shape when v moves to x?  With d = p2 - p1 the edge
  * opposite v, a face's (doubled) normal is d x (v - p1) before and
  * d x (x - p1) after: one cross product each, squared forms, no sqrt.
  * This runs for every face of every collapse. */
-static int star_ok(const state *s, uint32_t v, uint32_t other, const uint32_t *f, size_t nf,
-                   const double x[3])
+static int star_ok(const state *s, uint32_t v, const uint32_t *f, size_t nf, const double x[3])
 {
     const double *pv = s->px[v];
     for (size_t i = 0; i < nf; i++) {
         const uint32_t *tv = s->tv + 3 * (size_t)ENT_T(f[i]);
         int c1 = NEXT3(ENT_C(f[i])), c2 = NEXT3(c1);
-        if (tv[c1] == other || tv[c2] == other)
-            continue;
         const double *p1 = s->px[tv[c1]], *p2 = s->px[tv[c2]];
         double d[3], a0[3], a1[3], n0[3], n1[3];
         sub3(d, p2, p1);
@@ -1151,9 +1156,18 @@ static int try_edge(state *s, uint32_t a, uint32_t b, eval *e, size_t *na_, size
     /* Is the edge still there, and is it a feature edge? */
     int nfaces = 0, feature = 0;
     uint32_t wa0 = 0, wb0 = 0, m0 = 0;
+    /* (the faces off the edge go to ra and rb for star_ok, without
+     * branches: which faces hold the edge is a coin toss) */
+    size_t nra = 0, nrb = 0;
+    for (size_t k = 0; k < nb; k++) {
+        s->rb[nrb] = s->sb[k];
+        nrb += corner_of(s, ENT_T(s->sb[k]), a) < 0;
+    }
     for (size_t k = 0; k < na; k++) {
         uint32_t t = ENT_T(s->sa[k]);
         int cb = corner_of(s, ENT_T(s->sa[k]), b);
+        s->ra[nra] = s->sa[k];
+        nra += cb < 0;
         if (cb < 0)
             continue;
         uint32_t wa = s->tw[3 * t + ENT_C(s->sa[k])], wb = s->tw[3 * t + cb];
@@ -1180,7 +1194,7 @@ static int try_edge(state *s, uint32_t a, uint32_t b, eval *e, size_t *na_, size
     for (int k = 1; k < e->ncand; k++)
         if (e->cand[k].cost < e->cand[first].cost)
             first = k;
-    if (star_ok(s, a, b, s->sa, na, e->cand[first].x) && star_ok(s, b, a, s->sb, nb, e->cand[first].x))
+    if (star_ok(s, a, s->ra, nra, e->cand[first].x) && star_ok(s, b, s->rb, nrb, e->cand[first].x))
         return first;
     evaluate(s, a, b, feature, s->sa, na, s->sb, nb, 1, e);
     /* Cheapest valid placement. */
@@ -1193,7 +1207,7 @@ static int try_edge(state *s, uint32_t a, uint32_t b, eval *e, size_t *na_, size
         }
     for (int k = 0; k < e->ncand; k++) {
         const plan *pl = &e->cand[order[k]];
-        if (star_ok(s, a, b, s->sa, na, pl->x) && star_ok(s, b, a, s->sb, nb, pl->x))
+        if (star_ok(s, a, s->ra, nra, pl->x) && star_ok(s, b, s->rb, nrb, pl->x))
             return order[k];
     }
     return -1;
@@ -1543,7 +1557,7 @@ static void state_free(state *s)
     free(s->rep);
     free(s->adj); free(s->pool);
     free(s->tv); free(s->tw); free(s->tmat); free(s->tpos); free(s->talive); free(s->wpv); free(s->uv); free(s->aq);
-    free(s->wtouched); free(s->wmark); free(s->cand); free(s->ctmp); free(s->rh.e); free(s->mark); free(s->slot); free(s->vflag); free(s->px); free(s->parked); free(s->sa); free(s->sb); free(s->ring);
+    free(s->wtouched); free(s->wmark); free(s->cand); free(s->ctmp); free(s->rh.e); free(s->mark); free(s->slot); free(s->vflag); free(s->px); free(s->parked); free(s->sa); free(s->sb); free(s->ra); free(s->rb); free(s->ring);
 }
 
 static double now_s(void)
