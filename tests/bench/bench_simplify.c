@@ -10,7 +10,7 @@
  * with target_tris = the count meshoptimizer achieved, so both outputs are
  * compared at the same size.  Each simplify call is timed alone
  * (CLOCK_MONOTONIC, single thread); the two simplifiers run in turn, at
- * least 3 times each and until ours has run for 0.25 s (at most 50 times),
+ * least 3 times each and until ours has run for 0.5 s (at most 50 times),
  * and each keeps its best time, so a slow moment of a shared machine
  * falls on both alike and a small mesh is not timed by 3 runs of a few
  * milliseconds.  Each output is then
@@ -48,7 +48,7 @@
 #define PROG "hlod-bench-simplify"
 #define RUNS 3            /* at least, for each simplifier */
 #define MAX_RUNS 50
-#define MIN_SECONDS 0.25  /* of our runs, before the timing stops */
+#define MIN_SECONDS 0.5   /* of our runs, before the timing stops */
 #define SEED 1u
 #define MAX_RATIOS 16
 #define TARGET_MEAN_RATIO 0.75
