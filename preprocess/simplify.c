@@ -336,20 +336,49 @@ static int cands_push(cand **v, size_t *n, size_t *cap, cand c)
 static int cand_push(state *s, cand c) { return cands_push(&s->cand, &s->nc, &s->ccap, c); }
 static int park(state *s, cand c) { return cands_push(&s->parked, &s->np, &s->pcap, c); }
 
-static int cand_edge_order(const void *pa, const void *pb)
+
+/* The order of a pass: by price, then edge (prices are never NaN). */
+static int cand_less(const cand *x, const cand *y)
 {
-    const cand *x = pa, *y = pb;
-    if (x->a != y->a)
-        return x->a < y->a ? -1 : 1;
-    return (x->b > y->b) - (x->b < y->b);
+    if (x->cost != y->cost)
+        return x->cost < y->cost;
+    return x->a != y->a ? x->a < y->a : x->b < y->b;
 }
 
-static int cand_full_order(const void *pa, const void *pb)
+/* Sorts v[0..n) by cand_less: insertion sort of blocks of 16, then
+ * bottom-up merges through tmp (n places).  (Runs of equal radix keys can
+ * be long: planar regions price at 0.) */
+static void run_sort(cand *v, size_t n, cand *tmp)
 {
-    const cand *x = pa, *y = pb;
-    if (x->cost != y->cost)
-        return x->cost < y->cost ? -1 : 1;
-    return cand_edge_order(pa, pb);
+    enum { BLOCK = 16 };
+    for (size_t lo = 0; lo < n; lo += BLOCK) {
+        size_t hi = lo + BLOCK < n ? lo + BLOCK : n;
+        for (size_t a = lo + 1; a < hi; a++) {
+            cand c = v[a];
+            size_t b = a;
+            for (; b > lo && cand_less(&c, &v[b - 1]); b--)
+                v[b] = v[b - 1];
+            v[b] = c;
+        }
+    }
+    cand *src = v, *dst = tmp;
+    for (size_t w = BLOCK; w < n; w *= 2) {
+        for (size_t lo = 0; lo < n; lo += 2 * w) {
+            size_t mid = lo + w < n ? lo + w : n, hi = lo + 2 * w < n ? lo + 2 * w : n;
+            size_t x = lo, y = mid, k = lo;
+            while (x < mid && y < hi)
+                dst[k++] = cand_less(&src[y], &src[x]) ? src[y++] : src[x++];
+            while (x < mid)
+                dst[k++] = src[x++];
+            while (y < hi)
+                dst[k++] = src[y++];
+        }
+        cand *t = src;
+        src = dst;
+        dst = t;
+    }
+    if (src != v)
+        memcpy(v, src, n * sizeof *v);
 }
 
 /* Sorts s->cand[0..n) by (price, a, b): an LSD radix sort of the
@@ -411,17 +440,7 @@ static int cand_sort(state *s, size_t n)
             if (kj >> low != ki >> low)
                 break;
         }
-        if (j - i > 16) {
-            qsort(s->cand + i, j - i, sizeof *s->cand, cand_full_order);
-        } else {
-            for (size_t a = i + 1; a < j; a++) {
-                cand c = s->cand[a];
-                size_t b = a;
-                for (; b > i && cand_full_order(&c, &s->cand[b - 1]) < 0; b--)
-                    s->cand[b] = s->cand[b - 1];
-                s->cand[b] = c;
-            }
-        }
+        run_sort(s->cand + i, j - i, s->ctmp);
         i = j;
     }
     return 1;
@@ -435,13 +454,12 @@ static float cost_rank(const cand *c, size_t n, size_t k)
     uint32_t prefix = 0;
     for (int level = 0; level < 4; level++) {
         int shift = 24 - 8 * level; /* the bits above it are known */
+        uint32_t known = level ? ~0u << (shift + 8) : 0;
         size_t hist[256] = {0};
-        for (size_t i = 0; i < n; i++) {
+        for (size_t i = 0; i < n; i++) { /* (counted without a branch) */
             uint32_t key;
             memcpy(&key, &c[i].cost, 4);
-            if (level && key >> (shift + 8) != prefix >> (shift + 8))
-                continue;
-            hist[key >> shift & 255]++;
+            hist[key >> shift & 255] += (key & known) == (prefix & known);
         }
         uint32_t bucket = 0;
         while (k >= hist[bucket])
@@ -453,22 +471,19 @@ static float cost_rank(const cand *c, size_t n, size_t k)
     return r;
 }
 
-/* Moves the candidates priced at most bound to the front of c[0..n);
- * returns their count. */
+/* Moves the candidates priced at most bound to the front of c[0..n)
+ * (without a branch: which side a price falls is a coin toss); returns
+ * their count. */
 static size_t cands_under(cand *c, size_t n, float bound)
 {
-    size_t lo = 0, hi = n;
-    for (;;) {
-        while (lo < hi && c[lo].cost <= bound)
-            lo++;
-        while (lo < hi && !(c[hi - 1].cost <= bound))
-            hi--;
-        if (lo >= hi)
-            return lo;
-        cand t = c[lo];
-        c[lo] = c[hi - 1];
-        c[hi - 1] = t;
+    size_t j = 0;
+    for (size_t i = 0; i < n; i++) {
+        cand t = c[i];
+        c[i] = c[j];
+        c[j] = t;
+        j += t.cost <= bound;
     }
+    return j;
 }
 
 /* A fresh stamp for a scratch array of n marks: a mark equal to it was set
@@ -968,6 +983,14 @@ static int price_edge(state *s, uint32_t a, uint32_t b, int feature, double *pri
 
 #ifdef HLOD_SELFCHECK
 static int try_edge(state *s, uint32_t a, uint32_t b, eval *e, size_t *na_, size_t *nb_);
+
+static int cand_edge_order(const void *pa, const void *pb)
+{
+    const cand *x = pa, *y = pb;
+    if (x->a != y->a)
+        return x->a < y->a ? -1 : 1;
+    return (x->b > y->b) - (x->b < y->b);
+}
 
 /* The candidates of a pass must be exactly what pricing every edge anew
  * would give: the same edges, each once, at the same prices; every kept
