@@ -214,8 +214,6 @@ typedef struct state {
     uint32_t *sa, *sb;         /* star faces of a, b */
     uint32_t *ra, *rb;         /* of those, the ones off the edge (a, b) */
     size_t scap;
-    uint32_t *ring;
-    size_t ring_cap;
 } state;
 
 /* ---------- small linear algebra ---------- */
@@ -1359,7 +1357,7 @@ static int collapse(state *s, uint32_t a, uint32_t b, const double x[3], const u
             }
         }
     }
-    /* Feature status of b and its ring may have changed, unless both
+    /* Feature status of b and the apexes may have changed, unless both
      * endpoints were plain interior vertices: then every merged edge is
      * interior too and nothing around them changes. */
     if (!had_features) {
@@ -1372,45 +1370,17 @@ static int collapse(state *s, uint32_t a, uint32_t b, const double x[3], const u
     }
     if (!classify(s, b, recs, rcap))
         return 0;
-    /* Of the ring, only a's old neighbours see a change: the faces that
-     * moved from a to b changed a corner and maybe a wedge, while b's own
-     * faces are as they were, and a vertex's class reads nothing but the
-     * corners, wedges and materials of its faces. */
-    if (2 * na > s->ring_cap) { /* each face adds at most two */
-        uint32_t *nr = realloc(s->ring, (2 * na + 16) * sizeof *nr);
-        if (!nr)
-            return 0;
-        s->ring = nr;
-        s->ring_cap = 2 * na + 16;
-    }
-    uint32_t stamp = new_stamp(s->mark, &s->mark_clock, s->nv);
-    s->mark[b] = stamp;
-    size_t cnt = 0;
-    for (size_t i = 0; i < na; i++) {
-        const uint32_t *tv = s->tv + 3 * (size_t)ENT_T(fa[i]);
-        if (!s->talive[ENT_T(fa[i])])
-            continue;
-        for (int c = 0; c < 3; c++) {
-            uint32_t v = tv[c];
-            if (s->mark[v] == stamp)
-                continue;
-            s->mark[v] = stamp;
-            s->ring[cnt++] = v;
-        }
-    }
-    for (size_t j = 0; j < cnt; j++) {
-        uint32_t v = s->ring[j];
-        uint8_t fdeg = s->vx[v].fdeg, locked = s->vx[v].locked;
-        if (!classify(s, v, recs, rcap))
-            return 0;
-        /* a reclassified vertex prices its edges differently */
-        if (s->vx[v].fdeg != fdeg || s->vx[v].locked != locked)
-            s->vflag[v] |= VF_STALE;
-    }
-    /* An apex whose only faces on a and b were the removed ones is not in
-     * the ring any more, but lost two (border) edges: classify it too
-     * (it is stale already).  Left alone, spider.obj kept a vertex on a
-     * feature line that no longer existed, and it could not move. */
+    /* The rest of the ring keeps its class: a neighbour v of a that is no
+     * apex is no neighbour of b (the link test), so its faces from a now
+     * name b where they named a, with a's wedge there mapped to one of
+     * b's; each of v's edges keeps its faces, wedges and materials, so
+     * its feature degree, lock and plainness stay (the self-check
+     * verifies every vertex's class each pass).  Only the apexes lose
+     * faces. */
+    /* An apex lost a face, and with it maybe a seam or two border edges:
+     * classify it (it is stale already).  Left alone, spider.obj kept a
+     * vertex on a feature line that no longer existed, and it could not
+     * move. */
     for (int i = 0; i < napex; i++)
         if (!classify(s, apex[i], recs, rcap))
             return 0;
@@ -1580,7 +1550,7 @@ static void state_free(state *s)
     free(s->rep);
     free(s->adj); free(s->pool);
     free(s->tv); free(s->tw); free(s->tmat); free(s->tpos); free(s->talive); free(s->wpv); free(s->uv); free(s->aq);
-    free(s->wtouched); free(s->wmark); free(s->cand); free(s->ctmp); free(s->rh.e); free(s->mark); free(s->slot); free(s->vflag); free(s->px); free(s->parked); free(s->sa); free(s->sb); free(s->ra); free(s->rb); free(s->ring);
+    free(s->wtouched); free(s->wmark); free(s->cand); free(s->ctmp); free(s->rh.e); free(s->mark); free(s->slot); free(s->vflag); free(s->px); free(s->parked); free(s->sa); free(s->sb); free(s->ra); free(s->rb);
 }
 
 static double now_s(void)
@@ -2042,8 +2012,8 @@ hlod_result hlod_simplify(const hlod_mesh *in, const hlod_simplify_desc *desc,
          * A price depends only on its two endpoints (quadrics, positions,
          * locks, feature degrees, wedges) and on the faces of its edge, and
          * a collapse changes those only at the vertices it marks stale
-         * (both endpoints; after a feature collapse, the apexes and the
-         * ring vertices it reclassified).  So after the first pass only
+         * (both endpoints; after a feature collapse, the apexes).  So
+         * after the first pass only
          * edges with a stale endpoint are re-priced; the others keep last
          * pass's candidate, whose price is still exact (checked by
          * re-pricing every kept one on the benchmark meshes and a city
@@ -2192,11 +2162,11 @@ hlod_result hlod_simplify(const hlod_mesh *in, const hlod_simplify_desc *desc,
                 cost_goal = c.cost * PASS_SLACK;
             s.vflag[a] |= VF_LOCK | VF_STALE;
             s.vflag[b] |= VF_LOCK | VF_STALE;
-            /* A feature collapse may reclassify the ring: leave it to the
-             * next pass.  (Only the vertices it did reclassify, and the
-             * apexes, are stale: collapse() marked them.  Locking just
-             * those let passes run further from the priority order, and
-             * fandisk at 1% lost its max-error lead over meshoptimizer.) */
+            /* A feature collapse may reclassify the apexes: leave b's
+             * ring to the next pass.  (Only the apexes are stale:
+             * collapse() marked them.  Locking just those let passes run
+             * further from the priority order, and fandisk at 1% lost
+             * its max-error lead over meshoptimizer.) */
             if (had_features) {
                 long cnt = neighbours(&s, b, &recs, &rcap);
                 for (long j = 0; j < cnt; j++)
