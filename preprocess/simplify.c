@@ -2168,9 +2168,13 @@ hlod_result hlod_simplify(const hlod_mesh *in, const hlod_simplify_desc *desc,
              * further from the priority order, and fandisk at 1% lost
              * its max-error lead over meshoptimizer.) */
             if (had_features) {
-                long cnt = neighbours(&s, b, &recs, &rcap);
-                for (long j = 0; j < cnt; j++)
-                    s.vflag[recs[j].n] |= VF_LOCK;
+                const uint32_t *fl = s.pool + s.adj[b].start;
+                for (uint32_t j = 0; j < s.adj[b].count; j++) {
+                    const uint32_t *tv = s.tv + 3 * (size_t)ENT_T(fl[j]);
+                    s.vflag[tv[0]] |= VF_LOCK;
+                    s.vflag[tv[1]] |= VF_LOCK;
+                    s.vflag[tv[2]] |= VF_LOCK;
+                }
             }
         }
         /* When every candidate under the bound was refused, retry once
