@@ -206,8 +206,6 @@ typedef struct state {
     uint32_t mark_clock;
     uint8_t *vflag;            /* pv flags of this pass, VF_* (one byte, so
                                   the walk reads one line for all three) */
-    uint8_t *stale;            /* pv whose edge prices this pass changed */
-    uint8_t *touched;          /* pv whose star this pass changed */
     cand *parked;              /* refused edges (see the pass loop) */
     size_t np, pcap;
     /* scratch */
@@ -334,7 +332,6 @@ static int cands_push(cand **v, size_t *n, size_t *cap, cand c)
 static int cand_push(state *s, cand c) { return cands_push(&s->cand, &s->nc, &s->ccap, c); }
 static int park(state *s, cand c) { return cands_push(&s->parked, &s->np, &s->pcap, c); }
 
-
 /* The order of a pass: by price, then edge (prices are never NaN). */
 static int cand_less(const cand *x, const cand *y)
 {
@@ -383,9 +380,10 @@ static void run_sort(cand *v, size_t n, cand *tmp)
  * candidates themselves on the price's top 22 bits (non-negative floats
  * order like their bit patterns), 2 passes of 11 bits (3 of 8 bits, on 24,
  * for fewer than 8192), then each run with equal top bits (prices within
- * 2^-13 of each other, or tied) sorted in full.  The pass then reads them in order, sequentially.  Equal prices
- * thus go in edge order, so the order does not depend on which prices were
- * kept from the last pass (planar regions tie at 0). */
+ * 2^-13 of each other, or tied) sorted in full.  The pass then reads them
+ * in order, sequentially.  Equal prices thus go in edge order, so the order
+ * does not depend on which prices were kept from the last pass (planar
+ * regions tie at 0). */
 static int cand_sort(state *s, size_t n)
 {
     if (n > s->ocap) {
