@@ -190,6 +190,7 @@ typedef struct state {
     uint32_t *tpos;            /* input triangle -> internal slot */
     /* wedges */
     uint32_t *wpv;
+    uint32_t *pvw;             /* untextured: pv -> its one wedge */
     float (*uv)[2];            /* NULL when untextured */
     attrq *aq;                 /* NULL when untextured */
     uint8_t *wtouched;         /* uv must be recomputed from aq */
@@ -593,10 +594,12 @@ static long neighbours(state *s, uint32_t v, nrec **recs, size_t *rcap)
         int c = ENT_C(faces[i]);
         assert(s->tv[3 * (size_t)t + c] == v);
         uint32_t mat = s->tmat ? s->tmat[t] : 0;
-        uint32_t wv = s->tw[3 * t + c];
+        /* (untextured, a vertex has one wedge: only faces and materials
+         * can make a feature edge, and the wedges need no reading) */
+        uint32_t wv = s->uv ? s->tw[3 * t + c] : 0;
         for (int k = 1; k <= 2; k++) {
             int cn = (c + k) % 3;
-            uint32_t n = s->tv[3 * t + cn], wn = s->tw[3 * t + cn];
+            uint32_t n = s->tv[3 * t + cn], wn = s->uv ? s->tw[3 * t + cn] : 0;
             long j = s->mark[n] == stamp ? (long)s->slot[n] : cnt;
             if (j == cnt) {
                 s->mark[n] = stamp;
@@ -680,9 +683,13 @@ static int plain_interior(state *s, uint32_t v)
         s->mark[nx] = stamp;
         s->slot[nx] = k;
         pv[k] = s->tv[3 * t + c2];
-        wv[k] = s->tw[3 * t + c];
-        wn[k] = s->tw[3 * t + c1];
-        wp[k] = s->tw[3 * t + c2];
+        if (s->uv) {
+            wv[k] = s->tw[3 * t + c];
+            wn[k] = s->tw[3 * t + c1];
+            wp[k] = s->tw[3 * t + c2];
+        } else { /* one wedge per vertex: they always agree */
+            wv[k] = wn[k] = wp[k] = 0;
+        }
         mt[k] = s->tmat ? s->tmat[t] : 0;
         k++;
     }
@@ -1189,7 +1196,7 @@ static int try_edge(state *s, uint32_t a, uint32_t b, eval *e, size_t *na_, size
         nra += cb < 0;
         if (cb < 0)
             continue;
-        uint32_t wa = s->tw[3 * t + ENT_C(s->sa[k])], wb = s->tw[3 * t + cb];
+        uint32_t wa = s->uv ? s->tw[3 * t + ENT_C(s->sa[k])] : 0, wb = s->uv ? s->tw[3 * t + cb] : 0;
         uint32_t m = s->tmat ? s->tmat[t] : 0;
         if (nfaces == 0) {
             wa0 = wa;
@@ -1242,18 +1249,11 @@ static int collapse(state *s, uint32_t a, uint32_t b, const double x[3], const u
     int had_features = !s->vx[a].plain || !s->vx[b].plain;
     /* distinct pvs never share a position, so a_stays implies moved */
     int a_stays = x[0] == s->px[a][0] && x[1] == s->px[a][1] && x[2] == s->px[a][2];
-    /* Wedge merges through the edge faces: wa -> wb. */
+    /* Wedge merges through the edge faces: wa -> wb.  (Untextured, a
+     * vertex has one wedge and nothing reads the corners' wedges until
+     * the output: untextured_wedges() sets them then.) */
     wgroup g[MAX_GROUPS];
-    int ng;
-    if (s->uv) {
-        ng = edge_groups(s, b, fa, na, fb, nb, g);
-    } else {
-        /* untextured: one wedge per position vertex, so one merge */
-        g[0].w[0] = s->tw[3 * (size_t)ENT_T(fa[0]) + ENT_C(fa[0])];
-        g[0].w[1] = s->tw[3 * (size_t)ENT_T(fb[0]) + ENT_C(fb[0])];
-        g[0].n = 2;
-        ng = 1;
-    }
+    int ng = s->uv ? edge_groups(s, b, fa, na, fb, nb, g) : 0;
     uint32_t apex[2];
     int napex = 0;
     for (size_t i = 0; i < na; i++) {
@@ -1322,7 +1322,8 @@ static int collapse(state *s, uint32_t a, uint32_t b, const double x[3], const u
             continue;
         int c = ENT_C(fa[i]); /* b takes a's corner: the entry stays */
         s->tv[3 * t + c] = b;
-        s->wpv[s->tw[3 * t + c]] = b;
+        if (s->uv)
+            s->wpv[s->tw[3 * t + c]] = b;
         list[k++] = fa[i];
     }
     s->adj[b].count = k;
@@ -1547,7 +1548,7 @@ static void state_free(state *s)
     free(s->vx);
     free(s->rep);
     free(s->adj); free(s->pool);
-    free(s->tv); free(s->tw); free(s->tmat); free(s->tpos); free(s->talive); free(s->wpv); free(s->uv); free(s->aq);
+    free(s->tv); free(s->tw); free(s->tmat); free(s->tpos); free(s->talive); free(s->wpv); free(s->pvw); free(s->uv); free(s->aq);
     free(s->wtouched); free(s->wmark); free(s->cand); free(s->ctmp); free(s->rh.e); free(s->mark); free(s->slot); free(s->vflag); free(s->px); free(s->parked); free(s->sa); free(s->sb); free(s->ra); free(s->rb);
 }
 
@@ -1556,6 +1557,16 @@ static double now_s(void)
     struct timespec ts;
     clock_gettime(CLOCK_MONOTONIC, &ts);
     return ts.tv_sec + ts.tv_nsec * 1e-9;
+}
+
+/* Untextured, the walk leaves the corners' wedges alone (collapse()):
+ * each live vertex keeps the one wedge it started with, s->pvw. */
+static void untextured_wedges(state *s)
+{
+    for (size_t t = 0; t < s->nt; t++)
+        if (s->talive[t])
+            for (int c = 0; c < 3; c++)
+                s->tw[3 * t + c] = s->pvw[s->tv[3 * t + c]];
 }
 
 /* Builds the output mesh from the surviving faces. */
@@ -1863,9 +1874,15 @@ hlod_result hlod_simplify(const hlod_mesh *in, const hlod_simplify_desc *desc,
         memcpy(s.uv, in->uvs, nw * sizeof *s.uv);
         s.uv_w = desc->uv_weight > 0 ? desc->uv_weight : 1.0;
     } else {
-        s.wtouched = calloc(nw, 1);
-        if (!s.wtouched)
+        /* one wedge per position vertex (canonical_wedges() merges by
+         * position alone): note it, for untextured_wedges() */
+        s.pvw = malloc(nv * sizeof *s.pvw);
+        if (!s.pvw)
             goto done;
+        for (size_t t = 0; t < nt; t++)
+            if (s.talive[t])
+                for (int c = 0; c < 3; c++)
+                    s.pvw[s.tv[3 * t + c]] = s.tw[3 * t + c];
     }
 
     /* Face quadrics. */
@@ -2193,6 +2210,8 @@ hlod_result hlod_simplify(const hlod_mesh *in, const hlod_simplify_desc *desc,
         }
     }
 
+    if (!s.uv)
+        untextured_wedges(&s);
     res = emit(&s, in, centre, scale, out);
     st.seconds = now_s() - t0;
     if (res == HLOD_OK) {
