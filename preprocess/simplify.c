@@ -1328,12 +1328,14 @@ static int collapse(state *s, uint32_t a, uint32_t b, const double x[3], const u
     }
     s->adj[b].count = k;
     s->adj[a].count = 0;
-    /* every vertex whose star changed is on a face of b now */
+    /* every vertex whose star changed is on a face of b now; after a
+     * feature collapse the pass also leaves them alone (see the walk) */
+    uint8_t flags = VF_TOUCHED | (had_features ? VF_LOCK : 0);
     for (uint32_t i = 0; i < k; i++) {
         const uint32_t *tv = s->tv + 3 * (size_t)ENT_T(list[i]);
-        s->vflag[tv[0]] |= VF_TOUCHED;
-        s->vflag[tv[1]] |= VF_TOUCHED;
-        s->vflag[tv[2]] |= VF_TOUCHED;
+        s->vflag[tv[0]] |= flags;
+        s->vflag[tv[1]] |= flags;
+        s->vflag[tv[2]] |= flags;
     }
     s->vx[a].alive = 0;
     q_add(&s->vx[b].q, &s->vx[a].q);
@@ -2166,7 +2168,6 @@ hlod_result hlod_simplify(const hlod_mesh *in, const hlod_simplify_desc *desc,
             }
             if (est2 > max_est)
                 max_est = est2;
-            int had_features = !s.vx[a].plain || !s.vx[b].plain;
             double x[3] = {chosen->x[0], chosen->x[1], chosen->x[2]};
             if (!collapse(&s, a, b, x, s.sa, na, s.sb, nb, &live, &recs, &rcap))
                 goto done;
@@ -2177,20 +2178,11 @@ hlod_result hlod_simplify(const hlod_mesh *in, const hlod_simplify_desc *desc,
                 cost_goal = c.cost * PASS_SLACK;
             s.vflag[a] |= VF_LOCK | VF_STALE;
             s.vflag[b] |= VF_LOCK | VF_STALE;
-            /* A feature collapse may reclassify the apexes: leave b's
-             * ring to the next pass.  (Only the apexes are stale:
-             * collapse() marked them.  Locking just those let passes run
-             * further from the priority order, and fandisk at 1% lost
-             * its max-error lead over meshoptimizer.) */
-            if (had_features) {
-                const uint32_t *fl = s.pool + s.adj[b].start;
-                for (uint32_t j = 0; j < s.adj[b].count; j++) {
-                    const uint32_t *tv = s.tv + 3 * (size_t)ENT_T(fl[j]);
-                    s.vflag[tv[0]] |= VF_LOCK;
-                    s.vflag[tv[1]] |= VF_LOCK;
-                    s.vflag[tv[2]] |= VF_LOCK;
-                }
-            }
+            /* A feature collapse may reclassify the apexes: collapse()
+             * then locked b's whole ring for the rest of the pass.  (Only
+             * the apexes are stale: collapse() marked them.  Locking just
+             * those let passes run further from the priority order, and
+             * fandisk at 1% lost its max-error lead over meshoptimizer.) */
         }
         /* When every candidate under the bound was refused, retry once
          * without the bound before giving up. */
