@@ -27,10 +27,11 @@
  *   candidates are tried cheapest first against the link condition, face
  *   flips/folds and slivers.
  * - Priority order in passes (as meshoptimizer schedules its collapses):
- *   each pass prices every edge, radix-sorts the prices and collapses in
+ *   each pass prices every edge (later passes: those whose prices
+ *   changed), radix-sorts the prices under its bound and collapses in
  *   that order, skipping edges whose endpoints this pass already changed,
- *   and stops at 1.5x the price of the collapse that would reach the
- *   target.  Both endpoint quadrics of a queued edge are untouched until
+ *   and stops at that bound, 1.5x the price of the collapse that would
+ *   reach the target.  Both endpoint quadrics of a queued edge are untouched until
  *   it is taken, so its price is exact, as with a heap; a pass just avoids
  *   the heap's cache misses (a 4-ary heap with lazy deletion spent 40% of
  *   the time in sift-down on bunny00.off, and this is 3x faster).

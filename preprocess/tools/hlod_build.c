@@ -113,7 +113,6 @@ static block *blocks_add(blocks *bs)
     return &bs->b[bs->n++];
 }
 
-/* The mesh of the triangles tris[0..n) of m, with only the vertices they use. */
 /* What splitting one input mesh into blocks needs across its blocks, sized
  * once for the whole mesh: a block touches only its own vertices (remap is
  * reset through verts), and each material's texture key is found once
@@ -159,6 +158,8 @@ static hlod_result splitter_init(splitter *sp, const hlod_mesh *m)
     return HLOD_OK;
 }
 
+/* The mesh of the triangles tris[0..n) of sp->m, with only the vertices
+ * they use. */
 static hlod_result extract(splitter *sp, const uint32_t *tris, size_t n, hlod_mesh *out)
 {
     const hlod_mesh *m = sp->m;
