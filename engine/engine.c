@@ -512,10 +512,13 @@ hlod_result hlod_engine_frame(hlod_engine *e, const hlod_camera *cam, double dt,
     e->st.upload_ms = now_ms() - t0;
 
     /* This frame's uploads are done and timed: the traversal gets what is
-     * left, and the fit sees the frame without them (not when
-     * deterministic: a measured time would make the selection vary). */
+     * left, and the fit sees the frame without them.  Not when
+     * deterministic (a measured time would make the selection vary), nor
+     * under a time model: its frame time is the whole frame, uploads
+     * included, and a wall-clock upload (a preempted collect) would bias
+     * the budget and the fit of a synthetic machine. */
     const double target = e->d.target_ms;
-    const double upload = e->d.deterministic ? 0 : e->st.upload_ms;
+    const double upload = e->d.deterministic || e->d.time_model ? 0 : e->st.upload_ms;
     double budget = target - e->fixed_ms - upload;
     if (budget < 0.1 * target)
         budget = 0.1 * target;

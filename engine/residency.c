@@ -195,8 +195,8 @@ void hlod_residency_collect(hlod_engine *e)
     /* Uploads stop at the byte budget or, measured, at the time budget: a
      * software GL copies and mipmaps every texture on this thread. */
     double up_ms = e->d.upload_budget_ms > 0 ? e->d.upload_budget_ms : 0.1 * e->d.target_ms;
-    if (e->d.deterministic)
-        up_ms = INFINITY; /* reproducible: bytes alone decide */
+    if (e->d.deterministic || e->d.time_model)
+        up_ms = INFINITY; /* reproducible, or a synthetic machine: bytes alone decide */
     double t_up = now_ms();
     uint64_t uploaded = 0;
     size_t keep = 0;

@@ -1110,13 +1110,20 @@ static int star_ok(const state *s, uint32_t v, const uint32_t *f, size_t nf, con
         if (s0 > 0 && (dn < 0 || dn * dn < FLIP_COS * FLIP_COS * s0 * s1))
             return 0;
         /* quality^2 = 12 |n|^2 / l^2 with l the sum of squared edges: a
-         * new sliver is refused unless the face was already that bad */
-        double dd = dot3(d, d);
-        double l1 = dd + dot3(a1, a1) + (dot3(a1, a1) - 2 * dot3(a1, d) + dd);
+         * new sliver is refused unless the face was already that bad, or
+         * it was a sliver and only grows longer, not thinner (its height
+         * over its longest edge, |n| / e_max, does not shrink): a strip
+         * that is all needles can only be simplified by longer needles */
+        double dd = dot3(d, d), e1a = dot3(a1, a1), e1b = e1a - 2 * dot3(a1, d) + dd;
+        double l1 = dd + e1a + e1b;
         if (12 * s1 < SLIVER_Q * SLIVER_Q * l1 * l1) {
-            double l0 = dd + dot3(a0, a0) + (dot3(a0, a0) - 2 * dot3(a0, d) + dd);
-            if (s1 * l0 * l0 < s0 * l1 * l1)
-                return 0;
+            double e0a = dot3(a0, a0), e0b = e0a - 2 * dot3(a0, d) + dd;
+            double l0 = dd + e0a + e0b;
+            if (s1 * l0 * l0 < s0 * l1 * l1) {
+                double m0 = fmax(dd, fmax(e0a, e0b)), m1 = fmax(dd, fmax(e1a, e1b));
+                if (!(12 * s0 < SLIVER_Q * SLIVER_Q * l0 * l0) || s1 * m0 < s0 * m1)
+                    return 0;
+            }
         }
     }
     return 1;

@@ -2,8 +2,16 @@
  * check.h - the tests' tiny assertion kit.
  *
  * CHECK(cond) records a failure with file:line and keeps going; RUN(fn)
- * runs one test function; check_done() prints "N passed, N failed" and
- * returns the exit code (non-zero if any CHECK failed anywhere).  Each test program is one ctest test.
+ * runs one test function; check_done() prints "N passed, N failed, N
+ * skipped" and returns the exit code (non-zero if any CHECK failed
+ * anywhere).  Each test program is one ctest test.
+ *
+ * No test passes empty: every CHECK that is evaluated is counted, and a
+ * RUN whose function evaluated none fails ("made no check").  A test that
+ * cannot run here says so with CHECK_SKIP(reason...) and returns: it is
+ * reported as SKIP, not ok; under the test command (HLOD_TEST_STRICT=1,
+ * set by tests/run.sh) a skip is a failure, since everything a test needs
+ * is installed there.
  */
 #ifndef HLOD_CHECK_H
 #define HLOD_CHECK_H
@@ -14,10 +22,13 @@
 #include <string.h>
 #include <sys/wait.h>
 
-static int check_failures_, check_passed_, check_failed_;
+static int check_failures_, check_passed_, check_failed_, check_skipped_;
+static long check_count_;   /* CHECKs evaluated, pass or fail */
+static int check_skip_;     /* the running test called CHECK_SKIP */
 
 #define CHECK(cond)                                                                   \
     do {                                                                              \
+        check_count_++;                                                               \
         if (!(cond)) {                                                                \
             fprintf(stderr, "%s:%d: CHECK failed: %s\n", __FILE__, __LINE__, #cond);  \
             check_failures_++;                                                        \
@@ -26,6 +37,7 @@ static int check_failures_, check_passed_, check_failed_;
 
 #define CHECKF(cond, ...)                                                             \
     do {                                                                              \
+        check_count_++;                                                               \
         if (!(cond)) {                                                                \
             fprintf(stderr, "%s:%d: CHECK failed: %s: ", __FILE__, __LINE__, #cond);  \
             fprintf(stderr, __VA_ARGS__);                                             \
@@ -34,13 +46,43 @@ static int check_failures_, check_passed_, check_failed_;
         }                                                                             \
     } while (0)
 
+/* The running test cannot run here (a tool not built, a variable unset):
+ * says why; the caller returns.  A failure under the test command. */
+#define CHECK_SKIP(...)                                                               \
+    do {                                                                              \
+        fprintf(stderr, "%s:%d: skip: ", __FILE__, __LINE__);                         \
+        fprintf(stderr, __VA_ARGS__);                                                 \
+        fputc('\n', stderr);                                                          \
+        check_skip_ = 1;                                                              \
+    } while (0)
+
+/* Under the test command (tests/run.sh) nothing may be skipped. */
+static inline int check_strict(void)
+{
+    const char *s = getenv("HLOD_TEST_STRICT");
+    return s && *s && strcmp(s, "0") != 0;
+}
+
 #define RUN(fn)                                                                       \
     do {                                                                              \
         int before_ = check_failures_;                                                \
+        long count_ = check_count_;                                                   \
+        check_skip_ = 0;                                                              \
         fn();                                                                         \
-        if (check_failures_ == before_) {                                             \
+        if (check_skip_ && check_failures_ == before_ && !check_strict()) {           \
+            check_skipped_++;                                                         \
+            fprintf(stderr, "SKIP %s\n", #fn);                                        \
+        } else if (check_skip_ && check_failures_ == before_) {                       \
+            check_failures_++;                                                        \
+            check_failed_++;                                                          \
+            fprintf(stderr, "FAIL %s: skipped under HLOD_TEST_STRICT\n", #fn);         \
+        } else if (check_failures_ == before_ && check_count_ == count_) {            \
+            check_failures_++;                                                        \
+            check_failed_++;                                                          \
+            fprintf(stderr, "FAIL %s: made no check\n", #fn);                          \
+        } else if (check_failures_ == before_) {                                      \
             check_passed_++;                                                          \
-            fprintf(stderr, "ok   %s\n", #fn);                                        \
+            fprintf(stderr, "ok   %s (%ld checks)\n", #fn, check_count_ - count_);     \
         } else {                                                                      \
             check_failed_++;                                                          \
             fprintf(stderr, "FAIL %s\n", #fn);                                        \
@@ -52,7 +94,7 @@ static int check_failures_, check_passed_, check_failed_;
  * pass with nothing tested. */
 static inline int check_done(void)
 {
-    printf("%d passed, %d failed\n", check_passed_, check_failed_);
+    printf("%d passed, %d failed, %d skipped\n", check_passed_, check_failed_, check_skipped_);
     if (check_failures_ && !check_failed_)
         printf("%d checks failed outside the tests\n", check_failures_);
     return check_failures_ ? 1 : 0;

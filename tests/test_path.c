@@ -540,7 +540,7 @@ static void test_city_paths_tool(void)
     char tool[512];
     snprintf(tool, sizeof tool, "%s/hlod-gen-city", bin ? bin : ".");
     if (access(tool, X_OK) != 0) {
-        fprintf(stderr, "skip: %s not built\n", tool);
+        CHECK_SKIP("%s not built", tool);
         return;
     }
     for (int pi = 0; pi < 2; pi++) {

@@ -227,8 +227,8 @@ static size_t check_case(const char *name, const hlod_mesh *in, size_t target,
     v.measured = dist.max;
     v.reported = st.error;
     fprintf(stderr, "  %-22s %6zu -> %6zu (target %6zu)  reported %.3g  measured %.3g  "
-            "estimate %.3g  diag %.3g  %.2f s\n", name, in->tri_count, out.tri_count, target,
-            st.error, dist.max, st.error_estimate, diag, secs);
+            "estimate %.3g  diag %.3g  %.2f s (%.3f s simplifying)\n", name, in->tri_count,
+            out.tri_count, target, st.error, dist.max, st.error_estimate, diag, secs, st.seconds);
     CHECKF(v.nonfinite == 0, "%s -> %zu: %zu non-finite values", name, target, v.nonfinite);
     CHECKF(v.flipped == 0, "%s -> %zu: %zu flipped faces", name, target, v.flipped);
     CHECKF(v.zero_area == 0, "%s -> %zu: %zu zero-area faces", name, target, v.zero_area);
@@ -243,11 +243,20 @@ static size_t check_case(const char *name, const hlod_mesh *in, size_t target,
     return n;
 }
 
-/* The targets: a quarter, and as far as it goes. */
+/* The targets: a quarter, and as far as it goes.  Each must simplify: the
+ * quarter is reached (every case here has room to collapse without a flip
+ * or a new sliver), and "as far as it goes" goes at least that far and
+ * below a quarter of the input.  A simplifier that returns its input, or
+ * stalls, fails here. */
 static void check_ladder(const char *name, const hlod_mesh *in, const double *plane_n)
 {
-    check_case(name, in, in->tri_count / 4, plane_n);
-    check_case(name, in, 2, plane_n);
+    size_t quarter = in->tri_count / 4;
+    size_t n4 = check_case(name, in, quarter, plane_n);
+    CHECKF(n4 > 0 && n4 <= quarter, "%s: %zu -> %zu triangles for a target of %zu", name,
+           in->tri_count, n4, quarter);
+    size_t n2 = check_case(name, in, 2, plane_n);
+    CHECKF(n2 > 0 && n2 <= n4 && n2 < quarter, "%s: %zu -> %zu triangles for a target of 2 "
+           "(%zu at the quarter)", name, in->tri_count, n2, n4);
 }
 
 /* (nx + 1) x (ny + 1) vertices at (xs[i], ys[j], z(i, j)); 2 nx ny faces

@@ -1110,7 +1110,7 @@ static void test_info_tool(void)
     snprintf(args, sizeof args, "'%s' --verify --json", path);
     int rc = run_info(args, out, sizeof out, err, sizeof err);
     if (rc == -2) {
-        fprintf(stderr, "skip hlod-info checks: HLOD_BIN_DIR not set\n");
+        CHECK_SKIP("hlod-info checks: HLOD_BIN_DIR not set");
         goto out;
     }
     CHECKF(rc == 0, "rc %d, stderr: %s", rc, err);

@@ -127,7 +127,9 @@ typedef hlod_result (*hlod_read_hook)(void *user_data, uint32_t node, uint64_t o
 
 /* Replaces measured wall time (for tests without GL): the frame time a
  * synthetic machine would take to draw drawn_cost (sum of eq. 1) in
- * drawn_tris triangles. */
+ * drawn_tris triangles.  It is the whole frame, uploads included: with a
+ * time model the engine reads no clock for its decisions (uploads take
+ * nothing off the budget and stop at upload_budget_bytes only). */
 typedef double (*hlod_time_model)(void *user_data, double drawn_cost, uint64_t drawn_tris);
 
 /* Engine settings.  Zero means "default" for every field; defaults are
@@ -154,7 +156,8 @@ typedef struct hlod_engine_desc {
     uint64_t upload_budget_bytes;/* GL uploads per frame; default 16 MiB */
     double upload_budget_ms;     /* GL upload time per frame (at least one
                                     upload is made); default 0 = 10% of
-                                    target_ms; not applied when deterministic */
+                                    target_ms; not applied when deterministic
+                                    or under a time model */
     uint32_t max_inflight;       /* requests handed to the loader at once; default 32 */
 
     /* Reproducible runs: v_time and the fixed frame part are held at these
