@@ -4,6 +4,7 @@
  * area, siblings share bit-identical boundaries, triangle counts follow
  * the factors, errors bound their subtrees and grow towards the root.
  */
+#include "btree_check.h"
 #include "check.h"
 #include "build.h"
 #include "hlod/distance.h"
@@ -118,7 +119,13 @@ static void leaves_keep_area_and_cover_the_block(void)
         }
     double a0 = hlod_mesh_area(&m);
     CHECKF(fabs(area - a0) < 1e-9 * a0, "leaf area %.17g vs %.17g", area, a0);
-    CHECK(leaf_tris >= m.tri_count);
+    /* Two-sided: nothing lost, and nothing but the cut planes' splits
+     * added.  The 8 planes of the two levels each cross one column of the
+     * 60 x 60 grid (at most 2 x 60 triangles, as none is parallel to a
+     * diagonal), and a triangle cut by a plane becomes at most 3. */
+    CHECKF(leaf_tris >= m.tri_count && leaf_tris <= m.tri_count + 8 * (2 * 60) * 2,
+           "leaves hold %zu triangles of %zu", leaf_tris, m.tri_count);
+    fprintf(stderr, "  leaves hold %zu triangles of %zu\n", leaf_tris, m.tri_count);
     /* hlod_0 covers the block */
     double lo[3], hi[3], rlo[3], rhi[3];
     hlod_mesh_bounds(&m, lo, hi);
@@ -250,6 +257,9 @@ static void counts_follow_factors_and_errors_bound(void)
         hlod_distance d;
         CHECK(hlod_mesh_distance(&n->mesh, &orig, 20000, 3, &d) == HLOD_OK);
         CHECKF(d.max <= n->error * (1 + 1e-9) + 1e-12, "node %zu: sampled %g > error %g", k, d.max, n->error);
+        double lower, cap = node_error_cap(&t, (uint32_t)k, &orig, &lower);
+        CHECKF(n->error >= lower && n->error <= cap, "node %zu: error %g outside the "
+               "documented [%g, %g]", k, n->error, lower, cap);
         hlod_mesh_free(&orig);
     }
     CHECK(t.nodes[0].error > 0);

@@ -7,6 +7,7 @@
  * and reproducibility.
  */
 #include "build.h"
+#include "btree_check.h"
 #include "check.h"
 #include "hlod/distance.h"
 
@@ -324,6 +325,9 @@ static void errors_bound_subtrees_and_grow_upwards(void)
         CHECK(hlod_mesh_distance(&t->nodes[k].mesh, &orig, 20000, 3, &d) == HLOD_OK);
         CHECKF(d.max <= t->nodes[k].error * (1 + 1e-9), "node %zu: sampled %g > error %g", k, d.max,
                t->nodes[k].error);
+        double lower, cap = node_error_cap(t, (uint32_t)k, &orig, &lower);
+        CHECKF(t->nodes[k].error >= lower && t->nodes[k].error <= cap, "node %zu: error %g outside the "
+               "documented [%g, %g]", k, t->nodes[k].error, lower, cap);
         CHECK(t->nodes[k].error > 0);
         hlod_mesh_free(&orig);
     }
