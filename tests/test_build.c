@@ -124,8 +124,13 @@ static void large_coordinates(void)
             bad_box += fabs(na[i].bbox_min[k] + off[k] - nb[i].bbox_min[k]) > 1e-6 ||
                        fabs(na[i].bbox_max[k] + off[k] - nb[i].bbox_max[k]) > 1e-6;
         hlod_store_payload pa, pb;
-        if (hlod_store_read_node(sa, i, 65536, &pa) == HLOD_OK) {
-            if (hlod_store_read_node(sb, i, 65536, &pb) == HLOD_OK) {
+        hlod_result ra = hlod_store_read_node(sa, i, 65536, &pa);
+        CHECKF(ra == HLOD_OK, "node %u of the store at the origin: %s", i, hlod_result_str(ra));
+        if (ra == HLOD_OK) {
+            hlod_result rb = hlod_store_read_node(sb, i, 65536, &pb);
+            CHECKF(rb == HLOD_OK, "node %u of the offset store: %s", i, hlod_result_str(rb));
+            if (rb == HLOD_OK) {
+                bad_count += pa.vertex_count != pb.vertex_count;
                 if (pa.vertex_count == pb.vertex_count)
                     for (size_t v = 0; v < 3 * (size_t)pa.vertex_count; v++) {
                         /* absolute positions agree to a millimetre */
