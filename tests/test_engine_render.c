@@ -14,6 +14,7 @@
  * Failing images are written next to the store for a human to look at.
  */
 #include "check.h"
+#include "image_check.h"
 #include "engine_internal.h"
 #include "hlod/image.h"
 #include "hlod/mesh.h"
@@ -210,7 +211,14 @@ static void full_detail_matches_source(void)
     /* The tolerance covers shading only: the store carries the builder's
      * smoothed vertex normals, this direct render face normals. */
     CHECKF(p > 27 && ssim > 0.9, "PSNR %.2f SSIM %.4f", p, ssim);
-    if (p <= 27 || ssim <= 0.9 || getenv("HLOD_TEST_SAVE")) {
+    /* and the same pixels are covered: PSNR alone would pass a hole */
+    size_t differ = 0, holes = mask_holes(a, bg, b, bg, W, H, &differ);
+    fprintf(stderr, "  coverage masks: %zu pixels differ, %zu of them inside a region\n", differ,
+            holes);
+    CHECKF(holes == 0 && differ < (size_t)W * H / 200, "coverage: %zu pixels differ, %zu inside "
+           "a region", differ, holes);
+    if (p <= 27 || ssim <= 0.9 || holes || differ >= (size_t)W * H / 200 ||
+        getenv("HLOD_TEST_SAVE")) {
         save("full", a);
         save("source", b);
     }
@@ -227,9 +235,13 @@ static void far_origin_same_image(void)
     render_full(g_r, g_gl, g_near, &ca, a, &st);
     render_full(g_r, g_gl, g_far, &cb, b, &st);
     double p = psnr(a, b);
-    fprintf(stderr, "  full detail at (5e5, 4.1e6, 0) vs origin: PSNR %.2f dB\n", p);
-    CHECKF(p > 50, "PSNR %.2f", p);
-    if (p <= 50) {
+    uint8_t bg[3] = {a[0], a[1], a[2]};
+    size_t differ = 0, holes = mask_holes(a, bg, b, bg, W, H, &differ);
+    fprintf(stderr, "  full detail at (5e5, 4.1e6, 0) vs origin: PSNR %.2f dB, %zu pixels' "
+            "coverage differs\n", p, differ);
+    CHECKF(p > 50 && holes == 0 && differ < (size_t)W * H / 1000, "PSNR %.2f, coverage of %zu "
+           "pixels differs (%zu inside a region)", p, differ, holes);
+    if (p <= 50 || holes || differ >= (size_t)W * H / 1000) {
         save("near", a);
         save("far", b);
     }
@@ -322,6 +334,16 @@ static void generous_target_converges(void)
         if (f == 0)
             first = psnr(a, b);
         last = psnr(a, b);
+    }
+    /* the last frame covers what full detail covers */
+    uint8_t bg[3] = {a[0], a[1], a[2]};
+    size_t differ = 0, holes = mask_holes(a, bg, b, bg, W, H, &differ);
+    fprintf(stderr, "  last frame vs full detail: %zu pixels' coverage differs, %zu inside a "
+            "region\n", differ, holes);
+    CHECKF(holes == 0, "coverage: %zu pixels inside a region differ", holes);
+    if (holes) {
+        save("full", a);
+        save("converged", b);
     }
     fprintf(stderr, "  lakhia with time to spare: PSNR %.2f dB at frame 0, %.2f at frame 29\n",
             first, last);
