@@ -1,12 +1,14 @@
 /*
  * engine_check.h - helpers shared by the engine's tests (test_engine,
  * test_faults, test_soak, test_degenerate): wall clock, sleeping, the
- * calling thread's context switches, and the finiteness of a frame's
- * stats, and a synthetic machine for the engine's time_model.
+ * excuse for wall-clock bounds (cpu_span.h), the finiteness of a frame's
+ * stats, and a synthetic machine for the engine's time_model.  Define
+ * _GNU_SOURCE before the first include.
  */
 #ifndef HLOD_ENGINE_CHECK_H
 #define HLOD_ENGINE_CHECK_H
 
+#include "cpu_span.h"
 #include "hlod/engine.h"
 
 #include <math.h>
@@ -25,36 +27,8 @@ static inline double now_ms(void)
 static inline void sleep_us(long us)
 {
     struct timespec ts = {us / 1000000, (us % 1000000) * 1000};
-    nanosleep(&ts, NULL);
-}
-
-#ifdef RUSAGE_THREAD /* _GNU_SOURCE before the first include */
-/* Context switches of the calling thread: voluntary (it blocked) and
- * involuntary (the scheduler preempted it). */
-static inline void thread_switches(long *vol, long *invol)
-{
-    struct rusage ru;
-    getrusage(RUSAGE_THREAD, &ru);
-    *vol = ru.ru_nvcsw;
-    *invol = ru.ru_nivcsw;
-}
-#endif
-
-/* CPU time of the calling thread, in ms. */
-static inline double thread_cpu_ms(void)
-{
-    struct timespec ts;
-    clock_gettime(CLOCK_THREAD_CPUTIME_ID, &ts);
-    return (double)ts.tv_sec * 1e3 + (double)ts.tv_nsec * 1e-6;
-}
-
-/* Did the thread run for most of a wall-clock interval?  On a virtual
- * machine the host can take the CPU away (steal time) without any context
- * switch in the guest: such a frame is long on the wall clock but short in
- * CPU time, and the runtime did not make it slow. */
-static inline int ran_most_of(double wall_ms, double cpu_ms)
-{
-    return cpu_ms >= 0.5 * wall_ms;
+    while (nanosleep(&ts, &ts) != 0)
+        ;
 }
 
 /* A synthetic machine without noise: a frame takes fixed + per_cost * cost

@@ -20,6 +20,7 @@
  * test_engine.c's test_time_slices_sum); and for the time-based policies
  * the estimate within the budget whenever more than the roots is drawn.
  */
+#define _GNU_SOURCE /* RUSAGE_THREAD (cpu_span.h) */
 #include "check.h"
 #include "engine_internal.h"
 #include "engine_check.h"

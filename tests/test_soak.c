@@ -44,16 +44,7 @@
 #ifndef SANITIZED
 #define SANITIZED 0
 #endif
-#if defined(__SANITIZE_THREAD__)
-#define TSAN 1
-#elif defined(__has_feature)
-#if __has_feature(thread_sanitizer)
-#define TSAN 1
-#endif
-#endif
-#ifndef TSAN
-#define TSAN 0
-#endif
+#define TSAN HLOD_TEST_TSAN
 
 #define DEFAULT_FRAMES 60000
 #define FRAME_MS 20.0
@@ -112,12 +103,13 @@ typedef struct soak {
     uint64_t loads, evictions, over_budget, budget, peak_resident, peak_used;
     uint32_t render_waits, bad_nodes;
     uint64_t load_failures;
-    int slow_frames, nonfinite, drew_outside;
+    int slow_frames;                /* over FRAME_MS, of the frames that kept the CPU */
+    int nonfinite, drew_outside;
     int blocked_frames;             /* frame() blocked (voluntary switch) */
     double worst_blocked_ms;        /* the longest of those frames */
-    int unexplained_waits;          /* render waits in frames not preempted */
-    int unexplained_slow;           /* slow frames neither preempted nor blocked */
-    double worst_ms;
+    int unexplained_waits;          /* render waits in frames that kept the CPU */
+    int unexplained_slow;           /* slow frames that kept the CPU and never blocked */
+    double worst_ms;                /* of the frames that kept the CPU */
     long rss_warm_kb, rss_end_kb;
     long logged_errors;
 } soak;
@@ -256,28 +248,26 @@ static void *soak_main(void *arg)
         if (u < 0.25)
             away = teleport(&cam, &rng, h->bbox_min, h->bbox_max);
         hlod_frame_stats st;
-        long vol0, inv0, vol1, inv1;
-        thread_switches(&vol0, &inv0);
-        double t0 = now_ms(), c0 = thread_cpu_ms();
+        cpu_span sp;
+        span_start(&sp);
         hlod_result r = hlod_engine_frame(e, &cam, 1.0 / 30, &st);
-        double dt = now_ms() - t0, cpu = thread_cpu_ms() - c0;
-        thread_switches(&vol1, &inv1);
+        span_stop(&sp);
+        double dt = sp.wall_ms;
         if (r != HLOD_OK)
             continue;
         /* render_waits times post and collect on the wall clock: a thread
          * preempted inside one counts a wait although both only trylock.
-         * Only waits in frames the scheduler did not preempt are real.
-         * Under TSan a trylock itself can block: the runtime wraps every
-         * sync operation in its own internal mutexes (a 100k-frame run
-         * counted 4 such waits in 100000 frames, none preempted), so there
-         * a frame that blocked voluntarily is the runtime's too. */
-        /* (and a frame the host's steal time stretched is not the
-         * runtime's either: see ran_most_of) */
-        if (inv1 == inv0 && !(TSAN && vol1 != vol0) && ran_most_of(dt, cpu)) {
+         * Only waits and slow frames in frames that kept the CPU
+         * (cpu_span.h: not preempted, not stolen by the host, and under
+         * TSan not blocked in the runtime's own mutexes) are real. */
+        if (span_kept_cpu(&sp)) {
             k->unexplained_waits += st.render_waits;
-            k->unexplained_slow += dt > FRAME_MS && vol1 == vol0;
+            k->unexplained_slow += dt > FRAME_MS && sp.vol == 0;
+            k->slow_frames += dt > FRAME_MS;
+            if (dt > k->worst_ms)
+                k->worst_ms = dt;
         }
-        if (vol1 != vol0) {
+        if (sp.vol) {
             k->blocked_frames++;
             if (dt > k->worst_blocked_ms)
                 k->worst_blocked_ms = dt;
@@ -289,10 +279,7 @@ static void *soak_main(void *arg)
         k->load_failures += st.load_failures;
         k->bad_nodes = st.bad_nodes;
         k->nonfinite += !stats_finite(&st);
-        k->slow_frames += dt > FRAME_MS;
         k->drew_outside += away && st.nodes_drawn > 0;
-        if (dt > k->worst_ms)
-            k->worst_ms = dt;
         /* reserved_bytes is the engine's own (this thread's) field */
         uint64_t used = st.resident_bytes + e->reserved_bytes;
         k->over_budget += st.resident_bytes > k->budget || used > k->budget ||
@@ -321,7 +308,7 @@ static void check_soak(const soak *k, const char *what)
            k->logged_errors, k->invalid);
     CHECKF(k->over_budget == 0, "%s: %llu frames over the budget", what,
            (unsigned long long)k->over_budget);
-    CHECKF(k->unexplained_waits == 0, "%s: %d render waits in frames not preempted (%u in all)",
+    CHECKF(k->unexplained_waits == 0, "%s: %d render waits in frames that kept the CPU (%u in all)",
            what, k->unexplained_waits, k->render_waits);
     CHECKF(k->unexplained_slow == 0, "%s: %d frames over %.0f ms, neither preempted nor blocked",
            what, k->unexplained_slow, FRAME_MS);
