@@ -51,20 +51,23 @@ static void look(hlod_camera *cam, double ex, double ey, double ez, double tx, d
     CHECK(r == HLOD_OK);
 }
 
-static uint64_t rng_state = 88172645463325252ull;
-static double frand(void)
+/* xorshift64: each test seeds its own (RNG_SEED), so a test's cameras do
+ * not depend on which tests ran before it. */
+#define RNG_SEED 88172645463325252ull
+static double frand(uint64_t *rng)
 {
-    rng_state ^= rng_state << 13;
-    rng_state ^= rng_state >> 7;
-    rng_state ^= rng_state << 17;
-    return (double)(rng_state >> 11) / 9007199254740992.0;
+    *rng ^= *rng << 13;
+    *rng ^= *rng >> 7;
+    *rng ^= *rng << 17;
+    return (double)(*rng >> 11) / 9007199254740992.0;
 }
 
 /* A random camera over and around the fixture's blocks (x in [0, 440]). */
-static void random_camera(hlod_camera *cam, double ox, double oy)
+static void random_camera(hlod_camera *cam, double ox, double oy, uint64_t *rng)
 {
-    double ex = ox - 200 + 840 * frand(), ey = oy - 200 + 500 * frand(), ez = 1 + 300 * frand();
-    double tx = ox + 440 * frand(), ty = oy + 100 * frand();
+    double ex = ox - 200 + 840 * frand(rng), ey = oy - 200 + 500 * frand(rng);
+    double ez = 1 + 300 * frand(rng);
+    double tx = ox + 440 * frand(rng), ty = oy + 100 * frand(rng);
     look(cam, ex, ey, ez, tx, ty, 0);
 }
 
@@ -148,6 +151,7 @@ static void test_time_slices_sum(void)
  * would need several times the target). */
 static void test_estimate_within_target(void)
 {
+    uint64_t rng = RNG_SEED;
     fixture_opts o = {0};
     hlod_store *s = make_store("estimate.hlod", &o, NULL);
     for (int pol = HLOD_POLICY_LAKHIA; pol <= HLOD_POLICY_NOHYST; pol++) {
@@ -165,7 +169,7 @@ static void test_estimate_within_target(void)
         int over = 0, deep = 0;
         for (int f = 0; f < 400; f++) {
             if (f % 20 == 0)
-                random_camera(&cam, 0, 0);
+                random_camera(&cam, 0, 0, &rng);
             CHECK(hlod_engine_frame(e, &cam, 1.0 / 30, &st) == HLOD_OK);
             over += st.estimated_ms > d.target_ms * (1 + 1e-12);
             deep += st.nodes_per_depth[2] + st.nodes_per_depth[3];
@@ -229,51 +233,90 @@ static void test_missing_sibling_forces_parent(void)
     hlod_store_close(s);
 }
 
-/* Hysteresis counters stay within +-c_hyst_limit; a still camera with a
- * noisy machine settles to zero toggles, where nohyst keeps toggling. */
+/* One still-camera run for test_hysteresis_settles: frames until
+ * streaming has stopped for 60 frames (and at least 200 in all), with a
+ * machine without noise, then a window of 200 frames with `noise` from
+ * `seed`.  Neither the window's length nor its noise depends on how fast
+ * the loader thread was scheduled.  Returns the toggles in the window;
+ * *window gets its length. */
+static uint32_t still_window_toggles(hlod_store *s, hlod_policy policy, double noise,
+                                     uint64_t seed, uint32_t *window)
+{
+    machine m = {4, 0.02, 0, 0};
+    hlod_engine_desc d = {0};
+    d.target_ms = 20;
+    d.time_model = machine_time;
+    d.time_model_user = &m;
+    d.policy = policy;
+    hlod_engine *e = NULL;
+    *window = 0;
+    CHECK(hlod_engine_create(s, &d, &e) == HLOD_OK);
+    if (!e)
+        return 0;
+    hlod_camera cam;
+    look(&cam, 150, -80, 60, 200, 50, 0);
+    hlod_frame_stats st;
+    double lim = hlod_engine_get_desc(e)->c_hyst_limit;
+    int last_load = 0;
+    uint32_t toggles = 0, out_of_range = 0;
+    for (int f = 0; f < 5000 && *window < 200; f++) {
+        CHECK(hlod_engine_frame(e, &cam, 1.0 / 30, &st) == HLOD_OK);
+        sleep_us(500); /* frames take time: let the loader thread run */
+        if (st.loads)
+            last_load = f;
+        if (*window) {
+            toggles += st.toggles_up + st.toggles_down;
+            ++*window;
+        } else if (f >= 200 && f - last_load > 60) {
+            m.noise = noise; /* from the next frame on */
+            m.rng = seed;
+            ++*window;
+        }
+        if (getenv("HLOD_TEST_VERBOSE") && (st.toggles_up + st.toggles_down))
+            fprintf(stderr, "  %s f %d: up %u down %u gain %.3f est %.3f budget %.3f fixed %.3f "
+                    "v %.5f meas %.2f\n", hlod_policy_name(policy), f, st.toggles_up,
+                    st.toggles_down, st.share_gain, st.estimated_ms, st.budget_ms, st.fixed_ms,
+                    st.v_time, st.measured_ms);
+        for (uint32_t i = 0; i < hlod_store_node_count(s); i++)
+            out_of_range += e->fr[i].hyst < -lim || e->fr[i].hyst > lim;
+    }
+    CHECKF(out_of_range == 0, "%s: %u node-frames with hyst outside +-%g",
+           hlod_policy_name(policy), out_of_range, lim);
+    /* the measured time is held near the target */
+    CHECKF(st.measured_ms < 1.25 * d.target_ms, "%s: %g ms", hlod_policy_name(policy),
+           st.measured_ms);
+    hlod_engine_destroy(e);
+    return toggles;
+}
+
+/* Hysteresis counters stay within +-c_hyst_limit; a still camera settles,
+ * and 10% noise on the machine's frame times (8 seeds) then toggles
+ * nothing, where nohyst toggles.  (At 20% noise lakhia toggles too, in 7
+ * of these 8 seeds: the fitted cost model follows the noise, and the
+ * counters follow the budget.) */
 static void test_hysteresis_settles(void)
 {
     fixture_opts o = {0};
     hlod_store *s = make_store("hyst.hlod", &o, NULL);
-    uint32_t late_toggles[2] = {0, 0};
-    for (int pol = 0; pol < 2; pol++) {
-        machine m = {4, 0.02, 0.08, 0};
-        hlod_engine_desc d = {0};
-        d.target_ms = 20;
-        d.time_model = machine_time;
-        d.time_model_user = &m;
-        d.policy = pol ? HLOD_POLICY_NOHYST : HLOD_POLICY_LAKHIA;
-        hlod_engine *e = NULL;
-        CHECK(hlod_engine_create(s, &d, &e) == HLOD_OK);
-        hlod_camera cam;
-        look(&cam, 150, -80, 60, 200, 50, 0);
-        hlod_frame_stats st;
-        double lim = hlod_engine_get_desc(e)->c_hyst_limit;
-        int last_load = 0;
-        for (int f = 0; f < 400; f++) {
-            CHECK(hlod_engine_frame(e, &cam, 1.0 / 30, &st) == HLOD_OK);
-            sleep_us(500); /* frames take time: let the loader thread run */
-            if (st.loads)
-                last_load = f;
-            /* once streaming has stopped for 60 frames, nothing may toggle */
-            if (f >= 200 && f - last_load > 60)
-                late_toggles[pol] += st.toggles_up + st.toggles_down;
-            if (getenv("HLOD_TEST_VERBOSE") && pol == 0 && (st.toggles_up + st.toggles_down))
-                fprintf(stderr, "  f %d: up %u down %u gain %.3f est %.3f budget %.3f fixed %.3f "
-                        "v %.5f meas %.2f\n", f, st.toggles_up, st.toggles_down, st.share_gain,
-                        st.estimated_ms, st.budget_ms, st.fixed_ms, st.v_time, st.measured_ms);
-            for (uint32_t i = 0; i < hlod_store_node_count(s); i++)
-                if (e->fr[i].hyst < -lim || e->fr[i].hyst > lim)
-                    CHECKF(0, "node %u hyst %g", i, e->fr[i].hyst);
-        }
-        /* the measured time is held near the target */
-        CHECKF(st.measured_ms < 1.25 * d.target_ms, "%s: %g ms", hlod_policy_name(d.policy),
-               st.measured_ms);
-        hlod_engine_destroy(e);
+    static const uint64_t seeds[] = {1, 2, 3, 7, 99, 12345, 77777, 0xabcdef};
+    const int n = (int)(sizeof seeds / sizeof seeds[0]);
+    uint32_t lakhia = 0, nohyst = 0;
+    for (int k = 0; k < n; k++) {
+        uint32_t wl, wn;
+        uint32_t tl = still_window_toggles(s, HLOD_POLICY_LAKHIA, 0.1, seeds[k], &wl);
+        uint32_t tn = still_window_toggles(s, HLOD_POLICY_NOHYST, 0.1, seeds[k], &wn);
+        CHECKF(wl == 200 && wn == 200, "seed %llu: settled windows of %u and %u frames (want 200)",
+               (unsigned long long)seeds[k], wl, wn);
+        CHECKF(tl == 0, "seed %llu: lakhia toggled %u times in 200 still frames",
+               (unsigned long long)seeds[k], tl);
+        lakhia += tl;
+        nohyst += tn;
     }
-    CHECKF(late_toggles[0] == 0, "lakhia toggled %u times in 200 still frames", late_toggles[0]);
-    fprintf(stderr, "  still camera, frames 200-399: lakhia %u toggles, nohyst %u\n",
-            late_toggles[0], late_toggles[1]);
+    /* the control: the same noise makes the loop toggle without hysteresis
+     * (else this test could not tell hysteresis from a quiet machine) */
+    CHECKF(nohyst > 0, "nohyst toggled %u times in %d x 200 still frames", nohyst, n);
+    fprintf(stderr, "  still camera, 10%% noise, %d seeds x 200 frames: lakhia %u toggles, "
+            "nohyst %u\n", n, lakhia, nohyst);
     hlod_store_close(s);
 }
 
@@ -395,6 +438,7 @@ static void test_prefetch_follows_motion(void)
 /* The budget holds at every frame under random jumps (threaded loader). */
 static void test_budget_random_jumps(void)
 {
+    uint64_t rng = RNG_SEED;
     fixture_opts o = {0};
     o.depth = 4;
     hlod_store *s = make_store("budget.hlod", &o, NULL);
@@ -411,9 +455,10 @@ static void test_budget_random_jumps(void)
     hlod_camera cam;
     hlod_frame_stats st;
     uint64_t loads = 0, evictions = 0, over = 0, peak = 0;
+    uint64_t drawn_absent = 0, roots_absent = 0, drawn_total = 0;
     for (int f = 0; f < frames; f++) {
         if (f % 7 == 0)
-            random_camera(&cam, 0, 0);
+            random_camera(&cam, 0, 0, &rng);
         CHECK(hlod_engine_frame(e, &cam, 1.0 / 30, &st) == HLOD_OK);
         loads += st.loads;
         evictions += st.evictions;
@@ -422,10 +467,26 @@ static void test_budget_random_jumps(void)
             over++;
         if (st.resident_bytes > peak)
             peak = st.resident_bytes;
+        /* what was drawn is resident, and no root was evicted */
+        uint32_t drawn = 0;
+        for (uint32_t i = 0; i < hlod_store_node_count(s); i++) {
+            int res = hlod_engine_node_state(e, i) == HLOD_NODE_RESIDENT;
+            if (hlod_engine_node_drawn(e, i)) {
+                drawn++;
+                drawn_absent += !res;
+            }
+            roots_absent += i < hlod_store_root_count(s) && !res;
+        }
+        drawn_total += drawn;
+        CHECKF(drawn == st.nodes_drawn, "frame %d: %u nodes drawn, stats say %u", f, drawn,
+               st.nodes_drawn);
         if (f % 97 == 0)
             sleep_us(200); /* let the loader run */
     }
     CHECKF(over == 0, "%llu frames over budget", (unsigned long long)over);
+    CHECKF(drawn_absent == 0 && roots_absent == 0, "%llu drawn node-frames and %llu root-frames "
+           "not resident", (unsigned long long)drawn_absent, (unsigned long long)roots_absent);
+    CHECK(drawn_total > 0);
     CHECK(loads > 50 && evictions > 10); /* it did stream */
     fprintf(stderr, "  %d frames: %llu loads, %llu evictions, peak %llu of %llu bytes\n", frames,
             (unsigned long long)loads, (unsigned long long)evictions, (unsigned long long)peak,
@@ -437,6 +498,7 @@ static void test_budget_random_jumps(void)
 /* A scene that fits the budget is loaded once and never evicted. */
 static void test_fits_loaded_once(void)
 {
+    uint64_t rng = RNG_SEED;
     fixture_opts o = {0};
     uint32_t count = 0;
     hlod_store *s = make_store("fits.hlod", &o, &count);
@@ -451,7 +513,7 @@ static void test_fits_loaded_once(void)
     uint64_t loads = 0, evictions = 0;
     for (int f = 0; f < 1500; f++) {
         if (f % 5 == 0)
-            random_camera(&cam, 0, 0);
+            random_camera(&cam, 0, 0, &rng);
         CHECK(hlod_engine_frame(e, &cam, 1.0 / 30, &st) == HLOD_OK);
         loads += st.loads;
         evictions += st.evictions;
@@ -574,6 +636,7 @@ static hlod_result slow_disk(void *user, uint32_t node, uint64_t offset, size_t 
 
 static void test_slow_disk_no_stall(void)
 {
+    uint64_t rng = RNG_SEED;
     fixture_opts o = {0};
     hlod_store *s = make_store("slow.hlod", &o, NULL);
     machine m = {2, 0.001, 0, 0};
@@ -594,7 +657,7 @@ static void test_slow_disk_no_stall(void)
     int f;
     for (f = 0; f < 400; f++) {
         if (f % 10 == 0)
-            random_camera(&cam, 0, 0);
+            random_camera(&cam, 0, 0, &rng);
         cpu_span sp;
         span_start(&sp);
         CHECK(hlod_engine_frame(e, &cam, 1.0 / 30, &st) == HLOD_OK);
