@@ -682,6 +682,126 @@ static void test_slow_disk_no_stall(void)
     hlod_store_close(s);
 }
 
+/* A disk whose every read step takes one of the test's frames, in lock
+ * step: the hook waits until the test has run the next frame, and the
+ * test, after a frame, waits until the loader has taken its step and
+ * waits at the hook again (or, idle, never comes: then 2 s).  The
+ * loader's progress is counted in frames whatever the scheduler does. */
+#define GATED_MAXN 64
+typedef struct gated_disk {
+    atomic_uint frame;              /* frames the test has run */
+    atomic_uint waiting_for;        /* the frame the hook waits for */
+    atomic_int released;            /* set before destroy */
+    atomic_int steps[GATED_MAXN];   /* read steps per node */
+} gated_disk;
+
+static hlod_result gated_read(void *user, uint32_t node, uint64_t offset, size_t bytes)
+{
+    gated_disk *g = user;
+    (void)offset;
+    (void)bytes;
+    if (node < GATED_MAXN)
+        atomic_fetch_add(&g->steps[node], 1);
+    unsigned until = atomic_load(&g->frame) + 1;
+    atomic_store(&g->waiting_for, until);
+    while (atomic_load(&g->frame) < until && !atomic_load(&g->released))
+        sleep_us(100);
+    return HLOD_OK;
+}
+
+/* One frame, then the gate lets the loader take one step. */
+static void gated_frame(hlod_engine *e, const hlod_camera *cam, gated_disk *g,
+                        hlod_frame_stats *st)
+{
+    CHECK(hlod_engine_frame(e, cam, 1.0 / 30, st) == HLOD_OK);
+    unsigned f = atomic_fetch_add(&g->frame, 1) + 1;
+    double t_end = now_ms() + 2000;
+    while (atomic_load(&g->waiting_for) <= f && now_ms() < t_end)
+        sleep_us(50);
+}
+
+/* Preemption through the engine: while a big read of a distant block's
+ * node is in flight (a few steps in), the camera comes close to another
+ * block.  Its nodes are now the most urgent, and one of them becomes
+ * resident before the read in flight completes, though that read had
+ * fewer steps left than a whole node takes.  Counted in frames. */
+static void test_urgent_preempts_prefetch(void)
+{
+    fixture_opts o = {0};
+    o.roots = 2;  /* blocks x in [0, 100] and [110, 210] */
+    o.depth = 1;
+    o.grid = 32;  /* ~60 KiB a node: many 4 KiB steps */
+    hlod_store *s = make_store("preempt.hlod", &o, NULL);
+    uint32_t count = hlod_store_node_count(s), roots = hlod_store_root_count(s);
+    CHECK(count <= GATED_MAXN);
+    const hlod_store_node *nodes = hlod_store_nodes(s);
+    gated_disk g;
+    memset(&g, 0, sizeof g);
+    hlod_engine_desc d = {0};
+    d.deterministic = 0;
+    machine m = {1, 1e-6, 0, 0}; /* everything fits: all in view is wanted */
+    d.time_model = machine_time;
+    d.time_model_user = &m;
+    d.read_chunk_bytes = 4096;
+    d.read_hook = gated_read;
+    d.read_hook_user = &g;
+    hlod_engine *e = NULL;
+    CHECK(hlod_engine_create(s, &d, &e) == HLOD_OK);
+    if (!e) {
+        hlod_store_close(s);
+        return;
+    }
+    uint32_t steps_per_node = (uint32_t)((nodes[roots].payload_size + 4095) / 4096);
+    hlod_camera cam;
+    hlod_frame_stats st;
+    /* 1: above block 1, block 0 out of view: a block-1 node starts reading */
+    look(&cam, 160, 50, 90, 160, 50.1, 0);
+    uint32_t inflight = UINT32_MAX;
+    int f = 0;
+    for (; f < 200 && inflight == UINT32_MAX; f++) {
+        gated_frame(e, &cam, &g, &st);
+        for (uint32_t i = roots; i < count; i++)
+            if (nodes[i].block == 1 && atomic_load(&g.steps[i]) >= 3 &&
+                hlod_engine_node_state(e, i) != HLOD_NODE_RESIDENT)
+                inflight = i;
+    }
+    CHECKF(inflight != UINT32_MAX, "no block-1 read in flight after %d frames", f);
+    int left = (int)steps_per_node - atomic_load(&g.steps[inflight < count ? inflight : 0]);
+    /* 2: close over block 0, block 1 still in view further off */
+    look(&cam, 50, -40, 35, 110, 50, 0);
+    int turn = f, first_urgent = -1, inflight_done = -1;
+    for (; f < turn + 8 * (int)steps_per_node && inflight_done < 0 && inflight < count; f++) {
+        gated_frame(e, &cam, &g, &st);
+        for (uint32_t i = roots; i < count && first_urgent < 0; i++)
+            if (nodes[i].block == 0 && hlod_engine_node_state(e, i) == HLOD_NODE_RESIDENT)
+                first_urgent = f - turn;
+        if (hlod_engine_node_state(e, inflight) == HLOD_NODE_RESIDENT)
+            inflight_done = f - turn;
+        if (getenv("HLOD_TEST_VERBOSE")) {
+            fprintf(stderr, "  f %d: queued %u missing %u drawn %u states", f - turn, st.queued,
+                    st.wanted_missing, st.nodes_drawn);
+            for (uint32_t i = 0; i < count; i++)
+                fprintf(stderr, " %d/%d", (int)hlod_engine_node_state(e, i),
+                        atomic_load(&g.steps[i]));
+            fputc('\n', stderr);
+        }
+    }
+    fprintf(stderr, "  %u steps a node; the read in flight had %d left at the turn: a block-0 node "
+            "resident after %d frames, the read in flight after %d\n", steps_per_node, left,
+            first_urgent, inflight_done);
+    CHECKF(left > 0 && left < (int)steps_per_node, "%d steps left of %u", left, steps_per_node);
+    CHECKF(first_urgent >= 0 && (inflight_done < 0 || first_urgent < inflight_done),
+           "urgent node resident after %d frames, the read in flight after %d", first_urgent,
+           inflight_done);
+    /* it was read, not found, and read at once: a whole node's steps, one
+     * a frame, and the frame that collects it */
+    CHECKF(first_urgent >= (int)steps_per_node && first_urgent <= (int)steps_per_node + 2,
+           "urgent node resident after %d frames for its %u steps", first_urgent, steps_per_node);
+    atomic_store(&g.released, 1);
+    hlod_engine_destroy(e);
+    hlod_store_close(s);
+}
+
 /* A city at x = 5e6 m selects exactly as the same city at the origin. */
 static void test_far_origin_same_selection(void)
 {
@@ -892,6 +1012,7 @@ int main(int argc, char **argv)
     RUN(test_corrupt_never_drawn);
     RUN(test_transient_backoff);
     RUN(test_slow_disk_no_stall);
+    RUN(test_urgent_preempts_prefetch);
     RUN(test_far_origin_same_selection);
     RUN(test_degenerate_views);
     RUN(test_cost_model_fit);
