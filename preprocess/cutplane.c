@@ -6,14 +6,14 @@
  * planes perpendicular to its piece's longest bounding-box axis into
  * C_levelFactor pieces; each piece becomes a child at s_{d+1} = s_d /
  * C_levelFactor, simplified from the ORIGINAL triangles of the piece (not
- * from the parent), with every vertex on a cut plane locked so neighbouring
- * pieces meet without cracks.  Pieces at a factor <= 1 are leaves and keep
- * the original triangles.
+ * from the parent), with every vertex of a seam locked so neighbouring
+ * pieces meet without cracks, at equal or different depths.  Pieces at a
+ * factor <= 1 are leaves and keep the original triangles.
  *
- * Cutting: a triangle crossing a plane is split into three (UVs and normals
- * interpolated).  A split vertex is computed once per undirected edge, from
- * the edge's endpoints in a canonical order, and shared by both triangles on
- * that edge, so the two sides of the cut hold bit-identical vertices.
+ * Cutting: a triangle goes whole to the side of the plane its centroid is
+ * on, so no triangle is ever split (a leaf holds no more triangles than
+ * its source), and the seam between two pieces is made of original edges
+ * whose vertices are locked on both sides.
  *
  * Cut positions are triangle-count quantiles along the axis, so pieces
  * carry equal work and a plane of level d + 1 lies strictly inside its
@@ -31,7 +31,7 @@
 /* A piece: triangles of the original block (after cuts), with locks. */
 typedef struct piece {
     hlod_mesh m;        /* positions, optional uvs/normals, no objects */
-    uint8_t *lock;      /* per vertex: on a cut plane */
+    uint8_t *lock;      /* per vertex: on a seam (used on both sides of a cut) */
 } piece;
 
 static void piece_free(piece *p)
@@ -39,94 +39,6 @@ static void piece_free(piece *p)
     hlod_mesh_free(&p->m);
     free(p->lock);
     memset(p, 0, sizeof *p);
-}
-
-/* Open-addressing map from an undirected edge to its split vertex.  Grows
- * at half load: how many edges a plane crosses is not bounded by any
- * fraction of the triangle count (a plane along a dense facade crosses
- * most of its edges), and a full table would probe forever. */
-typedef struct edge_map {
-    uint64_t *key;
-    uint32_t *val;
-    size_t cap, count;
-} edge_map;
-
-static int emap_alloc(edge_map *e, size_t cap)
-{
-    e->cap = cap;
-    e->count = 0;
-    e->key = malloc(e->cap * sizeof *e->key);
-    e->val = malloc(e->cap * sizeof *e->val);
-    if (!e->key || !e->val) {
-        free(e->key);
-        free(e->val);
-        e->key = NULL;
-        e->val = NULL;
-        return 0;
-    }
-    memset(e->key, 0xff, e->cap * sizeof *e->key);
-    return 1;
-}
-
-static int emap_init(edge_map *e, size_t n)
-{
-    size_t cap = 64;
-    while (cap < n * 2)
-        cap *= 2;
-    return emap_alloc(e, cap);
-}
-
-static void emap_free(edge_map *e)
-{
-    free(e->key);
-    free(e->val);
-    e->key = NULL;
-    e->val = NULL;
-}
-
-static size_t emap_index(const edge_map *e, uint64_t k)
-{
-    uint64_t h = k * 0x9E3779B97F4A7C15ull;
-    size_t i = (size_t)(h >> 17) & (e->cap - 1);
-    while (e->key[i] != UINT64_MAX && e->key[i] != k)
-        i = (i + 1) & (e->cap - 1);
-    return i;
-}
-
-/* Doubles the table; 0 when out of memory (the map is unchanged). */
-static int emap_grow(edge_map *e)
-{
-    edge_map n;
-    if (!emap_alloc(&n, e->cap * 2))
-        return 0;
-    for (size_t i = 0; i < e->cap; i++)
-        if (e->key[i] != UINT64_MAX) {
-            size_t j = emap_index(&n, e->key[i]);
-            n.key[j] = e->key[i];
-            n.val[j] = e->val[i];
-            n.count++;
-        }
-    emap_free(e);
-    *e = n;
-    return 1;
-}
-
-/* The slot for edge (a, b), inserted when new; NULL when out of memory. */
-static uint32_t *emap_slot(edge_map *e, uint32_t a, uint32_t b, int *found)
-{
-    uint64_t k = a < b ? ((uint64_t)a << 32 | b) : ((uint64_t)b << 32 | a);
-    size_t i = emap_index(e, k);
-    *found = e->key[i] == k;
-    if (!*found) {
-        if (2 * (e->count + 1) > e->cap) {
-            if (!emap_grow(e))
-                return NULL;
-            i = emap_index(e, k);
-        }
-        e->key[i] = k;
-        e->count++;
-    }
-    return &e->val[i];
 }
 
 /* Growable vertex/triangle arrays for building a piece. */
@@ -242,125 +154,71 @@ static hlod_result b_finish(builder *b, piece *out)
     return HLOD_OK;
 }
 
-/* Splits p by the plane x[axis] = c into below (< c side) and above.  A
- * triangle goes to the side of its centroid unless it crosses the plane,
- * then it is cut.  Vertices exactly on the plane and split vertices are
- * locked on both sides. */
+/* Splits p by the plane x[axis] = c into below (< c side) and above.  Each
+ * triangle goes whole to the side of its centroid: no triangle is cut, so
+ * the pieces hold exactly the original triangles, and the seam between
+ * them is the original edges shared by a triangle on each side.  A vertex
+ * used on both sides is locked on both (as are the vertices p had
+ * locked), so every node that holds a seam keeps all of its vertices: two
+ * nodes at any depths on either side of a seam meet on the same bits, with
+ * no T-junction and no crack. */
 static hlod_result split(const piece *p, int axis, double c, piece *below, piece *above)
 {
     const hlod_mesh *m = &p->m;
     builder side[2];
     memset(side, 0, sizeof side);
     side[0].src = side[1].src = m;
-    uint32_t *map[2] = {malloc(m->vertex_count * sizeof(uint32_t) + 1),
-                        malloc(m->vertex_count * sizeof(uint32_t) + 1)};
-    edge_map em[2] = {{0}, {0}};
+    size_t nv = m->vertex_count;
+    uint32_t *map[2] = {malloc(nv * sizeof(uint32_t) + 1), malloc(nv * sizeof(uint32_t) + 1)};
+    uint8_t *use = calloc(nv + 1, 1);      /* bit s: used by a triangle on side s */
+    uint8_t *tside = malloc(m->tri_count + 1);
     hlod_result r = HLOD_ERR_NOMEM;
-    if (!map[0] || !map[1] || !emap_init(&em[0], m->tri_count / 4 + 64) ||
-        !emap_init(&em[1], m->tri_count / 4 + 64))
+    if (!map[0] || !map[1] || !use || !tside)
         goto done;
-    for (size_t v = 0; v < m->vertex_count; v++)
-        map[0][v] = map[1][v] = UINT32_MAX;
-
     for (size_t t = 0; t < m->tri_count; t++) {
         const uint32_t *ix = m->indices + 3 * t;
-        double d[3];
-        int nb = 0, na = 0;
+        double cen = 0;
+        for (int k = 0; k < 3; k++)
+            cen += m->positions[3 * (size_t)ix[k] + axis];
+        int sd = !(cen / 3 < c);
+        tside[t] = (uint8_t)sd;
+        for (int k = 0; k < 3; k++)
+            use[ix[k]] |= (uint8_t)(1u << sd);
+    }
+    for (size_t v = 0; v < nv; v++)
+        map[0][v] = map[1][v] = UINT32_MAX;
+    for (size_t t = 0; t < m->tri_count; t++) {
+        const uint32_t *ix = m->indices + 3 * t;
+        int sd = tside[t];
+        uint32_t o[3];
         for (int k = 0; k < 3; k++) {
-            d[k] = m->positions[3 * (size_t)ix[k] + axis] - c;
-            nb += d[k] < 0;
-            na += d[k] > 0;
-        }
-        if (!(nb && na)) {
-            /* whole triangle on one side (touching the plane at most) */
-            int s = na ? 1 : nb ? 0 : 1;
-            uint32_t o[3];
-            for (int k = 0; k < 3; k++) {
-                uint32_t v = ix[k];
-                if (map[s][v] == UINT32_MAX) {
-                    map[s][v] = (uint32_t)side[s].nv;
-                    if (!b_vertex(&side[s], m->positions + 3 * (size_t)v, m->uvs ? m->uvs + 2 * (size_t)v : NULL,
-                                  m->normals ? m->normals + 3 * (size_t)v : NULL,
-                                  (uint8_t)(p->lock[v] || d[k] == 0)))
-                        goto done;
-                }
-                o[k] = map[s][v];
-            }
-            if (!b_tri(&side[s], o[0], o[1], o[2]))
-                goto done;
-            continue;
-        }
-        /* Crossing: walk the polygon, inserting a split vertex on every
-         * edge whose endpoints lie strictly on opposite sides; emit each
-         * side's polygon as a fan. */
-        uint32_t poly[2][4];
-        int pn[2] = {0, 0};
-        for (int k = 0; k < 3; k++) {
-            int k2 = (k + 1) % 3;
             uint32_t v = ix[k];
-            for (int s = 0; s < 2; s++) {
-                int on_side = s ? d[k] >= 0 : d[k] <= 0;
-                if (!on_side)
-                    continue;
-                if (map[s][v] == UINT32_MAX) {
-                    map[s][v] = (uint32_t)side[s].nv;
-                    if (!b_vertex(&side[s], m->positions + 3 * (size_t)v, m->uvs ? m->uvs + 2 * (size_t)v : NULL,
-                                  m->normals ? m->normals + 3 * (size_t)v : NULL,
-                                  (uint8_t)(p->lock[v] || d[k] == 0)))
-                        goto done;
-                }
-                poly[s][pn[s]++] = map[s][v];
-            }
-            if ((d[k] < 0 && d[k2] > 0) || (d[k] > 0 && d[k2] < 0)) {
-                /* canonical order: the lower vertex index first, so both
-                 * triangles on this edge compute the same bits */
-                uint32_t a = ix[k] < ix[k2] ? ix[k] : ix[k2], b = ix[k] < ix[k2] ? ix[k2] : ix[k];
-                const double *pa = m->positions + 3 * (size_t)a, *pb = m->positions + 3 * (size_t)b;
-                double da = pa[axis] - c, db = pb[axis] - c;
-                double w = da / (da - db);
-                double q[3];
-                for (int j = 0; j < 3; j++)
-                    q[j] = pa[j] + w * (pb[j] - pa[j]);
-                q[axis] = c;
-                float uv[2] = {0, 0}, n[3] = {0, 0, 0};
-                if (m->uvs)
-                    for (int j = 0; j < 2; j++)
-                        uv[j] = (float)(m->uvs[2 * (size_t)a + j] +
-                                        w * (m->uvs[2 * (size_t)b + j] - m->uvs[2 * (size_t)a + j]));
-                if (m->normals)
-                    for (int j = 0; j < 3; j++)
-                        n[j] = (float)(m->normals[3 * (size_t)a + j] +
-                                       w * (m->normals[3 * (size_t)b + j] - m->normals[3 * (size_t)a + j]));
-                for (int s = 0; s < 2; s++) {
-                    int found;
-                    uint32_t *slot = emap_slot(&em[s], a, b, &found);
-                    if (!slot)
-                        goto done; /* out of memory */
-                    if (!found) {
-                        *slot = (uint32_t)side[s].nv;
-                        if (!b_vertex(&side[s], q, uv, n, 1))
-                            goto done;
-                    }
-                    poly[s][pn[s]++] = *slot;
-                }
-            }
-        }
-        for (int s = 0; s < 2; s++)
-            for (int k = 1; k + 1 < pn[s]; k++)
-                if (!b_tri(&side[s], poly[s][0], poly[s][k], poly[s][k + 1]))
+            if (map[sd][v] == UINT32_MAX) {
+                map[sd][v] = (uint32_t)side[sd].nv;
+                if (!b_vertex(&side[sd], m->positions + 3 * (size_t)v,
+                              m->uvs ? m->uvs + 2 * (size_t)v : NULL,
+                              m->normals ? m->normals + 3 * (size_t)v : NULL,
+                              (uint8_t)(p->lock[v] || use[v] == 3)))
                     goto done;
+            }
+            o[k] = map[sd][v];
+        }
+        if (!b_tri(&side[sd], o[0], o[1], o[2]))
+            goto done;
     }
     r = b_finish(&side[0], below);
-    if (r == HLOD_OK)
+    if (r == HLOD_OK) {
         r = b_finish(&side[1], above);
-    if (r != HLOD_OK)
-        piece_free(below);
-done:
-    for (int s = 0; s < 2; s++) {
-        b_free(&side[s]);
-        emap_free(&em[s]);
-        free(map[s]);
+        if (r != HLOD_OK)
+            piece_free(below);
     }
+done:
+    for (int sd = 0; sd < 2; sd++) {
+        b_free(&side[sd]);
+        free(map[sd]);
+    }
+    free(use);
+    free(tside);
     return r;
 }
 

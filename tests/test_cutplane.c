@@ -14,14 +14,14 @@
 #include <string.h>
 #include <unistd.h>
 
-/* A bumpy, irregular height field, n x n quads over 40 x 10 m, with UVs. */
-static void block_mesh(hlod_mesh *m, int n, int textured)
+/* A bumpy, irregular height field, n x n quads over w x h m, with UVs. */
+static void field_mesh(hlod_mesh *m, int n, double w, double h, int textured)
 {
     hlod_mesh_alloc(m, (size_t)(n + 1) * (n + 1), (size_t)2 * n * n, textured ? HLOD_MESH_UVS : 0);
     for (int j = 0; j <= n; j++)
         for (int i = 0; i <= n; i++) {
             size_t v = (size_t)j * (n + 1) + i;
-            double x = 40.0 * i / n, y = 10.0 * j / n;
+            double x = w * i / n, y = h * j / n;
             m->positions[3 * v] = x + 5e5;
             m->positions[3 * v + 1] = y + 4.1e6;
             m->positions[3 * v + 2] = 0.3 * sin(0.7 * x) * cos(1.3 * y) + 0.05 * sin(5.1 * x + 2.3 * y);
@@ -38,6 +38,12 @@ static void block_mesh(hlod_mesh *m, int n, int textured)
             x[0] = a, x[1] = b, x[2] = d, x[3] = a, x[4] = d, x[5] = c;
             t += 2;
         }
+}
+
+/* The block of most tests: 40 x 10 m, so every cut is along x. */
+static void block_mesh(hlod_mesh *m, int n, int textured)
+{
+    field_mesh(m, n, 40, 10, textured);
 }
 
 static void texture(hlod_image *img, int w, int h)
@@ -119,12 +125,9 @@ static void leaves_keep_area_and_cover_the_block(void)
         }
     double a0 = hlod_mesh_area(&m);
     CHECKF(fabs(area - a0) < 1e-9 * a0, "leaf area %.17g vs %.17g", area, a0);
-    /* Two-sided: nothing lost, and nothing but the cut planes' splits
-     * added.  The 8 planes of the two levels each cross one column of the
-     * 60 x 60 grid (at most 2 x 60 triangles, as none is parallel to a
-     * diagonal), and a triangle cut by a plane becomes at most 3. */
-    CHECKF(leaf_tris >= m.tri_count && leaf_tris <= m.tri_count + 8 * (2 * 60) * 2,
-           "leaves hold %zu triangles of %zu", leaf_tris, m.tri_count);
+    /* Two-sided: the leaves hold the block's triangles, none lost and none
+     * added (a cut moves each triangle whole to one side) */
+    CHECKF(leaf_tris == m.tri_count, "leaves hold %zu triangles of %zu", leaf_tris, m.tri_count);
     fprintf(stderr, "  leaves hold %zu triangles of %zu\n", leaf_tris, m.tri_count);
     /* hlod_0 covers the block */
     double lo[3], hi[3], rlo[3], rhi[3];
@@ -161,6 +164,14 @@ static int on_outline(const double *p)
 {
     double x = p[0] - 5e5, y = p[1] - 4.1e6;
     return fabs(x) < 0.02 || fabs(x - 40) < 0.02 || fabs(y) < 0.02 || fabs(y - 10) < 0.02;
+}
+
+/* On the outline of a square block of side w at (5e5, 4.1e6): within 2 cm,
+ * as on_outline. */
+static int on_square_outline(const double *p, double w)
+{
+    double x = p[0] - 5e5, y = p[1] - 4.1e6;
+    return fabs(x) < 0.02 || fabs(x - w) < 0.02 || fabs(y) < 0.02 || fabs(y - w) < 0.02;
 }
 
 /* Border edges (one face) of every node at a depth, keyed by the bits of
@@ -268,6 +279,101 @@ static void counts_follow_factors_and_errors_bound(void)
     hlod_mesh_free(&m);
 }
 
+/* Vertices of a mesh on a border edge (an edge of one face only). */
+static uint8_t *border_vertices(const hlod_mesh *m)
+{
+    size_t ne = m->tri_count * 3;
+    uint64_t *e = malloc((ne + 1) * sizeof *e);
+    uint8_t *on = calloc(m->vertex_count + 1, 1);
+    for (size_t x = 0; x < m->tri_count; x++)
+        for (int c = 0; c < 3; c++) {
+            uint64_t a = m->indices[3 * x + c], b = m->indices[3 * x + (c + 1) % 3];
+            e[3 * x + c] = a < b ? a << 32 | b : b << 32 | a;
+        }
+    qsort(e, ne, sizeof *e, cmp_u64);
+    for (size_t i = 0; i < ne;) {
+        size_t j = i;
+        while (j < ne && e[j] == e[i])
+            j++;
+        if (j - i == 1) {
+            on[e[i] >> 32] = 1;
+            on[e[i] & 0xffffffffu] = 1;
+        }
+        i = j;
+    }
+    free(e);
+    return on;
+}
+
+static int has_position(const hlod_mesh *m, const double *p)
+{
+    for (size_t v = 0; v < m->vertex_count; v++)
+        if (!memcmp(m->positions + 3 * v, p, 3 * sizeof(double)))
+            return 1;
+    return 0;
+}
+
+/* A square block, so the cut axis alternates (level 1 cuts one axis, level
+ * 2 the other): drawn at mixed depths, a depth-1 node beside the depth-2
+ * children of its sibling, the seam holds no crack.  Every border vertex
+ * of a child that lies on its coarser neighbour's box is bit-identical to
+ * a vertex of that neighbour. */
+static void mixed_depths_share_boundaries(void)
+{
+    hlod_mesh m = {0};
+    field_mesh(&m, 60, 30, 30, 0);
+    hlod_build_params p = params();
+    hlod_btree t;
+    CHECK(hlod_build_cutplane(&m, NULL, &p, &t) == HLOD_OK);
+    size_t seams = 0, seam_vertices = 0, missing = 0;
+    double axis_seen[2] = {0, 0};
+    for (size_t c = 0; c < t.count; c++) {
+        if (t.nodes[c].depth != 1)
+            continue;
+        double clo[3], chi[3];
+        hlod_mesh_bounds(&t.nodes[c].mesh, clo, chi);
+        for (size_t f = 0; f < t.count; f++) {
+            const hlod_bnode *fn = &t.nodes[f];
+            if (fn->depth != 2 || fn->parent == c)
+                continue;
+            const hlod_mesh *fm = &fn->mesh;
+            double flo[3], fhi[3];
+            hlod_mesh_bounds(fm, flo, fhi);
+            /* the child's cut axis: its long side is its parent's short one */
+            axis_seen[fhi[0] - flo[0] < fhi[1] - flo[1]] += 1;
+            uint8_t *on = border_vertices(fm);
+            size_t here = 0;
+            for (size_t v = 0; v < fm->vertex_count; v++) {
+                const double *q = fm->positions + 3 * v;
+                if (!on[v] || on_square_outline(q, 30))
+                    continue;
+                int inside = 1;
+                for (int k = 0; k < 2; k++)
+                    inside &= q[k] >= clo[k] - 1e-9 && q[k] <= chi[k] + 1e-9;
+                if (!inside)
+                    continue;
+                here++;
+                if (!has_position(&t.nodes[c].mesh, q)) {
+                    if (missing < 5)
+                        fprintf(stderr, "  node %zu (depth 2) vertex (%.17g, %.17g, %.17g) is not "
+                                "in its depth-1 neighbour %zu\n", f, q[0], q[1], q[2], c);
+                    missing++;
+                }
+            }
+            seams += here > 0;
+            seam_vertices += here;
+            free(on);
+        }
+    }
+    fprintf(stderr, "  %zu seams between depths 1 and 2, %zu seam vertices, %zu not in the coarser "
+            "node\n", seams, seam_vertices, missing);
+    CHECKF(seams >= 2 && seam_vertices > 0, "%zu seams, %zu vertices", seams, seam_vertices);
+    CHECKF(missing == 0, "%zu of %zu seam vertices not in the coarser neighbour", missing,
+           seam_vertices);
+    hlod_btree_free(&t);
+    hlod_mesh_free(&m);
+}
+
 static void small_block_is_one_node(void)
 {
     hlod_mesh m = {0};
@@ -341,6 +447,7 @@ int main(void)
     RUN(leaves_keep_area_and_cover_the_block);
     RUN(siblings_share_boundaries);
     RUN(counts_follow_factors_and_errors_bound);
+    RUN(mixed_depths_share_boundaries);
     RUN(small_block_is_one_node);
     RUN(reproducible);
     return check_done();
