@@ -14,6 +14,7 @@ PACKAGES=(
     gnuplot-nox libxxhash-dev libfast-float-dev
     clang libclang-rt-14-dev
     xvfb xauth
+    strace util-linux
 )
 
 missing=()

@@ -21,6 +21,10 @@ ROOT=$(pwd)
 JOBS=2
 mkdir -p "$ROOT/out/test-logs"
 
+# Everything a test needs is installed here: a test that would skip fails
+# (tests/check.h, tests/test_build_safety.sh).
+export HLOD_TEST_STRICT=1
+
 # Sanitizer reports must fail the test that triggered them.
 export ASAN_OPTIONS=${ASAN_OPTIONS:-detect_leaks=1}
 export UBSAN_OPTIONS=${UBSAN_OPTIONS:-print_stacktrace=1:halt_on_error=1}
