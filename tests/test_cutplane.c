@@ -148,6 +148,15 @@ static int cmp_u64(const void *a, const void *b)
     return x < y ? -1 : x > y;
 }
 
+/* The end of the run of keys equal to v[i] in a sorted array. */
+static size_t run_end(const uint64_t *v, size_t n, size_t i)
+{
+    size_t j = i;
+    while (j < n && v[j] == v[i])
+        j++;
+    return j;
+}
+
 static uint64_t hash_pos(const double *p)
 {
     uint64_t h = 1469598103934665603ull;
@@ -210,9 +219,7 @@ static void siblings_share_boundaries(void)
                 }
             qsort(e, ne, sizeof *e, cmp_u64);
             for (size_t i = 0; i < ne;) {
-                size_t j = i;
-                while (j < ne && e[j] == e[i])
-                    j++;
+                size_t j = run_end(e, ne, i);
                 if (j - i == 1) {
                     all[n_all] = e[i];
                     outline[n_all++] = (uint8_t)(e[i] & 1);
@@ -226,9 +233,7 @@ static void siblings_share_boundaries(void)
         qsort(all, n_all, sizeof *all, cmp_u64);
         size_t cracks = 0;
         for (size_t i = 0; i < n_all;) {
-            size_t j = i;
-            while (j < n_all && all[j] == all[i])
-                j++;
+            size_t j = run_end(all, n_all, i);
             if (!(all[i] & 1))
                 cracks += j - i != 2;
             i = j;
@@ -292,9 +297,7 @@ static uint8_t *border_vertices(const hlod_mesh *m)
         }
     qsort(e, ne, sizeof *e, cmp_u64);
     for (size_t i = 0; i < ne;) {
-        size_t j = i;
-        while (j < ne && e[j] == e[i])
-            j++;
+        size_t j = run_end(e, ne, i);
         if (j - i == 1) {
             on[e[i] >> 32] = 1;
             on[e[i] & 0xffffffffu] = 1;

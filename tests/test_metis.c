@@ -326,8 +326,9 @@ static void errors_bound_subtrees_and_grow_upwards(void)
         CHECKF(d.max <= t->nodes[k].error * (1 + 1e-9), "node %zu: sampled %g > error %g", k, d.max,
                t->nodes[k].error);
         double lower, cap = node_error_cap(t, (uint32_t)k, &orig, &lower);
-        CHECKF(t->nodes[k].error >= lower && t->nodes[k].error <= cap, "node %zu: error %g outside the "
-               "documented [%g, %g]", k, t->nodes[k].error, lower, cap);
+        double err = t->nodes[k].error;
+        CHECKF(err >= lower && err <= cap, "node %zu: error %g outside the documented [%g, %g]", k,
+               err, lower, cap);
         CHECK(t->nodes[k].error > 0);
         hlod_mesh_free(&orig);
     }
