@@ -131,7 +131,7 @@ fi
 echo "==> hlod-info $STORE"
 "$ROOT/build/bin/hlod-info" "$STORE" || failed=1
 
-# Fly-throughs (SPEC section 4 measurements), headless at 1280x720, 33 ms.
+# Fly-throughs (README, "hlod-bench" measurements), headless at 1280x720, 33 ms.
 BENCHBIN=$ROOT/build/bin/hlod-bench
 PATHS=$ROOT/data/paths/$PRESET
 # A full-detail reference frame costs seconds on a software rasteriser (the

@@ -1,5 +1,5 @@
 /*
- * engine.c - the engine object and its frame (SPEC section 3).
+ * engine.c - the engine object and its frame (README, "The runtime").
  *
  * A frame, on the render thread:
  *   1. collect finished loads and upload them (residency.c);
@@ -11,7 +11,7 @@
  *   5. admit wanted nodes against the memory budget and hand the loader its
  *      new queue (residency.c).
  *
- * Cost model.  SPEC 3: a frame costs a fixed part (clear, fill, swap,
+ * Cost model.  A frame costs a fixed part (clear, fill, swap,
  * traversal) plus a part proportional to the drawn cost; feeding back only
  * v_time would make it swallow the fixed part and misprice every node.  We
  * fit  measured_ms = fixed_ms + v_time * drawn_cost  by exponentially

@@ -2,7 +2,7 @@
  * engine_internal.h - the engine's parts and the data they share.
  * Render thread only, except where loader.h says otherwise.
  *
- * Three kinds of per-node data, kept apart (STYLE: no god structs):
+ * Three kinds of per-node data, kept apart (no single struct holds all):
  *   - the store's node table (immutable: box, cost, benefit, tree links);
  *   - hlod_node_frame: what the traversal remembers between frames
  *     (hysteresis counter, last priority, draw/refine stamps for toggles);
@@ -88,7 +88,7 @@ struct hlod_engine {
     hlod_req_vec want;      /* non-resident nodes priced this frame */
     hlod_req_vec post;      /* what was handed to the loader */
 
-    /* cost model: frame ms = fixed + v_time * drawn cost (SPEC 3) */
+    /* cost model: frame ms = fixed + v_time * drawn cost (engine.c) */
     double v_time, fixed_ms;     /* published: what the traversal uses */
     double fit_v, fit_fixed;     /* the fit's own current values */
     double s0, sx, sy, sxx, sxy; /* exponentially weighted sums */

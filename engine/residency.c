@@ -1,5 +1,5 @@
 /*
- * residency.c - which nodes are in memory (Lakhia III-D; SPEC section 3).
+ * residency.c - which nodes are in memory (Lakhia III-D; README, "The runtime").
  *
  * The render thread owns residency; the loader thread only reads bytes
  * (loader.h).  Each frame:

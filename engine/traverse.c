@@ -1,5 +1,5 @@
 /*
- * traverse.c - node selection (Lakhia III-C; SPEC section 3).
+ * traverse.c - node selection (Lakhia III-C; README, "The runtime").
  *
  * Top-down and breadth-first from the hlod_0 nodes.  Each visible node is
  * priced (priority = benefit / cost); a node's time slice is its parent's
@@ -10,7 +10,7 @@
  *   lakhia  hyst_c += (slice_c - needed_c) / needed_c, clamped (outside a
  *           small dead band, see update_hyst);
  *           cumHyst = sum trunc(hyst_c / c_hystSwitch); refine if
- *           cumHyst >= 0 (SPEC: cumHyst < 0 draws the parent), unless the
+ *           cumHyst >= 0 (cumHyst < 0 draws the parent), unless the
  *           safety clamp fires (children's summed timeNeeded over the shared
  *           time by more than c_safety_slack);
  *   nohyst  refine if shareTime > sum timeNeeded (eq. 4 recursion rule);
@@ -117,7 +117,7 @@ static double node_radius(const hlod_store_node *n)
 
 /* Distance from the look-ahead probe to the box, clamped below by a tenth
  * of the node's radius (and never zero): a camera inside a node gets a large
- * but finite benefit (SPEC 3). */
+ * but finite benefit, where benefit over distance would have none. */
 static double node_distance(const hlod_view *v, const hlod_store_node *n)
 {
     double d2 = 0;
@@ -222,7 +222,7 @@ static int want_node(hlod_engine *e, uint32_t i, double priority)
 
 static void update_hyst(hlod_engine *e, hlod_node_frame *f)
 {
-    /* New or re-entering nodes start at 0 (SPEC 3). */
+    /* New or re-entering nodes start at 0 (Lakhia III-C). */
     if (f->hyst_frame + 1 != e->frame)
         f->hyst = 0;
     /* Lakhia: hyst += (timeSlice - timeNeeded) / timeNeeded, clamped.
@@ -314,7 +314,7 @@ static int visit(hlod_engine *e, const hlod_view *v, front *fr, uint32_t p)
     switch (pol) {
     case HLOD_POLICY_LAKHIA:
         /* cumHyst < 0 draws the parent; the safety clamp draws it too when
-         * the children clearly do not fit the shared time (SPEC 3). */
+         * the children clearly do not fit the shared time (c_safety_slack). */
         refine = cum >= 0 && sum_needed <= share * (1 + e->d.c_safety_slack) *
                                             (pf->refined + 1 == e->frame ? 1 + KEEP_MARGIN : 1);
         near = sum_needed <= 2 * share;

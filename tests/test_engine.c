@@ -5,7 +5,7 @@
  * the traversal, hysteresis, cost model and loader run for real; frame time
  * comes from a synthetic machine (hlod_time_model) or from the
  * deterministic mode's fixed v_time.  Each test checks one behaviour of
- * SPEC section 3: time slices, the estimate bound, the missing-sibling
+ * the runtime (README, "The runtime"): time slices, the estimate bound, the missing-sibling
  * rule, hysteresis clamps and settling, pricing only what is near the view,
  * the memory budget under random jumps, load-once when the scene fits,
  * corrupt and failing nodes, a slow disk that must not stall the render

@@ -1,7 +1,7 @@
 /*
  * engine.h - the runtime: priority traversal with time slicing and urgency
  * hysteresis (Lakhia III-C), a preemptive loader thread (III-D) and an
- * OpenGL renderer.  SPEC section 3 gives every formula and constant.
+ * OpenGL renderer.  README, "The runtime", gives every formula and constant.
  *
  * Usage (render thread, with a GL 3.3 context current when a renderer is
  * given):

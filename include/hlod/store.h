@@ -89,7 +89,7 @@ extern "C" {
 #define HLOD_STORE_METHOD_METIS 2u      /* Okamoto 4.1 */
 
 /* The build parameters, recorded so tools can show how a store was made
- * (SPEC section 2).  Zero where the method does not use one. */
+ * (README, "hlod-build").  Zero where the method does not use one. */
 typedef struct hlod_store_build_info {
     uint32_t method;        /* HLOD_STORE_METHOD_* */
     uint32_t reserved;      /* 0 */
