@@ -387,13 +387,6 @@ static void adapt_share_gain(hlod_engine *e, double est, double budget, int move
 
 /* ---- frame ---- */
 
-static double now_ms(void)
-{
-    struct timespec ts;
-    clock_gettime(CLOCK_MONOTONIC, &ts);
-    return (double)ts.tv_sec * 1e3 + (double)ts.tv_nsec * 1e-6;
-}
-
 static int camera_ok(const hlod_camera *c)
 {
     for (int k = 0; k < 3; k++)
@@ -491,7 +484,7 @@ hlod_result hlod_engine_frame(hlod_engine *e, const hlod_camera *cam, double dt,
                   e->frame + 1);
         return HLOD_ERR_INVALID_ARG;
     }
-    double t_start = now_ms();
+    double t_start = hlod_now_ms();
     e->frame++;
     memset(&e->st, 0, sizeof e->st);
     e->st.frame = e->frame - 1;
@@ -507,9 +500,9 @@ hlod_result hlod_engine_frame(hlod_engine *e, const hlod_camera *cam, double dt,
     memcpy(e->prev_eye, cam->position, sizeof e->prev_eye);
     e->have_prev = 1;
 
-    double t0 = now_ms();
+    double t0 = hlod_now_ms();
     hlod_residency_collect(e);
-    e->st.upload_ms = now_ms() - t0;
+    e->st.upload_ms = hlod_now_ms() - t0;
 
     /* This frame's uploads are done and timed: the traversal gets what is
      * left, and the fit sees the frame without them.  Not when
@@ -524,9 +517,9 @@ hlod_result hlod_engine_frame(hlod_engine *e, const hlod_camera *cam, double dt,
         budget = 0.1 * target;
     hlod_view view;
     hlod_view_init(&view, cam, vel, e->d.velocity_lookahead_s);
-    t0 = now_ms();
+    t0 = hlod_now_ms();
     hlod_result r = hlod_traverse(e, &view, budget, budget * e->share_gain);
-    e->st.traversal_ms = now_ms() - t0;
+    e->st.traversal_ms = hlod_now_ms() - t0;
     if (r != HLOD_OK)
         return r;
 
@@ -537,7 +530,7 @@ hlod_result hlod_engine_frame(hlod_engine *e, const hlod_camera *cam, double dt,
     if (e->d.time_model)
         measured = e->d.time_model(e->d.time_model_user, e->st.cost_drawn, e->st.tris_drawn);
     else
-        measured = now_ms() - t_start;
+        measured = hlod_now_ms() - t_start;
     e->st.measured_ms = measured;
     e->st.v_time = e->v_time;
     e->st.fixed_ms = e->fixed_ms;

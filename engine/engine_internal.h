@@ -18,6 +18,8 @@
 #include "hlod/engine.h"
 #include "loader.h"
 
+#include <time.h>
+
 /* Traversal memory of one node. */
 typedef struct hlod_node_frame {
     double hyst;            /* Lakhia hyst_n, in [-c_hystLimit, c_hystLimit] */
@@ -149,6 +151,15 @@ static inline double hlod_node_cost(const hlod_store_node *n)
     /* eq. 1 can be 0 (c_tex = 1 on untextured triangles): keep every
      * ratio finite with a floor of a thousandth of a triangle. */
     return n->cost > 1e-3 ? n->cost : 1e-3;
+}
+
+/* The monotonic clock in ms, for the engine's wall-clock measures (never
+ * read for a decision under a time model). */
+static inline double hlod_now_ms(void)
+{
+    struct timespec ts;
+    clock_gettime(CLOCK_MONOTONIC, &ts);
+    return (double)ts.tv_sec * 1e3 + (double)ts.tv_nsec * 1e-6;
 }
 
 #endif

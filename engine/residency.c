@@ -36,13 +36,6 @@
 #define KEEP_UNWANTED_FRAMES 8  /* a queued node not wanted for this long is dropped */
 #define WAIT_MS 5.0             /* a post/collect call this slow counts as a wait */
 
-static double now_ms(void)
-{
-    struct timespec ts;
-    clock_gettime(CLOCK_MONOTONIC, &ts);
-    return (double)ts.tv_sec * 1e3 + (double)ts.tv_nsec * 1e-6;
-}
-
 static double mem_cost(const hlod_engine *e, double cost)
 {
     return e->d.c_memory * cost;
@@ -186,9 +179,9 @@ void hlod_residency_collect(hlod_engine *e)
         e->pending = p;
         e->pending_cap = cap;
     }
-    double t0 = now_ms();
+    double t0 = hlod_now_ms();
     size_t got = hlod_loader_collect(e->loader, e->pending + e->pending_n, room);
-    if (now_ms() - t0 > WAIT_MS)
+    if (hlod_now_ms() - t0 > WAIT_MS)
         e->st.render_waits++;
     e->pending_n += got;
 
@@ -197,7 +190,7 @@ void hlod_residency_collect(hlod_engine *e)
     double up_ms = e->d.upload_budget_ms > 0 ? e->d.upload_budget_ms : 0.1 * e->d.target_ms;
     if (e->d.deterministic || e->d.time_model)
         up_ms = INFINITY; /* reproducible, or a synthetic machine: bytes alone decide */
-    double t_up = now_ms();
+    double t_up = hlod_now_ms();
     uint64_t uploaded = 0;
     size_t keep = 0;
     for (size_t k = 0; k < e->pending_n; k++) {
@@ -214,7 +207,7 @@ void hlod_residency_collect(hlod_engine *e)
             continue;
         }
         if (uploaded && (uploaded + lr->payload.bytes > e->d.upload_budget_bytes ||
-                         now_ms() - t_up >= up_ms)) {
+                         hlod_now_ms() - t_up >= up_ms)) {
             e->pending[keep++] = *lr; /* next frame */
             continue;
         }
@@ -357,9 +350,9 @@ void hlod_residency_schedule(hlod_engine *e)
     if (resort)
         qsort(post->v, post->n, sizeof *post->v, cmp_request);
 
-    double t0 = now_ms();
+    double t0 = hlod_now_ms();
     hlod_loader_post(e->loader, post->v, post->n); /* busy: the same list goes next frame */
-    if (now_ms() - t0 > WAIT_MS)
+    if (hlod_now_ms() - t0 > WAIT_MS)
         e->st.render_waits++;
     e->st.queued = (uint32_t)post->n;
     if (e->d.deterministic)
