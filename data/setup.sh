@@ -14,7 +14,7 @@ PACKAGES=(
     gnuplot-nox libxxhash-dev libfast-float-dev
     clang libclang-rt-14-dev
     xvfb xauth
-    strace util-linux
+    strace util-linux procps
 )
 
 missing=()

@@ -19,9 +19,7 @@
 
 static inline double now_ms(void)
 {
-    struct timespec ts;
-    clock_gettime(CLOCK_MONOTONIC, &ts);
-    return (double)ts.tv_sec * 1e3 + (double)ts.tv_nsec * 1e-6;
+    return span_clock_ms(CLOCK_MONOTONIC);
 }
 
 static inline void sleep_us(long us)

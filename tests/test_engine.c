@@ -740,7 +740,6 @@ static void test_urgent_preempts_prefetch(void)
     gated_disk g;
     memset(&g, 0, sizeof g);
     hlod_engine_desc d = {0};
-    d.deterministic = 0;
     machine m = {1, 1e-6, 0, 0}; /* everything fits: all in view is wanted */
     d.time_model = machine_time;
     d.time_model_user = &m;

@@ -181,8 +181,9 @@ static void render_full(hlod_renderer *r, hlod_osmesa *gl, hlod_store *s, const 
 static double coverage(const uint8_t *rgb, const uint8_t bg[3])
 {
     size_t n = 0;
-    for (size_t i = 0; i < (size_t)W * H; i++)
-        n += rgb[3 * i] != bg[0] || rgb[3 * i + 1] != bg[1] || rgb[3 * i + 2] != bg[2];
+    for (int y = 0; y < H; y++)
+        for (int x = 0; x < W; x++)
+            n += mask_covered(rgb, W, x, y, bg);
     return (double)n / ((double)W * H);
 }
 
