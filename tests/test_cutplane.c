@@ -8,6 +8,7 @@
 #include "check.h"
 #include "build.h"
 #include "hlod/distance.h"
+#include "hlod/mesh_io.h"
 
 #include <math.h>
 #include <stdint.h>
@@ -377,6 +378,127 @@ static void mixed_depths_share_boundaries(void)
     hlod_mesh_free(&m);
 }
 
+/* Border edges of m (one face) as keys of their two positions' bits,
+ * appended to *keys (grown as needed); not those with both ends on the
+ * source's outline (outline NULL: a closed source). */
+static void border_edge_keys(const hlod_mesh *m, int (*outline)(const double *), uint64_t **keys,
+                             size_t *n, size_t *cap)
+{
+    uint8_t *on = border_vertices(m);
+    size_t ne = m->tri_count * 3;
+    uint64_t *e = malloc((ne + 1) * sizeof *e);
+    uint64_t *pk = malloc((ne + 1) * sizeof *pk);
+    for (size_t x = 0; x < m->tri_count; x++)
+        for (int c = 0; c < 3; c++) {
+            uint64_t a = m->indices[3 * x + c], b = m->indices[3 * x + (c + 1) % 3];
+            e[3 * x + c] = a < b ? a << 32 | b : b << 32 | a;
+            uint64_t ha = hash_pos(m->positions + 3 * a), hb = hash_pos(m->positions + 3 * b);
+            pk[3 * x + c] = ha < hb ? ha * 31 + hb : hb * 31 + ha;
+        }
+    /* an edge is a border edge when its index pair occurs once */
+    uint64_t *sorted = malloc((ne + 1) * sizeof *sorted);
+    memcpy(sorted, e, ne * sizeof *e);
+    qsort(sorted, ne, sizeof *sorted, cmp_u64);
+    for (size_t i = 0; i < ne; i++) {
+        if (!on[e[i] >> 32] || !on[e[i] & 0xffffffffu])
+            continue;
+        uint64_t *lo = sorted, *hi = sorted + ne;
+        while (lo < hi) { /* lower bound of e[i] */
+            uint64_t *mid = lo + (hi - lo) / 2;
+            if (*mid < e[i])
+                lo = mid + 1;
+            else
+                hi = mid;
+        }
+        if (run_end(sorted, ne, (size_t)(lo - sorted)) - (size_t)(lo - sorted) != 1)
+            continue;
+        const double *pa = m->positions + 3 * (e[i] >> 32);
+        const double *pb = m->positions + 3 * (e[i] & 0xffffffffu);
+        if (outline && outline(pa) && outline(pb))
+            continue; /* the outline is simplified too: only seams must match */
+        if (*n == *cap) {
+            *cap = *cap ? 2 * *cap : 1024;
+            *keys = realloc(*keys, *cap * sizeof **keys);
+        }
+        (*keys)[(*n)++] = pk[i];
+    }
+    free(sorted);
+    free(pk);
+    free(e);
+    free(on);
+}
+
+/* Drawn at mixed depths (every depth-1 node, but one replaced by its
+ * children), the selection is watertight: every border edge off the
+ * source's outline appears in exactly two nodes, with the same bits.
+ * Returns the edges without a twin over all such selections. */
+static size_t mixed_selection_cracks(const hlod_btree *t, int (*on_outline)(const double *),
+                                     size_t *tried)
+{
+    size_t cracks = 0;
+    *tried = 0;
+    for (size_t b = 0; b < t->count; b++) {
+        if (t->nodes[b].depth != 1 || is_leaf(t, (uint32_t)b))
+            continue;
+        uint64_t *keys = NULL;
+        size_t n = 0, cap = 0;
+        for (size_t k = 0; k < t->count; k++) {
+            const hlod_bnode *nd = &t->nodes[k];
+            if ((nd->depth == 1 && k != b) || nd->parent == b)
+                border_edge_keys(&nd->mesh, on_outline, &keys, &n, &cap);
+        }
+        qsort(keys, n, sizeof *keys, cmp_u64);
+        for (size_t i = 0; i < n;) {
+            size_t j = run_end(keys, n, i);
+            cracks += j - i != 2;
+            i = j;
+        }
+        free(keys);
+        ++*tried;
+    }
+    return cracks;
+}
+
+static int on_square30(const double *p)
+{
+    return on_square_outline(p, 30);
+}
+
+/* The same on a real model nobody here made (CGAL's fandisk, fetched into
+ * data/meshes/ by data/fetch-meshes.sh) and on the square block. */
+static void mixed_selections_are_watertight(void)
+{
+    char path[1024];
+    check_src_path("data/meshes/fandisk.off", path, sizeof path);
+    hlod_mesh real = {0}, square = {0};
+    hlod_result r = hlod_mesh_import(path, NULL, &real, NULL);
+    CHECKF(r == HLOD_OK, "%s: %s (run data/fetch-meshes.sh)", path, hlod_result_str(r));
+    field_mesh(&square, 60, 30, 30, 0);
+    const hlod_mesh *meshes[2] = {&square, &real};
+    const char *names[2] = {"square block", "fandisk"};
+    for (int k = 0; k < 2; k++) {
+        if (!meshes[k]->tri_count)
+            continue;
+        hlod_build_params p = params();
+        hlod_btree t;
+        CHECK(hlod_build_cutplane(meshes[k], NULL, &p, &t) == HLOD_OK);
+        size_t tried = 0, cracks = mixed_selection_cracks(&t, k ? NULL : on_square30, &tried);
+        size_t leaf_tris = 0;
+        for (size_t i = 0; i < t.count; i++)
+            leaf_tris += is_leaf(&t, (uint32_t)i) ? t.nodes[i].mesh.tri_count : 0;
+        fprintf(stderr, "  %s: %zu triangles, %zu nodes, %zu mixed selections, %zu border edges "
+                "without a twin, leaves hold %zu triangles\n", names[k], meshes[k]->tri_count,
+                t.count, tried, cracks, leaf_tris);
+        CHECKF(tried >= 2 && cracks == 0, "%s: %zu twinless edges in %zu selections", names[k],
+               cracks, tried);
+        CHECKF(leaf_tris == meshes[k]->tri_count, "%s: leaves hold %zu of %zu triangles",
+               names[k], leaf_tris, meshes[k]->tri_count);
+        hlod_btree_free(&t);
+    }
+    hlod_mesh_free(&real);
+    hlod_mesh_free(&square);
+}
+
 static void small_block_is_one_node(void)
 {
     hlod_mesh m = {0};
@@ -451,6 +573,7 @@ int main(void)
     RUN(siblings_share_boundaries);
     RUN(counts_follow_factors_and_errors_bound);
     RUN(mixed_depths_share_boundaries);
+    RUN(mixed_selections_are_watertight);
     RUN(small_block_is_one_node);
     RUN(reproducible);
     return check_done();
