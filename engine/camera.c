@@ -11,7 +11,7 @@
 #include <math.h>
 #include <string.h>
 
-#include "hlod/engine.h"
+#include "hlod/camera.h"
 
 static int finite3(const double v[3])
 {
@@ -93,4 +93,15 @@ void hlod_camera_forward(const hlod_camera *cam, double out[3])
     out[0] = -cam->view[2];
     out[1] = -cam->view[6];
     out[2] = -cam->view[10];
+}
+
+void hlod_camera_view_proj(const hlod_camera *cam, double out[16])
+{
+    for (int c = 0; c < 4; c++)
+        for (int r = 0; r < 4; r++) {
+            double s = 0;
+            for (int k = 0; k < 4; k++)
+                s += cam->proj[k * 4 + r] * cam->view[c * 4 + k];
+            out[c * 4 + r] = s;
+        }
 }

@@ -11,83 +11,17 @@
  *   5. admit wanted nodes against the memory budget and hand the loader its
  *      new queue (residency.c).
  *
- * Cost model.  A frame costs a fixed part (clear, fill, swap,
- * traversal) plus a part proportional to the drawn cost; feeding back only
- * v_time would make it swallow the fixed part and misprice every node.  We
- * fit  measured_ms = fixed_ms + v_time * drawn_cost  by exponentially
- * weighted least squares (forgetting factor 0.93: about 14 frames of memory,
- * so it follows a change within a few frames without chasing one noisy
- * frame), with a small ridge holding v_time when the drawn cost does not
- * vary (see fit_cost_model).  Both outputs are clamped to sane ranges.
+ * The cost model is cost_model.c; the frame ties the three parts together.
  */
 #include "engine_internal.h"
+
+#include "engine_clock.h"
 
 #include <assert.h>
 #include <math.h>
 #include <stdlib.h>
 #include <string.h>
 #include <time.h>
-
-#define FORGET 0.93
-#define RIDGE 0.05
-
-/* ---- allocation ---- */
-
-void *hlod_engine_alloc(hlod_engine *e, size_t size)
-{
-    const hlod_allocator *a = &e->d.allocator;
-    return a->alloc ? a->alloc(a->user_data, size) : malloc(size);
-}
-
-void *hlod_engine_realloc(hlod_engine *e, void *p, size_t size)
-{
-    const hlod_allocator *a = &e->d.allocator;
-    return a->realloc ? a->realloc(a->user_data, p, size) : realloc(p, size);
-}
-
-void hlod_engine_free(hlod_engine *e, void *p)
-{
-    const hlod_allocator *a = &e->d.allocator;
-    if (!p)
-        return;
-    if (a->free)
-        a->free(a->user_data, p);
-    else
-        free(p);
-}
-
-static int grow(hlod_engine *e, void **v, size_t *cap, size_t need, size_t elem)
-{
-    if (need <= *cap)
-        return 1;
-    size_t c = *cap ? *cap : 64;
-    while (c < need)
-        c *= 2;
-    void *p = hlod_engine_realloc(e, *v, c * elem);
-    if (!p)
-        return 0;
-    *v = p;
-    *cap = c;
-    return 1;
-}
-
-int hlod_u32_push(hlod_engine *e, hlod_u32_vec *a, uint32_t x)
-{
-    if (!grow(e, (void **)&a->v, &a->cap, a->n + 1, sizeof *a->v))
-        return 0;
-    a->v[a->n++] = x;
-    return 1;
-}
-
-int hlod_req_push(hlod_engine *e, hlod_req_vec *a, uint32_t node, double priority)
-{
-    if (!grow(e, (void **)&a->v, &a->cap, a->n + 1, sizeof *a->v))
-        return 0;
-    a->v[a->n].node = node;
-    a->v[a->n].priority = (float)(priority < 3e38 ? priority : 3e38);
-    a->n++;
-    return 1;
-}
 
 /* ---- descriptor ---- */
 
@@ -194,12 +128,11 @@ hlod_result hlod_engine_create(const hlod_store *store, const hlod_engine_desc *
     if (r != HLOD_OK)
         return r;
 
-    hlod_engine tmp = {0};
-    tmp.d = d;
-    hlod_engine *e = hlod_engine_alloc(&tmp, sizeof *e);
+    hlod_engine *e = hlod_mem_alloc(&d.allocator, sizeof *e);
     if (!e)
         return HLOD_ERR_NOMEM;
-    *e = tmp;
+    *e = (hlod_engine){0};
+    e->d = d;
     e->store = store;
     e->nodes = hlod_store_nodes(store);
     e->node_count = hlod_store_node_count(store);
@@ -213,30 +146,10 @@ hlod_result hlod_engine_create(const hlod_store *store, const hlod_engine_desc *
         const hlod_store_header *h = hlod_store_get_header(store);
         e->d.c_memory = total > 0 ? (double)h->payload_bytes / total : 1.0;
     }
-    e->v_time = e->fit_v = e->d.deterministic ? e->d.fixed_v_time : 1e-4;
-    e->fixed_ms = e->fit_fixed = e->d.deterministic ? e->d.fixed_frame_ms : 0.2 * e->d.target_ms;
-    e->sse_pixels = e->d.sse_pixels;
-    e->share_gain = 1;
-
-    e->fr = hlod_engine_alloc(e, (size_t)e->node_count * sizeof *e->fr);
-    e->res = hlod_engine_alloc(e, (size_t)e->node_count * sizeof *e->res);
-    if (!e->fr || !e->res) {
-        hlod_engine_destroy(e);
-        return HLOD_ERR_NOMEM;
-    }
-    memset(e->fr, 0, (size_t)e->node_count * sizeof *e->fr);
-    memset(e->res, 0, (size_t)e->node_count * sizeof *e->res);
-
-    r = hlod_residency_load_roots(e);
-    if (r == HLOD_OK) {
-        hlod_loader_desc ld = {0};
-        ld.threaded = !e->d.deterministic;
-        ld.chunk_bytes = e->d.read_chunk_bytes;
-        ld.hook = e->d.read_hook;
-        ld.hook_user = e->d.read_hook_user;
-        ld.logger = e->d.logger;
-        r = hlod_loader_create(store, &ld, &e->loader);
-    }
+    hlod_cost_model_init(&e->cost, &e->d);
+    r = hlod_selection_init(&e->sel, store, &e->d, &e->st);
+    if (r == HLOD_OK)
+        r = hlod_residency_init(&e->res, store, &e->d, &e->st);
     if (r != HLOD_OK) {
         hlod_engine_destroy(e);
         return r;
@@ -249,19 +162,11 @@ void hlod_engine_destroy(hlod_engine *e)
 {
     if (!e)
         return;
-    hlod_loader_destroy(e->loader); /* joins the thread first */
-    hlod_residency_release_all(e);
-    hlod_engine_free(e, e->fr);
-    hlod_engine_free(e, e->res);
-    hlod_engine_free(e, e->resident.v);
-    hlod_engine_free(e, e->pending);
-    hlod_engine_free(e, e->draw.v);
-    hlod_engine_free(e, e->draw_keys);
-    hlod_engine_free(e, e->level.v);
-    hlod_engine_free(e, e->next.v);
-    hlod_engine_free(e, e->want.v);
-    hlod_engine_free(e, e->post.v);
-    hlod_engine_free(e, e);
+    hlod_residency_destroy(&e->res); /* joins the loader thread first */
+    hlod_selection_free(&e->sel);
+    hlod_mem_free(&e->d.allocator, e->draw_keys);
+    hlod_allocator a = e->d.allocator;
+    hlod_mem_free(&a, e);
 }
 
 hlod_result hlod_engine_set(hlod_engine *e, const hlod_engine_desc *desc)
@@ -283,106 +188,14 @@ hlod_result hlod_engine_set(hlod_engine *e, const hlod_engine_desc *desc)
     hlod_result r = check_desc(&d, &e->d.logger);
     if (r != HLOD_OK)
         return r;
-    if (d.sse_pixels != e->d.sse_pixels)
-        e->sse_pixels = d.sse_pixels;
+    hlod_cost_model_set(&e->cost, &e->d, &d);
     e->d = d;
-    if (e->d.deterministic) {
-        e->v_time = e->d.fixed_v_time;
-        e->fixed_ms = e->d.fixed_frame_ms;
-    }
     return HLOD_OK;
 }
 
 const hlod_engine_desc *hlod_engine_get_desc(const hlod_engine *e)
 {
     return e ? &e->d : NULL;
-}
-
-/* ---- cost model ---- */
-
-static void fit_cost_model(hlod_engine *e, double x, double y)
-{
-    const double target = e->d.target_ms;
-    if (!(isfinite(x) && isfinite(y)) || x < 0 || y < 0)
-        return;
-    e->s0 = FORGET * e->s0 + 1;
-    e->sx = FORGET * e->sx + x;
-    e->sy = FORGET * e->sy + y;
-    e->sxx = FORGET * e->sxx + x * x;
-    e->sxy = FORGET * e->sxy + x * y;
-    /* Weighted least squares with a ridge pulling v_time toward its last
-     * value, scaled by mean(x)^2 so it is unit-free:
-     *   [s0, sx; sx, sxx + k] [a; b] = [sy; sxy + k * b_prev],
-     *   k = RIDGE * s0 * mean(x)^2.
-     * With no spread in x the data fix only a + b * mean(x): the ridge then
-     * keeps v_time and lets the fixed part take the change.  A wrong v_time
-     * moves the budget, which moves x, which gives the spread that corrects
-     * it: the fit explores by itself. */
-    double mean_x = e->sx / e->s0;
-    double b_prev = e->fit_v;
-    double k = RIDGE * e->s0 * mean_x * mean_x;
-    double m00 = e->s0, m01 = e->sx, m11 = e->sxx + k;
-    double r0 = e->sy, r1 = e->sxy + k * b_prev;
-    double det = m00 * m11 - m01 * m01;
-    double a = e->fit_fixed, b = b_prev;
-    if (det > 1e-12 * m00 * m11 && m11 > 0) {
-        a = (r0 * m11 - m01 * r1) / det;
-        b = (m00 * r1 - m01 * r0) / det;
-    } else if (e->s0 > 0) {
-        a = e->sy / e->s0; /* nothing drawn yet: all of it is fixed */
-    }
-    if (!(b > 1e-9) || !isfinite(b))
-        b = 1e-9;
-    if (!(b < 1e6))
-        b = 1e6;
-    /* keep a inside [0, 0.8 target] and re-fit b to the mean if clamped */
-    double hi_a = 0.8 * target;
-    if (!(a >= 0) || !(a <= hi_a)) {
-        a = !(a >= 0) ? 0 : hi_a;
-        double mean_y = e->sy / e->s0;
-        if (mean_x > 0 && mean_y > a)
-            b = (mean_y - a) / mean_x;
-    }
-    e->fit_fixed = a;
-    e->fit_v = b;
-    /* Publish only changes the noise of one frame cannot explain (3% of
-     * v_time, 3% of the target for the fixed part): with a still camera the
-     * traversal then sees constant inputs and its hysteresis settles, while
-     * a real change still passes within a frame or two. */
-    if (fabs(b - e->v_time) > 0.03 * e->v_time || fabs(a - e->fixed_ms) > 0.03 * target) {
-        e->v_time = b;
-        e->fixed_ms = a;
-    }
-}
-
-/* Eq. 4 hands each node a fixed share of its parent's slice, and time a
- * node cannot use (its children need more than its slice, or it is a leaf)
- * is lost to the frame: left alone the front settles well under the target
- * (about 65% of it on the tests' synthetic city).  The paper is silent;
- * we scale the roots' shareTime by a gain:
- *   - it grows, at most 10% a frame, while the estimate is under 85% of
- *     the budget and time slices refused a refinement that was near;
- *   - it shrinks 3% a frame while the budget bound refused refinements the
- *     slices granted (the slices then promise more than the frame holds,
- *     and the bound, not priority, would choose), but only while the
- *     camera moves: with a still camera a refused node simply stays
- *     refused, whereas shrinking would lower every slice until some other
- *     node gave way, then grow again: a slow cycle of toggles.
- * The budget still bounds the estimate (traverse.c), so the gain moves
- * detail between nodes and never pushes the frame over the target. */
-static void adapt_share_gain(hlod_engine *e, double est, double budget, int moved)
-{
-    if (e->d.policy != HLOD_POLICY_LAKHIA && e->d.policy != HLOD_POLICY_NOHYST)
-        return;
-    double ratio = budget > 0 ? est / budget : 1;
-    double g = e->share_gain;
-    if (e->cap_hits && moved) {
-        g *= 0.97;
-    } else if (ratio < 0.85 && e->slice_denied) {
-        double up = ratio > 0 ? sqrt(0.92 / ratio) : 1.1;
-        g *= up < 1.1 ? up : 1.1;
-    }
-    e->share_gain = g < 1 ? 1 : g > 64 ? 64 : g;
 }
 
 /* ---- frame ---- */
@@ -421,11 +234,11 @@ static int cmp_draw_key(const void *pa, const void *pb)
 
 static void sort_draws(hlod_engine *e, const hlod_camera *cam)
 {
-    size_t n = e->draw.n;
+    size_t n = e->sel.draw.n;
     if (n < 2)
         return;
     if (e->draw_keys_cap < n) {
-        draw_key *k = hlod_engine_realloc(e, e->draw_keys, n * sizeof *k);
+        draw_key *k = hlod_mem_realloc(&e->d.allocator, e->draw_keys, n * sizeof *k);
         if (!k)
             return; /* unsorted is still correct */
         e->draw_keys = k;
@@ -433,7 +246,7 @@ static void sort_draws(hlod_engine *e, const hlod_camera *cam)
     }
     draw_key *keys = e->draw_keys;
     for (size_t k = 0; k < n; k++) {
-        const hlod_store_node *nd = &e->nodes[e->draw.v[k]];
+        const hlod_store_node *nd = &e->nodes[e->sel.draw.v[k]];
         double box = 0, centre = 0;
         for (int a = 0; a < 3; a++) {
             double p = cam->position[a], lo = nd->bbox_min[a], hi = nd->bbox_max[a];
@@ -449,11 +262,11 @@ static void sort_draws(hlod_engine *e, const hlod_camera *cam)
         int under = h <= 0.02 * w && nd->bbox_max[2] <= cam->position[2];
         keys[k].inside = !(box > 0) || under;
         keys[k].d2 = box > 0 ? box : centre;
-        keys[k].node = e->draw.v[k];
+        keys[k].node = e->sel.draw.v[k];
     }
     qsort(keys, n, sizeof *keys, cmp_draw_key);
     for (size_t k = 0; k < n; k++)
-        e->draw.v[k] = keys[k].node;
+        e->sel.draw.v[k] = keys[k].node;
 }
 
 static void draw_frame(hlod_engine *e, const hlod_camera *cam)
@@ -461,14 +274,56 @@ static void draw_frame(hlod_engine *e, const hlod_camera *cam)
     hlod_renderer *r = e->d.renderer;
     sort_draws(e, cam);
     hlod_gpu_begin(r, cam);
-    for (size_t k = 0; k < e->draw.n; k++) {
-        uint32_t i = e->draw.v[k];
+    for (size_t k = 0; k < e->sel.draw.n; k++) {
+        uint32_t i = e->sel.draw.v[k];
         const hlod_store_node *n = &e->nodes[i];
         double off[3] = {n->origin[0] - cam->position[0], n->origin[1] - cam->position[1],
                          n->origin[2] - cam->position[2]};
-        hlod_gpu_draw(r, &e->res[i].gpu, off, n->depth);
+        hlod_gpu_draw(r, hlod_residency_gpu(&e->res, i), off, n->depth);
     }
     hlod_gpu_end(r, 1);
+}
+
+/* Residency evicts what the selection values least: nodes priced this
+ * frame by priority, the others before them, oldest first; never one
+ * drawn this frame. */
+static int evict_key(void *user, uint32_t node, double *key)
+{
+    const hlod_engine *e = user;
+    const hlod_node_frame *f = &e->sel.fr[node];
+    if (f->drawn == e->frame)
+        return 0;
+    *key = f->priced == e->frame ? f->priority : -(double)(e->frame - f->priced);
+    return 1;
+}
+
+/* Camera velocity (model units per second) for the distance look-ahead;
+ * returns whether the camera moved since the last frame. */
+static int camera_motion(hlod_engine *e, const hlod_camera *cam, double dt, double vel[3])
+{
+    int moved = !e->have_prev;
+    vel[0] = vel[1] = vel[2] = 0;
+    if (e->have_prev && dt > 0)
+        for (int k = 0; k < 3; k++)
+            vel[k] = (cam->position[k] - e->prev_eye[k]) / dt;
+    for (int k = 0; k < 3 && e->have_prev; k++)
+        moved |= cam->position[k] != e->prev_eye[k];
+    memcpy(e->prev_eye, cam->position, sizeof e->prev_eye);
+    e->have_prev = 1;
+    return moved;
+}
+
+/* After the frame is drawn and measured: the cost model learns from it. */
+static void learn(hlod_engine *e, double measured, double upload, double budget, int moved)
+{
+    hlod_cost_model *m = &e->cost;
+    if (!e->d.deterministic)
+        hlod_cost_model_fit(m, e->d.target_ms, e->st.cost_drawn, measured - upload);
+    hlod_cost_model_adapt_share(m, e->d.policy, m->v_time * e->st.cost_drawn, budget, moved,
+                                e->sel.cap_hits, e->sel.slice_denied);
+    if (e->d.policy == HLOD_POLICY_SSE)
+        hlod_cost_model_adapt_sse(
+            m, (e->d.deterministic ? e->st.estimated_ms : measured) / e->d.target_ms);
 }
 
 hlod_result hlod_engine_frame(hlod_engine *e, const hlod_camera *cam, double dt,
@@ -488,37 +343,31 @@ hlod_result hlod_engine_frame(hlod_engine *e, const hlod_camera *cam, double dt,
     e->frame++;
     memset(&e->st, 0, sizeof e->st);
     e->st.frame = e->frame - 1;
-
-    /* camera velocity, for the distance look-ahead */
-    double vel[3] = {0, 0, 0};
-    int moved = !e->have_prev;
-    if (e->have_prev && dt > 0)
-        for (int k = 0; k < 3; k++)
-            vel[k] = (cam->position[k] - e->prev_eye[k]) / dt;
-    for (int k = 0; k < 3 && e->have_prev; k++)
-        moved |= cam->position[k] != e->prev_eye[k];
-    memcpy(e->prev_eye, cam->position, sizeof e->prev_eye);
-    e->have_prev = 1;
+    hlod_residency_begin_frame(&e->res, e->frame);
+    double vel[3];
+    int moved = camera_motion(e, cam, dt, vel);
 
     double t0 = hlod_now_ms();
-    hlod_residency_collect(e);
+    hlod_residency_collect(&e->res);
     e->st.upload_ms = hlod_now_ms() - t0;
 
-    /* This frame's uploads are done and timed: the traversal gets what is
+    /* This frame's uploads are done and timed: the selection gets what is
      * left, and the fit sees the frame without them.  Not when
      * deterministic (a measured time would make the selection vary), nor
      * under a time model: its frame time is the whole frame, uploads
      * included, and a wall-clock upload (a preempted collect) would bias
      * the budget and the fit of a synthetic machine. */
+    const hlod_cost_model *m = &e->cost;
     const double target = e->d.target_ms;
     const double upload = e->d.deterministic || e->d.time_model ? 0 : e->st.upload_ms;
-    double budget = target - e->fixed_ms - upload;
+    double budget = target - m->fixed_ms - upload;
     if (budget < 0.1 * target)
         budget = 0.1 * target;
     hlod_view view;
     hlod_view_init(&view, cam, vel, e->d.velocity_lookahead_s);
+    hlod_select_in in = {e->frame, m->v_time, m->sse_pixels, budget, budget * m->share_gain};
     t0 = hlod_now_ms();
-    hlod_result r = hlod_traverse(e, &view, budget, budget * e->share_gain);
+    hlod_result r = hlod_select(&e->sel, &e->res, &view, &in);
     e->st.traversal_ms = hlod_now_ms() - t0;
     if (r != HLOD_OK)
         return r;
@@ -532,43 +381,19 @@ hlod_result hlod_engine_frame(hlod_engine *e, const hlod_camera *cam, double dt,
     else
         measured = hlod_now_ms() - t_start;
     e->st.measured_ms = measured;
-    e->st.v_time = e->v_time;
-    e->st.fixed_ms = e->fixed_ms;
+    e->st.v_time = m->v_time;
+    e->st.fixed_ms = m->fixed_ms;
     e->st.budget_ms = budget;
-    e->st.share_gain = e->share_gain;
-    e->st.estimated_ms = e->fixed_ms + e->v_time * e->st.cost_drawn + upload;
-    e->st.sse_pixels = e->sse_pixels;
+    e->st.share_gain = m->share_gain;
+    e->st.estimated_ms = m->fixed_ms + m->v_time * e->st.cost_drawn + upload;
+    e->st.sse_pixels = m->sse_pixels;
+    learn(e, measured, upload, budget, moved);
 
-    if (!e->d.deterministic)
-        fit_cost_model(e, e->st.cost_drawn, measured - upload);
-    adapt_share_gain(e, e->v_time * e->st.cost_drawn, budget, moved);
-    if (e->d.policy == HLOD_POLICY_SSE) {
-        /* Adapt the pixel threshold to the frame time: coarser when over
-         * target, finer when under; square root damps the response. */
-        double ratio = (e->d.deterministic ? e->st.estimated_ms : measured) / target;
-        if (isfinite(ratio) && ratio > 0) {
-            double f = sqrt(ratio);
-            f = f < 0.8 ? 0.8 : f > 1.25 ? 1.25 : f;
-            e->sse_pixels *= f;
-            if (e->sse_pixels < 0.05)
-                e->sse_pixels = 0.05;
-            if (e->sse_pixels > 1e4)
-                e->sse_pixels = 1e4;
-        }
+    if (e->d.policy != HLOD_POLICY_FULL) {
+        hlod_evict_order order = {evict_key, e};
+        hlod_residency_schedule(&e->res, &order);
     }
-
-    if (e->d.policy != HLOD_POLICY_FULL)
-        hlod_residency_schedule(e);
-
-    hlod_loader_counters lc;
-    hlod_loader_get_counters(e->loader, &lc);
-    e->st.bytes_read += lc.bytes_read - e->bytes_read_prev;
-    e->bytes_read_prev = lc.bytes_read;
-    e->st.resident_nodes = (uint32_t)e->resident.n;
-    e->st.resident_bytes = e->resident_bytes;
-    e->st.resident_cost = e->d.c_memory * e->resident_cost;
-    e->st.memory_budget_bytes = e->d.memory_budget_bytes;
-    e->st.bad_nodes = e->bad_total;
+    hlod_residency_end_frame(&e->res);
     if (stats)
         *stats = e->st;
     return HLOD_OK;
@@ -589,29 +414,16 @@ hlod_result hlod_engine_load_all_leaves(hlod_engine *e, const hlod_camera *cam)
     hlod_u32_vec stack = {0};
     hlod_result r = HLOD_OK;
     for (uint32_t i = 0; i < e->root_count && r == HLOD_OK; i++)
-        if (!hlod_u32_push(e, &stack, i))
+        if (!hlod_u32_push(&e->d.allocator, &stack, i))
             r = HLOD_ERR_NOMEM;
     while (r == HLOD_OK && stack.n) {
         uint32_t i = stack.v[--stack.n];
-        const hlod_store_node *n = &e->nodes[i];
-        double lo[3], hi[3], worst = -INFINITY;
-        for (int k = 0; k < 3; k++) {
-            lo[k] = n->bbox_min[k] - view.eye[k];
-            hi[k] = n->bbox_max[k] - view.eye[k];
-        }
-        for (int p = 0; p < 6; p++) {
-            const double *pl = view.planes[p];
-            double s = pl[3];
-            for (int k = 0; k < 3; k++)
-                s += pl[k] * (pl[k] >= 0 ? hi[k] : lo[k]);
-            if (-s > worst)
-                worst = -s;
-        }
-        if (worst > 0)
+        if (hlod_view_outside(&view, e->nodes[i].bbox_min, e->nodes[i].bbox_max) > 0)
             continue;
         uint32_t c0 = hlod_store_first_child(e->nodes, i), c1 = hlod_store_child_end(e->nodes, i);
-        if (e->res[i].state != HLOD_NODE_RESIDENT && e->res[i].state != HLOD_NODE_BAD) {
-            hlod_result lr = hlod_residency_load_now(e, i);
+        hlod_node_state ns = hlod_residency_state(&e->res, i);
+        if (ns != HLOD_NODE_RESIDENT && ns != HLOD_NODE_BAD) {
+            hlod_result lr = hlod_residency_load_now(&e->res, i);
             if (lr != HLOD_OK)
                 hlod_logf(&e->d.logger, HLOD_LOG_WARN, "%s: node %u: %s; its parent stands in",
                           hlod_store_path(e->store), i, hlod_result_str(lr));
@@ -619,10 +431,10 @@ hlod_result hlod_engine_load_all_leaves(hlod_engine *e, const hlod_camera *cam)
                 r = lr;
         }
         for (uint32_t c = c0; c < c1 && r == HLOD_OK; c++)
-            if (!hlod_u32_push(e, &stack, c))
+            if (!hlod_u32_push(&e->d.allocator, &stack, c))
                 r = HLOD_ERR_NOMEM;
     }
-    hlod_engine_free(e, stack.v);
+    hlod_mem_free(&e->d.allocator, stack.v);
     return r;
 }
 
@@ -632,20 +444,20 @@ hlod_node_state hlod_engine_node_state(const hlod_engine *e, uint32_t node)
 {
     if (!e || node >= e->node_count)
         return HLOD_NODE_ABSENT;
-    return (hlod_node_state)e->res[node].state;
+    return hlod_residency_state(&e->res, node);
 }
 
 int hlod_engine_node_drawn(const hlod_engine *e, uint32_t node)
 {
     if (!e || node >= e->node_count || e->frame == 0)
         return 0;
-    return e->fr[node].drawn == e->frame;
+    return e->sel.fr[node].drawn == e->frame;
 }
 
 void hlod_engine_node_debug(const hlod_engine *e, uint32_t node, double *hyst,
                             double *time_slice, double *time_needed, double *priority)
 {
-    const hlod_node_frame *f = e && node < e->node_count ? &e->fr[node] : NULL;
+    const hlod_node_frame *f = e && node < e->node_count ? &e->sel.fr[node] : NULL;
     if (hyst)
         *hyst = f ? f->hyst : 0;
     if (time_slice)

@@ -14,7 +14,7 @@
 
 #include <GL/osmesa.h>
 
-#include "hlod/engine.h"
+#include "hlod/renderer.h"
 
 typedef void (GLAPIENTRY *gl_finish_fn)(void);
 typedef void (GLAPIENTRY *gl_pixel_store_fn)(GLenum pname, GLint param);

@@ -542,14 +542,11 @@ void hlod_gpu_begin(hlod_renderer *r, const hlod_camera *cam)
     assert(r && cam);
     const gl_table *gl = &r->gl;
     /* camera-relative view-projection: proj * rotation, in double */
+    double m[16];
+    hlod_camera_view_proj(cam, m);
     float vp[16];
-    for (int c = 0; c < 4; c++)
-        for (int row = 0; row < 4; row++) {
-            double s = 0;
-            for (int k = 0; k < 4; k++)
-                s += cam->proj[k * 4 + row] * cam->view[c * 4 + k];
-            vp[c * 4 + row] = (float)s;
-        }
+    for (int k = 0; k < 16; k++)
+        vp[k] = (float)m[k];
     gl->Viewport(0, 0, (GLsizei)cam->width, (GLsizei)cam->height);
     gl->ClearColor(r->clear[0], r->clear[1], r->clear[2], 1.0f);
     gl->Enable(GL_DEPTH_TEST);
@@ -637,7 +634,7 @@ void hlod_gpu_end(hlod_renderer *r, int finish)
 
 /* called from the render thread, context current, after hlod_gpu_end and
  * before the buffer swap (a swap leaves the back buffer undefined) */
-hlod_result hlod_gpu_read_rgb(hlod_renderer *r, uint32_t width, uint32_t height, uint8_t *rgb)
+hlod_result hlod_renderer_read_rgb(hlod_renderer *r, uint32_t width, uint32_t height, uint8_t *rgb)
 {
     if (!r || !rgb || !width || !height)
         return HLOD_ERR_INVALID_ARG;

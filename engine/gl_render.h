@@ -17,7 +17,9 @@
 #ifndef HLOD_ENGINE_GL_RENDER_H
 #define HLOD_ENGINE_GL_RENDER_H
 
-#include "hlod/engine.h"
+#include "hlod/camera.h"
+#include "hlod/renderer.h"
+#include "hlod/store.h"
 
 typedef struct hlod_gpu_node {
     uint32_t vao, vbo, ibo, tex;    /* GL names; 0 = none */
@@ -49,11 +51,5 @@ void hlod_gpu_draw(hlod_renderer *r, const hlod_gpu_node *g, const double offset
                    uint32_t depth);
 void hlod_gpu_end(hlod_renderer *r, int finish);
 
-/* Copies the framebuffer bound for reading (the back buffer of a window)
- * as 8-bit RGB, top row first, width*height*3 bytes (glReadPixels, which
- * waits for the GPU).  Call after hlod_gpu_end and before the swap.
- * HLOD_ERR_UNSUPPORTED (logged) on a GL error, e.g. a size past the
- * framebuffer.  Used by hlod-view for screenshots. */
-hlod_result hlod_gpu_read_rgb(hlod_renderer *r, uint32_t width, uint32_t height, uint8_t *rgb);
 
 #endif

@@ -24,7 +24,9 @@
  * A transient error (HLOD_ERR_IO) is retried after a backoff that doubles
  * with each failure (16, 32, 64 frames), and the node turns bad after 4.
  */
-#include "engine_internal.h"
+#include "residency.h"
+
+#include "engine_clock.h"
 
 #include <assert.h>
 #include <math.h>
@@ -36,191 +38,191 @@
 #define KEEP_UNWANTED_FRAMES 8  /* a queued node not wanted for this long is dropped */
 #define WAIT_MS 5.0             /* a post/collect call this slow counts as a wait */
 
-static double mem_cost(const hlod_engine *e, double cost)
+static double mem_cost(const hlod_residency *rs, double cost)
 {
-    return e->d.c_memory * cost;
+    return rs->d->c_memory * cost;
 }
 
 /* ---- resident set ---- */
 
 /* Takes ownership of p (freed here). */
-static hlod_result make_resident(hlod_engine *e, uint32_t node, hlod_store_payload *p)
+static hlod_result make_resident(hlod_residency *rs, uint32_t node, hlod_store_payload *p)
 {
-    hlod_node_res *r = &e->res[node];
-    assert(r->state != HLOD_NODE_RESIDENT);
+    hlod_node_res *nr = &rs->res[node];
+    assert(nr->state != HLOD_NODE_RESIDENT);
     hlod_result res = HLOD_OK;
-    if (e->d.renderer)
-        res = hlod_gpu_upload(e->d.renderer, p, &r->gpu);
+    if (rs->d->renderer)
+        res = hlod_gpu_upload(rs->d->renderer, p, &nr->gpu);
     hlod_store_payload_free(p);
     if (res != HLOD_OK)
         return res;
-    if (e->nodes[node].render_flags & HLOD_RENDER_SOLID)
-        r->gpu.flags |= HLOD_GPU_CULL;
-    if (!hlod_u32_push(e, &e->resident, node)) {
-        if (e->d.renderer)
-            hlod_gpu_release(e->d.renderer, &r->gpu);
+    if (rs->nodes[node].render_flags & HLOD_RENDER_SOLID)
+        nr->gpu.flags |= HLOD_GPU_CULL;
+    if (!hlod_u32_push(&rs->d->allocator, &rs->resident, node)) {
+        if (rs->d->renderer)
+            hlod_gpu_release(rs->d->renderer, &nr->gpu);
         return HLOD_ERR_NOMEM;
     }
-    r->state = HLOD_NODE_RESIDENT;
-    r->slot = (uint32_t)(e->resident.n - 1);
-    r->failures = 0;
-    e->resident_bytes += e->nodes[node].payload_size;
-    e->resident_cost += e->nodes[node].cost;
+    nr->state = HLOD_NODE_RESIDENT;
+    nr->slot = (uint32_t)(rs->resident.n - 1);
+    nr->failures = 0;
+    rs->resident_bytes += rs->nodes[node].payload_size;
+    rs->resident_cost += rs->nodes[node].cost;
     return HLOD_OK;
 }
 
-static void evict(hlod_engine *e, uint32_t node)
+static void evict(hlod_residency *rs, uint32_t node)
 {
-    hlod_node_res *r = &e->res[node];
-    assert(r->state == HLOD_NODE_RESIDENT && node >= e->root_count);
-    if (e->d.renderer)
-        hlod_gpu_release(e->d.renderer, &r->gpu);
-    uint32_t last = e->resident.v[e->resident.n - 1];
-    e->resident.v[r->slot] = last;
-    e->res[last].slot = r->slot;
-    e->resident.n--;
-    r->state = HLOD_NODE_ABSENT;
-    e->resident_bytes -= e->nodes[node].payload_size;
-    e->resident_cost -= e->nodes[node].cost;
-    if (e->resident_cost < 0)
-        e->resident_cost = 0;
-    e->st.evictions++;
+    hlod_node_res *nr = &rs->res[node];
+    assert(nr->state == HLOD_NODE_RESIDENT && node >= rs->root_count);
+    if (rs->d->renderer)
+        hlod_gpu_release(rs->d->renderer, &nr->gpu);
+    uint32_t last = rs->resident.v[rs->resident.n - 1];
+    rs->resident.v[nr->slot] = last;
+    rs->res[last].slot = nr->slot;
+    rs->resident.n--;
+    nr->state = HLOD_NODE_ABSENT;
+    rs->resident_bytes -= rs->nodes[node].payload_size;
+    rs->resident_cost -= rs->nodes[node].cost;
+    if (rs->resident_cost < 0)
+        rs->resident_cost = 0;
+    rs->st->evictions++;
 }
 
-static void reserve(hlod_engine *e, uint32_t node, int sign)
+static void reserve(hlod_residency *rs, uint32_t node, int sign)
 {
     if (sign > 0) {
-        e->reserved_bytes += e->nodes[node].payload_size;
-        e->reserved_cost += e->nodes[node].cost;
+        rs->reserved_bytes += rs->nodes[node].payload_size;
+        rs->reserved_cost += rs->nodes[node].cost;
     } else {
-        e->reserved_bytes -= e->nodes[node].payload_size;
-        e->reserved_cost -= e->nodes[node].cost;
-        if (e->reserved_cost < 0 || e->reserved_bytes == 0)
-            e->reserved_cost = 0;
+        rs->reserved_bytes -= rs->nodes[node].payload_size;
+        rs->reserved_cost -= rs->nodes[node].cost;
+        if (rs->reserved_cost < 0 || rs->reserved_bytes == 0)
+            rs->reserved_cost = 0;
     }
 }
 
 /* Leaves QUEUED without becoming resident. */
-static void unqueue(hlod_engine *e, uint32_t node)
+static void unqueue(hlod_residency *rs, uint32_t node)
 {
-    hlod_node_res *r = &e->res[node];
-    assert(r->state == HLOD_NODE_QUEUED);
-    reserve(e, node, -1);
-    r->state = HLOD_NODE_ABSENT;
+    hlod_node_res *nr = &rs->res[node];
+    assert(nr->state == HLOD_NODE_QUEUED);
+    reserve(rs, node, -1);
+    nr->state = HLOD_NODE_ABSENT;
 }
 
-hlod_result hlod_residency_load_now(hlod_engine *e, uint32_t node)
+hlod_result hlod_residency_load_now(hlod_residency *rs, uint32_t node)
 {
-    assert(e && node < e->node_count);
-    hlod_node_res *r = &e->res[node];
-    if (r->state == HLOD_NODE_RESIDENT)
+    assert(rs && node < rs->node_count);
+    hlod_node_res *nr = &rs->res[node];
+    if (nr->state == HLOD_NODE_RESIDENT)
         return HLOD_OK;
-    if (r->state == HLOD_NODE_BAD)
+    if (nr->state == HLOD_NODE_BAD)
         return HLOD_ERR_CHECKSUM;
     hlod_store_payload p;
-    hlod_result res = hlod_store_read_node(e->store, node, e->d.read_chunk_bytes, &p);
+    hlod_result res = hlod_store_read_node(rs->store, node, rs->d->read_chunk_bytes, &p);
     if (res != HLOD_OK)
         return res;
-    if (r->state == HLOD_NODE_QUEUED)
-        unqueue(e, node);
-    res = make_resident(e, node, &p);
+    if (nr->state == HLOD_NODE_QUEUED)
+        unqueue(rs, node);
+    res = make_resident(rs, node, &p);
     if (res == HLOD_OK) {
-        e->st.loads++;
-        e->st.bytes_read += e->nodes[node].payload_size;
+        rs->st->loads++;
+        rs->st->bytes_read += rs->nodes[node].payload_size;
     }
     return res;
 }
 
-hlod_result hlod_residency_load_roots(hlod_engine *e)
+static hlod_result load_roots(hlod_residency *rs)
 {
-    for (uint32_t i = 0; i < e->root_count; i++) {
-        hlod_result r = hlod_residency_load_now(e, i);
+    for (uint32_t i = 0; i < rs->root_count; i++) {
+        hlod_result r = hlod_residency_load_now(rs, i);
         if (r != HLOD_OK) {
-            hlod_logf(&e->d.logger, HLOD_LOG_ERROR, "%s: hlod_0 node %u cannot be loaded: %s",
-                      hlod_store_path(e->store), i, hlod_result_str(r));
+            hlod_logf(&rs->d->logger, HLOD_LOG_ERROR, "%s: hlod_0 node %u cannot be loaded: %s",
+                      hlod_store_path(rs->store), i, hlod_result_str(r));
             return r;
         }
     }
-    if (e->resident_bytes > e->d.memory_budget_bytes)
-        hlod_logf(&e->d.logger, HLOD_LOG_WARN,
+    if (rs->resident_bytes > rs->d->memory_budget_bytes)
+        hlod_logf(&rs->d->logger, HLOD_LOG_WARN,
                   "%s: the hlod_0 nodes alone take %llu bytes, over the %llu-byte budget",
-                  hlod_store_path(e->store), (unsigned long long)e->resident_bytes,
-                  (unsigned long long)e->d.memory_budget_bytes);
+                  hlod_store_path(rs->store), (unsigned long long)rs->resident_bytes,
+                  (unsigned long long)rs->d->memory_budget_bytes);
     return HLOD_OK;
 }
 
 /* ---- collect ---- */
 
-static void load_failed(hlod_engine *e, uint32_t node, hlod_result why)
+static void load_failed(hlod_residency *rs, uint32_t node, hlod_result why)
 {
-    hlod_node_res *r = &e->res[node];
-    e->st.load_failures++;
-    if (why == HLOD_ERR_IO && ++r->failures < MAX_TRANSIENT_FAILURES) {
-        r->state = HLOD_NODE_ABSENT;
-        r->retry_frame = e->frame + (8u << r->failures);
+    hlod_node_res *nr = &rs->res[node];
+    rs->st->load_failures++;
+    if (why == HLOD_ERR_IO && ++nr->failures < MAX_TRANSIENT_FAILURES) {
+        nr->state = HLOD_NODE_ABSENT;
+        nr->retry_frame = rs->frame + (8u << nr->failures);
         return;
     }
-    r->state = HLOD_NODE_BAD;
-    e->bad_total++;
-    hlod_logf(&e->d.logger, HLOD_LOG_WARN, "%s: node %u is unreadable (%s); its parent is "
-              "drawn instead", hlod_store_path(e->store), node, hlod_result_str(why));
+    nr->state = HLOD_NODE_BAD;
+    rs->bad_total++;
+    hlod_logf(&rs->d->logger, HLOD_LOG_WARN, "%s: node %u is unreadable (%s); its parent is "
+              "drawn instead", hlod_store_path(rs->store), node, hlod_result_str(why));
 }
 
-void hlod_residency_collect(hlod_engine *e)
+void hlod_residency_collect(hlod_residency *rs)
 {
     /* Drain the loader into our pending list (bounded by max_inflight per
      * call, so a frame never takes an unbounded batch). */
-    size_t room = e->d.max_inflight;
-    if (e->pending_cap < e->pending_n + room) {
-        size_t cap = e->pending_n + room;
-        hlod_load_result *p = hlod_engine_realloc(e, e->pending, cap * sizeof *p);
+    size_t room = rs->d->max_inflight;
+    if (rs->pending_cap < rs->pending_n + room) {
+        size_t cap = rs->pending_n + room;
+        hlod_load_result *p = hlod_mem_realloc(&rs->d->allocator, rs->pending, cap * sizeof *p);
         if (!p)
             return;
-        e->pending = p;
-        e->pending_cap = cap;
+        rs->pending = p;
+        rs->pending_cap = cap;
     }
     double t0 = hlod_now_ms();
-    size_t got = hlod_loader_collect(e->loader, e->pending + e->pending_n, room);
+    size_t got = hlod_loader_collect(rs->loader, rs->pending + rs->pending_n, room);
     if (hlod_now_ms() - t0 > WAIT_MS)
-        e->st.render_waits++;
-    e->pending_n += got;
+        rs->st->render_waits++;
+    rs->pending_n += got;
 
     /* Uploads stop at the byte budget or, measured, at the time budget: a
      * software GL copies and mipmaps every texture on this thread. */
-    double up_ms = e->d.upload_budget_ms > 0 ? e->d.upload_budget_ms : 0.1 * e->d.target_ms;
-    if (e->d.deterministic || e->d.time_model)
+    double up_ms = rs->d->upload_budget_ms > 0 ? rs->d->upload_budget_ms : 0.1 * rs->d->target_ms;
+    if (rs->d->deterministic || rs->d->time_model)
         up_ms = INFINITY; /* reproducible, or a synthetic machine: bytes alone decide */
     double t_up = hlod_now_ms();
     uint64_t uploaded = 0;
     size_t keep = 0;
-    for (size_t k = 0; k < e->pending_n; k++) {
-        hlod_load_result *lr = &e->pending[k];
-        hlod_node_res *r = &e->res[lr->node];
-        if (r->state != HLOD_NODE_QUEUED) {
+    for (size_t k = 0; k < rs->pending_n; k++) {
+        hlod_load_result *lr = &rs->pending[k];
+        hlod_node_res *nr = &rs->res[lr->node];
+        if (nr->state != HLOD_NODE_QUEUED) {
             /* dropped while in flight: nothing was reserved any more */
             hlod_store_payload_free(&lr->payload);
             continue;
         }
         if (lr->result != HLOD_OK) {
-            unqueue(e, lr->node);
-            load_failed(e, lr->node, lr->result);
+            unqueue(rs, lr->node);
+            load_failed(rs, lr->node, lr->result);
             continue;
         }
-        if (uploaded && (uploaded + lr->payload.bytes > e->d.upload_budget_bytes ||
+        if (uploaded && (uploaded + lr->payload.bytes > rs->d->upload_budget_bytes ||
                          hlod_now_ms() - t_up >= up_ms)) {
-            e->pending[keep++] = *lr; /* next frame */
+            rs->pending[keep++] = *lr; /* next frame */
             continue;
         }
         uploaded += lr->payload.bytes;
         uint32_t node = lr->node;
-        unqueue(e, node);
-        hlod_result res = make_resident(e, node, &lr->payload);
+        unqueue(rs, node);
+        hlod_result res = make_resident(rs, node, &lr->payload);
         if (res == HLOD_OK)
-            e->st.loads++;
+            rs->st->loads++;
         else
-            load_failed(e, node, res == HLOD_ERR_NOMEM ? HLOD_ERR_IO : res);
+            load_failed(rs, node, res == HLOD_ERR_NOMEM ? HLOD_ERR_IO : res);
     }
-    e->pending_n = keep;
+    rs->pending_n = keep;
 }
 
 /* ---- schedule ---- */
@@ -246,21 +248,19 @@ static int cmp_request(const void *a, const void *b)
     return x->node < y->node ? -1 : x->node > y->node;
 }
 
-/* Resident nodes that may be evicted, least valuable first: those priced
- * this frame by priority, the others before them, oldest first. */
-static victim *victims(hlod_engine *e, size_t *count)
+/* Resident nodes that may be evicted, least valuable first (the order's
+ * keys); hlod_0 nodes never. */
+static victim *victims(hlod_residency *rs, const hlod_evict_order *order, size_t *count)
 {
-    victim *v = hlod_engine_alloc(e, (e->resident.n + 1) * sizeof *v);
+    victim *v = hlod_mem_alloc(&rs->d->allocator, (rs->resident.n + 1) * sizeof *v);
     size_t n = 0;
     if (!v)
         return NULL;
-    for (size_t k = 0; k < e->resident.n; k++) {
-        uint32_t i = e->resident.v[k];
-        const hlod_node_frame *f = &e->fr[i];
-        if (i < e->root_count || f->drawn == e->frame)
+    for (size_t k = 0; k < rs->resident.n; k++) {
+        uint32_t i = rs->resident.v[k];
+        if (i < rs->root_count || !order->key(order->user, i, &v[n].key))
             continue;
         v[n].node = i;
-        v[n].key = f->priced == e->frame ? f->priority : -(double)(e->frame - f->priced);
         n++;
     }
     qsort(v, n, sizeof *v, cmp_victim);
@@ -268,104 +268,181 @@ static victim *victims(hlod_engine *e, size_t *count)
     return v;
 }
 
-static int in_pending(const hlod_engine *e, uint32_t node)
+static int in_pending(const hlod_residency *rs, uint32_t node)
 {
-    for (size_t k = 0; k < e->pending_n; k++)
-        if (e->pending[k].node == node)
+    for (size_t k = 0; k < rs->pending_n; k++)
+        if (rs->pending[k].node == node)
             return 1;
     return 0;
 }
 
-void hlod_residency_schedule(hlod_engine *e)
+void hlod_residency_schedule(hlod_residency *rs, const hlod_evict_order *order)
 {
-    const uint64_t budget = e->d.memory_budget_bytes;
-    hlod_req_vec *want = &e->want;
+    const uint64_t budget = rs->d->memory_budget_bytes;
+    hlod_req_vec *want = &rs->want;
     if (want->n > 1) /* want->v is NULL until something was wanted: qsort(NULL) is UB */
         qsort(want->v, want->n, sizeof *want->v, cmp_request);
 
     /* The previous list: queued nodes the traversal stopped asking for stay
      * queued for a few frames (a partial read survives a brief dip), then
      * are dropped and their reservation returned. */
-    hlod_req_vec old = e->post;
-    e->post = (hlod_req_vec){0};
-    hlod_req_vec *post = &e->post;
+    hlod_req_vec old = rs->post;
+    rs->post = (hlod_req_vec){0};
+    hlod_req_vec *post = &rs->post;
 
     victim *vic = NULL;
     size_t nvic = 0, vi = 0;
     int vic_built = 0;
-    for (size_t k = 0; k < want->n && post->n < e->d.max_inflight; k++) {
+    for (size_t k = 0; k < want->n && post->n < rs->d->max_inflight; k++) {
         uint32_t node = want->v[k].node;
-        hlod_node_res *r = &e->res[node];
+        hlod_node_res *nr = &rs->res[node];
         double pr = want->v[k].priority;
-        if (r->state == HLOD_NODE_QUEUED) {
-            if (!in_pending(e, node) && hlod_req_push(e, post, node, pr))
-                r->posted = e->frame;
+        if (nr->state == HLOD_NODE_QUEUED) {
+            if (!in_pending(rs, node) && hlod_req_push(&rs->d->allocator, post, node, pr))
+                nr->posted = rs->frame;
             continue;
         }
-        if (r->state != HLOD_NODE_ABSENT)
+        if (nr->state != HLOD_NODE_ABSENT)
             continue;
-        const hlod_store_node *n = &e->nodes[node];
+        const hlod_store_node *n = &rs->nodes[node];
         for (;;) {
-            uint64_t used = e->resident_bytes + e->reserved_bytes;
-            double used_c = mem_cost(e, e->resident_cost + e->reserved_cost);
-            if (used + n->payload_size <= budget && used_c + mem_cost(e, n->cost) <= (double)budget)
+            uint64_t used = rs->resident_bytes + rs->reserved_bytes;
+            double used_c = mem_cost(rs, rs->resident_cost + rs->reserved_cost);
+            if (used + n->payload_size <= budget && used_c + mem_cost(rs, n->cost) <= (double)budget)
                 break;
             if (!vic_built) {
-                vic = victims(e, &nvic);
+                vic = victims(rs, order, &nvic);
                 vic_built = 1;
             }
-            while (vi < nvic && e->res[vic[vi].node].state != HLOD_NODE_RESIDENT)
+            while (vi < nvic && rs->res[vic[vi].node].state != HLOD_NODE_RESIDENT)
                 vi++;
             if (vi >= nvic || !(vic[vi].key < pr))
                 break;
-            evict(e, vic[vi++].node);
+            evict(rs, vic[vi++].node);
         }
-        uint64_t used = e->resident_bytes + e->reserved_bytes;
-        double used_c = mem_cost(e, e->resident_cost + e->reserved_cost);
-        if (used + n->payload_size > budget || used_c + mem_cost(e, n->cost) > (double)budget)
+        uint64_t used = rs->resident_bytes + rs->reserved_bytes;
+        double used_c = mem_cost(rs, rs->resident_cost + rs->reserved_cost);
+        if (used + n->payload_size > budget || used_c + mem_cost(rs, n->cost) > (double)budget)
             continue; /* does not fit; a smaller one further down may */
-        if (!hlod_req_push(e, post, node, pr))
+        if (!hlod_req_push(&rs->d->allocator, post, node, pr))
             break;
-        r->state = HLOD_NODE_QUEUED;
-        r->posted = e->frame;
-        reserve(e, node, +1);
+        nr->state = HLOD_NODE_QUEUED;
+        nr->posted = rs->frame;
+        reserve(rs, node, +1);
     }
-    hlod_engine_free(e, vic);
+    hlod_mem_free(&rs->d->allocator, vic);
 
     int resort = 0;
     for (size_t k = 0; k < old.n; k++) {
         uint32_t node = old.v[k].node;
-        hlod_node_res *r = &e->res[node];
-        if (r->state != HLOD_NODE_QUEUED || r->posted == e->frame || in_pending(e, node))
+        hlod_node_res *nr = &rs->res[node];
+        if (nr->state != HLOD_NODE_QUEUED || nr->posted == rs->frame || in_pending(rs, node))
             continue;
-        if (r->wanted + KEEP_UNWANTED_FRAMES >= e->frame && post->n < e->d.max_inflight &&
-            hlod_req_push(e, post, node, 0.5f * old.v[k].priority)) {
-            r->posted = e->frame;
+        if (nr->wanted + KEEP_UNWANTED_FRAMES >= rs->frame && post->n < rs->d->max_inflight &&
+            hlod_req_push(&rs->d->allocator, post, node, 0.5f * old.v[k].priority)) {
+            nr->posted = rs->frame;
             resort = 1;
             continue;
         }
-        unqueue(e, node);
+        unqueue(rs, node);
     }
-    hlod_engine_free(e, old.v);
+    hlod_mem_free(&rs->d->allocator, old.v);
     if (resort)
         qsort(post->v, post->n, sizeof *post->v, cmp_request);
 
     double t0 = hlod_now_ms();
-    hlod_loader_post(e->loader, post->v, post->n); /* busy: the same list goes next frame */
+    hlod_loader_post(rs->loader, post->v, post->n); /* busy: the same list goes next frame */
     if (hlod_now_ms() - t0 > WAIT_MS)
-        e->st.render_waits++;
-    e->st.queued = (uint32_t)post->n;
-    if (e->d.deterministic)
-        hlod_loader_pump(e->loader, e->d.deterministic_load_bytes);
+        rs->st->render_waits++;
+    rs->st->queued = (uint32_t)post->n;
+    if (rs->d->deterministic)
+        hlod_loader_pump(rs->loader, rs->d->deterministic_load_bytes);
 }
 
-void hlod_residency_release_all(hlod_engine *e)
+/* ---- life and frame ---- */
+
+hlod_result hlod_residency_init(hlod_residency *rs, const hlod_store *store,
+                                const hlod_engine_desc *d, hlod_frame_stats *st)
 {
-    for (size_t k = 0; k < e->pending_n; k++)
-        hlod_store_payload_free(&e->pending[k].payload);
-    e->pending_n = 0;
-    if (e->d.renderer && e->res)
-        for (size_t k = 0; k < e->resident.n; k++)
-            hlod_gpu_release(e->d.renderer, &e->res[e->resident.v[k]].gpu);
-    e->resident.n = 0;
+    *rs = (hlod_residency){0};
+    rs->store = store;
+    rs->nodes = hlod_store_nodes(store);
+    rs->node_count = hlod_store_node_count(store);
+    rs->root_count = hlod_store_root_count(store);
+    rs->d = d;
+    rs->st = st;
+    rs->res = hlod_mem_alloc(&d->allocator, (size_t)rs->node_count * sizeof *rs->res);
+    if (!rs->res)
+        return HLOD_ERR_NOMEM;
+    memset(rs->res, 0, (size_t)rs->node_count * sizeof *rs->res);
+    hlod_result r = load_roots(rs);
+    if (r == HLOD_OK) {
+        hlod_loader_desc ld = {0};
+        ld.threaded = !d->deterministic;
+        ld.chunk_bytes = d->read_chunk_bytes;
+        ld.hook = d->read_hook;
+        ld.hook_user = d->read_hook_user;
+        ld.logger = d->logger;
+        r = hlod_loader_create(store, &ld, &rs->loader);
+    }
+    if (r != HLOD_OK)
+        hlod_residency_destroy(rs);
+    return r;
+}
+
+void hlod_residency_destroy(hlod_residency *rs)
+{
+    if (!rs->d)
+        return; /* never initialised */
+    const hlod_allocator *a = &rs->d->allocator;
+    hlod_loader_destroy(rs->loader); /* joins the thread first */
+    rs->loader = NULL;
+    for (size_t k = 0; k < rs->pending_n; k++)
+        hlod_store_payload_free(&rs->pending[k].payload);
+    rs->pending_n = 0;
+    if (rs->d->renderer && rs->res)
+        for (size_t k = 0; k < rs->resident.n; k++)
+            hlod_gpu_release(rs->d->renderer, &rs->res[rs->resident.v[k]].gpu);
+    rs->resident.n = 0;
+    hlod_mem_free(a, rs->res);
+    hlod_mem_free(a, rs->resident.v);
+    hlod_mem_free(a, rs->pending);
+    hlod_mem_free(a, rs->want.v);
+    hlod_mem_free(a, rs->post.v);
+    rs->res = NULL;
+    rs->resident.v = NULL;
+    rs->pending = NULL;
+    rs->want.v = rs->post.v = NULL;
+}
+
+void hlod_residency_begin_frame(hlod_residency *rs, uint32_t frame)
+{
+    rs->frame = frame;
+    rs->want.n = 0;
+}
+
+int hlod_residency_want(hlod_residency *rs, uint32_t node, double priority)
+{
+    hlod_node_res *nr = &rs->res[node];
+    if (nr->state == HLOD_NODE_RESIDENT || nr->state == HLOD_NODE_BAD)
+        return 1;
+    if (nr->wanted == rs->frame)
+        return 1;
+    if (nr->state == HLOD_NODE_ABSENT && nr->retry_frame > rs->frame)
+        return 1;
+    nr->wanted = rs->frame;
+    return hlod_req_push(&rs->d->allocator, &rs->want, node, priority);
+}
+
+void hlod_residency_end_frame(hlod_residency *rs)
+{
+    hlod_loader_counters lc;
+    hlod_loader_get_counters(rs->loader, &lc);
+    rs->st->bytes_read += lc.bytes_read - rs->bytes_read_prev;
+    rs->bytes_read_prev = lc.bytes_read;
+    rs->st->resident_nodes = (uint32_t)rs->resident.n;
+    rs->st->resident_bytes = rs->resident_bytes;
+    rs->st->resident_cost = rs->d->c_memory * rs->resident_cost;
+    rs->st->memory_budget_bytes = rs->d->memory_budget_bytes;
+    rs->st->bad_nodes = rs->bad_total;
 }

@@ -32,11 +32,55 @@
  * Everything is computed in doubles relative to the camera, so a city at
  * x = 5e6 m selects exactly as at the origin.
  */
-#include "engine_internal.h"
+#include "selection.h"
+
+#include "residency.h"
 
 #include <assert.h>
 #include <math.h>
 #include <string.h>
+
+/* One frame's walk: the selection, what it asks, and the frame's inputs. */
+typedef struct walk {
+    hlod_selection *s;
+    hlod_residency *res;
+    const hlod_engine_desc *d;
+    hlod_frame_stats *st;
+    const hlod_store_node *nodes;
+    hlod_node_frame *fr;
+    uint32_t frame;
+    double v_time, sse_pixels;
+} walk;
+
+/* ---- life ---- */
+
+hlod_result hlod_selection_init(hlod_selection *s, const hlod_store *store,
+                                const hlod_engine_desc *d, hlod_frame_stats *st)
+{
+    *s = (hlod_selection){0};
+    s->nodes = hlod_store_nodes(store);
+    s->node_count = hlod_store_node_count(store);
+    s->root_count = hlod_store_root_count(store);
+    s->d = d;
+    s->st = st;
+    s->fr = hlod_mem_alloc(&d->allocator, (size_t)s->node_count * sizeof *s->fr);
+    if (!s->fr)
+        return HLOD_ERR_NOMEM;
+    memset(s->fr, 0, (size_t)s->node_count * sizeof *s->fr);
+    return HLOD_OK;
+}
+
+void hlod_selection_free(hlod_selection *s)
+{
+    if (!s->d)
+        return; /* never initialised */
+    const hlod_allocator *a = &s->d->allocator;
+    hlod_mem_free(a, s->fr);
+    hlod_mem_free(a, s->draw.v);
+    hlod_mem_free(a, s->level.v);
+    hlod_mem_free(a, s->next.v);
+    *s = (hlod_selection){0};
+}
 
 /* ---- view ---- */
 
@@ -50,16 +94,10 @@ void hlod_view_init(hlod_view *v, const hlod_camera *cam, const double velocity[
         double ahead = velocity[k] * lookahead_s;
         v->probe[k] = cam->position[k] + (isfinite(ahead) ? ahead : 0);
     }
-    /* m = proj * view, column-major; the rows of m give the planes
-     * (Gribb-Hartmann), in camera-relative coordinates. */
+    /* the rows of proj * view give the planes (Gribb-Hartmann), in
+     * camera-relative coordinates */
     double m[16];
-    for (int c = 0; c < 4; c++)
-        for (int r = 0; r < 4; r++) {
-            double s = 0;
-            for (int k = 0; k < 4; k++)
-                s += cam->proj[k * 4 + r] * cam->view[c * 4 + k];
-            m[c * 4 + r] = s;
-        }
+    hlod_camera_view_proj(cam, m);
     double row[4][4];
     for (int r = 0; r < 4; r++)
         for (int c = 0; c < 4; c++)
@@ -86,15 +124,12 @@ void hlod_view_init(hlod_view *v, const hlod_camera *cam, const double velocity[
     v->pixels_per_radian = t > 0 ? 0.5 * (double)cam->height / t : 1.0;
 }
 
-/* How far (model units) the box lies outside the frustum: <= 0 when it
- * meets it.  The test is conservative (a box near a frustum corner may be
- * reported as meeting it), as usual. */
-static double outside_distance(const hlod_view *v, const hlod_store_node *n)
+double hlod_view_outside(const hlod_view *v, const double bmin[3], const double bmax[3])
 {
     double lo[3], hi[3];
     for (int k = 0; k < 3; k++) {
-        lo[k] = n->bbox_min[k] - v->eye[k];
-        hi[k] = n->bbox_max[k] - v->eye[k];
+        lo[k] = bmin[k] - v->eye[k];
+        hi[k] = bmax[k] - v->eye[k];
     }
     double worst = -INFINITY;
     for (int i = 0; i < 6; i++) {
@@ -136,14 +171,14 @@ static double node_distance(const hlod_view *v, const hlod_store_node *n)
 /* Lakhia: priority = benefit / cost, benefit = staticBenefit * vis *
  * foreshorten / distance^2.  Kept inside (0, 1e300): no zero, NaN or Inf
  * reaches a slice. */
-static double node_priority(const hlod_engine *e, const hlod_view *v, uint32_t i,
+static double node_priority(const walk *w, const hlod_view *v, uint32_t i,
                             double frustum_vis)
 {
-    const hlod_store_node *n = &e->nodes[i];
-    double vis = 1 + e->d.c_vis * frustum_vis;
+    const hlod_store_node *n = &w->nodes[i];
+    double vis = 1 + w->d->c_vis * frustum_vis;
     double dot = v->toward[0] * n->avg_normal[0] + v->toward[1] * n->avg_normal[1] +
                  v->toward[2] * n->avg_normal[2];
-    double fore = 1 + e->d.c_fore * dot;
+    double fore = 1 + w->d->c_fore * dot;
     if (!(fore > 0.05))
         fore = 0.05; /* c_fore near 1 would zero a back-facing node */
     double d = node_distance(v, n);
@@ -158,12 +193,12 @@ static double node_priority(const hlod_engine *e, const hlod_view *v, uint32_t i
 
 /* frustumVis in [0, 1], or -1 when the node is beyond the falloff (not
  * priced). */
-static double frustum_vis(const hlod_engine *e, const hlod_view *v, uint32_t i)
+static double frustum_vis(const walk *w, const hlod_view *v, uint32_t i)
 {
-    double out = outside_distance(v, &e->nodes[i]);
+    double out = hlod_view_outside(v, w->nodes[i].bbox_min, w->nodes[i].bbox_max);
     if (!(out > 0))
         return 1;
-    double fall = e->d.c_vis_falloff * node_radius(&e->nodes[i]);
+    double fall = w->d->c_vis_falloff * node_radius(&w->nodes[i]);
     if (!(fall > 0) || out >= fall)
         return -1;
     return 1 - out / fall;
@@ -175,55 +210,40 @@ static double frustum_vis(const hlod_engine *e, const hlod_view *v, uint32_t i)
 
 /* ---- bookkeeping ---- */
 
-static void note_toggle(hlod_engine *e, uint32_t i, int dir)
+static void note_toggle(walk *w, uint32_t i, int dir)
 {
-    hlod_node_frame *f = &e->fr[i];
+    hlod_node_frame *f = &w->fr[i];
     if (dir > 0)
-        e->st.toggles_up++;
+        w->st->toggles_up++;
     else
-        e->st.toggles_down++;
+        w->st->toggles_down++;
     /* An oscillation: this toggle undoes one made within the last 10 frames. */
-    if (f->toggled && f->toggle_dir == -dir && e->frame - f->toggled <= 10)
-        e->st.oscillations++;
-    f->toggled = e->frame;
+    if (f->toggled && f->toggle_dir == -dir && w->frame - f->toggled <= 10)
+        w->st->oscillations++;
+    f->toggled = w->frame;
     f->toggle_dir = (int8_t)dir;
 }
 
-static int draw_node(hlod_engine *e, uint32_t i)
+static int draw_node(walk *w, uint32_t i)
 {
-    const hlod_store_node *n = &e->nodes[i];
-    hlod_node_frame *f = &e->fr[i];
-    if (!hlod_u32_push(e, &e->draw, i))
+    const hlod_store_node *n = &w->nodes[i];
+    hlod_node_frame *f = &w->fr[i];
+    if (!hlod_u32_push(&w->d->allocator, &w->s->draw, i))
         return 0;
-    if (f->refined && f->refined + 1 == e->frame)
-        note_toggle(e, i, -1);
-    f->drawn = e->frame;
-    e->st.nodes_drawn++;
-    e->st.nodes_per_depth[n->depth < HLOD_STATS_MAX_DEPTH ? n->depth : HLOD_STATS_MAX_DEPTH - 1]++;
-    e->st.tris_drawn += n->tri_count;
-    e->st.cost_drawn += n->cost;
+    if (f->refined && f->refined + 1 == w->frame)
+        note_toggle(w, i, -1);
+    f->drawn = w->frame;
+    w->st->nodes_drawn++;
+    w->st->nodes_per_depth[n->depth < HLOD_STATS_MAX_DEPTH ? n->depth : HLOD_STATS_MAX_DEPTH - 1]++;
+    w->st->tris_drawn += n->tri_count;
+    w->st->cost_drawn += n->cost;
     return 1;
 }
 
-/* A node the traversal would like resident: queue it for admission unless
- * it is bad or backing off after a failure. */
-static int want_node(hlod_engine *e, uint32_t i, double priority)
-{
-    hlod_node_res *r = &e->res[i];
-    if (r->state == HLOD_NODE_RESIDENT || r->state == HLOD_NODE_BAD)
-        return 1;
-    if (r->wanted == e->frame)
-        return 1;
-    if (r->state == HLOD_NODE_ABSENT && r->retry_frame > e->frame)
-        return 1;
-    r->wanted = e->frame;
-    return hlod_req_push(e, &e->want, i, priority);
-}
-
-static void update_hyst(hlod_engine *e, hlod_node_frame *f)
+static void update_hyst(walk *w, hlod_node_frame *f)
 {
     /* New or re-entering nodes start at 0 (Lakhia III-C). */
-    if (f->hyst_frame + 1 != e->frame)
+    if (f->hyst_frame + 1 != w->frame)
         f->hyst = 0;
     /* Lakhia: hyst += (timeSlice - timeNeeded) / timeNeeded, clamped.
      * Within the dead band the two are "almost the same" and the counter
@@ -232,14 +252,14 @@ static void update_hyst(hlod_engine *e, hlod_node_frame *f)
      * noise of the measured frame time, and a still camera would never
      * settle. */
     double urgency = (f->slice - f->needed) / f->needed;
-    if (fabs(urgency) > e->d.c_hyst_deadband)
+    if (fabs(urgency) > w->d->c_hyst_deadband)
         f->hyst += urgency;
-    double lim = e->d.c_hyst_limit;
+    double lim = w->d->c_hyst_limit;
     if (f->hyst > lim)
         f->hyst = lim;
     if (f->hyst < -lim)
         f->hyst = -lim;
-    f->hyst_frame = e->frame;
+    f->hyst_frame = w->frame;
 }
 
 /* ---- the traversal ---- */
@@ -250,43 +270,43 @@ typedef struct front {
 } front;
 
 /* Decides node p of the front: draw it, or append its visible children to
- * e->next.  Returns 0 on allocation failure. */
-static int visit(hlod_engine *e, const hlod_view *v, front *fr, uint32_t p)
+ * w->s->next.  Returns 0 on allocation failure. */
+static int visit(walk *w, const hlod_view *v, front *fr, uint32_t p)
 {
-    const hlod_store_node *nodes = e->nodes;
-    hlod_node_frame *pf = &e->fr[p];
+    const hlod_store_node *nodes = w->nodes;
+    hlod_node_frame *pf = &w->fr[p];
     uint32_t c0 = hlod_store_first_child(nodes, p), c1 = hlod_store_child_end(nodes, p);
     if (c0 == c1)
-        return draw_node(e, p);
+        return draw_node(w, p);
 
-    const hlod_policy pol = e->d.policy;
-    const double vt = e->v_time;
-    size_t mark = e->next.n;
+    const hlod_policy pol = w->d->policy;
+    const double vt = w->v_time;
+    size_t mark = w->s->next.n;
     double sum_pr = 0;
     for (uint32_t c = c0; c < c1; c++) {
-        double fv = frustum_vis(e, v, c);
+        double fv = frustum_vis(w, v, c);
         if (fv < 0)
             continue;
-        hlod_node_frame *cf = &e->fr[c];
-        cf->priority = node_priority(e, v, c, fv);
-        cf->priced = e->frame;
-        e->st.nodes_visited++;
+        hlod_node_frame *cf = &w->fr[c];
+        cf->priority = node_priority(w, v, c, fv);
+        cf->priced = w->frame;
+        w->st->nodes_visited++;
         if (fv < 1) {
             /* outside but near: prefetch only */
-            if (!want_node(e, c, cf->priority))
+            if (!hlod_residency_want(w->res, c, cf->priority))
                 return 0;
             continue;
         }
-        if (!hlod_u32_push(e, &e->next, c))
+        if (!hlod_u32_push(&w->d->allocator, &w->s->next, c))
             return 0;
         sum_pr += cf->priority;
     }
-    size_t nvis = e->next.n - mark;
+    size_t nvis = w->s->next.n - mark;
     if (nvis == 0) {
         /* The box meets the frustum but no child's does: nothing of the
          * children would show; drawing p is the safe choice. */
-        e->next.n = mark;
-        return draw_node(e, p);
+        w->s->next.n = mark;
+        return draw_node(w, p);
     }
 
     /* eq. 4 among the visible siblings, timeNeeded = v_time * cost. */
@@ -294,17 +314,17 @@ static int visit(hlod_engine *e, const hlod_view *v, front *fr, uint32_t p)
     long cum = 0;
     int all_resident = 1;
     uint32_t missing = 0;
-    for (size_t k = mark; k < e->next.n; k++) {
-        uint32_t c = e->next.v[k];
-        hlod_node_frame *cf = &e->fr[c];
+    for (size_t k = mark; k < w->s->next.n; k++) {
+        uint32_t c = w->s->next.v[k];
+        hlod_node_frame *cf = &w->fr[c];
         cf->slice = share * (cf->priority / sum_pr);
         cf->needed = vt * hlod_node_cost(&nodes[c]);
         sum_needed += cf->needed;
         if (pol == HLOD_POLICY_LAKHIA) {
-            update_hyst(e, cf);
-            cum += (long)trunc(cf->hyst / e->d.c_hyst_switch);
+            update_hyst(w, cf);
+            cum += (long)trunc(cf->hyst / w->d->c_hyst_switch);
         }
-        if (e->res[c].state != HLOD_NODE_RESIDENT) {
+        if (hlod_residency_state(w->res, c) != HLOD_NODE_RESIDENT) {
             all_resident = 0;
             missing++;
         }
@@ -315,8 +335,8 @@ static int visit(hlod_engine *e, const hlod_view *v, front *fr, uint32_t p)
     case HLOD_POLICY_LAKHIA:
         /* cumHyst < 0 draws the parent; the safety clamp draws it too when
          * the children clearly do not fit the shared time (c_safety_slack). */
-        refine = cum >= 0 && sum_needed <= share * (1 + e->d.c_safety_slack) *
-                                            (pf->refined + 1 == e->frame ? 1 + KEEP_MARGIN : 1);
+        refine = cum >= 0 && sum_needed <= share * (1 + w->d->c_safety_slack) *
+                                            (pf->refined + 1 == w->frame ? 1 + KEEP_MARGIN : 1);
         near = sum_needed <= 2 * share;
         break;
     case HLOD_POLICY_NOHYST:
@@ -325,8 +345,8 @@ static int visit(hlod_engine *e, const hlod_view *v, front *fr, uint32_t p)
         break;
     case HLOD_POLICY_SSE: {
         double sse = nodes[p].error * v->pixels_per_radian / node_distance(v, &nodes[p]);
-        refine = sse > e->sse_pixels;
-        near = sse > 0.5 * e->sse_pixels;
+        refine = sse > w->sse_pixels;
+        near = sse > 0.5 * w->sse_pixels;
         break;
     }
     default: /* HLOD_POLICY_FULL */
@@ -338,79 +358,82 @@ static int visit(hlod_engine *e, const hlod_view *v, front *fr, uint32_t p)
      * already made may use all of it: the bound itself has hysteresis, so
      * frame-time noise moving the budget by a few percent does not flip a
      * marginal node every frame. */
-    int was_refined = pf->refined && pf->refined + 1 == e->frame;
+    int was_refined = pf->refined && pf->refined + 1 == w->frame;
     if (pol == HLOD_POLICY_LAKHIA || pol == HLOD_POLICY_NOHYST) {
         double bound = was_refined ? fr->budget : fr->budget * (1 - KEEP_MARGIN);
         if (refine && fr->est - pf->needed + sum_needed > bound) {
             refine = 0;
-            e->cap_hits++;
+            w->s->cap_hits++;
         } else if (!refine && near) {
-            e->slice_denied++;
+            w->s->slice_denied++;
         }
     }
 
     /* Ask for the children that are not resident when refining is near. */
     if (near && !all_resident)
-        for (size_t k = mark; k < e->next.n; k++)
-            if (!want_node(e, e->next.v[k], e->fr[e->next.v[k]].priority))
+        for (size_t k = mark; k < w->s->next.n; k++)
+            if (!hlod_residency_want(w->res, w->s->next.v[k], w->fr[w->s->next.v[k]].priority))
                 return 0;
 
     if (refine && !all_resident) {
         /* A visible sibling that is not resident forces the parent. */
-        e->st.wanted_missing += missing;
+        w->st->wanted_missing += missing;
         refine = 0;
     }
     if (!refine) {
-        e->next.n = mark;
-        return draw_node(e, p);
+        w->s->next.n = mark;
+        return draw_node(w, p);
     }
     fr->est += sum_needed - pf->needed;
-    if (pf->drawn && pf->drawn + 1 == e->frame)
-        note_toggle(e, p, +1);
-    pf->refined = e->frame;
+    if (pf->drawn && pf->drawn + 1 == w->frame)
+        note_toggle(w, p, +1);
+    pf->refined = w->frame;
     return 1;
 }
 
-hlod_result hlod_traverse(hlod_engine *e, const hlod_view *v, double budget_ms,
-                          double share_ms)
+hlod_result hlod_select(hlod_selection *s, struct hlod_residency *res, const hlod_view *v,
+                        const hlod_select_in *in)
 {
-    assert(e && v);
-    e->draw.n = e->level.n = e->next.n = e->want.n = 0;
-    e->cap_hits = e->slice_denied = 0;
-    front fr = {0, budget_ms};
+    assert(s && res && v && in);
+    walk ctx = {s, res, s->d, s->st, s->nodes, s->fr, in->frame, in->v_time, in->sse_pixels};
+    walk *w = &ctx;
+    const double share_ms = in->share_ms;
+    s->draw.n = s->level.n = s->next.n = 0;
+    s->cap_hits = s->slice_denied = 0;
+    front fr = {0, in->budget_ms};
 
     /* hlod_0: the visible roots share share_ms (shareTime: c_targetTime less
      * the fixed frame part, times the engine's share gain); they are always
      * resident and drawn. */
     double sum_pr = 0;
-    for (uint32_t r = 0; r < e->root_count; r++) {
-        double fv = frustum_vis(e, v, r);
+    for (uint32_t r = 0; r < w->s->root_count; r++) {
+        double fv = frustum_vis(w, v, r);
         if (fv < 1)
             continue; /* roots are resident: nothing to prefetch */
-        hlod_node_frame *f = &e->fr[r];
-        f->priority = node_priority(e, v, r, fv);
-        f->priced = e->frame;
-        e->st.nodes_visited++;
-        if (!hlod_u32_push(e, &e->level, r))
+        hlod_node_frame *f = &w->fr[r];
+        f->priority = node_priority(w, v, r, fv);
+        f->priced = w->frame;
+        w->st->nodes_visited++;
+        if (!hlod_u32_push(&w->d->allocator, &w->s->level, r))
             return HLOD_ERR_NOMEM;
         sum_pr += f->priority;
     }
-    for (size_t k = 0; k < e->level.n; k++) {
-        uint32_t r = e->level.v[k];
-        hlod_node_frame *f = &e->fr[r];
+    for (size_t k = 0; k < w->s->level.n; k++) {
+        uint32_t r = w->s->level.v[k];
+        hlod_node_frame *f = &w->fr[r];
         f->slice = share_ms * (f->priority / sum_pr);
-        f->needed = e->v_time * hlod_node_cost(&e->nodes[r]);
+        f->needed = w->v_time * hlod_node_cost(&w->nodes[r]);
         fr.est += f->needed;
     }
 
-    while (e->level.n) {
-        e->next.n = 0;
-        for (size_t k = 0; k < e->level.n; k++)
-            if (!visit(e, v, &fr, e->level.v[k]))
+    while (w->s->level.n) {
+        w->s->next.n = 0;
+        for (size_t k = 0; k < w->s->level.n; k++)
+            if (!visit(w, v, &fr, w->s->level.v[k]))
                 return HLOD_ERR_NOMEM;
-        hlod_u32_vec t = e->level;
-        e->level = e->next;
-        e->next = t;
+        hlod_u32_vec t = w->s->level;
+        w->s->level = w->s->next;
+        w->s->next = t;
     }
     return HLOD_OK;
 }

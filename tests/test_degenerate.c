@@ -214,7 +214,7 @@ static int check_frame(const hlod_engine *e, const hlod_store *s, const hlod_fra
         per_depth += st->nodes_per_depth[k];
     double root_sum = 0;
     for (uint32_t i = 0; i < count; i++) {
-        const hlod_node_frame *f = &e->fr[i];
+        const hlod_node_frame *f = &e->sel.fr[i];
         EXPECT(isfinite(f->hyst) && isfinite(f->slice) && isfinite(f->needed) &&
                    isfinite(f->priority), "node %u: hyst %g slice %g need %g priority %g", i,
                f->hyst, f->slice, f->needed, f->priority);
@@ -239,8 +239,8 @@ static int check_frame(const hlod_engine *e, const hlod_store *s, const hlod_fra
             double sum = 0;
             int kids = 0;
             for (uint32_t c = n[i].first_child; c < n[i + 1].first_child; c++)
-                if (e->fr[c].drawn == fr || e->fr[c].refined == fr) {
-                    sum += e->fr[c].slice;
+                if (e->sel.fr[c].drawn == fr || e->sel.fr[c].refined == fr) {
+                    sum += e->sel.fr[c].slice;
                     kids++;
                 }
             g_sums_checked++;
@@ -392,7 +392,7 @@ static void test_zero_priorities(void)
             hlod_frame_stats st;
             CHECK(hlod_engine_frame(e, &cam, 1.0 / 30, &st) == HLOD_OK);
             for (int i = 0; i < DN; i++)
-                priced[i] |= e->fr[i].priced == e->frame && e->fr[i].priority > 0;
+                priced[i] |= e->sel.fr[i].priced == e->frame && e->sel.fr[i].priority > 0;
         }
     }
     for (int i = 0; i < DN; i++)

@@ -121,23 +121,23 @@ static void test_time_slices_sum(void)
     for (uint32_t r = 0; r < hlod_store_root_count(s); r++) {
         double slice;
         hlod_engine_node_debug(e, r, NULL, &slice, NULL, NULL);
-        if (e->fr[r].priced == e->frame)
+        if (e->sel.fr[r].priced == e->frame)
             root_sum += slice;
     }
     double share = st.budget_ms * st.share_gain;
     CHECKF(fabs(root_sum - share) <= 1e-9 * share, "roots %g share %g", root_sum, share);
     for (uint32_t p = 0; p < count; p++) {
-        if (e->fr[p].refined != e->frame)
+        if (e->sel.fr[p].refined != e->frame)
             continue;
         double sum = 0;
         int n = 0;
         for (uint32_t c = nodes[p].first_child; c < nodes[p + 1].first_child; c++)
-            if (e->fr[c].drawn == e->frame || e->fr[c].refined == e->frame) {
-                sum += e->fr[c].slice;
+            if (e->sel.fr[c].drawn == e->frame || e->sel.fr[c].refined == e->frame) {
+                sum += e->sel.fr[c].slice;
                 n++;
             }
-        CHECKF(fabs(sum - e->fr[p].slice) <= 1e-9 * e->fr[p].slice, "node %u: %g vs %g", p, sum,
-               e->fr[p].slice);
+        CHECKF(fabs(sum - e->sel.fr[p].slice) <= 1e-9 * e->sel.fr[p].slice, "node %u: %g vs %g", p, sum,
+               e->sel.fr[p].slice);
         refined_seen += n > 0;
     }
     CHECK(refined_seen > 0);
@@ -276,7 +276,7 @@ static uint32_t still_window_toggles(hlod_store *s, hlod_policy policy, double n
                     st.toggles_down, st.share_gain, st.estimated_ms, st.budget_ms, st.fixed_ms,
                     st.v_time, st.measured_ms);
         for (uint32_t i = 0; i < hlod_store_node_count(s); i++)
-            out_of_range += e->fr[i].hyst < -lim || e->fr[i].hyst > lim;
+            out_of_range += e->sel.fr[i].hyst < -lim || e->sel.fr[i].hyst > lim;
     }
     CHECKF(loads == 0, "%s: %u loads after everything in view was resident",
            hlod_policy_name(policy), loads);
@@ -464,7 +464,7 @@ static void test_budget_random_jumps(void)
         CHECK(hlod_engine_frame(e, &cam, 1.0 / 30, &st) == HLOD_OK);
         loads += st.loads;
         evictions += st.evictions;
-        if (st.resident_bytes + e->reserved_bytes > d.memory_budget_bytes ||
+        if (st.resident_bytes + e->res.reserved_bytes > d.memory_budget_bytes ||
             st.resident_cost > (double)d.memory_budget_bytes * (1 + 1e-9))
             over++;
         if (st.resident_bytes > peak)
@@ -877,8 +877,8 @@ static void test_degenerate_views(void)
             CHECK(stats_finite(&st));
         }
         for (uint32_t i = 0; i < hlod_store_node_count(s); i++)
-            CHECK(isfinite(e->fr[i].hyst) && isfinite(e->fr[i].slice) &&
-                  isfinite(e->fr[i].priority));
+            CHECK(isfinite(e->sel.fr[i].hyst) && isfinite(e->sel.fr[i].slice) &&
+                  isfinite(e->sel.fr[i].priority));
         /* a NaN camera is rejected, not drawn */
         cam.position[0] = NAN;
         CHECK(hlod_engine_frame(e, &cam, 1.0 / 30, &st) == HLOD_ERR_INVALID_ARG);

@@ -16,6 +16,7 @@
 #include "check.h"
 #include "image_check.h"
 #include "engine_internal.h"
+#include "hlod/renderer.h"
 #include "hlod/image.h"
 #include "hlod/mesh.h"
 #include "hlod/mesh_io.h"

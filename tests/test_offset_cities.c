@@ -28,6 +28,7 @@
  */
 #include "check.h"
 #include "engine_internal.h"
+#include "hlod/renderer.h"
 #include "hlod/image.h"
 #include "hlod/metrics.h"
 #include "hlod/path.h"

@@ -15,6 +15,7 @@
 #include "city.h"
 #include "gl_render.h"
 #include "hlod/engine.h"
+#include "hlod/renderer.h"
 #include "hlod/image.h"
 #include "hlod/mesh_io.h"
 

@@ -30,6 +30,7 @@
 #include "cli.h"
 #include "view_flags.h"
 #include "hlod/engine.h"
+#include "hlod/renderer.h"
 #include "hlod/metrics.h"
 #include "hlod/path.h"
 

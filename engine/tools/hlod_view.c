@@ -21,7 +21,7 @@
  *   callback; movement keys are polled each frame so motion does not
  *   depend on key repeat.
  * - No GL call here (house style: engine/gl_*.c hold them all); screenshots
- *   read pixels through hlod_gpu_read_rgb.
+ *   read pixels through hlod_renderer_read_rgb.
  *
  * Exit status: 0 success, 1 a failure (unreadable store or path, no
  * display, no GL 3.3, a screenshot or recording not written), 2 bad command
@@ -42,8 +42,8 @@
 
 #include "cli.h"
 #include "view_flags.h"
-#include "gl_render.h"
 #include "hlod/engine.h"
+#include "hlod/renderer.h"
 #include "hlod/image.h"
 #include "hlod/path.h"
 
@@ -554,7 +554,7 @@ static hlod_result screenshot(viewer *v, const char *file, uint32_t w, uint32_t 
     uint8_t *rgb = malloc(npix * 3);
     if (!rgb)
         return HLOD_ERR_NOMEM;
-    hlod_result r = hlod_gpu_read_rgb(v->renderer, w, h, rgb);
+    hlod_result r = hlod_renderer_read_rgb(v->renderer, w, h, rgb);
     if (r == HLOD_OK && coverage) {
         int bg[3];
         for (int c = 0; c < 3; c++)

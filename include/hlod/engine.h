@@ -29,6 +29,7 @@
 #ifndef HLOD_ENGINE_H
 #define HLOD_ENGINE_H
 
+#include "hlod/camera.h"
 #include "hlod/hlod.h"
 #include "hlod/store.h"
 
@@ -36,62 +37,8 @@
 extern "C" {
 #endif
 
-/* ---- camera ---- */
-
-/* A camera: eye position in model units (double), plus a view rotation and
- * projection that work in camera-relative coordinates (eye at 0), which is
- * what the renderer and the frustum test use.  Matrices are column-major
- * (OpenGL).  z is up in the generated city, but nothing here assumes it. */
-typedef struct hlod_camera {
-    double position[3];     /* eye */
-    double view[16];        /* rotation only: world direction -> eye space */
-    double proj[16];        /* perspective */
-    uint32_t width, height; /* viewport in pixels */
-    double fov_y_deg;       /* vertical field of view, for screen-space error */
-} hlod_camera;
-
-/* Fills cam from an eye, a look-at point and an up vector; a perspective of
- * fov_y_deg with near/far planes.  HLOD_ERR_INVALID_ARG (and cam zeroed) for
- * non-finite input, eye == target, up parallel to the view direction,
- * fov outside (0, 180), near <= 0, far <= near or a zero viewport. */
-hlod_result hlod_camera_look_at(hlod_camera *cam, const double eye[3], const double target[3],
-                                const double up[3], double fov_y_deg, double near_plane,
-                                double far_plane, uint32_t width, uint32_t height);
-
-/* The unit view direction (where the camera looks) of a camera. */
-void hlod_camera_forward(const hlod_camera *cam, double out[3]);
-
-/* ---- renderer (engine/gl_*.c) ---- */
-
+/* The renderer (hlod/renderer.h); the engine only holds a pointer. */
 typedef struct hlod_renderer hlod_renderer;
-
-/* A GL function loader: OSMesaGetProcAddress, glfwGetProcAddress. */
-typedef void *(*hlod_gl_get_proc)(const char *name);
-
-/* Creates a renderer in the current GL context (3.3 core or later): loads
- * the entry points through get_proc, compiles the shaders.  HLOD_ERR_UNSUPPORTED
- * when the context is too old or a function is missing.  Render thread. */
-hlod_result hlod_renderer_create(hlod_gl_get_proc get_proc, const hlod_logger *lg,
-                                 hlod_renderer **out);
-void hlod_renderer_destroy(hlod_renderer *r);   /* context current; r may be NULL */
-
-/* Colour nodes by depth instead of texture/material (viewer toggle). */
-void hlod_renderer_set_depth_colors(hlod_renderer *r, int on);
-void hlod_renderer_set_wireframe(hlod_renderer *r, int on);
-/* Cull back faces of nodes whose block is solid (HLOD_RENDER_SOLID); on by
- * default.  Off draws every face (for checking that culling hides nothing). */
-void hlod_renderer_set_backface_culling(hlod_renderer *r, int on);
-void hlod_renderer_set_clear_color(hlod_renderer *r, float red, float green, float blue);
-
-/* A headless OSMesa context with its own colour and depth buffer. */
-typedef struct hlod_osmesa hlod_osmesa;
-hlod_result hlod_osmesa_create(uint32_t width, uint32_t height, const hlod_logger *lg,
-                               hlod_osmesa **out);   /* and makes it current */
-void hlod_osmesa_destroy(hlod_osmesa *o);
-hlod_gl_get_proc hlod_osmesa_get_proc(void);
-/* Copies the current image as 8-bit RGB, top row first, width*height*3
- * bytes (glReadPixels after glFinish). */
-hlod_result hlod_osmesa_read_rgb(hlod_osmesa *o, uint8_t *rgb);
 
 /* ---- engine ---- */
 

@@ -1,0 +1,37 @@
+/*
+ * alloc.h - the engine's allocator and its growable arrays (render thread).
+ *
+ * Every table the engine owns comes from the descriptor's hlod_allocator,
+ * or malloc/realloc/free when it has none.  The arrays double their
+ * capacity (64 first) and report an allocation failure with 0, leaving the
+ * array as it was.
+ */
+#ifndef HLOD_ENGINE_ALLOC_H
+#define HLOD_ENGINE_ALLOC_H
+
+#include "hlod/engine.h"
+#include "loader.h"
+
+#include <stddef.h>
+#include <stdint.h>
+
+void *hlod_mem_alloc(const hlod_allocator *a, size_t size);
+void *hlod_mem_realloc(const hlod_allocator *a, void *p, size_t size);
+void hlod_mem_free(const hlod_allocator *a, void *p);   /* p may be NULL */
+
+typedef struct hlod_u32_vec {
+    uint32_t *v;
+    size_t n, cap;
+} hlod_u32_vec;
+
+typedef struct hlod_req_vec {
+    hlod_load_request *v;
+    size_t n, cap;
+} hlod_req_vec;
+
+/* Appends; 0 on allocation failure. */
+int hlod_u32_push(const hlod_allocator *a, hlod_u32_vec *v, uint32_t x);
+/* Appends a request, its priority clamped to a finite float. */
+int hlod_req_push(const hlod_allocator *a, hlod_req_vec *v, uint32_t node, double priority);
+
+#endif

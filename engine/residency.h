@@ -1,0 +1,96 @@
+/*
+ * residency.h - which nodes are in memory (Lakhia III-D; README, "The
+ * runtime": residency).  Render thread only; the loader thread it owns
+ * only reads bytes (loader.h).
+ *
+ * The selection asks through hlod_residency_want and reads states through
+ * hlod_residency_state; it writes nothing here.  Once a frame the engine
+ * collects finished reads (uploads within the upload budget) and schedules
+ * the wanted nodes against the memory budget, evicting in the order the
+ * caller's hlod_evict_order gives.
+ */
+#ifndef HLOD_ENGINE_RESIDENCY_H
+#define HLOD_ENGINE_RESIDENCY_H
+
+#include "alloc.h"
+#include "gl_render.h"
+#include "hlod/engine.h"
+#include "loader.h"
+
+/* Residency of one node. */
+typedef struct hlod_node_res {
+    uint8_t state;          /* hlod_node_state */
+    uint8_t failures;       /* transient read failures so far */
+    uint32_t retry_frame;   /* absent until this frame after a transient failure */
+    uint32_t wanted;        /* frame the selection last asked for it */
+    uint32_t posted;        /* frame it was last put in the loader's list */
+    uint32_t slot;          /* index in the resident list while resident */
+    hlod_gpu_node gpu;      /* when a renderer is attached */
+} hlod_node_res;
+
+typedef struct hlod_residency {
+    const hlod_store *store;
+    const hlod_store_node *nodes;
+    uint32_t node_count, root_count;
+    const hlod_engine_desc *d;  /* the engine's settings, read only */
+    hlod_frame_stats *st;       /* the engine's stats of the current frame */
+    uint32_t frame;             /* current frame stamp (1-based; 0 = before any) */
+    hlod_loader *loader;
+
+    hlod_node_res *res;         /* node_count */
+    hlod_u32_vec resident;      /* nodes resident (roots included) */
+    uint64_t resident_bytes, reserved_bytes;
+    double resident_cost, reserved_cost; /* sum of eq. 1 (not yet times c_memory) */
+    hlod_load_result *pending;  /* collected, not yet uploaded (upload budget) */
+    size_t pending_n, pending_cap;
+    hlod_req_vec want;          /* asked for this frame (hlod_residency_want) */
+    hlod_req_vec post;          /* what was handed to the loader */
+    uint64_t bytes_read_prev;   /* the loader's counter at the last frame's end */
+    uint32_t bad_total;
+} hlod_residency;
+
+/* Which resident nodes may go, and in what order: key() returns 0 for a
+ * node that must stay this frame, else 1 with *key (lower goes first; a
+ * node goes only for a wanted node of higher priority). */
+typedef struct hlod_evict_order {
+    int (*key)(void *user, uint32_t node, double *key);
+    void *user;
+} hlod_evict_order;
+
+/* Reads and uploads every hlod_0 node, then starts the loader (threaded
+ * unless deterministic).  d and st must outlive r.  On failure everything
+ * is released. */
+hlod_result hlod_residency_init(hlod_residency *r, const hlod_store *store,
+                                const hlod_engine_desc *d, hlod_frame_stats *st);
+/* Stops the loader, frees every resident node and pending load. */
+void hlod_residency_destroy(hlod_residency *r);
+
+/* A new frame: stamps it and empties the wanted list. */
+void hlod_residency_begin_frame(hlod_residency *r, uint32_t frame);
+
+/* The selection would like node resident: queues it for admission unless
+ * it is resident, bad, already asked for this frame, or backing off after
+ * a failure.  0 on allocation failure. */
+int hlod_residency_want(hlod_residency *r, uint32_t node, double priority);
+
+static inline hlod_node_state hlod_residency_state(const hlod_residency *r, uint32_t node)
+{
+    return (hlod_node_state)r->res[node].state;
+}
+
+static inline const hlod_gpu_node *hlod_residency_gpu(const hlod_residency *r, uint32_t node)
+{
+    return &r->res[node].gpu;
+}
+
+/* Collects finished loads and uploads them within the upload budget. */
+void hlod_residency_collect(hlod_residency *r);
+/* Admits wanted nodes against the budget (evicting in order's order),
+ * hands the loader its list. */
+void hlod_residency_schedule(hlod_residency *r, const hlod_evict_order *order);
+/* Reads one node synchronously and makes it resident, ignoring the budget. */
+hlod_result hlod_residency_load_now(hlod_residency *r, uint32_t node);
+/* Fills the frame's residency stats (resident set, bytes read, bad nodes). */
+void hlod_residency_end_frame(hlod_residency *r);
+
+#endif

@@ -1,0 +1,98 @@
+/*
+ * selection.h - which nodes a frame draws (Lakhia III-C; README, "The
+ * runtime": selection).  Render thread only.
+ *
+ * The selection reads the store's node table and the cost model's
+ * published values, remembers per node what it needs between frames
+ * (hysteresis counter, last priority, draw/refine stamps for toggles), and
+ * fills the draw list.  It asks residency for nodes through
+ * hlod_residency_want and reads their states; it writes nothing there.
+ *
+ * Frame stamps replace per-frame clearing, so a frame touches only the
+ * nodes it visits: cost grows with what is visible, not with the store.
+ * Stamps are frame numbers starting at 1; 0 means "never".
+ */
+#ifndef HLOD_ENGINE_SELECTION_H
+#define HLOD_ENGINE_SELECTION_H
+
+#include "alloc.h"
+#include "hlod/camera.h"
+#include "hlod/engine.h"
+
+struct hlod_residency;
+
+/* Selection memory of one node. */
+typedef struct hlod_node_frame {
+    double hyst;            /* Lakhia hyst_n, in [-c_hystLimit, c_hystLimit] */
+    double slice;           /* last timeSlice_n (ms) */
+    double needed;          /* last timeNeeded_n (ms) */
+    double priority;        /* last priority_n */
+    uint32_t priced;        /* frame of the last pricing */
+    uint32_t hyst_frame;    /* frame hyst was last updated; older = re-entering */
+    uint32_t drawn;         /* frame the node was last drawn */
+    uint32_t refined;       /* frame its children were last drawn in its place */
+    uint32_t toggled;       /* frame of the last toggle */
+    int8_t toggle_dir;      /* +1 up, -1 down */
+} hlod_node_frame;
+
+/* The camera as the selection sees it, in camera-relative doubles. */
+typedef struct hlod_view {
+    double eye[3];          /* camera position (model units) */
+    double probe[3];        /* eye advanced by velocity * look-ahead: distances use it */
+    double planes[6][4];    /* frustum planes, camera-relative, unit normals pointing in */
+    double toward[3];       /* unit vector toward the viewer (image plane normal) */
+    double pixels_per_radian; /* height / (2 tan(fovy/2)), for screen-space error */
+} hlod_view;
+
+/* What one frame's selection is given. */
+typedef struct hlod_select_in {
+    uint32_t frame;         /* stamp (1-based) */
+    double v_time;          /* the cost model's published ms per unit of cost */
+    double sse_pixels;      /* the SSE policy's threshold */
+    double budget_ms;       /* the bound on the front's estimate */
+    double share_ms;        /* the roots' shareTime (eq. 4) */
+} hlod_select_in;
+
+typedef struct hlod_selection {
+    const hlod_store_node *nodes;
+    uint32_t node_count, root_count;
+    const hlod_engine_desc *d;  /* the engine's settings, read only */
+    hlod_frame_stats *st;       /* the engine's stats of the current frame */
+    hlod_node_frame *fr;        /* node_count */
+    hlod_u32_vec draw;          /* nodes drawn this frame */
+    hlod_u32_vec level, next;   /* breadth-first levels */
+    uint32_t cap_hits;          /* refinements the budget bound refused this frame */
+    uint32_t slice_denied;      /* refinements near but refused by time slices */
+} hlod_selection;
+
+/* d and st must outlive s.  HLOD_ERR_NOMEM. */
+hlod_result hlod_selection_init(hlod_selection *s, const hlod_store *store,
+                                const hlod_engine_desc *d, hlod_frame_stats *st);
+void hlod_selection_free(hlod_selection *s);
+
+/* Builds the view (frustum planes, look-ahead probe) from a camera and the
+ * camera velocity (model units per second). */
+void hlod_view_init(hlod_view *v, const hlod_camera *cam, const double velocity[3],
+                    double lookahead_s);
+
+/* How far (model units) the box [lo, hi] lies outside the view's frustum:
+ * <= 0 when it meets it.  Conservative (a box near a frustum corner may be
+ * reported as meeting it), as usual. */
+double hlod_view_outside(const hlod_view *v, const double lo[3], const double hi[3]);
+
+/* Selects this frame's nodes with d->policy: fills s->draw, asks res for
+ * the nodes it wants, and fills the selection fields of the stats (drawn,
+ * per depth, toggles, visited, wanted_missing, cost and triangles drawn).
+ * The estimate of the front never exceeds in->budget_ms.  Counts
+ * cap_hits and slice_denied.  O(nodes visited). */
+hlod_result hlod_select(hlod_selection *s, struct hlod_residency *res, const hlod_view *v,
+                        const hlod_select_in *in);
+
+static inline double hlod_node_cost(const hlod_store_node *n)
+{
+    /* eq. 1 can be 0 (c_tex = 1 on untextured triangles): keep every
+     * ratio finite with a floor of a thousandth of a triangle. */
+    return n->cost > 1e-3 ? n->cost : 1e-3;
+}
+
+#endif

@@ -1,0 +1,56 @@
+/*
+ * renderer.h - the OpenGL 3.3 renderer the engine draws with
+ * (engine/gl_*.c), and a headless OSMesa context for it.  Render thread
+ * only, with the renderer's context current.
+ */
+#ifndef HLOD_RENDERER_H
+#define HLOD_RENDERER_H
+
+#include "hlod/hlod.h"
+
+#ifdef __cplusplus
+extern "C" {
+#endif
+
+typedef struct hlod_renderer hlod_renderer;   /* also in hlod/engine.h */
+
+/* A GL function loader: OSMesaGetProcAddress, glfwGetProcAddress. */
+typedef void *(*hlod_gl_get_proc)(const char *name);
+
+/* Creates a renderer in the current GL context (3.3 core or later): loads
+ * the entry points through get_proc, compiles the shaders.  HLOD_ERR_UNSUPPORTED
+ * when the context is too old or a function is missing.  Render thread. */
+hlod_result hlod_renderer_create(hlod_gl_get_proc get_proc, const hlod_logger *lg,
+                                 hlod_renderer **out);
+void hlod_renderer_destroy(hlod_renderer *r);   /* context current; r may be NULL */
+
+/* Colour nodes by depth instead of texture/material (viewer toggle). */
+void hlod_renderer_set_depth_colors(hlod_renderer *r, int on);
+void hlod_renderer_set_wireframe(hlod_renderer *r, int on);
+/* Cull back faces of nodes whose block is solid (HLOD_RENDER_SOLID); on by
+ * default.  Off draws every face (for checking that culling hides nothing). */
+void hlod_renderer_set_backface_culling(hlod_renderer *r, int on);
+void hlod_renderer_set_clear_color(hlod_renderer *r, float red, float green, float blue);
+
+/* A headless OSMesa context with its own colour and depth buffer. */
+typedef struct hlod_osmesa hlod_osmesa;
+hlod_result hlod_osmesa_create(uint32_t width, uint32_t height, const hlod_logger *lg,
+                               hlod_osmesa **out);   /* and makes it current */
+void hlod_osmesa_destroy(hlod_osmesa *o);
+hlod_gl_get_proc hlod_osmesa_get_proc(void);
+/* Copies the current image as 8-bit RGB, top row first, width*height*3
+ * bytes (glReadPixels after glFinish). */
+hlod_result hlod_osmesa_read_rgb(hlod_osmesa *o, uint8_t *rgb);
+
+/* Copies the framebuffer bound for reading (the back buffer of a window)
+ * as 8-bit RGB, top row first, width*height*3 bytes (glReadPixels, which
+ * waits for the GPU).  Call after the frame is drawn and before the swap.
+ * HLOD_ERR_UNSUPPORTED (logged) on a GL error, e.g. a size past the
+ * framebuffer.  For screenshots. */
+hlod_result hlod_renderer_read_rgb(hlod_renderer *r, uint32_t width, uint32_t height,
+                                   uint8_t *rgb);
+
+#ifdef __cplusplus
+}
+#endif
+#endif
