@@ -1,10 +1,13 @@
 /*
- * test_build.c - hlod-build end to end: a generated city in, a store out,
- * read back with the validating reader.  Runs the built tools
- * ($HLOD_BIN_DIR/hlod-gen-city, hlod-build) in a scratch folder.
+ * test_build.c - the build pipeline end to end: a generated city in, a
+ * store out, read back with the validating reader.  Calls the library
+ * (hlod_build_store) and, for the command line, the built tools
+ * ($HLOD_BIN_DIR/hlod-gen-city, hlod-build), in a scratch folder.
  */
 #include "check.h"
+#include "hlod/build_store.h"
 #include "hlod/store.h"
+#include "rec_log.h"
 
 #include <math.h>
 #include <stdarg.h>
@@ -36,6 +39,26 @@ static int build(const char *in, const char *out, const char *extra)
 {
     return check_sh("'%s/hlod-build' '%s/%s.obj' -o '%s/%s' --desired-tris 500 --quiet %s", bin, tmp, in, tmp, out,
               extra);
+}
+
+/* The library: in.obj of the scratch folder to out, with the tests'
+ * settings (desired 500) and method/threads as given. */
+static hlod_result lib_build(const char *in, const char *out, hlod_build_method method,
+                             size_t threads, hlod_build_report *rep, rec_log *log)
+{
+    char a[2048], b[2048];
+    snprintf(a, sizeof a, "%s/%s.obj", tmp, in);
+    snprintf(b, sizeof b, "%s/%s", tmp, out);
+    hlod_build_desc d;
+    hlod_build_desc_defaults(&d);
+    d.desired_tris = 500;
+    d.method = method;
+    d.threads = threads;
+    const char *inputs[] = {a};
+    /* rec_log is not thread-safe: only runs that fail before the build
+     * threads start (unreadable input, no folder) record the log */
+    hlod_logger lg = log ? rec_logger(log) : (hlod_logger){0};
+    return hlod_build_store(&d, inputs, 1, b, &lg, rep);
 }
 
 static void builds_and_verifies_both_methods(void)
@@ -78,19 +101,62 @@ static void json_keys(void)
         CHECKF(strstr(line, keys[i]), "missing %s in %s", keys[i], line);
 }
 
+/* The same store on 1 or 2 threads, and from the tool as from the
+ * library; the report agrees with the store. */
 static void reproducible_byte_for_byte(void)
 {
-    CHECK(build("c", "r1.hlod", "--threads 2") == 0);
-    CHECK(build("c", "r2.hlod", "--threads 1") == 0);
-    CHECK(build("c", "m1.hlod", "--method metis --threads 2") == 0);
-    CHECK(build("c", "m2.hlod", "--method metis --threads 1") == 0);
-    char a[2048], b[2048];
-    snprintf(a, sizeof a, "%s/r1.hlod", tmp);
-    snprintf(b, sizeof b, "%s/r2.hlod", tmp);
-    CHECK(same_file(a, b));
-    snprintf(a, sizeof a, "%s/m1.hlod", tmp);
-    snprintf(b, sizeof b, "%s/m2.hlod", tmp);
-    CHECK(same_file(a, b));
+    hlod_build_report r1, r2, m1, m2;
+    CHECK(lib_build("c", "r1.hlod", HLOD_BUILD_CUTPLANE, 2, &r1, NULL) == HLOD_OK);
+    CHECK(lib_build("c", "r2.hlod", HLOD_BUILD_CUTPLANE, 1, &r2, NULL) == HLOD_OK);
+    CHECK(lib_build("c", "m1.hlod", HLOD_BUILD_METIS, 2, &m1, NULL) == HLOD_OK);
+    CHECK(lib_build("c", "m2.hlod", HLOD_BUILD_METIS, 1, &m2, NULL) == HLOD_OK);
+    CHECK(build("c", "rt.hlod", "--threads 2") == 0);
+    CHECK(build("c", "mt.hlod", "--method metis --threads 1") == 0);
+    const char *pairs[][2] = {{"r1", "r2"}, {"m1", "m2"}, {"r1", "rt"}, {"m1", "mt"}};
+    for (int i = 0; i < 4; i++) {
+        char a[2048], b[2048];
+        snprintf(a, sizeof a, "%s/%s.hlod", tmp, pairs[i][0]);
+        snprintf(b, sizeof b, "%s/%s.hlod", tmp, pairs[i][1]);
+        CHECKF(same_file(a, b), "%s.hlod differs from %s.hlod", pairs[i][0], pairs[i][1]);
+    }
+    char p[2048];
+    snprintf(p, sizeof p, "%s/r1.hlod", tmp);
+    hlod_store *s = NULL;
+    CHECK(hlod_store_open(p, NULL, &s) == HLOD_OK);
+    if (s) {
+        CHECKF(r1.nodes == hlod_store_node_count(s), "%zu vs %u nodes", r1.nodes,
+               hlod_store_node_count(s));
+        CHECKF(r1.blocks == hlod_store_root_count(s), "%zu blocks, %u roots", r1.blocks,
+               hlod_store_root_count(s));
+        CHECKF(r1.levels == hlod_store_get_header(s)->depth_count, "%zu levels", r1.levels);
+        hlod_store_close(s);
+    }
+    /* cutplane leaves hold exactly the source triangles */
+    CHECKF(r1.tris_leaf == r1.tris_in && r1.tris_total > r1.tris_in, "%zu leaf, %zu in, %zu total",
+           r1.tris_leaf, r1.tris_in, r1.tris_total);
+    CHECK(r1.nodes == r2.nodes && m1.nodes == m2.nodes && m1.tris_in == r1.tris_in);
+}
+
+/* The library's errors: named in the log, nothing written, an old store kept. */
+static void library_errors_leave_nothing(void)
+{
+    rec_log log;
+    hlod_build_report rep = {1, 1, 1, 1, 1, 1};
+    CHECK(lib_build("missing", "lib-bad.hlod", HLOD_BUILD_CUTPLANE, 1, &rep, &log) == HLOD_ERR_IO);
+    CHECKF(strstr(log.last, "missing.obj") && strstr(log.last, "cannot read"), "%s", log.last);
+    CHECK(rep.nodes == 0 && rep.blocks == 0);
+    char p[2048];
+    snprintf(p, sizeof p, "%s/lib-bad.hlod", tmp);
+    CHECK(file_size(p) < 0);
+    CHECK(lib_build("c", "no/such/dir/x.hlod", HLOD_BUILD_CUTPLANE, 1, NULL, &log) == HLOD_ERR_IO);
+    CHECKF(strstr(log.last, "does not exist"), "%s", log.last);
+    snprintf(p, sizeof p, "%s/r1.hlod", tmp);
+    long before = file_size(p);
+    CHECK(lib_build("missing", "r1.hlod", HLOD_BUILD_METIS, 2, NULL, &log) == HLOD_ERR_IO);
+    CHECK(before > 0 && file_size(p) == before);
+    hlod_build_desc d;
+    hlod_build_desc_defaults(&d);
+    CHECK(hlod_build_store(&d, NULL, 0, p, NULL, NULL) == HLOD_ERR_INVALID_ARG);
 }
 
 /* The same city at (5e5, 4.1e6, 0): same tree, node boxes shifted by the
@@ -98,8 +164,8 @@ static void reproducible_byte_for_byte(void)
 static void large_coordinates(void)
 {
     city("far", "--origin 500000 4100000 0");
-    CHECK(build("c", "near.hlod", "") == 0);
-    CHECK(build("far", "far.hlod", "") == 0);
+    CHECK(lib_build("c", "near.hlod", HLOD_BUILD_CUTPLANE, 0, NULL, NULL) == HLOD_OK);
+    CHECK(lib_build("far", "far.hlod", HLOD_BUILD_CUTPLANE, 0, NULL, NULL) == HLOD_OK);
     char a[2048], b[2048];
     snprintf(a, sizeof a, "%s/near.hlod", tmp);
     snprintf(b, sizeof b, "%s/far.hlod", tmp);
@@ -180,6 +246,7 @@ int main(void)
     RUN(builds_and_verifies_both_methods);
     RUN(json_keys);
     RUN(reproducible_byte_for_byte);
+    RUN(library_errors_leave_nothing);
     RUN(large_coordinates);
     RUN(bad_input_leaves_nothing);
     check_sh("rm -rf '%s'", tmp);

@@ -1,0 +1,75 @@
+/*
+ * build_store.h - meshes in, one HLOD store out: the pipeline of
+ * hlod-build as a library call (README, "hlod-build").
+ *
+ *     hlod_build_desc d;
+ *     hlod_build_desc_defaults(&d);
+ *     d.method = HLOD_BUILD_METIS;
+ *     const char *in[] = {"city.obj"};
+ *     hlod_build_report rep;
+ *     hlod_result r = hlod_build_store(&d, in, 1, "city.hlod", &logger, &rep);
+ *
+ * Each input object (or grid cell) becomes a block, split once more by
+ * texture; blocks build in parallel and their nodes stream into the store
+ * in block order, so the same inputs and settings give a byte-identical
+ * store on any number of threads.  The store appears at out_path only when
+ * complete; a failure leaves nothing there and an old store untouched.
+ */
+#ifndef HLOD_BUILD_STORE_H
+#define HLOD_BUILD_STORE_H
+
+#include "hlod/hlod.h"
+
+#include <stddef.h>
+#include <stdint.h>
+
+#ifdef __cplusplus
+extern "C" {
+#endif
+
+typedef enum hlod_build_method {
+    HLOD_BUILD_CUTPLANE = 0,    /* Lakhia III-A */
+    HLOD_BUILD_METIS = 1        /* Okamoto 4.1 */
+} hlod_build_method;
+
+typedef struct hlod_build_desc {
+    hlod_build_method method;   /* default cutplane */
+    double grid;                /* 0 (default): each input object is a block;
+                                   else square cells of this size in x and y */
+    size_t desired_tris;        /* C_desiredTri (cutplane); default 4000 */
+    double level_factor;        /* C_levelFactor (cutplane), >= 2; default 3 */
+    size_t voxel_tris;          /* N_v (metis); default 500 */
+    size_t leaf_tris;           /* N_l (metis); default 4000 */
+    size_t node_tris;           /* N_n (metis); default 2000 */
+    double c_tex;               /* c_tex of Lakhia eq. 1, in [0, 1]; default 0.5 */
+    uint64_t seed;              /* every choice's seed; default 1 */
+    size_t threads;             /* 0 (default): every core */
+    /* Called from the calling thread about every 100 ms while blocks
+     * build; NULL for none. */
+    void (*progress)(void *user, size_t blocks_done, size_t blocks);
+    void *progress_user;
+} hlod_build_desc;
+
+typedef struct hlod_build_report {
+    size_t blocks, nodes, levels;
+    size_t tris_in;             /* triangles read */
+    size_t tris_leaf;           /* triangles in leaves (the source's, split by blocks) */
+    size_t tris_total;          /* triangles in all nodes */
+} hlod_build_report;
+
+/* Every field set to its default (0 is a valid c_tex, so zero does not
+ * mean "default" here). */
+void hlod_build_desc_defaults(hlod_build_desc *d);
+
+/* Builds the store.  Errors are logged (naming the file and the problem)
+ * and returned: HLOD_ERR_IO for an unreadable input, a missing output
+ * folder or a block that failed (its own error is logged), HLOD_ERR_EMPTY
+ * for no triangles, HLOD_ERR_NOMEM; report (may be NULL) is filled on success. */
+hlod_result hlod_build_store(const hlod_build_desc *d, const char *const *inputs, size_t n,
+                             const char *out_path, const hlod_logger *lg,
+                             hlod_build_report *report);
+
+#ifdef __cplusplus
+}
+#endif
+#endif

@@ -1,0 +1,728 @@
+/*
+ * build_store.c - the build pipeline behind hlod_build_store
+ * (hlod/build_store.h; README, "hlod-build").
+ *
+ * - Blocks: each input object (OBJ o/g, glTF node, a PLY/OFF file) or each
+ *   grid cell of SIZE model units (by triangle centroid, x and y: z is up).
+ *   A block holds one texture at most, so an object whose triangles use
+ *   several textures becomes one block per texture (untextured triangles
+ *   form their own block).
+ * - Blocks build in parallel on T threads (default: every core), each with
+ *   the chosen builder (cutplane.c or metis_partition.c); every node's
+ *   payload streams into the store as soon as it is made (store_write.h),
+ *   in block order whatever thread finishes first, and the block's tree is
+ *   freed, so memory holds the input plus a few trees per thread.
+ * - Untextured nodes carry the material's diffuse colour per vertex, and
+ *   every node gets per-vertex normals (area-weighted) when it has none.
+ * - The store appears at the output path only when complete (temporary
+ *   file + rename); any failure leaves nothing there and an old store
+ *   untouched.
+ */
+#include "hlod/build_store.h"
+
+#include "build.h"
+#include "hlod/image.h"
+#include "hlod/mesh_io.h"
+#include "hlod/store_write.h"
+
+#include <math.h>
+#include <pthread.h>
+#include <stdatomic.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/stat.h>
+#include <time.h>
+#include <unistd.h>
+
+/* ---- blocks ---------------------------------------------------------------- */
+
+typedef struct block {
+    hlod_mesh mesh;         /* own vertices, world coordinates */
+    const char *texture;    /* borrowed from the input's material, or NULL */
+    float color[4];
+    char name[96];
+    int solid;              /* hlod_mesh_is_solid: nodes may cull back faces */
+} block;
+
+typedef struct blocks {
+    block *b;
+    size_t n, cap;
+} blocks;
+
+static block *blocks_add(blocks *bs)
+{
+    if (bs->n == bs->cap) {
+        size_t nc = bs->cap ? bs->cap * 2 : 64;
+        block *n = realloc(bs->b, nc * sizeof *n);
+        if (!n)
+            return NULL;
+        bs->b = n;
+        bs->cap = nc;
+    }
+    memset(&bs->b[bs->n], 0, sizeof bs->b[bs->n]);
+    return &bs->b[bs->n++];
+}
+
+/* What splitting one input mesh into blocks needs across its blocks, sized
+ * once for the whole mesh: a block touches only its own vertices (remap is
+ * reset through verts), and each material's texture key is found once
+ * (a lookup per triangle; scanning the materials per triangle cost
+ * seconds on the 200-block default city, as did a whole-mesh remap per
+ * block). */
+typedef struct splitter {
+    const hlod_mesh *m;
+    uint32_t *remap;    /* per input vertex: its index in the block, or UINT32_MAX */
+    uint32_t *verts;    /* the block's input vertices, in first-use order */
+    long *mat_key;      /* per material: the first material with its texture, or -1 */
+} splitter;
+
+static void splitter_free(splitter *sp)
+{
+    free(sp->remap);
+    free(sp->verts);
+    free(sp->mat_key);
+}
+
+static hlod_result splitter_init(splitter *sp, const hlod_mesh *m)
+{
+    memset(sp, 0, sizeof *sp);
+    sp->m = m;
+    sp->remap = malloc((m->vertex_count ? m->vertex_count : 1) * sizeof *sp->remap);
+    sp->verts = malloc((m->vertex_count ? m->vertex_count : 1) * sizeof *sp->verts);
+    sp->mat_key = malloc((m->material_count ? m->material_count : 1) * sizeof *sp->mat_key);
+    if (!sp->remap || !sp->verts || !sp->mat_key) {
+        splitter_free(sp);
+        return HLOD_ERR_NOMEM;
+    }
+    for (size_t v = 0; v < m->vertex_count; v++)
+        sp->remap[v] = UINT32_MAX;
+    for (size_t mat = 0; mat < m->material_count; mat++) {
+        const char *path = m->materials[mat].texture_path;
+        sp->mat_key[mat] = -1;
+        for (size_t k = 0; path && k <= mat; k++)
+            if (m->materials[k].texture_path && !strcmp(m->materials[k].texture_path, path)) {
+                sp->mat_key[mat] = (long)k;
+                break;
+            }
+    }
+    return HLOD_OK;
+}
+
+/* The mesh of the triangles tris[0..n) of sp->m, with only the vertices
+ * they use. */
+static hlod_result extract(splitter *sp, const uint32_t *tris, size_t n, hlod_mesh *out)
+{
+    const hlod_mesh *m = sp->m;
+    uint32_t *remap = sp->remap;
+    size_t nv = 0;
+    for (size_t i = 0; i < n; i++)
+        for (int c = 0; c < 3; c++) {
+            uint32_t v = m->indices[3 * (size_t)tris[i] + c];
+            if (remap[v] == UINT32_MAX) {
+                remap[v] = (uint32_t)nv;
+                sp->verts[nv++] = v;
+            }
+        }
+    unsigned flags = (m->uvs ? HLOD_MESH_UVS : 0) | (m->normals ? HLOD_MESH_NORMALS : 0);
+    hlod_result r = hlod_mesh_alloc(out, nv, n, flags);
+    if (r == HLOD_OK) {
+        for (size_t o = 0; o < nv; o++) {
+            size_t v = sp->verts[o];
+            memcpy(out->positions + 3 * o, m->positions + 3 * v, 3 * sizeof(double));
+            if (m->uvs)
+                memcpy(out->uvs + 2 * o, m->uvs + 2 * v, 2 * sizeof(float));
+            if (m->normals)
+                memcpy(out->normals + 3 * o, m->normals + 3 * v, 3 * sizeof(float));
+        }
+        for (size_t i = 0; i < n; i++)
+            for (int c = 0; c < 3; c++)
+                out->indices[3 * i + c] = remap[m->indices[3 * (size_t)tris[i] + c]];
+        if (!m->uvs || !out->uvs) {
+            free(out->uvs);
+            out->uvs = NULL;
+        }
+    }
+    for (size_t o = 0; o < nv; o++)
+        remap[sp->verts[o]] = UINT32_MAX;
+    return r;
+}
+
+/* The texture key of triangle t: the first material with its texture, or
+ * -1 when it has none (or the mesh has no UVs). */
+static long tex_key(const splitter *sp, size_t t)
+{
+    const hlod_mesh *m = sp->m;
+    uint32_t mat = m->tri_material ? m->tri_material[t] : 0;
+    if (!m->uvs || mat >= m->material_count)
+        return -1;
+    return sp->mat_key[mat];
+}
+
+/* Splits triangle set tris (a group: an object or a cell) by texture and
+ * appends one block per texture. */
+static hlod_result add_group(splitter *sp, uint32_t *tris, size_t n, const char *name, blocks *bs)
+{
+    const hlod_mesh *m = sp->m;
+    /* stable order: by texture key, then triangle order */
+    long *key = malloc((n ? n : 1) * sizeof *key);
+    if (!key)
+        return HLOD_ERR_NOMEM;
+    for (size_t i = 0; i < n; i++)
+        key[i] = tex_key(sp, tris[i]);
+    size_t done = 0;
+    uint32_t *sel = malloc((n ? n : 1) * sizeof *sel);
+    uint8_t *used = calloc(n ? n : 1, 1);
+    hlod_result r = (sel && used) ? HLOD_OK : HLOD_ERR_NOMEM;
+    while (r == HLOD_OK && done < n) {
+        size_t first = 0;
+        while (used[first])
+            first++;
+        long k = key[first];
+        size_t cnt = 0;
+        for (size_t i = first; i < n; i++)
+            if (!used[i] && key[i] == k) {
+                used[i] = 1;
+                sel[cnt++] = tris[i];
+            }
+        done += cnt;
+        block *b = blocks_add(bs);
+        if (!b) {
+            r = HLOD_ERR_NOMEM;
+            break;
+        }
+        r = extract(sp, sel, cnt, &b->mesh);
+        if (r != HLOD_OK) {
+            bs->n--;
+            break;
+        }
+        if (k < 0) {
+            /* untextured: no UVs, the most used material's colour */
+            free(b->mesh.uvs);
+            b->mesh.uvs = NULL;
+        }
+        uint32_t mat = m->tri_material ? m->tri_material[sel[0]] : 0;
+        const float grey[4] = {0.8f, 0.8f, 0.8f, 1};
+        memcpy(b->color, mat < m->material_count ? m->materials[mat].diffuse : grey, sizeof b->color);
+        b->texture = k >= 0 ? m->materials[k].texture_path : NULL;
+        snprintf(b->name, sizeof b->name, "%s%s", name, k >= 0 && done < n ? "+tex" : "");
+    }
+    free(key);
+    free(sel);
+    free(used);
+    return r;
+}
+
+static hlod_result make_blocks(const hlod_mesh *m, const char *file, double grid, blocks *bs)
+{
+    uint32_t *tris = malloc((m->tri_count ? m->tri_count : 1) * sizeof *tris);
+    splitter sp;
+    if (!tris || splitter_init(&sp, m) != HLOD_OK) {
+        free(tris);
+        return HLOD_ERR_NOMEM;
+    }
+    hlod_result r = HLOD_OK;
+    if (grid <= 0) {
+        size_t no = m->object_count ? m->object_count : 1;
+        for (size_t o = 0; o < no && r == HLOD_OK; o++) {
+            size_t first = m->object_count ? m->objects[o].first_tri : 0;
+            size_t cnt = m->object_count ? m->objects[o].tri_count : m->tri_count;
+            if (!cnt)
+                continue;
+            for (size_t i = 0; i < cnt; i++)
+                tris[i] = (uint32_t)(first + i);
+            const char *name = m->object_count && m->objects[o].name ? m->objects[o].name : file;
+            r = add_group(&sp, tris, cnt, name, bs);
+        }
+    } else {
+        /* cells by centroid; cells sorted by (cy, cx) for a stable order */
+        double lo[3], hi[3];
+        hlod_mesh_bounds(m, lo, hi);
+        size_t nx = (size_t)floor((hi[0] - lo[0]) / grid) + 1, ny = (size_t)floor((hi[1] - lo[1]) / grid) + 1;
+        if (nx * ny > 1000000) {
+            free(tris);
+            splitter_free(&sp);
+            return HLOD_ERR_INVALID_ARG;
+        }
+        uint32_t *cell = malloc((m->tri_count ? m->tri_count : 1) * sizeof *cell);
+        size_t *start = calloc(nx * ny + 1, sizeof *start);
+        if (!cell || !start) {
+            free(cell);
+            free(start);
+            free(tris);
+            splitter_free(&sp);
+            return HLOD_ERR_NOMEM;
+        }
+        for (size_t t = 0; t < m->tri_count; t++) {
+            double c[2] = {0, 0};
+            for (int k = 0; k < 3; k++)
+                for (int a = 0; a < 2; a++)
+                    c[a] += m->positions[3 * (size_t)m->indices[3 * t + k] + a] / 3;
+            size_t ix = (size_t)floor((c[0] - lo[0]) / grid), iy = (size_t)floor((c[1] - lo[1]) / grid);
+            ix = ix >= nx ? nx - 1 : ix;
+            iy = iy >= ny ? ny - 1 : iy;
+            cell[t] = (uint32_t)(iy * nx + ix);
+            start[cell[t] + 1]++;
+        }
+        for (size_t c = 0; c < nx * ny; c++)
+            start[c + 1] += start[c];
+        size_t *cur = malloc((nx * ny + 1) * sizeof *cur);
+        if (!cur) {
+            r = HLOD_ERR_NOMEM;
+        } else {
+            memcpy(cur, start, (nx * ny + 1) * sizeof *cur);
+            for (size_t t = 0; t < m->tri_count; t++)
+                tris[cur[cell[t]]++] = (uint32_t)t;
+            for (size_t c = 0; c < nx * ny && r == HLOD_OK; c++) {
+                size_t cnt = start[c + 1] - start[c];
+                if (!cnt)
+                    continue;
+                char name[96];
+                snprintf(name, sizeof name, "cell_%zu_%zu", c % nx, c / nx);
+                r = add_group(&sp, tris + start[c], cnt, name, bs);
+            }
+        }
+        free(cur);
+        free(cell);
+        free(start);
+    }
+    free(tris);
+    splitter_free(&sp);
+    return r;
+}
+
+/* ---- building ---------------------------------------------------------------- */
+
+typedef struct block_out {
+    hlod_store_node *nodes;     /* filled by the store writer, parent local */
+    uint32_t *parent;           /* local parent index or HLOD_BNODE_NONE */
+    size_t count;
+    size_t tris_leaf, tris_total;
+    uint32_t depth;             /* deepest level + 1 */
+} block_out;
+
+typedef struct job {
+    const hlod_build_desc *desc;
+    hlod_build_params bp;
+    blocks *bs;
+    block_out *out;
+    hlod_store_writer *w;
+    const hlod_logger *lg;
+    size_t next;            /* next block to build (under turn_mu) */
+    atomic_size_t done_blocks;
+    atomic_int failed;
+    /* Payloads go into the store in block order, whatever thread finishes
+     * first, so the same input gives a byte-identical store.  A finished
+     * tree waits in its slot; whichever worker finds the next block's tree
+     * ready emits it (and any ready ones after it), so no worker idles.
+     * Workers stay at most LOOKAHEAD blocks ahead of the emitted ones to
+     * bound the memory of waiting trees. */
+    pthread_mutex_t turn_mu;
+    pthread_cond_t turn_cv;
+    size_t turn;            /* next block to emit */
+    int emitting;           /* a worker is emitting now */
+    hlod_btree *slot;       /* per block: its finished tree */
+    uint8_t *ready;
+} job;
+
+#define LOOKAHEAD 8
+
+/* Area-weighted vertex normals for a node without any. */
+static float *vertex_normals(const hlod_mesh *m)
+{
+    double *acc = calloc(m->vertex_count * 3 + 1, sizeof *acc);
+    float *n = malloc((m->vertex_count * 3 + 1) * sizeof *n);
+    if (!acc || !n) {
+        free(acc);
+        free(n);
+        return NULL;
+    }
+    for (size_t t = 0; t < m->tri_count; t++) {
+        const uint32_t *ix = m->indices + 3 * t;
+        const double *a = m->positions + 3 * (size_t)ix[0], *b = m->positions + 3 * (size_t)ix[1],
+                     *c = m->positions + 3 * (size_t)ix[2];
+        double u[3] = {b[0] - a[0], b[1] - a[1], b[2] - a[2]}, v[3] = {c[0] - a[0], c[1] - a[1], c[2] - a[2]};
+        double f[3] = {u[1] * v[2] - u[2] * v[1], u[2] * v[0] - u[0] * v[2], u[0] * v[1] - u[1] * v[0]};
+        for (int k = 0; k < 3; k++)
+            for (int j = 0; j < 3; j++)
+                acc[3 * (size_t)ix[k] + j] += f[j];
+    }
+    for (size_t v = 0; v < m->vertex_count; v++) {
+        double *a = acc + 3 * v;
+        double l = sqrt(a[0] * a[0] + a[1] * a[1] + a[2] * a[2]);
+        for (int j = 0; j < 3; j++)
+            n[3 * v + j] = l > 0 ? (float)(a[j] / l) : (j == 2 ? 1.0f : 0.0f);
+    }
+    free(acc);
+    return n;
+}
+
+static hlod_result emit_block(job *J, size_t bi, hlod_btree *t)
+{
+    block *b = &J->bs->b[bi];
+    block_out *o = &J->out[bi];
+    o->nodes = calloc(t->count, sizeof *o->nodes);
+    o->parent = malloc(t->count * sizeof *o->parent);
+    if (!o->nodes || !o->parent)
+        return HLOD_ERR_NOMEM;
+    o->count = t->count;
+    uint8_t rgba[4];
+    for (int k = 0; k < 4; k++) {
+        float c = b->color[k] < 0 ? 0 : b->color[k] > 1 ? 1 : b->color[k];
+        rgba[k] = (uint8_t)lrintf(c * 255);
+    }
+    for (size_t k = 0; k < t->count; k++) {
+        const hlod_bnode *n = &t->nodes[k];
+        const hlod_mesh *m = &n->mesh;
+        double lo[3], hi[3];
+        hlod_mesh_bounds(m, lo, hi);
+        hlod_store_payload_desc d = {0};
+        d.vertex_count = (uint32_t)m->vertex_count;
+        d.positions = m->positions;
+        for (int a = 0; a < 3; a++)
+            d.origin[a] = 0.5 * (lo[a] + hi[a]);
+        float *normals = NULL;
+        uint8_t *colors = NULL;
+        if (m->normals) {
+            d.normals = m->normals;
+        } else {
+            normals = vertex_normals(m);
+            if (!normals)
+                return HLOD_ERR_NOMEM;
+            d.normals = normals;
+        }
+        d.tri_count = (uint32_t)m->tri_count;
+        d.indices = m->indices;
+        if (n->tex.width && m->uvs) {
+            d.uvs = m->uvs;
+            d.tex_tri_count = d.tri_count;
+            d.tex_width = (uint32_t)n->tex.width;
+            d.tex_height = (uint32_t)n->tex.height;
+            d.tex_channels = (uint32_t)n->tex.channels;
+            d.pixels = n->tex.pixels;
+        } else {
+            colors = malloc(m->vertex_count * 4 + 1);
+            if (!colors) {
+                free(normals);
+                return HLOD_ERR_NOMEM;
+            }
+            for (size_t v = 0; v < m->vertex_count; v++)
+                memcpy(colors + 4 * v, rgba, 4);
+            d.colors = colors;
+        }
+        hlod_result r = hlod_store_writer_add(J->w, &d, &o->nodes[k]);
+        free(normals);
+        free(colors);
+        if (r != HLOD_OK)
+            return r;
+        o->nodes[k].error = n->error;
+        o->nodes[k].render_flags = b->solid ? HLOD_RENDER_SOLID : 0;
+        o->parent[k] = n->parent;
+        o->tris_total += m->tri_count;
+        if (n->depth + 1 > o->depth)
+            o->depth = n->depth + 1;
+        int leaf = 1;
+        for (size_t c = k + 1; c < t->count && leaf; c++)
+            leaf = t->nodes[c].parent != k;
+        if (leaf)
+            o->tris_leaf += m->tri_count;
+    }
+    return HLOD_OK;
+}
+
+/* called from a build thread, with turn_mu held: emits every ready block
+ * from J->turn on (releasing the lock while it writes). */
+static void emit_ready(job *J)
+{
+    if (J->emitting)
+        return;
+    J->emitting = 1;
+    while (J->turn < J->bs->n && J->ready[J->turn]) {
+        size_t bi = J->turn;
+        pthread_mutex_unlock(&J->turn_mu);
+        hlod_result r = atomic_load(&J->failed) ? HLOD_OK : emit_block(J, bi, &J->slot[bi]);
+        if (r != HLOD_OK) {
+            hlod_logf(J->lg, HLOD_LOG_ERROR, "block %s: cannot store: %s", J->bs->b[bi].name, hlod_result_str(r));
+            atomic_store(&J->failed, 1);
+        }
+        hlod_btree_free(&J->slot[bi]);
+        atomic_fetch_add(&J->done_blocks, 1);
+        pthread_mutex_lock(&J->turn_mu);
+        J->turn = bi + 1;
+        pthread_cond_broadcast(&J->turn_cv);
+    }
+    J->emitting = 0;
+}
+
+/* called from a build thread */
+static void *worker(void *arg)
+{
+    job *J = arg;
+    for (;;) {
+        pthread_mutex_lock(&J->turn_mu);
+        while (J->next < J->bs->n && J->next >= J->turn + LOOKAHEAD && !atomic_load(&J->failed))
+            pthread_cond_wait(&J->turn_cv, &J->turn_mu);
+        size_t bi = J->next++;
+        pthread_mutex_unlock(&J->turn_mu);
+        if (bi >= J->bs->n || atomic_load(&J->failed))
+            break;
+        block *b = &J->bs->b[bi];
+        hlod_image tex = {0};
+        const hlod_image *texp = NULL;
+        hlod_result r = HLOD_OK;
+        if (b->texture) {
+            r = hlod_image_read(b->texture, &tex, J->lg);
+            if (r == HLOD_OK)
+                texp = &tex;
+            else {
+                hlod_logf(J->lg, HLOD_LOG_WARN, "block %s: texture %s unreadable, built untextured", b->name,
+                          b->texture);
+                free(b->mesh.uvs);
+                b->mesh.uvs = NULL;
+                r = HLOD_OK;
+            }
+        }
+        b->solid = hlod_mesh_is_solid(&b->mesh);
+        hlod_btree t = {0};
+        hlod_build_params bp = J->bp;
+        bp.logger = J->lg;
+        if (r == HLOD_OK)
+            r = J->desc->method == HLOD_BUILD_METIS ? hlod_build_metis(&b->mesh, texp, &bp, &t)
+                                                    : hlod_build_cutplane(&b->mesh, texp, &bp, &t);
+        if (r != HLOD_OK) {
+            hlod_logf(J->lg, HLOD_LOG_ERROR, "block %s (%zu triangles): %s", b->name, b->mesh.tri_count,
+                      hlod_result_str(r));
+            atomic_store(&J->failed, 1);
+            hlod_btree_free(&t);
+        }
+        hlod_image_free(&tex);
+        hlod_mesh_free(&b->mesh);
+        pthread_mutex_lock(&J->turn_mu);
+        J->slot[bi] = t;
+        J->ready[bi] = 1;
+        emit_ready(J);
+        pthread_cond_broadcast(&J->turn_cv);
+        pthread_mutex_unlock(&J->turn_mu);
+    }
+    return NULL;
+}
+
+/* ---- the pipeline ----------------------------------------------------------- */
+
+void hlod_build_desc_defaults(hlod_build_desc *d)
+{
+    memset(d, 0, sizeof *d);
+    d->method = HLOD_BUILD_CUTPLANE;
+    d->desired_tris = 4000;
+    d->level_factor = 3;
+    d->voxel_tris = 500;
+    d->leaf_tris = 4000;
+    d->node_tris = 2000;
+    d->c_tex = 0.5;
+    d->seed = 1;
+}
+
+/* The output folder must exist before hours of work. */
+static hlod_result check_out_dir(const char *out, const hlod_logger *lg)
+{
+    char dir[4096];
+    snprintf(dir, sizeof dir, "%s", out);
+    char *slash = strrchr(dir, '/');
+    if (!slash)
+        return HLOD_OK;
+    *slash = 0;
+    struct stat st;
+    if (dir[0] && (stat(dir, &st) != 0 || !S_ISDIR(st.st_mode))) {
+        hlod_logf(lg, HLOD_LOG_ERROR, "%s: output folder %s does not exist", out, dir);
+        return HLOD_ERR_IO;
+    }
+    return HLOD_OK;
+}
+
+/* Reads every input and splits it into blocks; the blocks own copies of
+ * the geometry, the meshes keep only what blocks borrow (texture paths). */
+static hlod_result read_blocks(const hlod_build_desc *d, const char *const *inputs, size_t n,
+                               hlod_mesh *meshes, blocks *bs, size_t *tris_in,
+                               const hlod_logger *lg)
+{
+    for (size_t i = 0; i < n; i++) {
+        hlod_import_desc idesc = {lg, 0};
+        hlod_result r = hlod_mesh_import(inputs[i], &idesc, &meshes[i], NULL);
+        if (r != HLOD_OK) {
+            hlod_logf(lg, HLOD_LOG_ERROR, "%s: cannot read: %s", inputs[i], hlod_result_str(r));
+            return r;
+        }
+        *tris_in += meshes[i].tri_count;
+        const char *base = strrchr(inputs[i], '/');
+        r = make_blocks(&meshes[i], base ? base + 1 : inputs[i], d->grid, bs);
+        if (r != HLOD_OK) {
+            hlod_logf(lg, HLOD_LOG_ERROR, "%s: cannot split into blocks: %s", inputs[i],
+                      hlod_result_str(r));
+            return r;
+        }
+        hlod_mesh *m = &meshes[i];
+        free(m->positions);
+        free(m->normals);
+        free(m->uvs);
+        free(m->indices);
+        free(m->tri_material);
+        m->positions = NULL;
+        m->normals = NULL;
+        m->uvs = NULL;
+        m->indices = NULL;
+        m->tri_material = NULL;
+    }
+    if (!bs->n) {
+        hlod_logf(lg, HLOD_LOG_ERROR, "no triangles in the input");
+        return HLOD_ERR_EMPTY;
+    }
+    return HLOD_OK;
+}
+
+/* Builds every block on the worker threads and streams their nodes into
+ * w; the calling thread reports progress. */
+static hlod_result build_blocks(const hlod_build_desc *d, blocks *bs, block_out *outs,
+                                hlod_store_writer *w, const hlod_logger *lg)
+{
+    job J = {.desc = d, .bs = bs, .out = outs, .w = w, .lg = lg};
+    J.bp.desired_tris = d->desired_tris;
+    J.bp.level_factor = d->level_factor;
+    J.bp.voxel_tris = d->voxel_tris;
+    J.bp.leaf_tris = d->leaf_tris;
+    J.bp.node_tris = d->node_tris;
+    J.bp.seed = d->seed;
+    J.slot = calloc(bs->n, sizeof *J.slot);
+    J.ready = calloc(bs->n, 1);
+    long cpus = sysconf(_SC_NPROCESSORS_ONLN);
+    size_t threads = d->threads ? d->threads : cpus > 0 ? (size_t)cpus : 1;
+    size_t nth = threads < bs->n ? threads : bs->n;
+    pthread_t *th = calloc(nth, sizeof *th);
+    if (!J.slot || !J.ready || !th) {
+        free(J.slot);
+        free(J.ready);
+        free(th);
+        return HLOD_ERR_NOMEM;
+    }
+    pthread_mutex_init(&J.turn_mu, NULL);
+    pthread_cond_init(&J.turn_cv, NULL);
+    size_t started = 0;
+    for (; started < nth; started++)
+        if (pthread_create(&th[started], NULL, worker, &J) != 0)
+            break;
+    if (!started)
+        hlod_logf(lg, HLOD_LOG_ERROR, "cannot start build threads");
+    while (started && atomic_load(&J.done_blocks) < bs->n && !atomic_load(&J.failed)) {
+        if (d->progress)
+            d->progress(d->progress_user, atomic_load(&J.done_blocks), bs->n);
+        nanosleep(&(struct timespec){0, 100000000}, NULL);
+    }
+    for (size_t i = 0; i < started; i++)
+        pthread_join(th[i], NULL);
+    free(th);
+    pthread_mutex_destroy(&J.turn_mu);
+    pthread_cond_destroy(&J.turn_cv);
+    for (size_t b = 0; b < bs->n; b++)
+        hlod_btree_free(&J.slot[b]);
+    free(J.slot);
+    free(J.ready);
+    return !started || atomic_load(&J.failed) ? HLOD_ERR_IO : HLOD_OK;
+}
+
+/* The global node list (blocks in order, parents as global indices) and
+ * the store's finish.  Consumes w. */
+static hlod_result finish_store(hlod_store_writer *w, const blocks *bs, const block_out *outs,
+                                const char *out_path, hlod_build_report *rep,
+                                const hlod_logger *lg)
+{
+    size_t total = 0;
+    for (size_t b = 0; b < bs->n; b++) {
+        total += outs[b].count;
+        rep->tris_leaf += outs[b].tris_leaf;
+        rep->tris_total += outs[b].tris_total;
+        rep->levels = outs[b].depth > rep->levels ? outs[b].depth : rep->levels;
+    }
+    hlod_store_node *all = total < UINT32_MAX ? calloc(total, sizeof *all) : NULL;
+    if (!all) {
+        hlod_store_writer_abort(w);
+        return total < UINT32_MAX ? HLOD_ERR_NOMEM : HLOD_ERR_INVALID_ARG;
+    }
+    size_t base = 0;
+    for (size_t b = 0; b < bs->n; b++) {
+        for (size_t k = 0; k < outs[b].count; k++) {
+            hlod_store_node *n = &all[base + k];
+            *n = outs[b].nodes[k];
+            n->parent = outs[b].parent[k] == HLOD_BNODE_NONE ? HLOD_STORE_NO_PARENT
+                                                             : (uint32_t)(base + outs[b].parent[k]);
+            n->block = (uint32_t)b;
+        }
+        base += outs[b].count;
+    }
+    hlod_result r = hlod_store_writer_finish(w, all, (uint32_t)total, NULL);
+    free(all);
+    if (r != HLOD_OK)
+        hlod_logf(lg, HLOD_LOG_ERROR, "%s: cannot finish the store: %s", out_path,
+                  hlod_result_str(r));
+    rep->nodes = total;
+    return r;
+}
+
+hlod_result hlod_build_store(const hlod_build_desc *d, const char *const *inputs, size_t n,
+                             const char *out_path, const hlod_logger *lg,
+                             hlod_build_report *report)
+{
+    hlod_build_report rep = {0};
+    if (report)
+        *report = rep;
+    if (!d || !inputs || !n || !out_path)
+        return HLOD_ERR_INVALID_ARG;
+    hlod_result r = check_out_dir(out_path, lg);
+    if (r != HLOD_OK)
+        return r;
+    hlod_mesh *meshes = calloc(n, sizeof *meshes);
+    blocks bs = {0};
+    hlod_store_writer *w = NULL;
+    block_out *outs = NULL;
+    r = meshes ? read_blocks(d, inputs, n, meshes, &bs, &rep.tris_in, lg) : HLOD_ERR_NOMEM;
+    if (r == HLOD_OK) {
+        hlod_store_writer_desc wd = {0};
+        int metis = d->method == HLOD_BUILD_METIS;
+        wd.build.method = metis ? HLOD_STORE_METHOD_METIS : HLOD_STORE_METHOD_CUTPLANE;
+        wd.build.desired_tris = metis ? 0 : d->desired_tris;
+        wd.build.level_factor = metis ? 0 : d->level_factor;
+        wd.build.voxel_tris = metis ? d->voxel_tris : 0;
+        wd.build.leaf_tris = metis ? d->leaf_tris : 0;
+        wd.build.node_tris = metis ? d->node_tris : 0;
+        wd.build.c_tex = d->c_tex;
+        wd.logger = lg;
+        r = hlod_store_writer_open(out_path, &wd, &w);
+        if (r != HLOD_OK)
+            hlod_logf(lg, HLOD_LOG_ERROR, "%s: cannot create: %s", out_path, hlod_result_str(r));
+    }
+    if (r == HLOD_OK && !(outs = calloc(bs.n, sizeof *outs)))
+        r = HLOD_ERR_NOMEM;
+    if (r == HLOD_OK)
+        r = build_blocks(d, &bs, outs, w, lg);
+    rep.blocks = bs.n;
+    if (r == HLOD_OK) {
+        r = finish_store(w, &bs, outs, out_path, &rep, lg);
+        w = NULL;
+    }
+    if (w)
+        hlod_store_writer_abort(w);
+    if (outs)
+        for (size_t b = 0; b < bs.n; b++) {
+            free(outs[b].nodes);
+            free(outs[b].parent);
+        }
+    free(outs);
+    for (size_t b = 0; b < bs.n; b++)
+        hlod_mesh_free(&bs.b[b].mesh);
+    free(bs.b);
+    if (meshes)
+        for (size_t i = 0; i < n; i++)
+            hlod_mesh_free(&meshes[i]);
+    free(meshes);
+    if (report && r == HLOD_OK)
+        *report = rep;
+    return r;
+}
