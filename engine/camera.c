@@ -12,17 +12,11 @@
 #include <string.h>
 
 #include "hlod/camera.h"
+#include "hlod/vec3.h"
 
 static int finite3(const double v[3])
 {
     return isfinite(v[0]) && isfinite(v[1]) && isfinite(v[2]);
-}
-
-static void cross(const double a[3], const double b[3], double out[3])
-{
-    out[0] = a[1] * b[2] - a[2] * b[1];
-    out[1] = a[2] * b[0] - a[0] * b[2];
-    out[2] = a[0] * b[1] - a[1] * b[0];
 }
 
 /* Scales v to unit length; returns 0 (v untouched) when its length is zero
@@ -55,12 +49,12 @@ hlod_result hlod_camera_look_at(hlod_camera *cam, const double eye[3], const dou
     double u[3] = {up[0], up[1], up[2]}, s[3];
     if (!normalize(f) || !normalize(u))
         return HLOD_ERR_INVALID_ARG;
-    cross(f, u, s);
+    hlod_cross3(s, f, u);
     /* |s| = sin(angle between f and up): parallel within ~1e-6 degrees is
      * rejected, the basis would be mostly rounding noise */
     if (!(sqrt(s[0] * s[0] + s[1] * s[1] + s[2] * s[2]) > 1e-8) || !normalize(s))
         return HLOD_ERR_INVALID_ARG;
-    cross(s, f, u);
+    hlod_cross3(u, s, f);
 
     for (int k = 0; k < 3; k++) {
         cam->position[k] = eye[k];

@@ -327,36 +327,6 @@ typedef struct job {
 
 #define LOOKAHEAD 8
 
-/* Area-weighted vertex normals for a node without any. */
-static float *vertex_normals(const hlod_mesh *m)
-{
-    double *acc = calloc(m->vertex_count * 3 + 1, sizeof *acc);
-    float *n = malloc((m->vertex_count * 3 + 1) * sizeof *n);
-    if (!acc || !n) {
-        free(acc);
-        free(n);
-        return NULL;
-    }
-    for (size_t t = 0; t < m->tri_count; t++) {
-        const uint32_t *ix = m->indices + 3 * t;
-        const double *a = m->positions + 3 * (size_t)ix[0], *b = m->positions + 3 * (size_t)ix[1],
-                     *c = m->positions + 3 * (size_t)ix[2];
-        double u[3] = {b[0] - a[0], b[1] - a[1], b[2] - a[2]}, v[3] = {c[0] - a[0], c[1] - a[1], c[2] - a[2]};
-        double f[3] = {u[1] * v[2] - u[2] * v[1], u[2] * v[0] - u[0] * v[2], u[0] * v[1] - u[1] * v[0]};
-        for (int k = 0; k < 3; k++)
-            for (int j = 0; j < 3; j++)
-                acc[3 * (size_t)ix[k] + j] += f[j];
-    }
-    for (size_t v = 0; v < m->vertex_count; v++) {
-        double *a = acc + 3 * v;
-        double l = sqrt(a[0] * a[0] + a[1] * a[1] + a[2] * a[2]);
-        for (int j = 0; j < 3; j++)
-            n[3 * v + j] = l > 0 ? (float)(a[j] / l) : (j == 2 ? 1.0f : 0.0f);
-    }
-    free(acc);
-    return n;
-}
-
 static hlod_result emit_block(job *J, size_t bi, hlod_btree *t)
 {
     block *b = &J->bs->b[bi];
@@ -386,9 +356,11 @@ static hlod_result emit_block(job *J, size_t bi, hlod_btree *t)
         if (m->normals) {
             d.normals = m->normals;
         } else {
-            normals = vertex_normals(m);
-            if (!normals)
+            normals = malloc((m->vertex_count * 3 + 1) * sizeof *normals);
+            if (!normals || hlod_mesh_vertex_normals(m, normals) != HLOD_OK) {
+                free(normals);
                 return HLOD_ERR_NOMEM;
+            }
             d.normals = normals;
         }
         d.tri_count = (uint32_t)m->tri_count;

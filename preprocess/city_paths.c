@@ -32,7 +32,6 @@
 #include <string.h>
 #include <sys/stat.h>
 
-#include "atomic_file.h"
 
 /* Street grid: keep in step with preprocess/city.c. */
 #define CELL_W 80.0
@@ -455,57 +454,20 @@ hlod_result hlod_city_path(const hlod_city_desc *desc, const char *name, hlod_pa
     return r;
 }
 
-/* ---- text (the format of hlod_path_to_text) ---- */
+/* ---- text: the shared path writer (hlod_path_to_text) ---- */
 
-static void format_double(char buf[32], double v)
+/* The comment heading a city path file: what made it, and the path. */
+static void city_comment(const hlod_city_desc *desc, const char *name, char *out, size_t n)
 {
-    for (int prec = 15; prec <= 17; prec++) {
-        snprintf(buf, 32, "%.*g", prec, v);
-        double back = strtod(buf, NULL);
-        if (memcmp(&back, &v, sizeof v) == 0)
-            return;
-    }
-}
-
-typedef struct sbuf {
-    char *p;
-    size_t len, cap;
-    int oom;
-} sbuf;
-
-static void put(sbuf *b, const char *s)
-{
-    size_t n = strlen(s);
-    if (b->oom)
-        return;
-    if (b->len + n + 1 > b->cap) {
-        size_t nc = b->cap ? b->cap : 4096;
-        while (nc < b->len + n + 1)
-            nc *= 2;
-        char *np = realloc(b->p, nc);
-        if (!np) {
-            b->oom = 1;
-            return;
-        }
-        b->p = np;
-        b->cap = nc;
-    }
-    memcpy(b->p + b->len, s, n + 1);
-    b->len += n;
-}
-
-/* Comment lines as "# line" ("#" when empty). */
-static void put_comment(sbuf *b, const char *c)
-{
-    char line[256];
-    while (*c) {
-        const char *nl = strchr(c, '\n');
-        size_t n = nl ? (size_t)(nl - c) : strlen(c);
-        assert(n < sizeof line - 3);
-        snprintf(line, sizeof line, n ? "# %.*s\n" : "#\n", (int)n, c);
-        put(b, line);
-        c += n + (nl ? 1 : 0);
-    }
+    char o[3][32];
+    for (int i = 0; i < 3; i++)
+        hlod_path_format_double(o[i], desc->origin[i]);
+    snprintf(out, n,
+             "hlod camera path '%s' for the city of: hlod-gen-city --blocks %zu --origin %s %s %s\n"
+             "(streets depend on the block count and origin only, not on seed or budget).\n"
+             "Made by hlod-gen-city --paths (preprocess/city_paths.c); z up, metres.\n%s",
+             name, desc->blocks ? desc->blocks : (size_t)200, o[0], o[1], o[2],
+             DESCRIPTIONS[path_index(name)]);
 }
 
 hlod_result hlod_city_path_text(const hlod_city_desc *desc, const char *name, char **text,
@@ -520,38 +482,11 @@ hlod_result hlod_city_path_text(const hlod_city_desc *desc, const char *name, ch
     hlod_result r = hlod_city_path(desc, name, &p);
     if (r != HLOD_OK)
         return r;
-    char head[512], o[3][32];
-    for (int i = 0; i < 3; i++)
-        format_double(o[i], desc->origin[i]);
-    snprintf(head, sizeof head,
-             "hlod camera path '%s' for the city of: hlod-gen-city --blocks %zu --origin %s %s %s\n"
-             "(streets depend on the block count and origin only, not on seed or budget).\n"
-             "Made by hlod-gen-city --paths (preprocess/city_paths.c); z up, metres.\n",
-             name, desc->blocks ? desc->blocks : (size_t)200, o[0], o[1], o[2]);
-    sbuf b = {0};
-    put_comment(&b, head);
-    put_comment(&b, DESCRIPTIONS[path_index(name)]);
-    put(&b, "# t px py pz lx ly lz\n");
-    for (size_t i = 0; i < p.count; i++) {
-        const double *v = &p.keys[i].t;
-        for (int j = 0; j < 7; j++) {
-            char num[32];
-            format_double(num, v[j]);
-            if (j)
-                put(&b, " ");
-            put(&b, num);
-        }
-        put(&b, "\n");
-    }
-    free(p.keys);
-    if (b.oom) {
-        free(b.p);
-        return HLOD_ERR_NOMEM;
-    }
-    *text = b.p;
-    if (len)
-        *len = b.len;
-    return HLOD_OK;
+    char comment[2048];
+    city_comment(desc, name, comment, sizeof comment);
+    r = hlod_path_to_text(&p, comment, text, len);
+    hlod_path_free(&p);
+    return r;
 }
 
 hlod_result hlod_city_paths_write(const hlod_city_desc *desc, const char *dir,
@@ -582,17 +517,15 @@ hlod_result hlod_city_paths_write(const hlod_city_desc *desc, const char *dir,
     }
     hlod_result r = HLOD_OK;
     for (int i = 0; i < HLOD_CITY_PATH_COUNT && r == HLOD_OK; i++) {
-        char *text = NULL;
-        size_t len = 0;
-        snprintf(file, n, "%s/%s.path", dir, hlod_city_path_names[i]);
-        if ((r = hlod_city_path_text(desc, hlod_city_path_names[i], &text, &len)) != HLOD_OK)
+        const char *name = hlod_city_path_names[i];
+        hlod_path p = {0};
+        char comment[2048];
+        snprintf(file, n, "%s/%s.path", dir, name);
+        if ((r = hlod_city_path(desc, name, &p)) != HLOD_OK)
             break;
-        hlod_atomic_file f;
-        if ((r = hlod_atomic_open(&f, file, lg)) == HLOD_OK) {
-            fwrite(text, 1, len, f.fp);   /* errors surface in commit (ferror) */
-            r = hlod_atomic_commit(&f, lg);
-        }
-        free(text);
+        city_comment(desc, name, comment, sizeof comment);
+        r = hlod_path_write(&p, file, comment, lg);
+        hlod_path_free(&p);
     }
     free(file);
     return r;

@@ -26,6 +26,7 @@
  *   The combined mean weights each side by its surface area.
  */
 #include "hlod/distance.h"
+#include "hlod/vec3.h"
 #include "distance_grid.h"
 
 #include <assert.h>
@@ -65,25 +66,6 @@ _Static_assert(sizeof(hlod_dgrid_tri) % 64 == 0, "hlod_dgrid_tri must fill whole
 static inline double dmin(double a, double b) { return a < b ? a : b; }
 static inline double dmax(double a, double b) { return a > b ? a : b; }
 
-static inline double dot3(const double a[3], const double b[3])
-{
-    return a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
-}
-
-static inline void sub3(double r[3], const double a[3], const double b[3])
-{
-    r[0] = a[0] - b[0];
-    r[1] = a[1] - b[1];
-    r[2] = a[2] - b[2];
-}
-
-static inline void cross3(double r[3], const double a[3], const double b[3])
-{
-    r[0] = a[1] * b[2] - a[2] * b[1];
-    r[1] = a[2] * b[0] - a[0] * b[2];
-    r[2] = a[0] * b[1] - a[1] * b[0];
-}
-
 /* ---- splitmix64 (Steele, Lea, Flood, OOPSLA 2014) ----------------------- */
 
 static inline uint64_t splitmix64(uint64_t *s)
@@ -105,15 +87,15 @@ static inline double rand01(uint64_t *s)
 static double seg_dist2(const double p[3], const double a[3], const double b[3])
 {
     double ab[3], ap[3];
-    sub3(ab, b, a);
-    sub3(ap, p, a);
-    double len2 = dot3(ab, ab), t = 0;
+    hlod_sub3(ab, b, a);
+    hlod_sub3(ap, p, a);
+    double len2 = hlod_dot3(ab, ab), t = 0;
     if (len2 > 0) {
-        t = dot3(ap, ab) / len2;
+        t = hlod_dot3(ap, ab) / len2;
         t = t < 0 ? 0 : t > 1 ? 1 : t;
     }
     double d[3] = {ap[0] - t * ab[0], ap[1] - t * ab[1], ap[2] - t * ab[2]};
-    return dot3(d, d);
+    return hlod_dot3(d, d);
 }
 
 /* Ericson, Real-Time Collision Detection, ClosestPtPointTriangle: find the
@@ -123,16 +105,16 @@ static double ericson_dist2(const double p[3], const hlod_dgrid_tri *t)
 {
     const double *a = t->a, *b = t->b, *c = t->c;
     double ab[3], ac[3], ap[3], bp[3], cp[3], q[3];
-    sub3(ab, b, a);
-    sub3(ac, c, a);
-    sub3(ap, p, a);
-    double d1 = dot3(ab, ap), d2 = dot3(ac, ap);
+    hlod_sub3(ab, b, a);
+    hlod_sub3(ac, c, a);
+    hlod_sub3(ap, p, a);
+    double d1 = hlod_dot3(ab, ap), d2 = hlod_dot3(ac, ap);
     if (d1 <= 0 && d2 <= 0) {
         memcpy(q, a, sizeof q);
         goto done;
     }
-    sub3(bp, p, b);
-    double d3 = dot3(ab, bp), d4 = dot3(ac, bp);
+    hlod_sub3(bp, p, b);
+    double d3 = hlod_dot3(ab, bp), d4 = hlod_dot3(ac, bp);
     if (d3 >= 0 && d4 <= d3) {
         memcpy(q, b, sizeof q);
         goto done;
@@ -144,8 +126,8 @@ static double ericson_dist2(const double p[3], const hlod_dgrid_tri *t)
             q[k] = a[k] + v * ab[k];
         goto done;
     }
-    sub3(cp, p, c);
-    double d5 = dot3(ab, cp), d6 = dot3(ac, cp);
+    hlod_sub3(cp, p, c);
+    double d5 = hlod_dot3(ab, cp), d6 = hlod_dot3(ac, cp);
     if (d6 >= 0 && d5 <= d6) {
         memcpy(q, c, sizeof q);
         goto done;
@@ -173,8 +155,8 @@ static double ericson_dist2(const double p[3], const hlod_dgrid_tri *t)
     }
 done:;
     double d[3];
-    sub3(d, p, q);
-    return dot3(d, d);
+    hlod_sub3(d, p, q);
+    return hlod_dot3(d, d);
 }
 
 double hlod_dgrid_tri_dist2(const double p[3], const hlod_dgrid_tri *t)
@@ -194,14 +176,14 @@ double hlod_dgrid_tri_dist2(const double p[3], const hlod_dgrid_tri *t)
      * beyond one of that vertex's edges, by Cauchy-Schwarz), so only the
      * edges with a negative coordinate need measuring. */
     double e1[3], e2[3], ap[3];
-    sub3(e1, t->b, t->a);
-    sub3(e2, t->c, t->a);
-    sub3(ap, p, t->a);
-    double d1 = dot3(e1, ap), d2 = dot3(e2, ap);
+    hlod_sub3(e1, t->b, t->a);
+    hlod_sub3(e2, t->c, t->a);
+    hlod_sub3(ap, p, t->a);
+    double d1 = hlod_dot3(e1, ap), d2 = hlod_dot3(e2, ap);
     double v = (t->g11 * d1 - t->g01 * d2) * t->inv_det;
     double w = (t->g00 * d2 - t->g01 * d1) * t->inv_det;
     if (v >= 0 && w >= 0 && v + w <= 1) {
-        double s = dot3(t->n, ap);
+        double s = hlod_dot3(t->n, ap);
         return s * s;
     }
     double best = DBL_MAX;
@@ -263,7 +245,7 @@ static int plane_hits_cell(const hlod_dgrid *g, const hlod_dgrid_tri *t, int x, 
     double c[3] = {g->lo[0] + (x + 0.5) * g->h - t->a[0], g->lo[1] + (y + 0.5) * g->h - t->a[1],
                    g->lo[2] + (z + 0.5) * g->h - t->a[2]};
     double r = half * (fabs(t->n[0]) + fabs(t->n[1]) + fabs(t->n[2]));
-    return fabs(dot3(t->n, c)) <= r + CELL_EPS * g->h * 4;
+    return fabs(hlod_dot3(t->n, c)) <= r + CELL_EPS * g->h * 4;
 }
 
 /* Visits the cells triangle t may touch: counts them (fill == NULL) or
@@ -336,14 +318,14 @@ hlod_result hlod_dgrid_build(hlod_dgrid *g, const double *positions, const uint3
             }
         }
         double ab[3], ac[3], n[3];
-        sub3(ab, t->b, t->a);
-        sub3(ac, t->c, t->a);
-        cross3(n, ab, ac);
-        double n2 = dot3(n, n);
+        hlod_sub3(ab, t->b, t->a);
+        hlod_sub3(ac, t->c, t->a);
+        hlod_cross3(n, ab, ac);
+        double n2 = hlod_dot3(n, n);
         /* sin^2 of the corner angle below 1e-20: the triangle is a segment
          * for all purposes, and Ericson's face-region division would
          * divide by (almost) zero.  A zero normal marks it. */
-        double g00 = dot3(ab, ab), g01 = dot3(ab, ac), g11 = dot3(ac, ac);
+        double g00 = hlod_dot3(ab, ab), g01 = hlod_dot3(ab, ac), g11 = hlod_dot3(ac, ac);
         int degenerate = !(n2 > 1e-20 * g00 * g11);
         double inv = degenerate ? 0 : 1.0 / sqrt(n2);
         for (int k = 0; k < 3; k++)
@@ -374,10 +356,10 @@ hlod_result hlod_dgrid_build(hlod_dgrid *g, const double *positions, const uint3
     }
     for (size_t i = 0; i < tri_count; i++) {
         double ab[3], ac[3], n[3];
-        sub3(ab, raw[i].b, raw[i].a);
-        sub3(ac, raw[i].c, raw[i].a);
-        cross3(n, ab, ac);
-        area += 0.5 * sqrt(dot3(n, n));
+        hlod_sub3(ab, raw[i].b, raw[i].a);
+        hlod_sub3(ac, raw[i].c, raw[i].a);
+        hlod_cross3(n, ab, ac);
+        area += 0.5 * sqrt(hlod_dot3(n, n));
     }
     double h = sqrt(1.5 * TRIS_PER_CELL * area / (double)tri_count);
     double target = dmin(MAX_CELLS_PER_TRI * (double)tri_count + 1.0, (double)MAX_CELLS);
@@ -523,8 +505,8 @@ static inline void test_cell(hlod_dgrid *g, const double p[3], size_t cell, doub
          * The 1e-12 margin covers rounding, so a triangle is skipped only
          * when its computed distance could not win either. */
         double ap[3];
-        sub3(ap, p, t->a);
-        double s = dot3(t->n, ap);
+        hlod_sub3(ap, p, t->a);
+        double s = hlod_dot3(t->n, ap);
         if (s * s > *best2 * (1 + 1e-12))
             continue;
         /* So does the distance to its bounding box: it rejects the
@@ -761,10 +743,10 @@ static hlod_result area_samples(const hlod_mesh *m, const double origin[3], size
         for (int j = 0; j < 3; j++)
             for (int k = 0; k < 3; k++)
                 v[j][k] = pos[3 * (size_t)idx[3 * t + j] + k] - origin[k];
-        sub3(e1, v[1], v[0]);
-        sub3(e2, v[2], v[0]);
-        cross3(n, e1, e2);
-        total += 0.5 * sqrt(dot3(n, n));
+        hlod_sub3(e1, v[1], v[0]);
+        hlod_sub3(e2, v[2], v[0]);
+        hlod_cross3(n, e1, e2);
+        total += 0.5 * sqrt(hlod_dot3(n, n));
         cum[t] = total;
     }
     *area = total;
@@ -1004,10 +986,10 @@ static int same_point(const double *a, const double *b)
 static double side2(const double n[3], const double *a, const double *b, const double *p)
 {
     double e[3], f[3], c[3];
-    sub3(e, b, a);
-    sub3(f, p, a);
-    cross3(c, e, f);
-    return dot3(n, c);
+    hlod_sub3(e, b, a);
+    hlod_sub3(f, p, a);
+    hlod_cross3(c, e, f);
+    return hlod_dot3(n, c);
 }
 
 /* Are u and v coplanar, sharing an edge, on opposite sides of it?  Returns
@@ -1017,7 +999,7 @@ static double side2(const double n[3], const double *a, const double *b, const d
  * "no" only costs a split. */
 static int convex_pair(const hlod_dgrid_tri *u, const hlod_dgrid_tri *v, hlod_dgrid_tri *part)
 {
-    if (dot3(u->n, u->n) == 0 || dot3(v->n, v->n) == 0 || dot3(u->n, v->n) < 1 - 1e-12)
+    if (hlod_dot3(u->n, u->n) == 0 || hlod_dot3(v->n, v->n) == 0 || hlod_dot3(u->n, v->n) < 1 - 1e-12)
         return 0;
     const double *pu[3] = {u->a, u->b, u->c}, *pv[3] = {v->a, v->b, v->c};
     int su[2], sv[2], ns = 0;
@@ -1036,11 +1018,11 @@ static int convex_pair(const hlod_dgrid_tri *u, const hlod_dgrid_tri *v, hlod_dg
     const double *ou = pu[3 - su[0] - su[1]], *ov = pv[3 - sv[0] - sv[1]];
     /* ov in u's plane */
     double d[3];
-    sub3(d, ov, u->a);
+    hlod_sub3(d, ov, u->a);
     double e[3];
-    sub3(e, s1, s0);
-    double scale = dot3(e, e);
-    if (fabs(dot3(u->n, d)) > 1e-9 * sqrt(scale))
+    hlod_sub3(e, s1, s0);
+    double scale = hlod_dot3(e, e);
+    if (fabs(hlod_dot3(u->n, d)) > 1e-9 * sqrt(scale))
         return 0;
     /* opposite sides of the shared edge, and the shared edge's ends on
      * opposite sides of the other diagonal: a convex quad */
@@ -1065,9 +1047,9 @@ static int convex_pair(const hlod_dgrid_tri *u, const hlod_dgrid_tri *v, hlod_dg
     double x[3], qo[3], qx[3];
     for (int k = 0; k < 3; k++)
         x[k] = ou[k] + t * (r[k] - ou[k]);
-    sub3(qo, ov, q);
-    sub3(qx, x, q);
-    double along = dot3(qx, qo) / dot3(qo, qo);   /* x = q + along (ov - q) */
+    hlod_sub3(qo, ov, q);
+    hlod_sub3(qx, x, q);
+    double along = hlod_dot3(qx, qo) / hlod_dot3(qo, qo);   /* x = q + along (ov - q) */
     if (along > 1 && along <= 1 + 1e-12)
         memcpy(x, ov, sizeof x);                  /* a straight angle at r */
     else if (!(along >= 0 && along <= 1))
@@ -1077,10 +1059,10 @@ static int convex_pair(const hlod_dgrid_tri *u, const hlod_dgrid_tri *v, hlod_dg
     memcpy(part->c, x, sizeof part->c);
     /* ericson_dist2 needs a proper triangle */
     double e1[3], e2[3], nn[3];
-    sub3(e1, ou, q);
-    sub3(e2, x, q);
-    cross3(nn, e1, e2);
-    return dot3(nn, nn) > 1e-20 * dot3(e1, e1) * dot3(e2, e2) ? 2 : 0;
+    hlod_sub3(e1, ou, q);
+    hlod_sub3(e2, x, q);
+    hlod_cross3(nn, e1, e2);
+    return hlod_dot3(nn, nn) > 1e-20 * hlod_dot3(e1, e1) * hlod_dot3(e2, e2) ? 2 : 0;
 }
 
 /* An upper bound of the distance over the whole sub-triangle, the smaller
@@ -1099,8 +1081,8 @@ static double subtri_upper(const hlod_dgrid *g, const subtri *t, double enough)
     double l2 = 0;
     for (int i = 0; i < 3; i++) {
         double e[3];
-        sub3(e, t->p[(i + 1) % 3], t->p[i]);
-        double d = dot3(e, e);
+        hlod_sub3(e, t->p[(i + 1) % 3], t->p[i]);
+        double d = hlod_dot3(e, e);
         if (d > l2)
             l2 = d;
     }

@@ -39,6 +39,7 @@
  */
 #include "hlod/simplify.h"
 #include "hlod/distance.h"
+#include "hlod/vec3.h"
 #include "prefetch.h"
 
 #include <assert.h>
@@ -266,18 +267,6 @@ static int q_optimum(const quadric *q, double x[3])
     return isfinite(x[0]) && isfinite(x[1]) && isfinite(x[2]);
 }
 
-static void sub3(double r[3], const double a[3], const double b[3])
-{
-    r[0] = a[0] - b[0]; r[1] = a[1] - b[1]; r[2] = a[2] - b[2];
-}
-static void cross3(double r[3], const double a[3], const double b[3])
-{
-    r[0] = a[1] * b[2] - a[2] * b[1];
-    r[1] = a[2] * b[0] - a[0] * b[2];
-    r[2] = a[0] * b[1] - a[1] * b[0];
-}
-static double dot3(const double a[3], const double b[3]) { return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]; }
-
 /* ---------- attribute quadrics ---------- */
 
 static void aq_add(attrq *r, const attrq *a)
@@ -311,7 +300,7 @@ static void aq_reduce(quadric *qr, const attrq *a)
 static void aq_uv(const attrq *a, const double x[3], float uv[2])
 {
     for (int j = 0; j < 2; j++)
-        uv[j] = (float)((dot3(a->g[j], x) + a->d[j]) / a->w);
+        uv[j] = (float)((hlod_dot3(a->g[j], x) + a->d[j]) / a->w);
 }
 
 /* ---------- heap ---------- */
@@ -876,13 +865,13 @@ static void evaluate(state *s, uint32_t a, uint32_t b, int edge_feature,
         /* Reject far-away optima: the "spike" of optimal placement on
          * nearly flat or nearly cylindrical areas. */
         double ab[3], ao[3];
-        sub3(ab, pb, pa);
-        sub3(ao, opt, pa);
-        double l2 = dot3(ab, ab);
-        double t = l2 > 0 ? dot3(ao, ab) / l2 : 0;
+        hlod_sub3(ab, pb, pa);
+        hlod_sub3(ao, opt, pa);
+        double l2 = hlod_dot3(ab, ab);
+        double t = l2 > 0 ? hlod_dot3(ao, ab) / l2 : 0;
         t = t < 0 ? 0 : t > 1 ? 1 : t;
         double d[3] = {ao[0] - t * ab[0], ao[1] - t * ab[1], ao[2] - t * ab[2]};
-        if (dot3(d, d) <= SPIKE_FACTOR * SPIKE_FACTOR * l2) {
+        if (hlod_dot3(d, d) <= SPIKE_FACTOR * SPIKE_FACTOR * l2) {
             add_candidate(e, opt);
             if (!all)
                 return;
@@ -891,7 +880,7 @@ static void evaluate(state *s, uint32_t a, uint32_t b, int edge_feature,
     /* Best point on the edge: minimise the quadric along a + t (b - a). */
     {
         double ab[3];
-        sub3(ab, pb, pa);
+        hlod_sub3(ab, pb, pa);
         const quadric *q = &e->qsum;
         double Ad[3] = {q->a00 * ab[0] + q->a01 * ab[1] + q->a02 * ab[2],
                         q->a01 * ab[0] + q->a11 * ab[1] + q->a12 * ab[2],
@@ -899,9 +888,9 @@ static void evaluate(state *s, uint32_t a, uint32_t b, int edge_feature,
         double Aa[3] = {q->a00 * pa[0] + q->a01 * pa[1] + q->a02 * pa[2],
                         q->a01 * pa[0] + q->a11 * pa[1] + q->a12 * pa[2],
                         q->a02 * pa[0] + q->a12 * pa[1] + q->a22 * pa[2]};
-        double den = dot3(ab, Ad);
+        double den = hlod_dot3(ab, Ad);
         double bd = q->b0 * ab[0] + q->b1 * ab[1] + q->b2 * ab[2];
-        double num = -(dot3(ab, Aa) + bd);
+        double num = -(hlod_dot3(ab, Aa) + bd);
         if (den > 0) {
             double t = num / den;
             if (t > 1e-3 && t < 1 - 1e-3) {
@@ -927,25 +916,25 @@ static double price_plain(const state *s, uint32_t a, uint32_t b)
                  qa->b2 + qb->b2,   qa->c + qb->c};
     const double *pa = s->px[a], *pb = s->px[b];
     double ab[3] = {pb[0] - pa[0], pb[1] - pa[1], pb[2] - pa[2]};
-    double l2 = dot3(ab, ab);
+    double l2 = hlod_dot3(ab, ab);
     double opt[3];
     if (q_optimum(&q, opt)) {
         double ao[3] = {opt[0] - pa[0], opt[1] - pa[1], opt[2] - pa[2]};
-        double t = l2 > 0 ? dot3(ao, ab) / l2 : 0;
+        double t = l2 > 0 ? hlod_dot3(ao, ab) / l2 : 0;
         t = t < 0 ? 0 : t > 1 ? 1 : t;
         double d[3] = {ao[0] - t * ab[0], ao[1] - t * ab[1], ao[2] - t * ab[2]};
-        if (dot3(d, d) <= SPIKE_FACTOR * SPIKE_FACTOR * l2) {
+        if (hlod_dot3(d, d) <= SPIKE_FACTOR * SPIKE_FACTOR * l2) {
             return q_eval(&q, opt);
         }
     }
     double Ad[3] = {q.a00 * ab[0] + q.a01 * ab[1] + q.a02 * ab[2], q.a01 * ab[0] + q.a11 * ab[1] + q.a12 * ab[2],
                     q.a02 * ab[0] + q.a12 * ab[1] + q.a22 * ab[2]};
-    double den = dot3(ab, Ad);
+    double den = hlod_dot3(ab, Ad);
     if (den > 0) {
         double Aa[3] = {q.a00 * pa[0] + q.a01 * pa[1] + q.a02 * pa[2],
                         q.a01 * pa[0] + q.a11 * pa[1] + q.a12 * pa[2],
                         q.a02 * pa[0] + q.a12 * pa[1] + q.a22 * pa[2]};
-        double t = -(dot3(ab, Aa) + q.b0 * ab[0] + q.b1 * ab[1] + q.b2 * ab[2]) / den;
+        double t = -(hlod_dot3(ab, Aa) + q.b0 * ab[0] + q.b1 * ab[1] + q.b2 * ab[2]) / den;
         if (t > 1e-3 && t < 1 - 1e-3) {
             double x[3] = {pa[0] + t * ab[0], pa[1] + t * ab[1], pa[2] + t * ab[2]};
             return q_eval(&q, x);
@@ -1099,12 +1088,12 @@ static int star_ok(const state *s, uint32_t v, const uint32_t *f, size_t nf, con
         int c1 = NEXT3(ENT_C(f[i])), c2 = NEXT3(c1);
         const double *p1 = s->px[tv[c1]], *p2 = s->px[tv[c2]];
         double d[3], a0[3], a1[3], n0[3], n1[3];
-        sub3(d, p2, p1);
-        sub3(a0, pv, p1);
-        sub3(a1, x, p1);
-        cross3(n0, d, a0);
-        cross3(n1, d, a1);
-        double s0 = dot3(n0, n0), s1 = dot3(n1, n1), dn = dot3(n0, n1);
+        hlod_sub3(d, p2, p1);
+        hlod_sub3(a0, pv, p1);
+        hlod_sub3(a1, x, p1);
+        hlod_cross3(n0, d, a0);
+        hlod_cross3(n1, d, a1);
+        double s0 = hlod_dot3(n0, n0), s1 = hlod_dot3(n1, n1), dn = hlod_dot3(n0, n1);
         if (!(s1 > 0))
             return 0;
         if (s0 > 0 && (dn < 0 || dn * dn < FLIP_COS * FLIP_COS * s0 * s1))
@@ -1114,10 +1103,10 @@ static int star_ok(const state *s, uint32_t v, const uint32_t *f, size_t nf, con
          * it was a sliver and only grows longer, not thinner (its height
          * over its longest edge, |n| / e_max, does not shrink): a strip
          * that is all needles can only be simplified by longer needles */
-        double dd = dot3(d, d), e1a = dot3(a1, a1), e1b = e1a - 2 * dot3(a1, d) + dd;
+        double dd = hlod_dot3(d, d), e1a = hlod_dot3(a1, a1), e1b = e1a - 2 * hlod_dot3(a1, d) + dd;
         double l1 = dd + e1a + e1b;
         if (12 * s1 < SLIVER_Q * SLIVER_Q * l1 * l1) {
-            double e0a = dot3(a0, a0), e0b = e0a - 2 * dot3(a0, d) + dd;
+            double e0a = hlod_dot3(a0, a0), e0b = e0a - 2 * hlod_dot3(a0, d) + dd;
             double l0 = dd + e0a + e0b;
             if (s1 * l0 * l0 < s0 * l1 * l1) {
                 double m0 = fmax(dd, fmax(e0a, e0b)), m1 = fmax(dd, fmax(e1a, e1b));
@@ -1637,29 +1626,10 @@ static hlod_result emit(const state *s, const hlod_mesh *in, const double centre
     }
     /* Normals: area-weighted face normals per wedge, so hard edges (split
      * normals) stay hard. */
-    if (m.normals) {
-        double *acc = calloc(nv * 3 + 1, sizeof *acc);
-        if (!acc) {
-            free(remap);
-            hlod_mesh_free(&m);
-            return HLOD_ERR_NOMEM;
-        }
-        for (size_t t = 0; t < nt; t++) {
-            const uint32_t *ix = m.indices + 3 * t;
-            double e0[3], e1[3], n[3];
-            sub3(e0, m.positions + 3 * (size_t)ix[1], m.positions + 3 * (size_t)ix[0]);
-            sub3(e1, m.positions + 3 * (size_t)ix[2], m.positions + 3 * (size_t)ix[0]);
-            cross3(n, e0, e1);
-            for (int c = 0; c < 3; c++)
-                for (int j = 0; j < 3; j++)
-                    acc[3 * (size_t)ix[c] + j] += n[j];
-        }
-        for (size_t v = 0; v < nv; v++) {
-            double l = sqrt(dot3(acc + 3 * v, acc + 3 * v));
-            for (int j = 0; j < 3; j++)
-                m.normals[3 * v + j] = l > 0 ? (float)(acc[3 * v + j] / l) : 0.0f;
-        }
-        free(acc);
+    if (m.normals && hlod_mesh_vertex_normals(&m, m.normals) != HLOD_OK) {
+        free(remap);
+        hlod_mesh_free(&m);
+        return HLOD_ERR_NOMEM;
     }
     free(remap);
     /* Materials and objects (triangle order is kept, so ranges shrink). */
@@ -1902,16 +1872,16 @@ hlod_result hlod_simplify(const hlod_mesh *in, const hlod_simplify_desc *desc,
         const uint32_t *tv = s.tv + 3 * t;
         const double *p0 = s.px[tv[0]], *p1 = s.px[tv[1]], *p2 = s.px[tv[2]];
         double e1[3], e2[3], n[3];
-        sub3(e1, p1, p0);
-        sub3(e2, p2, p0);
-        cross3(n, e1, e2);
-        double l = sqrt(dot3(n, n));
+        hlod_sub3(e1, p1, p0);
+        hlod_sub3(e2, p2, p0);
+        hlod_cross3(n, e1, e2);
+        double l = sqrt(hlod_dot3(n, n));
         if (!(l > 0))
             continue;
         double area = 0.5 * l;
         double un[3] = {n[0] / l, n[1] / l, n[2] / l};
         quadric q = {0};
-        q_plane(&q, un, -dot3(un, p0), area);
+        q_plane(&q, un, -hlod_dot3(un, p0), area);
         for (int c = 0; c < 3; c++) {
             q_add(&s.vx[tv[c]].q, &q);
             s.vx[tv[c]].w += area;
@@ -1922,8 +1892,8 @@ hlod_result hlod_simplify(const hlod_mesh *in, const hlod_simplify_desc *desc,
             double w = area * s.uv_w * s.uv_w;
             double l2 = l * l;
             double e2n[3], ne1[3];
-            cross3(e2n, e2, n);
-            cross3(ne1, n, e1);
+            hlod_cross3(e2n, e2, n);
+            hlod_cross3(ne1, n, e1);
             attrq a = {0};
             a.w = w;
             for (int j = 0; j < 2; j++) {
@@ -1931,7 +1901,7 @@ hlod_result hlod_simplify(const hlod_mesh *in, const hlod_simplify_desc *desc,
                 double g[3];
                 for (int k = 0; k < 3; k++)
                     g[k] = ((s1 - s0) * e2n[k] + (s2 - s0) * ne1[k]) / l2;
-                double d = s0 - dot3(g, p0);
+                double d = s0 - hlod_dot3(g, p0);
                 for (int k = 0; k < 3; k++)
                     a.g[j][k] = w * g[k];
                 a.d[j] = w * d;
@@ -1972,10 +1942,10 @@ hlod_result hlod_simplify(const hlod_mesh *in, const hlod_simplify_desc *desc,
         if ((s.vflag[tv[0]] & VF_LOCK) + (s.vflag[tv[1]] & VF_LOCK) + (s.vflag[tv[2]] & VF_LOCK) < 2)
             continue;
         double e1[3], e2[3], n[3];
-        sub3(e1, s.px[tv[1]], s.px[tv[0]]);
-        sub3(e2, s.px[tv[2]], s.px[tv[0]]);
-        cross3(n, e1, e2);
-        double ln = sqrt(dot3(n, n));
+        hlod_sub3(e1, s.px[tv[1]], s.px[tv[0]]);
+        hlod_sub3(e2, s.px[tv[2]], s.px[tv[0]]);
+        hlod_cross3(n, e1, e2);
+        double ln = sqrt(hlod_dot3(n, n));
         if (!(ln > 0))
             continue;
         for (int c = 0; c < 3; c++) {
@@ -2003,9 +1973,9 @@ hlod_result hlod_simplify(const hlod_mesh *in, const hlod_simplify_desc *desc,
             if (!feature)
                 continue;
             double ed[3], m[3];
-            sub3(ed, s.px[b], s.px[a]);
-            cross3(m, ed, n);
-            double lm = sqrt(dot3(m, m));
+            hlod_sub3(ed, s.px[b], s.px[a]);
+            hlod_cross3(m, ed, n);
+            double lm = sqrt(hlod_dot3(m, m));
             if (!(lm > 0))
                 continue;
             for (int k = 0; k < 3; k++)
@@ -2016,7 +1986,7 @@ hlod_result hlod_simplify(const hlod_mesh *in, const hlod_simplify_desc *desc,
              * graded from 1e-3 to 1e7 otherwise slid a corner along the
              * other border for free and lost half its area). */
             quadric q = {0};
-            q_plane(&q, m, -dot3(m, s.px[a]), BORDER_WEIGHT * fmax(dot3(ed, ed), ln));
+            q_plane(&q, m, -hlod_dot3(m, s.px[a]), BORDER_WEIGHT * fmax(hlod_dot3(ed, ed), ln));
             q_add(&s.vx[a].q, &q);
             q_add(&s.vx[b].q, &q);
         }

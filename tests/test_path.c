@@ -484,13 +484,6 @@ static void preset_desc(const char *preset, hlod_city_desc *d)
     CHECK(hlod_city_preset(preset, d));
 }
 
-/* The suffix of a path file from its legend line on. */
-static const char *after_comments(const char *text)
-{
-    const char *legend = strstr(text, "# t px py pz lx ly lz\n");
-    return legend ? legend : "";
-}
-
 static void test_city_paths_match_committed_files(void)
 {
     for (int pi = 0; pi < 2; pi++) {
@@ -508,18 +501,14 @@ static void test_city_paths_match_committed_files(void)
             CHECKF(committed && made && n == m && !memcmp(committed, made, n),
                    "%s differs from the generator (run hlod-gen-city --preset %s --paths "
                    "data/paths/%s)", rel, PRESETS[pi], PRESETS[pi]);
-            /* The engine's loader reads it, and its writer formats the
-             * keyframes exactly as the generator did. */
+            /* The engine's loader reads it back as the generator made it
+             * (both write through hlod_path_to_text). */
             hlod_path p = {0};
             rec_log log;
             hlod_logger lg = rec_logger(&log);
             CHECKF(hlod_path_load(file, &lg, &p) == HLOD_OK, "%s: %s", rel, log.last);
-            char *text = NULL;
-            CHECK(p.count && hlod_path_to_text(&p, NULL, &text, NULL) == HLOD_OK);
-            CHECKF(committed && text && !strcmp(after_comments(committed), text), "%s", rel);
             hlod_path q = {0};
             CHECK(hlod_city_path(&d, name, &q) == HLOD_OK && same_path(&p, &q));
-            free(text);
             free(committed);
             free(made);
             hlod_path_free(&p);

@@ -22,6 +22,7 @@
  * few tens under ASan).
  */
 #include "check.h"
+#include "hlod/vec3.h"
 #include "hlod/distance.h"
 #include "hlod/simplify.h"
 
@@ -53,25 +54,6 @@ static void set_t(hlod_mesh *m, size_t t, uint32_t a, uint32_t b, uint32_t c)
     m->indices[3 * t + 2] = c;
 }
 
-static void sub3(double r[3], const double a[3], const double b[3])
-{
-    r[0] = a[0] - b[0];
-    r[1] = a[1] - b[1];
-    r[2] = a[2] - b[2];
-}
-
-static double dot3(const double a[3], const double b[3])
-{
-    return a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
-}
-
-static void cross3(double r[3], const double a[3], const double b[3])
-{
-    r[0] = a[1] * b[2] - a[2] * b[1];
-    r[1] = a[2] * b[0] - a[0] * b[2];
-    r[2] = a[0] * b[1] - a[1] * b[0];
-}
-
 static const double *corner(const hlod_mesh *m, size_t t, int c)
 {
     return m->positions + 3 * (size_t)m->indices[3 * t + c];
@@ -82,9 +64,9 @@ static const double *corner(const hlod_mesh *m, size_t t, int c)
 static void tri_normal(const hlod_mesh *m, size_t t, double n[3])
 {
     double u[3], v[3];
-    sub3(u, corner(m, t, 1), corner(m, t, 0));
-    sub3(v, corner(m, t, 2), corner(m, t, 0));
-    cross3(n, u, v);
+    hlod_sub3(u, corner(m, t, 1), corner(m, t, 0));
+    hlod_sub3(v, corner(m, t, 2), corner(m, t, 0));
+    hlod_cross3(n, u, v);
 }
 
 /* Squared distance from p to triangle abc (Ericson, Real-Time Collision
@@ -93,51 +75,51 @@ static double point_tri_dist2(const double p_[3], const double a_[3], const doub
                               const double c_[3])
 {
     double ab[3], ac[3], ap[3];
-    sub3(ab, b_, a_);
-    sub3(ac, c_, a_);
-    sub3(ap, p_, a_);
+    hlod_sub3(ab, b_, a_);
+    hlod_sub3(ac, c_, a_);
+    hlod_sub3(ap, p_, a_);
     double q[3];
-    double d1 = dot3(ab, ap), d2 = dot3(ac, ap);
+    double d1 = hlod_dot3(ab, ap), d2 = hlod_dot3(ac, ap);
     if (d1 <= 0 && d2 <= 0)
-        return dot3(ap, ap);
+        return hlod_dot3(ap, ap);
     double bp[3];
-    sub3(bp, ap, ab);
-    double d3 = dot3(ab, bp), d4 = dot3(ac, bp);
+    hlod_sub3(bp, ap, ab);
+    double d3 = hlod_dot3(ab, bp), d4 = hlod_dot3(ac, bp);
     if (d3 >= 0 && d4 <= d3)
-        return dot3(bp, bp);
+        return hlod_dot3(bp, bp);
     double vc = d1 * d4 - d3 * d2;
     if (vc <= 0 && d1 >= 0 && d3 <= 0) {
         double v = d1 / (d1 - d3);
         for (int k = 0; k < 3; k++)
             q[k] = ap[k] - v * ab[k];
-        return dot3(q, q);
+        return hlod_dot3(q, q);
     }
     double cp[3];
-    sub3(cp, ap, ac);
-    double d5 = dot3(ab, cp), d6 = dot3(ac, cp);
+    hlod_sub3(cp, ap, ac);
+    double d5 = hlod_dot3(ab, cp), d6 = hlod_dot3(ac, cp);
     if (d6 >= 0 && d5 <= d6)
-        return dot3(cp, cp);
+        return hlod_dot3(cp, cp);
     double vb = d5 * d2 - d1 * d6;
     if (vb <= 0 && d2 >= 0 && d6 <= 0) {
         double w = d2 / (d2 - d6);
         for (int k = 0; k < 3; k++)
             q[k] = ap[k] - w * ac[k];
-        return dot3(q, q);
+        return hlod_dot3(q, q);
     }
     double va = d3 * d6 - d5 * d4;
     if (va <= 0 && (d4 - d3) >= 0 && (d5 - d6) >= 0) {
         double w = (d4 - d3) / ((d4 - d3) + (d5 - d6));
         for (int k = 0; k < 3; k++)
             q[k] = bp[k] - w * (ac[k] - ab[k]);
-        return dot3(q, q);
+        return hlod_dot3(q, q);
     }
     double den = 1 / (va + vb + vc);
     double v = vb * den, w = vc * den;
     if (!isfinite(den))  /* zero-area triangle: nearest corner is close enough */
-        return fmin(dot3(ap, ap), fmin(dot3(bp, bp), dot3(cp, cp)));
+        return fmin(hlod_dot3(ap, ap), fmin(hlod_dot3(bp, bp), hlod_dot3(cp, cp)));
     for (int k = 0; k < 3; k++)
         q[k] = ap[k] - v * ab[k] - w * ac[k];
-    return dot3(q, q);
+    return hlod_dot3(q, q);
 }
 
 typedef struct verdict {
@@ -158,13 +140,13 @@ static void judge(const hlod_mesh *in, const hlod_mesh *out, const double *plane
     for (size_t t = 0; t < out->tri_count; t++) {
         double n[3];
         tri_normal(out, t, n);
-        double ln = sqrt(dot3(n, n));
+        double ln = sqrt(hlod_dot3(n, n));
         if (!(ln > 0)) {
             v->zero_area++;
             continue;
         }
         if (plane_n) {
-            v->flipped += !(dot3(n, plane_n) > 0);
+            v->flipped += !(hlod_dot3(n, plane_n) > 0);
             continue;
         }
         double c[3];
@@ -192,9 +174,9 @@ static void judge(const hlod_mesh *in, const hlod_mesh *out, const double *plane
                     continue;
                 double m[3];
                 tri_normal(in, s, m);
-                double lm = sqrt(dot3(m, m));
+                double lm = sqrt(hlod_dot3(m, m));
                 if (lm > 0)
-                    agree = fmax(agree, dot3(n, m) / (ln * lm));
+                    agree = fmax(agree, hlod_dot3(n, m) / (ln * lm));
             }
         }
         free(d2);

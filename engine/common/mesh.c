@@ -1,6 +1,7 @@
 /* hlod_mesh container: allocation, copies and measures (see mesh.h).
  * Validation and cleanup live in mesh_check.c. */
 #include "hlod/mesh.h"
+#include "hlod/vec3.h"
 
 #include <math.h>
 #include <stdlib.h>
@@ -159,4 +160,30 @@ double hlod_mesh_area(const hlod_mesh *m)
         sum += 0.5 * sqrt(n[0] * n[0] + n[1] * n[1] + n[2] * n[2]);
     }
     return sum;
+}
+
+hlod_result hlod_mesh_vertex_normals(const hlod_mesh *m, float *out)
+{
+    double *acc = calloc(m->vertex_count * 3 + 1, sizeof *acc);
+    if (!acc)
+        return HLOD_ERR_NOMEM;
+    for (size_t t = 0; t < m->tri_count; t++) {
+        const uint32_t *ix = m->indices + 3 * t;
+        const double *p0 = m->positions + 3 * (size_t)ix[0];
+        double e0[3], e1[3], n[3];
+        hlod_sub3(e0, m->positions + 3 * (size_t)ix[1], p0);
+        hlod_sub3(e1, m->positions + 3 * (size_t)ix[2], p0);
+        hlod_cross3(n, e0, e1);
+        for (int c = 0; c < 3; c++)
+            for (int j = 0; j < 3; j++)
+                acc[3 * (size_t)ix[c] + j] += n[j];
+    }
+    for (size_t v = 0; v < m->vertex_count; v++) {
+        const double *a = acc + 3 * v;
+        double l = sqrt(hlod_dot3(a, a));
+        for (int j = 0; j < 3; j++)
+            out[3 * v + j] = l > 0 ? (float)(a[j] / l) : 0.0f;
+    }
+    free(acc);
+    return HLOD_OK;
 }

@@ -46,6 +46,7 @@
 #include "hlod/renderer.h"
 #include "hlod/image.h"
 #include "hlod/path.h"
+#include "hlod/vec3.h"
 
 static const char *const PROG = "hlod-view";
 
@@ -261,11 +262,6 @@ typedef struct viewer {
     period title, line;
 } viewer;
 
-static double dot3(const double a[3], const double b[3])
-{
-    return a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
-}
-
 static void forward_dir(const viewer *v, double f[3])
 {
     double cp = cos(v->pitch), sp = sin(v->pitch), cy = cos(v->yaw), sy = sin(v->yaw);
@@ -286,7 +282,7 @@ static void aim(viewer *v, const double eye[3], const double at[3])
 {
     double d[3] = {at[0] - eye[0], at[1] - eye[1], at[2] - eye[2]};
     memcpy(v->eye, eye, sizeof v->eye);
-    double h1 = dot3(d, v->e1), h2 = dot3(d, v->e2), u = dot3(d, v->up);
+    double h1 = hlod_dot3(d, v->e1), h2 = hlod_dot3(d, v->e2), u = hlod_dot3(d, v->up);
     v->yaw = (h1 == 0 && h2 == 0) ? 0 : atan2(h2, h1);
     v->pitch = atan2(u, hypot(h1, h2));
     if (v->pitch > PITCH_LIMIT)
@@ -303,8 +299,8 @@ static void default_view(const viewer *v, const hlod_store_header *h, double eye
     double ext[3];
     for (int k = 0; k < 3; k++)
         ext[k] = h->bbox_max[k] - h->bbox_min[k];
-    double span2 = fabs(dot3(ext, v->e2)), span_up = fabs(dot3(ext, v->up));
-    double span_h = fmax(fabs(dot3(ext, v->e1)), span2);
+    double span2 = fabs(hlod_dot3(ext, v->e2)), span_up = fabs(hlod_dot3(ext, v->up));
+    double span_h = fmax(fabs(hlod_dot3(ext, v->e1)), span2);
     double height = 0.5 * span_up + fmax(0.4 * span_h, 1.0);
     for (int k = 0; k < 3; k++) {
         at[k] = v->centre[k];
@@ -451,7 +447,7 @@ static void move_free(viewer *v, double dt)
     take_over(v);
     for (int k = 0; k < 3; k++)
         m[k] = fb * f[k] + rl * r[k] + ud * v->up[k];
-    double len = sqrt(dot3(m, m));
+    double len = sqrt(hlod_dot3(m, m));
     if (len == 0)
         return;
     double boost = (glfwGetKey(w, GLFW_KEY_LEFT_SHIFT) == GLFW_PRESS ||

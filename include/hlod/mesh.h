@@ -85,6 +85,14 @@ hlod_result hlod_mesh_validate(const hlod_mesh *m, const char *name, const hlod_
  * to *degenerate / *duplicate (either may be NULL). */
 hlod_result hlod_mesh_clean(hlod_mesh *m, size_t *degenerate, size_t *duplicate);
 
+/* Area-weighted vertex normals of m's triangles into out
+ * (3 * vertex_count floats): each vertex gets the unit sum of its
+ * triangles' doubled-area normals, computed in double.  A vertex whose
+ * sum is zero (no triangle, only degenerate ones, or faces that cancel)
+ * gets (0, 0, 0): no direction, which the renderer lights as facing the
+ * eye.  HLOD_ERR_NOMEM. */
+hlod_result hlod_mesh_vertex_normals(const hlod_mesh *m, float *out);
+
 #ifdef __cplusplus
 }
 #endif

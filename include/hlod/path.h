@@ -117,6 +117,10 @@ void hlod_path_eval(const hlod_path *p, double t, double eye[3], double at[3]);
  * NULL).  HLOD_ERR_INVALID_ARG for an empty path, HLOD_ERR_NOMEM. */
 hlod_result hlod_path_to_text(const hlod_path *p, const char *comment, char **text, size_t *len);
 
+/* A number as the path writer prints it: the shortest of %.15g, %.16g and
+ * %.17g that reads back to the same bits. */
+void hlod_path_format_double(char buf[32], double v);
+
 /* Writes hlod_path_to_text's text to file through a temporary file and a
  * rename (the file appears whole or not at all).  The path is validated
  * first (hlod_path_validate).  HLOD_ERR_IO with the reason logged. */

@@ -1,6 +1,6 @@
 /*
  * fuzz_path.c - libFuzzer harness for the camera path parser
- * (engine/path.c: hlod_path_parse).
+ * (engine/common/path.c: hlod_path_parse).
  *
  * Any bytes in.  Besides "no crash, leak or hang", a path the parser
  * accepts must keep the promises of path.h, checked here as oracles:

@@ -11,7 +11,7 @@
 # -fsanitize=fuzzer,address,undefined into build-fuzz/ by CMake's
 # HLOD_FUZZ=ON):
 #   store  the store reader: open + every payload read (store_read.c)
-#   path   the camera path parser (engine/path.c)
+#   path   the camera path parser (engine/common/path.c)
 #   mesh   OBJ/PLY/OFF import + validation (preprocess/io/)
 #
 # The committed corpus is tests/fuzz/corpus/<name>/: hand-made and real

@@ -33,8 +33,7 @@
 
 /* ---- numbers ---- */
 
-/* Shortest of %.15g, %.16g, %.17g that reads back to the same bits. */
-static void format_double(char buf[32], double v)
+void hlod_path_format_double(char buf[32], double v)
 {
     for (int prec = 15; prec <= 17; prec++) {
         snprintf(buf, 32, "%.*g", prec, v);
@@ -109,7 +108,7 @@ static hlod_result check_key(const hlod_path_key *k, const hlod_path_key *prev, 
         }
         double lim = i == 0 ? HLOD_PATH_T_MAX : HLOD_PATH_COORD_MAX;
         if (fabs(v[i]) > lim) {
-            format_double(num, v[i]);
+            hlod_path_format_double(num, v[i]);
             snprintf(why, n, "%s %s is out of range (at most %g in magnitude)",
                      i == 0 ? "time" : "coordinate", num, lim);
             return HLOD_ERR_FORMAT;
@@ -117,8 +116,8 @@ static hlod_result check_key(const hlod_path_key *k, const hlod_path_key *prev, 
     }
     if (prev && !(k->t > prev->t)) {
         char a[32], b[32];
-        format_double(a, k->t);
-        format_double(b, prev->t);
+        hlod_path_format_double(a, k->t);
+        hlod_path_format_double(b, prev->t);
         snprintf(why, n, "time %s is not after the previous keyframe's time %s", a, b);
         return HLOD_ERR_FORMAT;
     }
@@ -536,7 +535,7 @@ hlod_result hlod_path_to_text(const hlod_path *p, const char *comment, char **te
         const double *v = &p->keys[i].t;
         for (int j = 0; j < 7; j++) {
             char num[32];
-            format_double(num, v[j]);
+            hlod_path_format_double(num, v[j]);
             if (j)
                 puts_(&b, " ");
             puts_(&b, num);
