@@ -172,49 +172,56 @@ enum {
 #define NEXT3(c) ((c) == 2 ? 0 : (c) + 1)
 
 typedef struct state {
-    size_t nv;                 /* position vertices */
-    size_t nw;                 /* wedges (= input vertices) */
-    size_t nt;
-    pvert *vx;                 /* position vertices */
-    double (*px)[3];           /* their positions, normalized frame: apart
-                                  from vx, so the flip tests that read a
+    size_t n_pos;              /* position vertices (welded input positions) */
+    size_t n_wedges;           /* wedges (= input vertices) */
+    size_t n_tris;             /* triangles (= input triangles) */
+    int oom;                   /* an allocation failed: every phase stops
+                                  and hlod_simplify returns HLOD_ERR_NOMEM */
+    /* position vertices (phase "vertices": one allocation) */
+    pvert *verts;
+    double (*pos)[3];          /* their positions, normalized frame: apart
+                                  from verts, so the flip tests that read a
                                   whole ring stay in cache */
-    uint32_t *rep;             /* pv -> an input vertex carrying its position */
-    /* adjacency: pv -> its triangles (dead ones are dropped lazily) */
-    adjrec *adj;
+    adjrec *adj;               /* their triangle lists in pool */
+    uint8_t *pos_flag;         /* flags of this pass, VF_* (one byte, so
+                                  the walk reads one line for all three) */
+    uint32_t *pos_mark;        /* scratch stamps (link_ok, plain_interior) */
+    uint32_t *pos_slot;        /* scratch: a face or record index, under a stamp */
+    uint32_t pos_clock;
+    /* adjacency: position vertex -> its triangles (dead ones are dropped
+     * lazily); grows, so allocated apart */
     uint32_t *pool;
     size_t pool_n, pool_cap;
-    /* triangles */
-    uint32_t *tv;              /* 3 per tri: pv */
-    uint32_t *tw;              /* 3 per tri: wedge */
-    uint8_t *talive;
-    uint32_t *tmat;            /* material per tri, or NULL */
-    uint32_t *tpos;            /* input triangle -> internal slot */
-    /* wedges */
-    uint32_t *wpv;
-    uint32_t *pvw;             /* untextured: pv -> its one wedge */
-    float (*uv)[2];            /* NULL when untextured */
-    attrq *aq;                 /* NULL when untextured */
-    uint8_t *wtouched;         /* uv must be recomputed from aq */
-    uint32_t *wmark;           /* wedge scratch stamps (edge_groups) */
-    uint32_t wclock;
-    double uv_w;
+    /* input tables (phase "weld": one allocation) */
+    uint32_t *wedge_pos;       /* wedge -> its position vertex */
+    uint32_t *pos_rep;         /* position vertex -> an input vertex carrying
+                                  its position */
+    uint32_t *tri_pos;         /* 3 per triangle: position vertices */
+    uint32_t *tri_wedge;       /* 3 per triangle: wedges */
+    uint8_t *tri_alive;
+    uint32_t *tri_slot;        /* input triangle -> internal slot */
+    uint32_t *tri_mat;         /* material per internal triangle, or NULL */
+    /* attributes (phase "attributes": one allocation) */
+    uint32_t *pos_wedge;       /* untextured: position vertex -> its one wedge */
+    float (*wedge_uv)[2];      /* NULL when untextured */
+    attrq *wedge_aq;           /* attribute quadrics; NULL when untextured */
+    uint8_t *wedge_touched;    /* uv must be recomputed from wedge_aq */
+    uint32_t *wedge_mark;      /* scratch stamps (edge_groups) */
+    uint32_t wedge_clock;
+    double uv_weight;
+    /* passes (grow, so allocated apart) */
     cand *cand;                /* this pass's candidates */
-    size_t nc, ccap;
-    cand *ctmp;                /* radix sort buffer */
-    rheap rh;                  /* re-priced candidates of this pass */
-    size_t ocap;
-    uint32_t *mark;            /* pv scratch stamps (link_ok, plain_interior) */
-    uint32_t *slot;            /* pv scratch: a face or record index, under a stamp */
-    uint32_t mark_clock;
-    uint8_t *vflag;            /* pv flags of this pass, VF_* (one byte, so
-                                  the walk reads one line for all three) */
-    cand *parked;              /* refused edges (see the pass loop) */
-    size_t np, pcap;
-    /* scratch */
-    uint32_t *sa, *sb;         /* star faces of a, b */
-    uint32_t *ra, *rb;         /* of those, the ones off the edge (a, b) */
-    size_t scap;
+    size_t n_cand, cand_cap;
+    cand *cand_tmp;            /* radix sort buffer */
+    size_t cand_tmp_cap;
+    rheap requeue;             /* re-priced candidates of this pass */
+    cand *parked;              /* refused edges (see refresh_candidates) */
+    size_t n_parked, parked_cap;
+    uint32_t *star_a, *star_b; /* star faces of the edge's ends a, b */
+    uint32_t *off_a, *off_b;   /* of those, the ones off the edge (a, b) */
+    size_t star_cap;
+    /* phase allocations, freed by state_free */
+    void *weld_block, *vert_block, *attr_block;
 } state;
 
 /* ---------- small linear algebra ---------- */
@@ -320,8 +327,25 @@ static int cands_push(cand **v, size_t *n, size_t *cap, cand c)
     return 1;
 }
 
-static int cand_push(state *s, cand c) { return cands_push(&s->cand, &s->nc, &s->ccap, c); }
-static int park(state *s, cand c) { return cands_push(&s->parked, &s->np, &s->pcap, c); }
+/* (the allocating helpers below set s->oom on failure and return as if
+ * there were nothing to do; each phase checks s->oom) */
+static void cand_push(state *s, cand c)
+{
+    if (!cands_push(&s->cand, &s->n_cand, &s->cand_cap, c))
+        s->oom = 1;
+}
+
+static void park(state *s, cand c)
+{
+    if (!cands_push(&s->parked, &s->n_parked, &s->parked_cap, c))
+        s->oom = 1;
+}
+
+static void requeue(state *s, cand c)
+{
+    if (!rheap_push(&s->requeue, c))
+        s->oom = 1;
+}
 
 /* The order of a pass: by price, then edge (prices are never NaN). */
 static int cand_less(const cand *x, const cand *y)
@@ -375,14 +399,16 @@ static void run_sort(cand *v, size_t n, cand *tmp)
  * in order, sequentially.  Equal prices thus go in edge order, so the order
  * does not depend on which prices were kept from the last pass (planar
  * regions tie at 0). */
-static int cand_sort(state *s, size_t n)
+static void cand_sort(state *s, size_t n)
 {
-    if (n > s->ocap) {
-        free(s->ctmp);
-        s->ctmp = malloc(n * sizeof *s->ctmp);
-        if (!s->ctmp)
-            return 0;
-        s->ocap = n;
+    if (n > s->cand_tmp_cap) {
+        free(s->cand_tmp);
+        s->cand_tmp = malloc(n * sizeof *s->cand_tmp);
+        s->cand_tmp_cap = s->cand_tmp ? n : 0;
+        if (!s->cand_tmp) {
+            s->oom = 1;
+            return;
+        }
     }
     /* Digits of 11 bits, or of 8 when there are few candidates (then the
      * histograms would cost more than the candidates: small meshes' late
@@ -390,7 +416,7 @@ static int cand_sort(state *s, size_t n)
     int bits = n < 8192 ? 8 : 11, passes = n < 8192 ? 3 : 2;
     int low = 32 - bits * passes;
     size_t nb = (size_t)1 << bits, mask = nb - 1;
-    cand *src = s->cand, *dst = s->ctmp;
+    cand *src = s->cand, *dst = s->cand_tmp;
     for (int pass = 0; pass < passes; pass++) {
         size_t hist[2048];
         memset(hist, 0, nb * sizeof *hist);
@@ -427,10 +453,9 @@ static int cand_sort(state *s, size_t n)
             if (kj >> low != ki >> low)
                 break;
         }
-        run_sort(s->cand + i, j - i, s->ctmp);
+        run_sort(s->cand + i, j - i, s->cand_tmp);
         i = j;
     }
-    return 1;
 }
 
 /* The k-th smallest price of c[0..n), k < n: a radix select on the
@@ -494,8 +519,10 @@ static int adj_reserve(state *s, uint32_t v, uint32_t need)
     if (s->pool_n + cap > s->pool_cap) {
         size_t nc = (s->pool_n + cap) * 3 / 2;
         uint32_t *np = realloc(s->pool, nc * sizeof *np);
-        if (!np)
+        if (!np) {
+            s->oom = 1;
             return 0;
+        }
         s->pool = np;
         s->pool_cap = nc;
     }
@@ -506,36 +533,31 @@ static int adj_reserve(state *s, uint32_t v, uint32_t need)
     return 1;
 }
 
-/* Copies the live face entries around v (see ENT) into s->sa (which = 0)
- * or s->sb (1), both grown together as needed; returns the count,
- * (size_t)-1 when out of memory. */
+/* Copies the live face entries around v (see ENT) into s->star_a (which = 0)
+ * or s->star_b (1), both grown together as needed; returns the count
+ * (0 and s->oom set when out of memory). */
 static size_t star(state *s, uint32_t v, int which)
 {
     uint32_t n = s->adj[v].count;
-    if (n > s->scap) {
+    if (n > s->star_cap) {
         size_t nc = (size_t)n * 2;
-        uint32_t *na = realloc(s->sa, nc * sizeof *na), *nb;
-        if (!na)
-            return (size_t)-1;
-        s->sa = na;
-        nb = realloc(s->sb, nc * sizeof *nb);
-        if (!nb)
-            return (size_t)-1;
-        s->sb = nb;
-        if (!(na = realloc(s->ra, nc * sizeof *na)))
-            return (size_t)-1;
-        s->ra = na;
-        if (!(nb = realloc(s->rb, nc * sizeof *nb)))
-            return (size_t)-1;
-        s->rb = nb;
-        s->scap = nc;
+        uint32_t **bufs[4] = {&s->star_a, &s->star_b, &s->off_a, &s->off_b};
+        for (int i = 0; i < 4; i++) {
+            uint32_t *nb = realloc(*bufs[i], nc * sizeof *nb);
+            if (!nb) {
+                s->oom = 1;
+                return 0;
+            }
+            *bufs[i] = nb;
+        }
+        s->star_cap = nc;
     }
-    uint32_t *buf = which ? s->sb : s->sa;
+    uint32_t *buf = which ? s->star_b : s->star_a;
     const uint32_t *list = s->pool + s->adj[v].start;
     size_t k = 0;
     for (uint32_t i = 0; i < n; i++) {
         buf[k] = list[i];
-        k += s->talive[ENT_T(list[i])];
+        k += s->tri_alive[ENT_T(list[i])];
     }
     return k;
 }
@@ -546,7 +568,7 @@ static size_t star(state *s, uint32_t v, int which)
 static int corner_of(const state *s, uint32_t t, uint32_t v)
 {
     static const signed char corner[8] = {-1, 0, 1, -1, 2, -1, -1, -1};
-    const uint32_t *tv = s->tv + 3 * (size_t)t;
+    const uint32_t *tv = s->tri_pos + 3 * (size_t)t;
     return corner[(tv[0] == v) | (tv[1] == v) << 1 | (tv[2] == v) << 2];
 }
 
@@ -560,8 +582,9 @@ typedef struct nrec {
     uint8_t feature;
 } nrec;
 
-/* Fills recs with one record per neighbour of v; returns the count, or -1
- * on allocation failure.  *recs is a caller-owned growable buffer. */
+/* Fills recs with one record per neighbour of v; returns the count (0 and
+ * s->oom set on allocation failure).  *recs is a caller-owned growable
+ * buffer. */
 static long neighbours(state *s, uint32_t v, nrec **recs, size_t *rcap)
 {
     uint32_t *faces = s->pool + s->adj[v].start;
@@ -569,31 +592,33 @@ static long neighbours(state *s, uint32_t v, nrec **recs, size_t *rcap)
     if ((size_t)nf * 2 > *rcap) {
         size_t nc = (size_t)nf * 4 + 16;
         nrec *nr = realloc(*recs, nc * sizeof *nr);
-        if (!nr)
-            return -1;
+        if (!nr) {
+            s->oom = 1;
+            return 0;
+        }
         *recs = nr;
         *rcap = nc;
     }
     nrec *r = *recs;
     long cnt = 0;
-    uint32_t stamp = new_stamp(s->mark, &s->mark_clock, s->nv); /* a stamped neighbour's record is slot[n] */
+    uint32_t stamp = new_stamp(s->pos_mark, &s->pos_clock, s->n_pos); /* a stamped neighbour's record is slot[n] */
     for (uint32_t i = 0; i < nf; i++) {
         uint32_t t = ENT_T(faces[i]);
-        if (!s->talive[t])
+        if (!s->tri_alive[t])
             continue;
         int c = ENT_C(faces[i]);
-        assert(s->tv[3 * (size_t)t + c] == v);
-        uint32_t mat = s->tmat ? s->tmat[t] : 0;
+        assert(s->tri_pos[3 * (size_t)t + c] == v);
+        uint32_t mat = s->tri_mat ? s->tri_mat[t] : 0;
         /* (untextured, a vertex has one wedge: only faces and materials
          * can make a feature edge, and the wedges need no reading) */
-        uint32_t wv = s->uv ? s->tw[3 * t + c] : 0;
+        uint32_t wv = s->wedge_uv ? s->tri_wedge[3 * t + c] : 0;
         for (int k = 1; k <= 2; k++) {
             int cn = (c + k) % 3;
-            uint32_t n = s->tv[3 * t + cn], wn = s->uv ? s->tw[3 * t + cn] : 0;
-            long j = s->mark[n] == stamp ? (long)s->slot[n] : cnt;
+            uint32_t n = s->tri_pos[3 * t + cn], wn = s->wedge_uv ? s->tri_wedge[3 * t + cn] : 0;
+            long j = s->pos_mark[n] == stamp ? (long)s->pos_slot[n] : cnt;
             if (j == cnt) {
-                s->mark[n] = stamp;
-                s->slot[n] = (uint32_t)cnt;
+                s->pos_mark[n] = stamp;
+                s->pos_slot[n] = (uint32_t)cnt;
                 r[cnt].n = n;
                 r[cnt].wv = wv;
                 r[cnt].wn = wn;
@@ -622,24 +647,26 @@ static long neighbours(state *s, uint32_t v, nrec **recs, size_t *rcap)
  * same neighbour, and the fast path would list one twice and miss one.) */
 static long edges_of(state *s, uint32_t v, nrec **recs, size_t *rcap)
 {
-    if (!s->vx[v].plain)
+    if (!s->verts[v].plain)
         return neighbours(s, v, recs, rcap);
     uint32_t *faces = s->pool + s->adj[v].start;
     uint32_t nf = s->adj[v].count;
     if ((size_t)nf > *rcap) {
         size_t nc = (size_t)nf * 4 + 16;
         nrec *nr = realloc(*recs, nc * sizeof *nr);
-        if (!nr)
-            return -1;
+        if (!nr) {
+            s->oom = 1;
+            return 0;
+        }
         *recs = nr;
         *rcap = nc;
     }
     long cnt = 0;
     for (uint32_t i = 0; i < nf; i++) {
         uint32_t t = ENT_T(faces[i]);
-        if (!s->talive[t])
+        if (!s->tri_alive[t])
             continue;
-        uint32_t n = s->tv[3 * (size_t)t + NEXT3(ENT_C(faces[i]))];
+        uint32_t n = s->tri_pos[3 * (size_t)t + NEXT3(ENT_C(faces[i]))];
         nrec *r = &(*recs)[cnt++];
         r->n = n;
         r->faces = 2;
@@ -657,30 +684,30 @@ static int plain_interior(state *s, uint32_t v)
     uint32_t nf = s->adj[v].count;
     uint32_t pv[32], wv[32], wn[32], wp[32], mt[32];
     uint32_t k = 0;
-    uint32_t stamp = new_stamp(s->mark, &s->mark_clock, s->nv);
+    uint32_t stamp = new_stamp(s->pos_mark, &s->pos_clock, s->n_pos);
     for (uint32_t i = 0; i < nf; i++) {
         uint32_t t = ENT_T(faces[i]);
-        if (!s->talive[t])
+        if (!s->tri_alive[t])
             continue;
         if (k == 32)
             return 0;
         int c = ENT_C(faces[i]);
         int c1 = NEXT3(c), c2 = NEXT3(c1);
-        uint32_t nx = s->tv[3 * t + c1];
+        uint32_t nx = s->tri_pos[3 * t + c1];
         /* each neighbour follows v in one face only (consistent winding) */
-        if (s->mark[nx] == stamp)
+        if (s->pos_mark[nx] == stamp)
             return 0;
-        s->mark[nx] = stamp;
-        s->slot[nx] = k;
-        pv[k] = s->tv[3 * t + c2];
-        if (s->uv) {
-            wv[k] = s->tw[3 * t + c];
-            wn[k] = s->tw[3 * t + c1];
-            wp[k] = s->tw[3 * t + c2];
+        s->pos_mark[nx] = stamp;
+        s->pos_slot[nx] = k;
+        pv[k] = s->tri_pos[3 * t + c2];
+        if (s->wedge_uv) {
+            wv[k] = s->tri_wedge[3 * t + c];
+            wn[k] = s->tri_wedge[3 * t + c1];
+            wp[k] = s->tri_wedge[3 * t + c2];
         } else { /* one wedge per vertex: they always agree */
             wv[k] = wn[k] = wp[k] = 0;
         }
-        mt[k] = s->tmat ? s->tmat[t] : 0;
+        mt[k] = s->tri_mat ? s->tri_mat[t] : 0;
         k++;
     }
     if (k < 3)
@@ -689,9 +716,9 @@ static int plain_interior(state *s, uint32_t v)
     uint32_t matched = 0;
     for (uint32_t j = 0; j < k; j++) {
         uint32_t p = pv[j];
-        if (s->mark[p] != stamp)
+        if (s->pos_mark[p] != stamp)
             return 0;
-        uint32_t i = s->slot[p];
+        uint32_t i = s->pos_slot[p];
         if (matched >> i & 1u || wv[j] != wv[i] || wp[j] != wn[i] || mt[j] != mt[i])
             return 0;
         matched |= 1u << i;
@@ -700,17 +727,17 @@ static int plain_interior(state *s, uint32_t v)
 }
 
 /* Recomputes fdeg/locked of v from its current star. */
-static int classify(state *s, uint32_t v, nrec **recs, size_t *rcap)
+static void classify(state *s, uint32_t v, nrec **recs, size_t *rcap)
 {
-    s->vx[v].plain = (uint8_t)plain_interior(s, v);
-    if (s->vx[v].plain) {
-        s->vx[v].fdeg = 0;
-        s->vx[v].locked = s->vx[v].ulock;
-        return 1;
+    s->verts[v].plain = (uint8_t)plain_interior(s, v);
+    if (s->verts[v].plain) {
+        s->verts[v].fdeg = 0;
+        s->verts[v].locked = s->verts[v].ulock;
+        return;
     }
     long cnt = neighbours(s, v, recs, rcap);
-    if (cnt < 0)
-        return 0;
+    if (s->oom)
+        return;
     unsigned f = 0;
     int complex_ = 0;
     for (long j = 0; j < cnt; j++) {
@@ -719,10 +746,9 @@ static int classify(state *s, uint32_t v, nrec **recs, size_t *rcap)
             complex_ = 1;
     }
     if (complex_)
-        s->vx[v].ulock = 1;
-    s->vx[v].fdeg = (uint8_t)(f > 255 ? 255 : f);
-    s->vx[v].locked = s->vx[v].ulock || f == 1 || f > 2;
-    return 1;
+        s->verts[v].ulock = 1;
+    s->verts[v].fdeg = (uint8_t)(f > 255 ? 255 : f);
+    s->verts[v].locked = s->verts[v].ulock || f == 1 || f > 2;
 }
 
 /* ---------- collapse evaluation ---------- */
@@ -755,7 +781,7 @@ static int edge_groups(state *s, uint32_t b, const uint32_t *fa, size_t na,
 {
     /* A wedge already in a group is stamped (a's and b's wedges are
      * distinct: a wedge belongs to one position vertex). */
-    uint32_t stamp = new_stamp(s->wmark, &s->wclock, s->nw);
+    uint32_t stamp = new_stamp(s->wedge_mark, &s->wedge_clock, s->n_wedges);
     int ng = 0;
     /* Pairs through the faces containing both a and b. */
     for (size_t i = 0; i < na; i++) {
@@ -763,9 +789,9 @@ static int edge_groups(state *s, uint32_t b, const uint32_t *fa, size_t na,
         int cb = corner_of(s, ENT_T(fa[i]), b);
         if (cb < 0)
             continue;
-        uint32_t wa = s->tw[3 * t + ENT_C(fa[i])], wb = s->tw[3 * t + cb];
-        if (s->wmark[wa] != stamp && s->wmark[wb] != stamp && ng < MAX_GROUPS) {
-            s->wmark[wa] = s->wmark[wb] = stamp;
+        uint32_t wa = s->tri_wedge[3 * t + ENT_C(fa[i])], wb = s->tri_wedge[3 * t + cb];
+        if (s->wedge_mark[wa] != stamp && s->wedge_mark[wb] != stamp && ng < MAX_GROUPS) {
+            s->wedge_mark[wa] = s->wedge_mark[wb] = stamp;
             g[ng].w[0] = wa;
             g[ng].w[1] = wb;
             g[ng].n = 2;
@@ -777,9 +803,9 @@ static int edge_groups(state *s, uint32_t b, const uint32_t *fa, size_t na,
         const uint32_t *f = side ? fb : fa;
         size_t nf = side ? nb : na;
         for (size_t i = 0; i < nf; i++) {
-            uint32_t w = s->tw[3 * ENT_T(f[i]) + ENT_C(f[i])];
-            if (s->wmark[w] != stamp && ng < MAX_GROUPS) {
-                s->wmark[w] = stamp;
+            uint32_t w = s->tri_wedge[3 * ENT_T(f[i]) + ENT_C(f[i])];
+            if (s->wedge_mark[w] != stamp && ng < MAX_GROUPS) {
+                s->wedge_mark[w] = stamp;
                 g[ng].w[0] = w;
                 g[ng].n = 1;
                 ng++;
@@ -794,8 +820,8 @@ static uint32_t any_wedge(const state *s, uint32_t v)
 {
     const uint32_t *f = s->pool + s->adj[v].start;
     for (uint32_t i = 0; i < s->adj[v].count; i++)
-        if (s->talive[ENT_T(f[i])])
-            return s->tw[3 * (size_t)ENT_T(f[i]) + ENT_C(f[i])];
+        if (s->tri_alive[ENT_T(f[i])])
+            return s->tri_wedge[3 * (size_t)ENT_T(f[i]) + ENT_C(f[i])];
     assert(!"vertex without a live face");
     return 0;
 }
@@ -819,8 +845,8 @@ static void evaluate(state *s, uint32_t a, uint32_t b, int edge_feature,
 {
     e->allowed = 0;
     e->ncand = 0;
-    int la = s->vx[a].locked, lb = s->vx[b].locked;
-    int fta = la || s->vx[a].fdeg > 0, ftb = lb || s->vx[b].fdeg > 0;
+    int la = s->verts[a].locked, lb = s->verts[b].locked;
+    int fta = la || s->verts[a].fdeg > 0, ftb = lb || s->verts[b].fdeg > 0;
     if (la && lb)
         return;
     if (edge_feature)
@@ -831,14 +857,14 @@ static void evaluate(state *s, uint32_t a, uint32_t b, int edge_feature,
         e->forced = fta ? 1 : ftb ? 2 : 0;
     e->allowed = 1;
 
-    e->qgeo = s->vx[a].q;
-    q_add(&e->qgeo, &s->vx[b].q);
+    e->qgeo = s->verts[a].q;
+    q_add(&e->qgeo, &s->verts[b].q);
     e->qsum = e->qgeo;
-    e->w = s->vx[a].w + s->vx[b].w;
-    if (s->aq) {
+    e->w = s->verts[a].w + s->verts[b].w;
+    if (s->wedge_aq) {
         wgroup g[MAX_GROUPS];
         int ng;
-        if (!s->vx[a].fdeg && !s->vx[b].fdeg) {
+        if (!s->verts[a].fdeg && !s->verts[b].fdeg) {
             /* no seam at either end: one wedge each, merged */
             g[0].w[0] = any_wedge(s, a);
             g[0].w[1] = any_wedge(s, b);
@@ -848,14 +874,14 @@ static void evaluate(state *s, uint32_t a, uint32_t b, int edge_feature,
             ng = edge_groups(s, b, fa, na, fb, nb, g);
         }
         for (int i = 0; i < ng; i++) {
-            attrq t = s->aq[g[i].w[0]];
+            attrq t = s->wedge_aq[g[i].w[0]];
             if (g[i].n == 2)
-                aq_add(&t, &s->aq[g[i].w[1]]);
+                aq_add(&t, &s->wedge_aq[g[i].w[1]]);
             aq_reduce(&e->qsum, &t);
         }
     }
 
-    const double *pa = s->px[a], *pb = s->px[b];
+    const double *pa = s->pos[a], *pb = s->pos[b];
     if (e->forced) {
         add_candidate(e, e->forced == 1 ? pa : pb);
         return;
@@ -910,11 +936,11 @@ static void evaluate(state *s, uint32_t a, uint32_t b, int edge_feature,
  * free and only the cheapest candidate's cost is needed. */
 static double price_plain(const state *s, uint32_t a, uint32_t b)
 {
-    const quadric *qa = &s->vx[a].q, *qb = &s->vx[b].q;
+    const quadric *qa = &s->verts[a].q, *qb = &s->verts[b].q;
     quadric q = {qa->a00 + qb->a00, qa->a01 + qb->a01, qa->a02 + qb->a02, qa->a11 + qb->a11,
                  qa->a12 + qb->a12, qa->a22 + qb->a22, qa->b0 + qb->b0,   qa->b1 + qb->b1,
                  qa->b2 + qb->b2,   qa->c + qb->c};
-    const double *pa = s->px[a], *pb = s->px[b];
+    const double *pa = s->pos[a], *pb = s->pos[b];
     double ab[3] = {pb[0] - pa[0], pb[1] - pa[1], pb[2] - pa[2]};
     double l2 = hlod_dot3(ab, ab);
     double opt[3];
@@ -954,20 +980,20 @@ static double best_cost(const eval *e)
 }
 
 /* The price of collapsing edge (a, b), a < b, as a pass ranks it: 1 with
- * *price set, 0 when no placement is allowed, -1 when out of memory. */
+ * *price set, 0 when no placement is allowed (or out of memory: s->oom). */
 static int price_edge(state *s, uint32_t a, uint32_t b, int feature, double *price)
 {
-    if (!s->aq && !feature && !s->vx[a].fdeg && !s->vx[b].fdeg && !s->vx[a].locked && !s->vx[b].locked) {
+    if (!s->wedge_aq && !feature && !s->verts[a].fdeg && !s->verts[b].fdeg && !s->verts[a].locked && !s->verts[b].locked) {
         *price = price_plain(s, a, b);
         return 1;
     }
     /* stars feed the wedge groups of seam vertices only */
-    int need = s->aq && (s->vx[a].fdeg || s->vx[b].fdeg);
+    int need = s->wedge_aq && (s->verts[a].fdeg || s->verts[b].fdeg);
     size_t na = need ? star(s, a, 0) : 0, nb = need ? star(s, b, 1) : 0;
-    if (na == (size_t)-1 || nb == (size_t)-1)
-        return -1;
+    if (s->oom)
+        return 0;
     eval e;
-    evaluate(s, a, b, feature, s->sa, na, s->sb, nb, 0, &e);
+    evaluate(s, a, b, feature, s->star_a, na, s->star_b, nb, 0, &e);
     if (!e.allowed)
         return 0;
     *price = best_cost(&e);
@@ -993,37 +1019,38 @@ static int cand_edge_order(const void *pa, const void *pb)
 
 static void selfcheck_prices(state *s, nrec **recs, size_t *rcap)
 {
-    size_t n = s->nc + s->np, found = 0;
+    size_t n = s->n_cand + s->n_parked, found = 0;
     cand *sorted = malloc((n ? n : 1) * sizeof *sorted);
     if (!sorted)
         return;
-    memcpy(sorted, s->cand, s->nc * sizeof *sorted);
-    if (s->np)
-        memcpy(sorted + s->nc, s->parked, s->np * sizeof *sorted);
+    memcpy(sorted, s->cand, s->n_cand * sizeof *sorted);
+    if (s->n_parked)
+        memcpy(sorted + s->n_cand, s->parked, s->n_parked * sizeof *sorted);
     /* every vertex's class is what its star says now */
-    for (size_t v = 0; v < s->nv; v++) {
-        if (!s->vx[v].alive || !s->adj[v].count)
+    for (size_t v = 0; v < s->n_pos; v++) {
+        if (!s->verts[v].alive || !s->adj[v].count)
             continue;
-        pvert kept = s->vx[v];
-        if (!classify(s, (uint32_t)v, recs, rcap))
+        pvert kept = s->verts[v];
+        classify(s, (uint32_t)v, recs, rcap);
+        if (s->oom)
             goto out_of_memory;
         /* (plain may lag behind: a vertex over 32 faces is not plain, and
          * one that loses faces in plain collapses around it is not looked
          * at again; that only costs the slower neighbour listing) */
-        if (kept.fdeg != s->vx[v].fdeg || kept.locked != s->vx[v].locked || (kept.plain && !s->vx[v].plain)) {
+        if (kept.fdeg != s->verts[v].fdeg || kept.locked != s->verts[v].locked || (kept.plain && !s->verts[v].plain)) {
             fprintf(stderr, "simplify selfcheck: vertex %zu classified as fdeg %d locked %d plain %d, "
-                    "its star says %d %d %d\n", v, kept.fdeg, kept.locked, kept.plain, s->vx[v].fdeg,
-                    s->vx[v].locked, s->vx[v].plain);
+                    "its star says %d %d %d\n", v, kept.fdeg, kept.locked, kept.plain, s->verts[v].fdeg,
+                    s->verts[v].locked, s->verts[v].plain);
             abort();
         }
-        s->vx[v] = kept;
+        s->verts[v] = kept;
     }
     /* a parked edge must still be refused */
-    for (size_t i = 0; i < s->np; i++) {
+    for (size_t i = 0; i < s->n_parked; i++) {
         eval e;
         size_t na, nb;
         int k = try_edge(s, s->parked[i].a, s->parked[i].b, &e, &na, &nb);
-        if (k == -2)
+        if (s->oom)
             goto out_of_memory;
         if (k >= 0) {
             fprintf(stderr, "simplify selfcheck: parked edge %u-%u is valid\n", s->parked[i].a,
@@ -1037,11 +1064,11 @@ static void selfcheck_prices(state *s, nrec **recs, size_t *rcap)
             fprintf(stderr, "simplify selfcheck: edge %u-%u listed twice\n", sorted[i].a, sorted[i].b);
             abort();
         }
-    for (size_t v = 0; v < s->nv; v++) {
-        if (!s->vx[v].alive || !s->adj[v].count)
+    for (size_t v = 0; v < s->n_pos; v++) {
+        if (!s->verts[v].alive || !s->adj[v].count)
             continue;
         long cnt = neighbours(s, (uint32_t)v, recs, rcap);
-        if (cnt < 0)
+        if (s->oom)
             goto out_of_memory;
         for (long j = 0; j < cnt; j++) {
             nrec r = (*recs)[j];
@@ -1050,7 +1077,7 @@ static void selfcheck_prices(state *s, nrec **recs, size_t *rcap)
             uint32_t a = (uint32_t)v, b = r.n;
             double price;
             int k = price_edge(s, a, b, r.feature, &price);
-            if (k < 0)
+            if (s->oom)
                 goto out_of_memory;
             if (k == 0)
                 continue;
@@ -1082,11 +1109,11 @@ out_of_memory: /* no verdict */
  * This runs for every face of every collapse. */
 static int star_ok(const state *s, uint32_t v, const uint32_t *f, size_t nf, const double x[3])
 {
-    const double *pv = s->px[v];
+    const double *pv = s->pos[v];
     for (size_t i = 0; i < nf; i++) {
-        const uint32_t *tv = s->tv + 3 * (size_t)ENT_T(f[i]);
+        const uint32_t *tv = s->tri_pos + 3 * (size_t)ENT_T(f[i]);
         int c1 = NEXT3(ENT_C(f[i])), c2 = NEXT3(c1);
-        const double *p1 = s->px[tv[c1]], *p2 = s->px[tv[c2]];
+        const double *p1 = s->pos[tv[c1]], *p2 = s->pos[tv[c2]];
         double d[3], a0[3], a1[3], n0[3], n1[3];
         hlod_sub3(d, p2, p1);
         hlod_sub3(a0, pv, p1);
@@ -1128,7 +1155,7 @@ static int link_ok(state *s, uint32_t b, const uint32_t *fa, size_t na, const ui
     uint32_t apex[4];
     size_t napex = 0;
     for (size_t i = 0; i < na; i++) {
-        const uint32_t *tv = s->tv + 3 * (size_t)ENT_T(fa[i]);
+        const uint32_t *tv = s->tri_pos + 3 * (size_t)ENT_T(fa[i]);
         int cb = corner_of(s, ENT_T(fa[i]), b);
         apex[napex & 3] = tv[cb >= 0 ? 3 - ENT_C(fa[i]) - cb : 0];
         napex += cb >= 0;
@@ -1140,14 +1167,14 @@ static int link_ok(state *s, uint32_t b, const uint32_t *fa, size_t na, const ui
      * (Without branches, edge faces included: their links hold a and an
      * apex, which the test below never counts, and the corners of a face
      * are a coin toss for the predictor.) */
-    uint32_t stamp = new_stamp(s->mark, &s->mark_clock, s->nv);
+    uint32_t stamp = new_stamp(s->pos_mark, &s->pos_clock, s->n_pos);
     uint32_t ap0 = apex[0], ap1 = napex == 2 ? apex[1] : apex[0];
     int b_apex_face = 0;
     for (size_t j = 0; j < nb; j++) {
-        const uint32_t *tb = s->tv + 3 * (size_t)ENT_T(fb[j]);
+        const uint32_t *tb = s->tri_pos + 3 * (size_t)ENT_T(fb[j]);
         int c1 = NEXT3(ENT_C(fb[j]));
         uint32_t v0 = tb[c1], v1 = tb[NEXT3(c1)];
-        s->mark[v0] = s->mark[v1] = stamp;
+        s->pos_mark[v0] = s->pos_mark[v1] = stamp;
         b_apex_face |= ((v0 == ap0) & (v1 == ap1)) | ((v0 == ap1) & (v1 == ap0));
     }
     b_apex_face &= napex == 2;
@@ -1156,24 +1183,24 @@ static int link_ok(state *s, uint32_t b, const uint32_t *fa, size_t na, const ui
      * be an apex, and no face of a may close the tetrahedron. */
     int bad = 0;
     for (size_t i = 0; i < na; i++) {
-        const uint32_t *ta = s->tv + 3 * (size_t)ENT_T(fa[i]);
+        const uint32_t *ta = s->tri_pos + 3 * (size_t)ENT_T(fa[i]);
         int c1 = NEXT3(ENT_C(fa[i]));
         uint32_t u0 = ta[c1], u1 = ta[NEXT3(c1)];
-        bad |= (s->mark[u0] == stamp) & (u0 != ap0) & (u0 != ap1);
-        bad |= (s->mark[u1] == stamp) & (u1 != ap0) & (u1 != ap1);
+        bad |= (s->pos_mark[u0] == stamp) & (u0 != ap0) & (u0 != ap1);
+        bad |= (s->pos_mark[u1] == stamp) & (u1 != ap0) & (u1 != ap1);
         bad |= b_apex_face & (((u0 == ap0) & (u1 == ap1)) | ((u0 == ap1) & (u1 == ap0)));
     }
     return !bad;
 }
 
 /* Everything a collapse of (a, b) must pass, for every placement: returns
- * the index of the cheapest valid plan in *e, -1 if none, -2 when out of
- * memory.  Leaves the stars of a and b in s->sa / s->sb (*na / *nb). */
+ * the index of the cheapest valid plan in *e, -1 if none (or out of
+ * memory: s->oom).  Leaves the stars of a and b in s->star_a / s->star_b (*na / *nb). */
 static int try_edge(state *s, uint32_t a, uint32_t b, eval *e, size_t *na_, size_t *nb_)
 {
     size_t na = star(s, a, 0), nb = star(s, b, 1);
-    if (na == (size_t)-1 || nb == (size_t)-1)
-        return -2;
+    if (s->oom)
+        return -1;
     *na_ = na;
     *nb_ = nb;
     /* Is the edge still there, and is it a feature edge? */
@@ -1183,18 +1210,18 @@ static int try_edge(state *s, uint32_t a, uint32_t b, eval *e, size_t *na_, size
      * branches: which faces hold the edge is a coin toss) */
     size_t nra = 0, nrb = 0;
     for (size_t k = 0; k < nb; k++) {
-        s->rb[nrb] = s->sb[k];
-        nrb += corner_of(s, ENT_T(s->sb[k]), a) < 0;
+        s->off_b[nrb] = s->star_b[k];
+        nrb += corner_of(s, ENT_T(s->star_b[k]), a) < 0;
     }
     for (size_t k = 0; k < na; k++) {
-        uint32_t t = ENT_T(s->sa[k]);
-        int cb = corner_of(s, ENT_T(s->sa[k]), b);
-        s->ra[nra] = s->sa[k];
+        uint32_t t = ENT_T(s->star_a[k]);
+        int cb = corner_of(s, ENT_T(s->star_a[k]), b);
+        s->off_a[nra] = s->star_a[k];
         nra += cb < 0;
         if (cb < 0)
             continue;
-        uint32_t wa = s->uv ? s->tw[3 * t + ENT_C(s->sa[k])] : 0, wb = s->uv ? s->tw[3 * t + cb] : 0;
-        uint32_t m = s->tmat ? s->tmat[t] : 0;
+        uint32_t wa = s->wedge_uv ? s->tri_wedge[3 * t + ENT_C(s->star_a[k])] : 0, wb = s->wedge_uv ? s->tri_wedge[3 * t + cb] : 0;
+        uint32_t m = s->tri_mat ? s->tri_mat[t] : 0;
         if (nfaces == 0) {
             wa0 = wa;
             wb0 = wb;
@@ -1210,16 +1237,16 @@ static int try_edge(state *s, uint32_t a, uint32_t b, eval *e, size_t *na_, size
         feature = 1;
     /* The cheapest placement first: it is nearly always valid, and the
      * others are priced only when it is not. */
-    evaluate(s, a, b, feature, s->sa, na, s->sb, nb, 0, e);
-    if (!e->allowed || !link_ok(s, b, s->sa, na, s->sb, nb))
+    evaluate(s, a, b, feature, s->star_a, na, s->star_b, nb, 0, e);
+    if (!e->allowed || !link_ok(s, b, s->star_a, na, s->star_b, nb))
         return -1;
     int first = 0;
     for (int k = 1; k < e->ncand; k++)
         if (e->cand[k].cost < e->cand[first].cost)
             first = k;
-    if (star_ok(s, a, s->ra, nra, e->cand[first].x) && star_ok(s, b, s->rb, nrb, e->cand[first].x))
+    if (star_ok(s, a, s->off_a, nra, e->cand[first].x) && star_ok(s, b, s->off_b, nrb, e->cand[first].x))
         return first;
-    evaluate(s, a, b, feature, s->sa, na, s->sb, nb, 1, e);
+    evaluate(s, a, b, feature, s->star_a, na, s->star_b, nb, 1, e);
     /* Cheapest valid placement. */
     int order[4] = {0, 1, 2, 3};
     for (int k = 1; k < e->ncand; k++)
@@ -1230,7 +1257,7 @@ static int try_edge(state *s, uint32_t a, uint32_t b, eval *e, size_t *na_, size
         }
     for (int k = 0; k < e->ncand; k++) {
         const plan *pl = &e->cand[order[k]];
-        if (star_ok(s, a, s->ra, nra, pl->x) && star_ok(s, b, s->rb, nrb, pl->x))
+        if (star_ok(s, a, s->off_a, nra, pl->x) && star_ok(s, b, s->off_b, nrb, pl->x))
             return order[k];
     }
     return -1;
@@ -1239,30 +1266,30 @@ static int try_edge(state *s, uint32_t a, uint32_t b, eval *e, size_t *na_, size
 /* ---------- the collapse itself ---------- */
 
 /* Collapses edge (a, b) to position x; b survives. */
-static int collapse(state *s, uint32_t a, uint32_t b, const double x[3], const uint32_t *fa, size_t na,
+static void collapse(state *s, uint32_t a, uint32_t b, const double x[3], const uint32_t *fa, size_t na,
                     const uint32_t *fb, size_t nb, size_t *live_tris, nrec **recs, size_t *rcap)
 {
-    int moved = x[0] != s->px[b][0] || x[1] != s->px[b][1] || x[2] != s->px[b][2];
-    int had_features = !s->vx[a].plain || !s->vx[b].plain;
+    int moved = x[0] != s->pos[b][0] || x[1] != s->pos[b][1] || x[2] != s->pos[b][2];
+    int had_features = !s->verts[a].plain || !s->verts[b].plain;
     /* distinct pvs never share a position, so a_stays implies moved */
-    int a_stays = x[0] == s->px[a][0] && x[1] == s->px[a][1] && x[2] == s->px[a][2];
+    int a_stays = x[0] == s->pos[a][0] && x[1] == s->pos[a][1] && x[2] == s->pos[a][2];
     /* Wedge merges through the edge faces: wa -> wb.  (Untextured, a
      * vertex has one wedge and nothing reads the corners' wedges until
      * the output: untextured_wedges() sets them then.) */
     wgroup g[MAX_GROUPS];
-    int ng = s->uv ? edge_groups(s, b, fa, na, fb, nb, g) : 0;
+    int ng = s->wedge_uv ? edge_groups(s, b, fa, na, fb, nb, g) : 0;
     uint32_t apex[2];
     int napex = 0;
     for (size_t i = 0; i < na; i++) {
         uint32_t t = ENT_T(fa[i]);
         int cb = corner_of(s, ENT_T(fa[i]), b);
         if (cb >= 0) {
-            s->talive[t] = 0;
+            s->tri_alive[t] = 0;
             (*live_tris)--;
             /* the apex lost a face: its seams may have changed */
             if (had_features) {
-                uint32_t x = s->tv[3 * (size_t)t + 3 - ENT_C(fa[i]) - cb];
-                s->vflag[x] |= VF_STALE;
+                uint32_t x = s->tri_pos[3 * (size_t)t + 3 - ENT_C(fa[i]) - cb];
+                s->pos_flag[x] |= VF_STALE;
                 if (napex < 2)
                     apex[napex++] = x;
             }
@@ -1271,56 +1298,56 @@ static int collapse(state *s, uint32_t a, uint32_t b, const double x[3], const u
     for (int i = 0; i < ng; i++) {
         if (g[i].n == 2 && g[i].w[0] != g[i].w[1]) {
             uint32_t wa = g[i].w[0], wb = g[i].w[1];
-            if (s->aq)
-                aq_add(&s->aq[wb], &s->aq[wa]);
+            if (s->wedge_aq)
+                aq_add(&s->wedge_aq[wb], &s->wedge_aq[wa]);
             /* An endpoint that stays put keeps its exact UV (locked cut
              * boundaries and seams must not drift); a moved one is refit. */
-            if (s->uv && a_stays)
-                memcpy(s->uv[wb], s->uv[wa], sizeof s->uv[wb]);
+            if (s->wedge_uv && a_stays)
+                memcpy(s->wedge_uv[wb], s->wedge_uv[wa], sizeof s->wedge_uv[wb]);
             else if (moved)
-                s->wtouched[wb] = 1;
-            s->wpv[wa] = UINT32_MAX;
+                s->wedge_touched[wb] = 1;
+            s->wedge_pos[wa] = UINT32_MAX;
             /* (a wedge belongs to one position vertex: only a's corner
              * of a face can hold wa) */
             for (size_t k = 0; k < na; k++) {
                 uint32_t t = ENT_T(fa[k]);
-                if (!s->talive[t])
+                if (!s->tri_alive[t])
                     continue;
-                uint32_t *w = &s->tw[3 * (size_t)t + ENT_C(fa[k])];
+                uint32_t *w = &s->tri_wedge[3 * (size_t)t + ENT_C(fa[k])];
                 if (*w == wa)
                     *w = wb;
             }
         } else {
             /* An unpaired wedge keeps its UV unless its position moves. */
             uint32_t w = g[i].w[0];
-            uint32_t owner = s->wpv[w];
+            uint32_t owner = s->wedge_pos[w];
             if ((owner == b && moved) || (owner == a && !a_stays))
-                s->wtouched[w] = 1;
+                s->wedge_touched[w] = 1;
         }
     }
     /* Move a's corners to b and merge adjacency. */
     uint32_t need = 0;
     for (size_t i = 0; i < na; i++)
-        if (s->talive[ENT_T(fa[i])])
+        if (s->tri_alive[ENT_T(fa[i])])
             need++;
     for (size_t i = 0; i < nb; i++)
-        if (s->talive[ENT_T(fb[i])])
+        if (s->tri_alive[ENT_T(fb[i])])
             need++;
     if (!adj_reserve(s, b, need))
-        return 0;
+        return;
     uint32_t *list = s->pool + s->adj[b].start;
     uint32_t k = 0;
     for (size_t i = 0; i < nb; i++)
-        if (s->talive[ENT_T(fb[i])])
+        if (s->tri_alive[ENT_T(fb[i])])
             list[k++] = fb[i];
     for (size_t i = 0; i < na; i++) {
         uint32_t t = ENT_T(fa[i]);
-        if (!s->talive[t])
+        if (!s->tri_alive[t])
             continue;
         int c = ENT_C(fa[i]); /* b takes a's corner: the entry stays */
-        s->tv[3 * t + c] = b;
-        if (s->uv)
-            s->wpv[s->tw[3 * t + c]] = b;
+        s->tri_pos[3 * t + c] = b;
+        if (s->wedge_uv)
+            s->wedge_pos[s->tri_wedge[3 * t + c]] = b;
         list[k++] = fa[i];
     }
     s->adj[b].count = k;
@@ -1329,29 +1356,29 @@ static int collapse(state *s, uint32_t a, uint32_t b, const double x[3], const u
      * feature collapse the pass also leaves them alone (see the walk) */
     uint8_t flags = VF_TOUCHED | (had_features ? VF_LOCK : 0);
     for (uint32_t i = 0; i < k; i++) {
-        const uint32_t *tv = s->tv + 3 * (size_t)ENT_T(list[i]);
-        s->vflag[tv[0]] |= flags;
-        s->vflag[tv[1]] |= flags;
-        s->vflag[tv[2]] |= flags;
+        const uint32_t *tv = s->tri_pos + 3 * (size_t)ENT_T(list[i]);
+        s->pos_flag[tv[0]] |= flags;
+        s->pos_flag[tv[1]] |= flags;
+        s->pos_flag[tv[2]] |= flags;
     }
-    s->vx[a].alive = 0;
-    q_add(&s->vx[b].q, &s->vx[a].q);
-    s->vx[b].w += s->vx[a].w;
+    s->verts[a].alive = 0;
+    q_add(&s->verts[b].q, &s->verts[a].q);
+    s->verts[b].w += s->verts[a].w;
     if (a_stays) {
-        s->vx[b].moved = s->vx[a].moved;
-        s->rep[b] = s->rep[a];
+        s->verts[b].moved = s->verts[a].moved;
+        s->pos_rep[b] = s->pos_rep[a];
     } else if (moved) {
-        s->vx[b].moved = 1;
+        s->verts[b].moved = 1;
     }
-    memcpy(s->px[b], x, sizeof s->px[b]);
-    s->vx[b].ulock |= s->vx[a].ulock;
+    memcpy(s->pos[b], x, sizeof s->pos[b]);
+    s->verts[b].ulock |= s->verts[a].ulock;
     /* UVs of wedges whose data or position changed. */
-    if (s->aq) {
+    if (s->wedge_aq) {
         for (uint32_t i = 0; i < k; i++) {
-            uint32_t w = s->tw[3 * (size_t)ENT_T(list[i]) + ENT_C(list[i])];
-            if (s->wtouched[w]) {
-                aq_uv(&s->aq[w], s->px[b], s->uv[w]);
-                s->wtouched[w] = 0;
+            uint32_t w = s->tri_wedge[3 * (size_t)ENT_T(list[i]) + ENT_C(list[i])];
+            if (s->wedge_touched[w]) {
+                aq_uv(&s->wedge_aq[w], s->pos[b], s->wedge_uv[w]);
+                s->wedge_touched[w] = 0;
             }
         }
     }
@@ -1359,15 +1386,16 @@ static int collapse(state *s, uint32_t a, uint32_t b, const double x[3], const u
      * endpoints were plain interior vertices: then every merged edge is
      * interior too and nothing around them changes. */
     if (!had_features) {
-        s->vx[b].locked = s->vx[b].ulock;
+        s->verts[b].locked = s->verts[b].ulock;
         /* (past 32 faces plain_interior() no longer looks: b is classed
          * as a feature-free vertex that is not plain) */
         if (k > 32)
-            return classify(s, b, recs, rcap);
-        return 1;
+            classify(s, b, recs, rcap);
+        return;
     }
-    if (!classify(s, b, recs, rcap))
-        return 0;
+    classify(s, b, recs, rcap);
+    if (s->oom)
+        return;
     /* The rest of the ring keeps its class: a neighbour v of a that is no
      * apex is no neighbour of b (the link test), so its faces from a now
      * name b where they named a, with a's wedge there mapped to one of
@@ -1379,10 +1407,8 @@ static int collapse(state *s, uint32_t a, uint32_t b, const double x[3], const u
      * classify it (it is stale already).  Left alone, spider.obj kept a
      * vertex on a feature line that no longer existed, and it could not
      * move. */
-    for (int i = 0; i < napex; i++)
-        if (!classify(s, apex[i], recs, rcap))
-            return 0;
-    return 1;
+    for (int i = 0; i < napex && !s->oom; i++)
+        classify(s, apex[i], recs, rcap);
 }
 
 /* ---------- the walk ---------- */
@@ -1396,20 +1422,20 @@ static int collapse(state *s, uint32_t a, uint32_t b, const double x[3], const u
 
 static void prefetch_ahead(const state *s, size_t i)
 {
-    if (i + PREFETCH_FAR < s->nc) {
+    if (i + PREFETCH_FAR < s->n_cand) {
         const cand *c = &s->cand[i + PREFETCH_FAR];
         for (int k = 0; k < 2; k++) {
             uint32_t v = k ? c->b : c->a;
-            HLOD_PREFETCH(&s->vx[v]);
-            HLOD_PREFETCH((const char *)&s->vx[v] + 64);
-            HLOD_PREFETCH(&s->px[v]);
+            HLOD_PREFETCH(&s->verts[v]);
+            HLOD_PREFETCH((const char *)&s->verts[v] + 64);
+            HLOD_PREFETCH(&s->pos[v]);
             HLOD_PREFETCH(&s->adj[v]);
-            HLOD_PREFETCH(&s->vflag[v]);
+            HLOD_PREFETCH(&s->pos_flag[v]);
         }
     }
-    if (i + PREFETCH_NEAR < s->nc) {
+    if (i + PREFETCH_NEAR < s->n_cand) {
         const cand *c = &s->cand[i + PREFETCH_NEAR];
-        if (!((s->vflag[c->a] | s->vflag[c->b]) & VF_LOCK)) {
+        if (!((s->pos_flag[c->a] | s->pos_flag[c->b]) & VF_LOCK)) {
             HLOD_PREFETCH(&s->pool[s->adj[c->a].start]);
             HLOD_PREFETCH(&s->pool[s->adj[c->b].start]);
         }
@@ -1447,21 +1473,22 @@ static uint64_t spread3(uint64_t x)
     return x;
 }
 
-/* Renumbers position vertices along a Morton curve (s->rep, s->wpv):
+/* Renumbers position vertices along a Morton curve (s->pos_rep, s->wedge_pos):
  * 11 bits per axis, a stable 3-pass radix sort. */
-static int spatial_order(state *s, const hlod_mesh *in, const double centre[3], double inv_scale)
+static void spatial_order(state *s, const hlod_mesh *in, const double centre[3], double inv_scale)
 {
-    size_t nv = s->nv;
+    size_t nv = s->n_pos;
     uint32_t *code = malloc(nv * sizeof *code * 2), *ord = malloc(nv * sizeof *ord * 2);
     uint32_t *rep = malloc(nv * sizeof *rep);
     if (!code || !ord || !rep) {
         free(code);
         free(ord);
         free(rep);
-        return 0;
+        s->oom = 1;
+        return;
     }
     for (size_t v = 0; v < nv; v++) {
-        const double *p = in->positions + 3 * (size_t)s->rep[v];
+        const double *p = in->positions + 3 * (size_t)s->pos_rep[v];
         uint64_t c = 0;
         for (int a = 0; a < 3; a++) {
             double u = ((p[a] - centre[a]) * inv_scale + 0.5) * 2047.0;
@@ -1492,33 +1519,34 @@ static int spatial_order(state *s, const hlod_mesh *in, const double centre[3], 
     uint32_t *newid = code; /* reuse */
     for (size_t i = 0; i < nv; i++) {
         newid[src[i]] = (uint32_t)i;
-        rep[i] = s->rep[src[i]];
+        rep[i] = s->pos_rep[src[i]];
     }
-    memcpy(s->rep, rep, nv * sizeof *rep);
-    for (size_t w = 0; w < s->nw; w++)
-        s->wpv[w] = newid[s->wpv[w]];
+    memcpy(s->pos_rep, rep, nv * sizeof *rep);
+    for (size_t w = 0; w < s->n_wedges; w++)
+        s->wedge_pos[w] = newid[s->wedge_pos[w]];
     free(code);
     free(ord);
     free(rep);
-    return 1;
 }
 
 /* canon[w] = the first input vertex with w's position and UV. */
-static int canonical_wedges(const state *s, const hlod_mesh *in, uint32_t *canon)
+static void canonical_wedges(state *s, const hlod_mesh *in, uint32_t *canon)
 {
-    size_t nw = s->nw, cap = 16;
+    size_t nw = s->n_wedges, cap = 16;
     while (cap < nw * 2)
         cap *= 2;
     uint32_t *table = malloc(cap * sizeof *table);
-    if (!table)
-        return 0;
+    if (!table) {
+        s->oom = 1;
+        return;
+    }
     for (size_t i = 0; i < cap; i++)
         table[i] = UINT32_MAX;
     for (size_t w = 0; w < nw; w++) {
         uint32_t uvb[2] = {0, 0};
         if (in->uvs)
             memcpy(uvb, in->uvs + 2 * w, sizeof uvb);
-        uint64_t h = (uint64_t)s->wpv[w] * 0x9E3779B97F4A7C15ull ^ ((uint64_t)uvb[0] << 32 | uvb[1]);
+        uint64_t h = (uint64_t)s->wedge_pos[w] * 0x9E3779B97F4A7C15ull ^ ((uint64_t)uvb[0] << 32 | uvb[1]);
         h ^= h >> 29;
         h *= 0xbf58476d1ce4e5b9ull;
         h ^= h >> 32;
@@ -1530,7 +1558,7 @@ static int canonical_wedges(const state *s, const hlod_mesh *in, uint32_t *canon
                 canon[w] = (uint32_t)w;
                 break;
             }
-            if (s->wpv[o] == s->wpv[w] &&
+            if (s->wedge_pos[o] == s->wedge_pos[w] &&
                 (!in->uvs || !memcmp(in->uvs + 2 * (size_t)o, in->uvs + 2 * w, 2 * sizeof(float)))) {
                 canon[w] = o;
                 break;
@@ -1539,16 +1567,22 @@ static int canonical_wedges(const state *s, const hlod_mesh *in, uint32_t *canon
         }
     }
     free(table);
-    return 1;
 }
 
 static void state_free(state *s)
 {
-    free(s->vx);
-    free(s->rep);
-    free(s->adj); free(s->pool);
-    free(s->tv); free(s->tw); free(s->tmat); free(s->tpos); free(s->talive); free(s->wpv); free(s->pvw); free(s->uv); free(s->aq);
-    free(s->wtouched); free(s->wmark); free(s->cand); free(s->ctmp); free(s->rh.e); free(s->mark); free(s->slot); free(s->vflag); free(s->px); free(s->parked); free(s->sa); free(s->sb); free(s->ra); free(s->rb);
+    free(s->weld_block);
+    free(s->vert_block);
+    free(s->attr_block);
+    free(s->pool);
+    free(s->cand);
+    free(s->cand_tmp);
+    free(s->requeue.e);
+    free(s->parked);
+    free(s->star_a);
+    free(s->star_b);
+    free(s->off_a);
+    free(s->off_b);
 }
 
 static double now_s(void)
@@ -1559,13 +1593,13 @@ static double now_s(void)
 }
 
 /* Untextured, the walk leaves the corners' wedges alone (collapse()):
- * each live vertex keeps the one wedge it started with, s->pvw. */
+ * each live vertex keeps the one wedge it started with, s->pos_wedge. */
 static void untextured_wedges(state *s)
 {
-    for (size_t t = 0; t < s->nt; t++)
-        if (s->talive[t])
+    for (size_t t = 0; t < s->n_tris; t++)
+        if (s->tri_alive[t])
             for (int c = 0; c < 3; c++)
-                s->tw[3 * t + c] = s->pvw[s->tv[3 * t + c]];
+                s->tri_wedge[3 * t + c] = s->pos_wedge[s->tri_pos[3 * t + c]];
 }
 
 /* Builds the output mesh from the surviving faces. */
@@ -1573,19 +1607,19 @@ static hlod_result emit(const state *s, const hlod_mesh *in, const double centre
                         hlod_mesh *out)
 {
     size_t nt = 0;
-    for (size_t t = 0; t < s->nt; t++)
-        nt += s->talive[t];
-    uint32_t *remap = malloc((s->nw ? s->nw : 1) * sizeof *remap);
+    for (size_t t = 0; t < s->n_tris; t++)
+        nt += s->tri_alive[t];
+    uint32_t *remap = malloc((s->n_wedges ? s->n_wedges : 1) * sizeof *remap);
     if (!remap)
         return HLOD_ERR_NOMEM;
-    for (size_t w = 0; w < s->nw; w++)
+    for (size_t w = 0; w < s->n_wedges; w++)
         remap[w] = UINT32_MAX;
-    for (size_t t = 0; t < s->nt; t++)
-        if (s->talive[t])
+    for (size_t t = 0; t < s->n_tris; t++)
+        if (s->tri_alive[t])
             for (int c = 0; c < 3; c++)
-                remap[s->tw[3 * t + c]] = 0;
+                remap[s->tri_wedge[3 * t + c]] = 0;
     size_t nv = 0;
-    for (size_t w = 0; w < s->nw; w++)
+    for (size_t w = 0; w < s->n_wedges; w++)
         if (remap[w] == 0)
             remap[w] = (uint32_t)nv++;
     unsigned flags = (in->normals ? HLOD_MESH_NORMALS : 0) | (in->uvs ? HLOD_MESH_UVS : 0) |
@@ -1596,30 +1630,30 @@ static hlod_result emit(const state *s, const hlod_mesh *in, const double centre
         free(remap);
         return r;
     }
-    for (size_t w = 0; w < s->nw; w++) {
+    for (size_t w = 0; w < s->n_wedges; w++) {
         if (remap[w] == UINT32_MAX)
             continue;
-        uint32_t o = remap[w], v = s->wpv[w];
-        if (!s->vx[v].moved) {
-            memcpy(m.positions + 3 * (size_t)o, in->positions + 3 * (size_t)s->rep[v], 3 * sizeof(double));
+        uint32_t o = remap[w], v = s->wedge_pos[w];
+        if (!s->verts[v].moved) {
+            memcpy(m.positions + 3 * (size_t)o, in->positions + 3 * (size_t)s->pos_rep[v], 3 * sizeof(double));
         } else {
             for (int k = 0; k < 3; k++)
-                m.positions[3 * (size_t)o + k] = s->px[v][k] * scale + centre[k];
+                m.positions[3 * (size_t)o + k] = s->pos[v][k] * scale + centre[k];
         }
         if (m.uvs) {
-            m.uvs[2 * (size_t)o] = s->uv[w][0];
-            m.uvs[2 * (size_t)o + 1] = s->uv[w][1];
+            m.uvs[2 * (size_t)o] = s->wedge_uv[w][0];
+            m.uvs[2 * (size_t)o + 1] = s->wedge_uv[w][1];
         }
         if (m.normals)
             memset(m.normals + 3 * (size_t)o, 0, 3 * sizeof(float));
     }
     size_t k = 0;
-    for (size_t t0 = 0; t0 < s->nt; t0++) {
-        size_t t = s->tpos[t0];
-        if (!s->talive[t])
+    for (size_t t0 = 0; t0 < s->n_tris; t0++) {
+        size_t t = s->tri_slot[t0];
+        if (!s->tri_alive[t])
             continue;
         for (int c = 0; c < 3; c++)
-            m.indices[3 * k + c] = remap[s->tw[3 * t + c]];
+            m.indices[3 * k + c] = remap[s->tri_wedge[3 * t + c]];
         if (m.tri_material)
             m.tri_material[k] = in->tri_material[t0];
         k++;
@@ -1659,8 +1693,8 @@ static hlod_result emit(const state *s, const hlod_mesh *in, const double centre
             const hlod_object *o = &in->objects[i];
             m.objects[i].name = o->name ? strdup(o->name) : NULL;
             m.objects[i].first_tri = kept;
-            for (size_t t = o->first_tri; t < o->first_tri + o->tri_count && t < s->nt; t++)
-                kept += s->talive[s->tpos[t]];
+            for (size_t t = o->first_tri; t < o->first_tri + o->tri_count && t < s->n_tris; t++)
+                kept += s->tri_alive[s->tri_slot[t]];
             m.objects[i].tri_count = kept - m.objects[i].first_tri;
         }
     }
@@ -1668,15 +1702,77 @@ static hlod_result emit(const state *s, const hlod_mesh *in, const double centre
     return HLOD_OK;
 }
 
-hlod_result hlod_simplify(const hlod_mesh *in, const hlod_simplify_desc *desc,
-                          hlod_mesh *out, hlod_simplify_stats *stats)
+/* ---------- the phases of hlod_simplify ---------- */
+
+/* One allocation per phase for its fixed-size arrays: a layout function
+ * carves 16-byte aligned pieces, once to measure (base NULL) and once for
+ * real into one zeroed block. */
+typedef struct carver {
+    char *base;
+    size_t used;
+} carver;
+
+static void *carve(carver *c, size_t bytes)
 {
-    if (!in || !desc || !out || in == out)
-        return HLOD_ERR_INVALID_ARG;
-    hlod_mesh_free(out);
-    hlod_simplify_stats st = {0};
-    st.tris_in = in->tri_count;
-    st.vertices_in = in->vertex_count;
+    size_t at = (c->used + 15) & ~(size_t)15;
+    c->used = at + bytes;
+    return c->base ? c->base + at : NULL;
+}
+
+static void *phase_block(state *s, void (*layout)(state *, carver *, const hlod_mesh *),
+                         const hlod_mesh *in)
+{
+    carver c = {0};
+    layout(s, &c, in);
+    void *block = calloc(1, c.used ? c.used : 1);
+    if (!block) {
+        s->oom = 1;
+        return NULL;
+    }
+    c = (carver){block, 0};
+    layout(s, &c, in);
+    return block;
+}
+
+static void layout_weld(state *s, carver *c, const hlod_mesh *in)
+{
+    size_t nw = s->n_wedges, nt = s->n_tris;
+    s->wedge_pos = carve(c, nw * sizeof *s->wedge_pos);
+    s->pos_rep = carve(c, nw * sizeof *s->pos_rep); /* n_pos <= n_wedges */
+    s->tri_pos = carve(c, nt * 3 * sizeof *s->tri_pos);
+    s->tri_wedge = carve(c, nt * 3 * sizeof *s->tri_wedge);
+    s->tri_alive = carve(c, nt);
+    s->tri_slot = carve(c, nt * sizeof *s->tri_slot);
+    s->tri_mat = in->tri_material ? carve(c, nt * sizeof *s->tri_mat) : NULL;
+}
+
+static void layout_verts(state *s, carver *c, const hlod_mesh *in)
+{
+    (void)in;
+    size_t nv = s->n_pos;
+    s->verts = carve(c, nv * sizeof *s->verts);
+    s->pos = carve(c, nv * sizeof *s->pos);
+    s->adj = carve(c, nv * sizeof *s->adj);
+    s->pos_flag = carve(c, nv);
+    s->pos_mark = carve(c, nv * sizeof *s->pos_mark);
+    s->pos_slot = carve(c, nv * sizeof *s->pos_slot);
+}
+
+static void layout_attrs(state *s, carver *c, const hlod_mesh *in)
+{
+    size_t nw = s->n_wedges;
+    if (in->uvs) {
+        s->wedge_uv = carve(c, nw * sizeof *s->wedge_uv);
+        s->wedge_aq = carve(c, nw * sizeof *s->wedge_aq);
+        s->wedge_touched = carve(c, nw);
+        s->wedge_mark = carve(c, nw * sizeof *s->wedge_mark);
+    } else {
+        s->pos_wedge = carve(c, s->n_pos * sizeof *s->pos_wedge);
+    }
+}
+
+static hlod_result check_input(const hlod_mesh *in)
+{
     if (!in->tri_count || !in->vertex_count)
         return HLOD_ERR_EMPTY;
     /* (adjacency entries keep a face index in 30 bits, see ENT) */
@@ -1688,46 +1784,40 @@ hlod_result hlod_simplify(const hlod_mesh *in, const hlod_simplify_desc *desc,
     for (size_t i = 0; i < in->vertex_count * 3; i++)
         if (!isfinite(in->positions[i]))
             return HLOD_ERR_NAN;
-    double t0 = now_s();
+    return HLOD_OK;
+}
 
-    /* Normalized frame: centre on the bounding box, unit extent. */
-    double lo[3], hi[3], centre[3];
+/* Normalized frame: centre on the bounding box, unit extent.  Dividing by
+ * the extent itself (not a power of two near it) makes the normalized
+ * coordinates, hence every cost and its queue bucket, the same for a
+ * scaled copy of the mesh up to rounding.  Returns the scale. */
+static double normalized_frame(const hlod_mesh *in, double centre[3])
+{
+    double lo[3], hi[3], ext = 0;
     hlod_mesh_bounds(in, lo, hi);
-    double ext = 0;
     for (int k = 0; k < 3; k++) {
         centre[k] = 0.5 * (lo[k] + hi[k]);
         if (hi[k] - lo[k] > ext)
             ext = hi[k] - lo[k];
     }
-    /* Dividing by the extent itself (not a power of two near it) makes the
-     * normalized coordinates, hence every cost and its queue bucket, the
-     * same for a scaled copy of the mesh up to rounding. */
-    double scale = ext > 0 ? ext : 1, inv_scale = 1 / scale;
+    return ext > 0 ? ext : 1;
+}
 
-    state s = {0};
-    hlod_result res = HLOD_ERR_NOMEM;
-    size_t nw = in->vertex_count, nt = in->tri_count;
-    s.nw = nw;
-    s.nt = nt;
-    s.wpv = malloc(nw * sizeof *s.wpv);
-    s.rep = malloc(nw * sizeof *s.rep);
-    s.tv = malloc(nt * 3 * sizeof *s.tv);
-    s.tw = malloc(nt * 3 * sizeof *s.tw);
-    s.talive = malloc(nt);
-    nrec *recs = NULL;
-    size_t rcap = 0;
-    hentry *table = NULL;
-    uint32_t *wcanon = NULL;
-    if (!s.wpv || !s.rep || !s.tv || !s.tw || !s.talive)
-        goto done;
-
-    /* Weld positions with an open-addressing hash. */
-    size_t tcap = 16;
+/* Phase "weld": the input tables, and input vertices at one position
+ * become one position vertex (an open-addressing hash). */
+static void weld(state *s, const hlod_mesh *in)
+{
+    s->weld_block = phase_block(s, layout_weld, in);
+    if (s->oom)
+        return;
+    size_t nw = s->n_wedges, tcap = 16;
     while (tcap < nw * 2)
         tcap *= 2;
-    table = malloc(tcap * sizeof *table);
-    if (!table)
-        goto done;
+    hentry *table = malloc(tcap * sizeof *table);
+    if (!table) {
+        s->oom = 1;
+        return;
+    }
     for (size_t i = 0; i < tcap; i++)
         table[i].v = UINT32_MAX;
     size_t nv = 0;
@@ -1739,138 +1829,151 @@ hlod_result hlod_simplify(const hlod_mesh *in, const hlod_simplify_desc *desc,
             if (table[i].v == UINT32_MAX) {
                 table[i].key = h;
                 table[i].v = (uint32_t)nv;
-                s.rep[nv] = (uint32_t)w;
-                s.wpv[w] = (uint32_t)nv++;
+                s->pos_rep[nv] = (uint32_t)w;
+                s->wedge_pos[w] = (uint32_t)nv++;
                 break;
             }
-            const double *q = in->positions + 3 * (size_t)s.rep[table[i].v];
+            const double *q = in->positions + 3 * (size_t)s->pos_rep[table[i].v];
             if (table[i].key == h && q[0] == p[0] && q[1] == p[1] && q[2] == p[2]) {
-                s.wpv[w] = table[i].v;
+                s->wedge_pos[w] = table[i].v;
                 break;
             }
             i = (i + 1) & (tcap - 1);
         }
     }
     free(table);
-    table = NULL;
-    s.nv = nv;
-    /* Number position vertices and triangles in Morton order: inputs often
-     * list vertices at random (bunny00.off: neighbours ~9000 indices
-     * apart), and every collapse reads its neighbourhood. */
-    if (!spatial_order(&s, in, centre, inv_scale))
-        goto done;
-    s.vx = calloc(nv, sizeof *s.vx);
-    s.px = malloc(nv * sizeof *s.px);
-    s.adj = calloc(nv, sizeof *s.adj);
-    if (!s.vx || !s.px || !s.adj)
-        goto done;
-    for (size_t v = 0; v < nv; v++)
-        s.vx[v].alive = 1;
-    s.vflag = calloc(nv, 1);
-    s.mark = calloc(nv, sizeof *s.mark);
+    s->n_pos = nv;
+}
+
+/* Phase "vertices": position vertices numbered in Morton order (inputs
+ * often list vertices at random, bunny00.off: neighbours ~9000 indices
+ * apart, and every collapse reads its neighbourhood), their records and
+ * normalized positions, and the caller's locks. */
+static void vertices(state *s, const hlod_mesh *in, const double centre[3], double inv_scale,
+                     const hlod_simplify_desc *desc)
+{
+    spatial_order(s, in, centre, inv_scale);
+    if (!s->oom)
+        s->vert_block = phase_block(s, layout_verts, in);
+    if (s->oom)
+        return;
+    for (size_t v = 0; v < s->n_pos; v++)
+        s->verts[v].alive = 1;
 #ifdef HLOD_SELFCHECK
     /* the stamp clocks wrap within the first thousand stamps */
-    s.mark_clock = s.wclock = UINT32_MAX - 1000;
+    s->pos_clock = s->wedge_clock = UINT32_MAX - 1000;
 #endif
-    s.slot = malloc(nv * sizeof *s.slot);
-    if (!s.vflag || !s.mark || !s.slot)
-        goto done;
-    for (size_t v = 0; v < nv; v++)
+    for (size_t v = 0; v < s->n_pos; v++)
         for (int k = 0; k < 3; k++)
-            s.px[v][k] = (in->positions[3 * (size_t)s.rep[v] + k] - centre[k]) * inv_scale;
+            s->pos[v][k] = (in->positions[3 * (size_t)s->pos_rep[v] + k] - centre[k]) * inv_scale;
     if (desc->vertex_lock)
-        for (size_t w = 0; w < nw; w++)
+        for (size_t w = 0; w < s->n_wedges; w++)
             if (desc->vertex_lock[w])
-                s.vx[s.wpv[w]].ulock = 1;
+                s->verts[s->wedge_pos[w]].ulock = 1;
+}
 
-    /* Wedges: input vertices that share a position and a UV are one wedge,
-     * whatever their normals say (normals are recomputed on output), so a
-     * flat-shaded mesh does not turn every edge into a seam. */
-    wcanon = malloc(nw * sizeof *wcanon);
-    if (!wcanon || !canonical_wedges(&s, in, wcanon))
-        goto done;
-
-    /* Triangles, in the order of their first corner's vertex; drop those
-     * whose corners weld together. */
-    s.tpos = malloc(nt * sizeof *s.tpos);
-    if (in->tri_material)
-        s.tmat = malloc(nt * sizeof *s.tmat);
+/* Phase "triangles": corners as wedges (input vertices that share a
+ * position and a UV are one wedge, whatever their normals say: normals are
+ * recomputed on output, so a flat-shaded mesh does not turn every edge
+ * into a seam) and position vertices, triangles in the order of their
+ * first corner's vertex; those whose corners weld together die.  Returns
+ * the live count and counts each vertex's faces. */
+static size_t triangles(state *s, const hlod_mesh *in)
+{
+    size_t nw = s->n_wedges, nt = s->n_tris, nv = s->n_pos;
+    uint32_t *wcanon = malloc(nw * sizeof *wcanon);
     uint32_t *bucket = calloc(nv + 1, sizeof *bucket);
-    if (!s.tpos || (in->tri_material && !s.tmat) || !bucket) {
+    if (!wcanon || !bucket)
+        s->oom = 1;
+    else
+        canonical_wedges(s, in, wcanon);
+    if (s->oom) {
+        free(wcanon);
         free(bucket);
-        goto done;
+        return 0;
     }
     for (size_t t = 0; t < nt; t++)
-        bucket[s.wpv[in->indices[3 * t]] + 1]++;
+        bucket[s->wedge_pos[in->indices[3 * t]] + 1]++;
     for (size_t v = 0; v < nv; v++)
         bucket[v + 1] += bucket[v];
     for (size_t t = 0; t < nt; t++)
-        s.tpos[t] = bucket[s.wpv[in->indices[3 * t]]]++;
+        s->tri_slot[t] = bucket[s->wedge_pos[in->indices[3 * t]]]++;
     free(bucket);
-    size_t live = 0;
     for (size_t t0 = 0; t0 < nt; t0++) {
-        size_t t = s.tpos[t0];
+        size_t t = s->tri_slot[t0];
         for (int c = 0; c < 3; c++) {
-            s.tw[3 * t + c] = wcanon[in->indices[3 * t0 + c]];
-            s.tv[3 * t + c] = s.wpv[in->indices[3 * t0 + c]];
+            s->tri_wedge[3 * t + c] = wcanon[in->indices[3 * t0 + c]];
+            s->tri_pos[3 * t + c] = s->wedge_pos[in->indices[3 * t0 + c]];
         }
-        if (s.tmat)
-            s.tmat[t] = in->tri_material[t0];
+        if (s->tri_mat)
+            s->tri_mat[t] = in->tri_material[t0];
     }
+    free(wcanon);
+    size_t live = 0;
     for (size_t t = 0; t < nt; t++) {
-        const uint32_t *tv = s.tv + 3 * t;
-        s.talive[t] = tv[0] != tv[1] && tv[1] != tv[2] && tv[0] != tv[2];
-        if (s.talive[t]) {
+        const uint32_t *tv = s->tri_pos + 3 * t;
+        s->tri_alive[t] = tv[0] != tv[1] && tv[1] != tv[2] && tv[0] != tv[2];
+        if (s->tri_alive[t]) {
             live++;
             for (int c = 0; c < 3; c++)
-                s.adj[tv[c]].count++;
+                s->adj[tv[c]].count++;
         }
     }
-    s.pool_cap = live * 3 + 16;
-    s.pool = malloc(s.pool_cap * sizeof *s.pool);
-    if (!s.pool)
-        goto done;
-    for (size_t v = 0; v < nv; v++) {
-        s.adj[v].start = (uint32_t)s.pool_n;
-        s.adj[v].cap = s.adj[v].count;
-        s.pool_n += s.adj[v].count;
-        s.adj[v].count = 0;
+    return live;
+}
+
+/* Phase "adjacency": each position vertex's live faces in the pool. */
+static void adjacency(state *s, size_t live)
+{
+    s->pool_cap = live * 3 + 16;
+    s->pool = malloc(s->pool_cap * sizeof *s->pool);
+    if (!s->pool) {
+        s->oom = 1;
+        return;
     }
-    for (size_t t = 0; t < nt; t++)
-        if (s.talive[t])
+    for (size_t v = 0; v < s->n_pos; v++) {
+        s->adj[v].start = (uint32_t)s->pool_n;
+        s->adj[v].cap = s->adj[v].count;
+        s->pool_n += s->adj[v].count;
+        s->adj[v].count = 0;
+    }
+    for (size_t t = 0; t < s->n_tris; t++)
+        if (s->tri_alive[t])
             for (int c = 0; c < 3; c++) {
-                uint32_t v = s.tv[3 * t + c];
-                s.pool[s.adj[v].start + s.adj[v].count++] = ENT(t, c);
+                uint32_t v = s->tri_pos[3 * t + c];
+                s->pool[s->adj[v].start + s->adj[v].count++] = ENT(t, c);
             }
+}
 
-    /* Attribute data (wedge groups are formed only when textured). */
+/* Phase "attributes": UVs and their quadrics when textured (wedge groups
+ * are formed only then); untextured, each position vertex's one wedge
+ * (canonical_wedges() merges by position alone), for untextured_wedges(). */
+static void attributes(state *s, const hlod_mesh *in, const hlod_simplify_desc *desc)
+{
+    s->attr_block = phase_block(s, layout_attrs, in);
+    if (s->oom)
+        return;
     if (in->uvs) {
-        s.uv = malloc(nw * sizeof *s.uv);
-        s.aq = calloc(nw, sizeof *s.aq);
-        s.wtouched = calloc(nw, 1);
-        s.wmark = calloc(nw, sizeof *s.wmark);
-        if (!s.uv || !s.aq || !s.wtouched || !s.wmark)
-            goto done;
-        memcpy(s.uv, in->uvs, nw * sizeof *s.uv);
-        s.uv_w = desc->uv_weight > 0 ? desc->uv_weight : 1.0;
+        memcpy(s->wedge_uv, in->uvs, s->n_wedges * sizeof *s->wedge_uv);
+        s->uv_weight = desc->uv_weight > 0 ? desc->uv_weight : 1.0;
     } else {
-        /* one wedge per position vertex (canonical_wedges() merges by
-         * position alone): note it, for untextured_wedges() */
-        s.pvw = malloc(nv * sizeof *s.pvw);
-        if (!s.pvw)
-            goto done;
-        for (size_t t = 0; t < nt; t++)
-            if (s.talive[t])
+        for (size_t t = 0; t < s->n_tris; t++)
+            if (s->tri_alive[t])
                 for (int c = 0; c < 3; c++)
-                    s.pvw[s.tv[3 * t + c]] = s.tw[3 * t + c];
+                    s->pos_wedge[s->tri_pos[3 * t + c]] = s->tri_wedge[3 * t + c];
     }
+}
 
-    /* Face quadrics. */
-    for (size_t t = 0; t < nt; t++) {
-        if (!s.talive[t])
+/* Phase "face quadrics": each face's plane (Garland-Heckbert) into its
+ * corners, weighted by area, and when textured the UV as a linear function
+ * over the face (Hoppe) into its wedges. */
+static void face_quadrics(state *s)
+{
+    for (size_t t = 0; t < s->n_tris; t++) {
+        if (!s->tri_alive[t])
             continue;
-        const uint32_t *tv = s.tv + 3 * t;
-        const double *p0 = s.px[tv[0]], *p1 = s.px[tv[1]], *p2 = s.px[tv[2]];
+        const uint32_t *tv = s->tri_pos + 3 * t;
+        const double *p0 = s->pos[tv[0]], *p1 = s->pos[tv[1]], *p2 = s->pos[tv[2]];
         double e1[3], e2[3], n[3];
         hlod_sub3(e1, p1, p0);
         hlod_sub3(e2, p2, p0);
@@ -1883,97 +1986,114 @@ hlod_result hlod_simplify(const hlod_mesh *in, const hlod_simplify_desc *desc,
         quadric q = {0};
         q_plane(&q, un, -hlod_dot3(un, p0), area);
         for (int c = 0; c < 3; c++) {
-            q_add(&s.vx[tv[c]].q, &q);
-            s.vx[tv[c]].w += area;
+            q_add(&s->verts[tv[c]].q, &q);
+            s->verts[tv[c]].w += area;
         }
-        if (s.aq) {
-            /* Hoppe: the UV as a linear function g.x + d over the face. */
-            const uint32_t *tw = s.tw + 3 * t;
-            double w = area * s.uv_w * s.uv_w;
-            double l2 = l * l;
-            double e2n[3], ne1[3];
-            hlod_cross3(e2n, e2, n);
-            hlod_cross3(ne1, n, e1);
-            attrq a = {0};
-            a.w = w;
-            for (int j = 0; j < 2; j++) {
-                double s0 = s.uv[tw[0]][j], s1 = s.uv[tw[1]][j], s2 = s.uv[tw[2]][j];
-                double g[3];
-                for (int k = 0; k < 3; k++)
-                    g[k] = ((s1 - s0) * e2n[k] + (s2 - s0) * ne1[k]) / l2;
-                double d = s0 - hlod_dot3(g, p0);
-                for (int k = 0; k < 3; k++)
-                    a.g[j][k] = w * g[k];
-                a.d[j] = w * d;
-                q_plane(&a.q, g, d, w);
-            }
-            for (int c = 0; c < 3; c++)
-                aq_add(&s.aq[tw[c]], &a);
-        }
-    }
-
-    /* Classify vertices and add constraint planes along feature edges.
-     * (VF_LOCK, cleared before each pass's walk, first flags the
-     * feature vertices in a byte each: the triangle loop below then reads
-     * a small array instead of every corner's pvert.) */
-    size_t nfeat = 0;
-    memset(s.vflag, 0, nv);
-    for (size_t v = 0; v < nv; v++) {
-        if (!s.adj[v].count)
+        if (!s->wedge_aq)
             continue;
-        if (!classify(&s, (uint32_t)v, &recs, &rcap))
-            goto done;
-        if (desc->lock_border) {
-            long cnt = neighbours(&s, (uint32_t)v, &recs, &rcap);
-            for (long j = 0; j < cnt; j++)
-                if (recs[j].faces == 1)
-                    s.vx[v].ulock = s.vx[v].locked = 1;
+        const uint32_t *tw = s->tri_wedge + 3 * t;
+        double w = area * s->uv_weight * s->uv_weight;
+        double l2 = l * l;
+        double e2n[3], ne1[3];
+        hlod_cross3(e2n, e2, n);
+        hlod_cross3(ne1, n, e1);
+        attrq a = {0};
+        a.w = w;
+        for (int j = 0; j < 2; j++) {
+            double s0 = s->wedge_uv[tw[0]][j], s1 = s->wedge_uv[tw[1]][j], s2 = s->wedge_uv[tw[2]][j];
+            double g[3];
+            for (int k = 0; k < 3; k++)
+                g[k] = ((s1 - s0) * e2n[k] + (s2 - s0) * ne1[k]) / l2;
+            double d = s0 - hlod_dot3(g, p0);
+            for (int k = 0; k < 3; k++)
+                a.g[j][k] = w * g[k];
+            a.d[j] = w * d;
+            q_plane(&a.q, g, d, w);
         }
-        if (s.vx[v].fdeg) {
-            s.vflag[v] = VF_LOCK;
+        for (int c = 0; c < 3; c++)
+            aq_add(&s->wedge_aq[tw[c]], &a);
+    }
+}
+
+/* Phase "feature classification": every vertex's feature degree and lock,
+ * border locks when asked.  VF_LOCK, cleared before each pass's walk,
+ * first flags the feature vertices in a byte each, so feature_planes()
+ * reads a small array instead of every corner's pvert.  Returns how many
+ * vertices are on features. */
+static size_t classify_vertices(state *s, const hlod_simplify_desc *desc, nrec **recs,
+                                size_t *rcap)
+{
+    size_t nfeat = 0;
+    memset(s->pos_flag, 0, s->n_pos);
+    for (size_t v = 0; v < s->n_pos; v++) {
+        if (!s->adj[v].count)
+            continue;
+        classify(s, (uint32_t)v, recs, rcap);
+        if (s->oom)
+            return 0;
+        if (desc->lock_border) {
+            long cnt = neighbours(s, (uint32_t)v, recs, rcap);
+            if (s->oom)
+                return 0;
+            for (long j = 0; j < cnt; j++)
+                if ((*recs)[j].faces == 1)
+                    s->verts[v].ulock = s->verts[v].locked = 1;
+        }
+        if (s->verts[v].fdeg) {
+            s->pos_flag[v] = VF_LOCK;
             nfeat++;
         }
     }
-    for (size_t t = 0; t < nt && nfeat; t++) {
-        if (!s.talive[t])
+    return nfeat;
+}
+
+/* Is (a, b), corner c of face t, a feature edge (a border, a seam, a
+ * material change or a non-manifold edge)?  Looks for the other face. */
+static int is_feature_edge(const state *s, size_t t, int c, uint32_t a, uint32_t b)
+{
+    int feature = 1, found = 0;
+    const uint32_t *fl = s->pool + s->adj[a].start;
+    for (uint32_t i = 0; i < s->adj[a].count; i++) {
+        uint32_t u = ENT_T(fl[i]);
+        if (u == t || !s->tri_alive[u])
             continue;
-        const uint32_t *tv = s.tv + 3 * t;
+        int ca = ENT_C(fl[i]), cb = corner_of(s, ENT_T(fl[i]), b);
+        if (cb < 0)
+            continue;
+        found++;
+        uint32_t wa = s->tri_wedge[3 * t + c], wb = s->tri_wedge[3 * t + (c + 1) % 3];
+        int same = s->tri_wedge[3 * u + ca] == wa && s->tri_wedge[3 * u + cb] == wb &&
+                   (!s->tri_mat || s->tri_mat[u] == s->tri_mat[t]);
+        feature = !same;
+    }
+    return found > 1 ? 1 : feature;
+}
+
+/* Phase "feature planes": a constraint plane through each feature edge,
+ * perpendicular to its face, into both ends. */
+static void feature_planes(state *s, size_t nfeat)
+{
+    for (size_t t = 0; t < s->n_tris && nfeat; t++) {
+        if (!s->tri_alive[t])
+            continue;
+        const uint32_t *tv = s->tri_pos + 3 * t;
         /* a feature edge has feature vertices at both ends */
-        if ((s.vflag[tv[0]] & VF_LOCK) + (s.vflag[tv[1]] & VF_LOCK) + (s.vflag[tv[2]] & VF_LOCK) < 2)
+        if ((s->pos_flag[tv[0]] & VF_LOCK) + (s->pos_flag[tv[1]] & VF_LOCK) +
+                (s->pos_flag[tv[2]] & VF_LOCK) < 2)
             continue;
         double e1[3], e2[3], n[3];
-        hlod_sub3(e1, s.px[tv[1]], s.px[tv[0]]);
-        hlod_sub3(e2, s.px[tv[2]], s.px[tv[0]]);
+        hlod_sub3(e1, s->pos[tv[1]], s->pos[tv[0]]);
+        hlod_sub3(e2, s->pos[tv[2]], s->pos[tv[0]]);
         hlod_cross3(n, e1, e2);
         double ln = sqrt(hlod_dot3(n, n));
         if (!(ln > 0))
             continue;
         for (int c = 0; c < 3; c++) {
             uint32_t a = tv[c], b = tv[(c + 1) % 3];
-            if (!s.vx[a].fdeg || !s.vx[b].fdeg)
-                continue;
-            /* Is (a, b) a feature edge?  Look for the other face. */
-            int feature = 1, found = 0;
-            const uint32_t *fl = s.pool + s.adj[a].start;
-            for (uint32_t i = 0; i < s.adj[a].count; i++) {
-                uint32_t u = ENT_T(fl[i]);
-                if (u == t || !s.talive[u])
-                    continue;
-                int ca = ENT_C(fl[i]), cb = corner_of(&s, ENT_T(fl[i]), b);
-                if (cb < 0)
-                    continue;
-                found++;
-                uint32_t wa = s.tw[3 * t + c], wb = s.tw[3 * t + (c + 1) % 3];
-                int same = s.tw[3 * u + ca] == wa && s.tw[3 * u + cb] == wb &&
-                           (!s.tmat || s.tmat[u] == s.tmat[t]);
-                feature = !same;
-            }
-            if (found > 1)
-                feature = 1;
-            if (!feature)
+            if (!s->verts[a].fdeg || !s->verts[b].fdeg || !is_feature_edge(s, t, c, a, b))
                 continue;
             double ed[3], m[3];
-            hlod_sub3(ed, s.px[b], s.px[a]);
+            hlod_sub3(ed, s->pos[b], s->pos[a]);
             hlod_cross3(m, ed, n);
             double lm = sqrt(hlod_dot3(m, m));
             if (!(lm > 0))
@@ -1986,98 +2106,194 @@ hlod_result hlod_simplify(const hlod_mesh *in, const hlod_simplify_desc *desc,
              * graded from 1e-3 to 1e7 otherwise slid a corner along the
              * other border for free and lost half its area). */
             quadric q = {0};
-            q_plane(&q, m, -hlod_dot3(m, s.px[a]), BORDER_WEIGHT * fmax(hlod_dot3(ed, ed), ln));
-            q_add(&s.vx[a].q, &q);
-            q_add(&s.vx[b].q, &q);
+            q_plane(&q, m, -hlod_dot3(m, s->pos[a]), BORDER_WEIGHT * fmax(hlod_dot3(ed, ed), ln));
+            q_add(&s->verts[a].q, &q);
+            q_add(&s->verts[b].q, &q);
         }
     }
+}
 
-    size_t target = desc->target_tris;
-    double max_est = 0;
-    double err_limit2 = 0; /* squared, normalized units */
-    if (desc->target_error > 0)
-        err_limit2 = (desc->target_error * inv_scale) * (desc->target_error * inv_scale);
-    size_t tris_start = live;
-    int stop = 0, unlimited = 0;
-    int first_pass = 1;
-    while (live > target && !stop) {
-        /* One pass: price every edge, sort, and collapse the cheapest
-         * ones whose endpoints this pass has not touched yet.
-         *
-         * A price depends only on its two endpoints (quadrics, positions,
-         * locks, feature degrees, wedges) and on the faces of its edge, and
-         * a collapse changes those only at the vertices it marks stale
-         * (both endpoints; after a feature collapse, the apexes).  So
-         * after the first pass only
-         * edges with a stale endpoint are re-priced; the others keep last
-         * pass's candidate, whose price is still exact (checked by
-         * re-pricing every kept one on the benchmark meshes and a city
-         * block).  On a city block's late passes, where a pass makes a few
-         * hundred collapses among thousands of edges, pricing was most of
-         * the time. */
-        if (first_pass) {
-            s.nc = 0;
+/* What the passes carry from one to the next. */
+typedef struct run {
+    size_t live, target;       /* live triangles, and the goal */
+    double err_limit2;         /* squared, normalized units; 0 = none */
+    double max_est;            /* the largest squared estimate collapsed */
+    size_t collapses;
+    int stop;                  /* the error limit was reached */
+} run;
+
+/* Before a pass (not the first): keep last pass's candidates whose ends
+ * are not stale, and bring back parked edges with a touched end.
+ *
+ * A price depends only on its two endpoints (quadrics, positions, locks,
+ * feature degrees, wedges) and on the faces of its edge, and a collapse
+ * changes those only at the vertices it marks stale (both endpoints;
+ * after a feature collapse, the apexes).  So after the first pass only
+ * edges with a stale endpoint are re-priced; the others keep last pass's
+ * candidate, whose price is still exact (checked by re-pricing every kept
+ * one on the benchmark meshes and a city block).  On a city block's late
+ * passes, where a pass makes a few hundred collapses among thousands of
+ * edges, pricing was most of the time.
+ *
+ * A refused edge is parked: try_edge reads only the stars of its
+ * endpoints (their faces, wedges, positions, quadrics and locks), and
+ * every vertex whose star a collapse changes is marked touched.  So it
+ * stays refused, and out of the walk, until an endpoint is touched; then
+ * it comes back at its kept price, or is re-priced when an endpoint is
+ * stale.  (On spider.obj three of four tries were the same refusals, pass
+ * after pass.) */
+static void refresh_candidates(state *s)
+{
+    /* (a negative price marks an edge this pass parked) */
+    size_t keep = 0;
+    for (size_t i = 0; i < s->n_cand; i++)
+        if (s->cand[i].cost >= 0 &&
+            !((s->pos_flag[s->cand[i].a] | s->pos_flag[s->cand[i].b]) & VF_STALE))
+            s->cand[keep++] = s->cand[i];
+    s->n_cand = keep;
+    size_t still = 0;
+    for (size_t i = 0; i < s->n_parked; i++) {
+        cand c = s->parked[i];
+        if ((s->pos_flag[c.a] | s->pos_flag[c.b]) & VF_STALE)
+            continue;
+        if ((s->pos_flag[c.a] | s->pos_flag[c.b]) & VF_TOUCHED) {
+            cand_push(s, c);
+            if (s->oom)
+                return;
         } else {
-            /* (a negative price marks an edge this pass parked) */
-            size_t keep = 0;
-            for (size_t i = 0; i < s.nc; i++)
-                if (s.cand[i].cost >= 0 && !((s.vflag[s.cand[i].a] | s.vflag[s.cand[i].b]) & VF_STALE))
-                    s.cand[keep++] = s.cand[i];
-            s.nc = keep;
-            /* A refused edge is parked: try_edge reads only the stars of
-             * its endpoints (their faces, wedges, positions, quadrics and
-             * locks), and every vertex whose star a collapse changes is
-             * marked touched.  So it stays refused, and out of the walk,
-             * until an endpoint is touched; then it comes back at its
-             * kept price, or is re-priced when an endpoint is stale.  (On
-             * spider.obj three of four tries were the same refusals, pass
-             * after pass.) */
-            size_t still = 0;
-            for (size_t i = 0; i < s.np; i++) {
-                cand c = s.parked[i];
-                if ((s.vflag[c.a] | s.vflag[c.b]) & VF_STALE)
-                    continue;
-                if ((s.vflag[c.a] | s.vflag[c.b]) & VF_TOUCHED) {
-                    if (!cand_push(&s, c))
-                        goto done;
-                } else {
-                    s.parked[still++] = c;
-                }
-            }
-            s.np = still;
+            s->parked[still++] = c;
         }
-        for (size_t v = 0; v < nv; v++) {
-            /* (the stale byte first: later passes then skip most
-             * vertices without reading their records) */
-            if ((!first_pass && !(s.vflag[v] & VF_STALE)) || !s.vx[v].alive || !s.adj[v].count)
+    }
+    s->n_parked = still;
+}
+
+/* Prices every edge (first pass) or every edge with a stale end. */
+static void price_edges(state *s, int first_pass, nrec **recs, size_t *rcap)
+{
+    for (size_t v = 0; v < s->n_pos; v++) {
+        /* (the stale byte first: later passes then skip most vertices
+         * without reading their records) */
+        if ((!first_pass && !(s->pos_flag[v] & VF_STALE)) || !s->verts[v].alive || !s->adj[v].count)
+            continue;
+        long cnt = edges_of(s, (uint32_t)v, recs, rcap);
+        for (long j = 0; j < cnt && !s->oom; j++) {
+            nrec r = (*recs)[j];
+            /* each edge once: from its lower end when both are to be
+             * priced, else from the marked one */
+            int other_priced = first_pass || (s->pos_flag[r.n] & VF_STALE);
+            if ((other_priced && r.n < v) || r.faces > 2)
                 continue;
-            long cnt = edges_of(&s, (uint32_t)v, &recs, &rcap);
-            if (cnt < 0)
-                goto done;
-            for (long j = 0; j < cnt; j++) {
-                nrec r = recs[j];
-                /* each edge once: from its lower end when both are to be
-                 * priced, else from the marked one */
-                int other_priced = first_pass || (s.vflag[r.n] & VF_STALE);
-                if ((other_priced && r.n < v) || r.faces > 2)
-                    continue;
-                uint32_t a = (uint32_t)v < r.n ? (uint32_t)v : r.n, b = (uint32_t)v < r.n ? r.n : (uint32_t)v;
-                double price;
-                int k = price_edge(&s, a, b, r.feature, &price);
-                if (k < 0)
-                    goto done;
-                if (k == 0)
-                    continue;
-                cand c = {(float)price, a, b};
-                if (!cand_push(&s, c))
-                    goto done;
-            }
+            uint32_t a = (uint32_t)v < r.n ? (uint32_t)v : r.n, b = (uint32_t)v < r.n ? r.n : (uint32_t)v;
+            double price;
+            if (!price_edge(s, a, b, r.feature, &price))
+                continue;
+            cand c = {(float)price, a, b};
+            cand_push(s, c);
         }
+        if (s->oom)
+            return;
+    }
+}
+
+/* Walks the sorted prices up to cost_goal, collapsing the cheapest edges
+ * whose endpoints this pass has not touched yet.  A candidate whose
+ * cheapest placement is refused (flip, sliver) but has a valid dearer one
+ * is re-queued at its true price in a small heap merged into the walk, so
+ * a refusal never lets a dearer edge jump the queue.  Returns the pass's
+ * collapses. */
+static size_t walk_pass(state *s, run *r, float cost_goal, nrec **recs, size_t *rcap)
+{
+    size_t pass_collapses = 0, i = 0;
+    s->requeue.n = 0;
+    while (r->live > r->target) {
+        cand c;
+        int from_heap = s->requeue.n && (i >= s->n_cand || s->requeue.e[0].cost < s->cand[i].cost);
+        if (from_heap) {
+            c = rheap_pop(&s->requeue);
+        } else if (i < s->n_cand) {
+            prefetch_ahead(s, i);
+            c = s->cand[i++];
+        } else {
+            break;
+        }
+        if (c.cost > cost_goal)
+            break;
+        uint32_t a = c.a, b = c.b;
+        /* an endpoint changed in this pass: its price is stale */
+        if ((s->pos_flag[a] | s->pos_flag[b]) & VF_LOCK)
+            continue;
+        size_t na, nb;
+        eval e;
+        int k = try_edge(s, a, b, &e, &na, &nb);
+        if (s->oom)
+            break;
+        if (k < 0) {
+            /* park it (a re-queued one keeps its place in the list: its
+             * price there is the pass's, not the re-queued one) */
+            if (!from_heap) {
+                park(s, c);
+                s->cand[i - 1].cost = -1;
+            }
+            if (s->oom)
+                break;
+            continue;
+        }
+        const plan *chosen = &e.cand[k];
+        if ((float)chosen->cost > c.cost) {
+            cand dearer = {(float)chosen->cost, a, b};
+            requeue(s, dearer);
+            if (s->oom)
+                break;
+            continue;
+        }
+        double est2 = e.w > 0 ? q_eval(&e.qgeo, chosen->x) / e.w : 0;
+        if (r->err_limit2 > 0 && est2 > r->err_limit2) {
+            r->stop = 1;
+            break;
+        }
+        if (est2 > r->max_est)
+            r->max_est = est2;
+        double x[3] = {chosen->x[0], chosen->x[1], chosen->x[2]};
+        collapse(s, a, b, x, s->star_a, na, s->star_b, nb, &r->live, recs, rcap);
+        if (s->oom)
+            break;
+        r->collapses++;
+        /* A pass that found nothing under its bound takes the cheapest
+         * valid collapse, then bounds itself by that. */
+        if (!pass_collapses++ && cost_goal == FLT_MAX)
+            cost_goal = c.cost * PASS_SLACK;
+        s->pos_flag[a] |= VF_LOCK | VF_STALE;
+        s->pos_flag[b] |= VF_LOCK | VF_STALE;
+        /* A feature collapse may reclassify the apexes: collapse() then
+         * locked b's whole ring for the rest of the pass.  (Only the apexes
+         * are stale: collapse() marked them.  Locking just those let passes
+         * run further from the priority order, and fandisk at 1% lost its
+         * max-error lead over meshoptimizer.) */
+    }
+    return pass_collapses;
+}
+
+/* Phase "passes": price, sort, walk, until the target, the error limit,
+ * or no valid collapse is left. */
+static hlod_result run_passes(state *s, const hlod_simplify_desc *desc, run *r, nrec **recs,
+                              size_t *rcap)
+{
+    const size_t tris_start = r->live;
+    int first_pass = 1, unlimited = 0;
+    while (r->live > r->target && !r->stop) {
+        if (first_pass)
+            s->n_cand = 0;
+        else
+            refresh_candidates(s);
+        if (!s->oom)
+            price_edges(s, first_pass, recs, rcap);
+        if (s->oom)
+            return HLOD_ERR_NOMEM;
 #ifdef HLOD_SELFCHECK
-        selfcheck_prices(&s, &recs, &rcap);
+        selfcheck_prices(s, recs, rcap);
 #endif
         first_pass = 0;
-        if (!s.nc)
+        if (!s->n_cand)
             break;
         /* Each interior collapse removes two triangles.  Stop the pass at
          * 1.5x the cost of the collapse that would reach the goal, so a
@@ -2085,83 +2301,20 @@ hlod_result hlod_simplify(const hlod_mesh *in, const hlod_simplify_desc *desc,
          * candidates under that bound are sorted (about half): the walk
          * stops at the first one over it, whichever it is, and the next
          * pass sorts afresh. */
-        size_t goal = (live - target) / 2;
-        float cost_goal = goal < s.nc && !unlimited ? cost_rank(s.cand, s.nc, goal) * PASS_SLACK : FLT_MAX;
-        size_t nsorted = s.nc;
+        size_t goal = (r->live - r->target) / 2;
+        float cost_goal = goal < s->n_cand && !unlimited
+                              ? cost_rank(s->cand, s->n_cand, goal) * PASS_SLACK
+                              : FLT_MAX;
+        size_t nsorted = s->n_cand;
         if (cost_goal < FLT_MAX)
-            nsorted = cands_under(s.cand, s.nc, cost_goal);
-        if (!cand_sort(&s, nsorted))
-            goto done;
-        memset(s.vflag, 0, nv);
-        size_t pass_collapses = 0;
-        /* Walk the sorted prices.  A candidate whose cheapest placement is
-         * refused (flip, sliver) but has a valid dearer one is re-queued at
-         * its true price in a small heap merged into the walk, so a refusal
-         * never lets a dearer edge jump the queue. */
-        s.rh.n = 0;
-        size_t i = 0;
-        while (live > target) {
-            cand c;
-            int from_heap = s.rh.n && (i >= s.nc || s.rh.e[0].cost < s.cand[i].cost);
-            if (from_heap)
-                c = rheap_pop(&s.rh);
-            else if (i < s.nc) {
-                prefetch_ahead(&s, i);
-                c = s.cand[i++];
-            }
-            else
-                break;
-            if (c.cost > cost_goal)
-                break;
-            uint32_t a = c.a, b = c.b;
-            /* an endpoint changed in this pass: its price is stale */
-            if ((s.vflag[a] | s.vflag[b]) & VF_LOCK)
-                continue;
-            size_t na, nb;
-            eval e;
-            int k = try_edge(&s, a, b, &e, &na, &nb);
-            if (k == -2)
-                goto done;
-            if (k < 0) {
-                /* park it (a re-queued one keeps its place in the list:
-                 * its price there is the pass's, not the re-queued one) */
-                if (!from_heap) {
-                    if (!park(&s, c))
-                        goto done;
-                    s.cand[i - 1].cost = -1;
-                }
-                continue;
-            }
-            const plan *chosen = &e.cand[k];
-            if ((float)chosen->cost > c.cost) {
-                cand r = {(float)chosen->cost, a, b};
-                if (!rheap_push(&s.rh, r))
-                    goto done;
-                continue;
-            }
-            double est2 = e.w > 0 ? q_eval(&e.qgeo, chosen->x) / e.w : 0;
-            if (err_limit2 > 0 && est2 > err_limit2) {
-                stop = 1;
-                break;
-            }
-            if (est2 > max_est)
-                max_est = est2;
-            double x[3] = {chosen->x[0], chosen->x[1], chosen->x[2]};
-            if (!collapse(&s, a, b, x, s.sa, na, s.sb, nb, &live, &recs, &rcap))
-                goto done;
-            st.collapses++;
-            /* A pass that found nothing under its bound takes the cheapest
-             * valid collapse, then bounds itself by that. */
-            if (!pass_collapses++ && cost_goal == FLT_MAX)
-                cost_goal = c.cost * PASS_SLACK;
-            s.vflag[a] |= VF_LOCK | VF_STALE;
-            s.vflag[b] |= VF_LOCK | VF_STALE;
-            /* A feature collapse may reclassify the apexes: collapse()
-             * then locked b's whole ring for the rest of the pass.  (Only
-             * the apexes are stale: collapse() marked them.  Locking just
-             * those let passes run further from the priority order, and
-             * fandisk at 1% lost its max-error lead over meshoptimizer.) */
-        }
+            nsorted = cands_under(s->cand, s->n_cand, cost_goal);
+        cand_sort(s, nsorted);
+        if (s->oom)
+            return HLOD_ERR_NOMEM;
+        memset(s->pos_flag, 0, s->n_pos);
+        size_t pass_collapses = walk_pass(s, r, cost_goal, recs, rcap);
+        if (s->oom)
+            return HLOD_ERR_NOMEM;
         /* When every candidate under the bound was refused, retry once
          * without the bound before giving up. */
         if (!pass_collapses) {
@@ -2172,37 +2325,87 @@ hlod_result hlod_simplify(const hlod_mesh *in, const hlod_simplify_desc *desc,
         }
         unlimited = 0;
         if (desc->progress) {
+            size_t target = r->target;
             double total = (double)(tris_start - (target < tris_start ? target : 0));
-            if (desc->progress(desc->progress_user, (double)(tris_start - live), total)) {
-                res = HLOD_ERR_CANCELLED;
-                goto done;
-            }
+            if (desc->progress(desc->progress_user, (double)(tris_start - r->live), total))
+                return HLOD_ERR_CANCELLED;
         }
     }
+    return HLOD_OK;
+}
 
-    if (!s.uv)
-        untextured_wedges(&s);
-    res = emit(&s, in, centre, scale, out);
-    st.seconds = now_s() - t0;
-    if (res == HLOD_OK) {
-        st.tris_out = out->tri_count;
-        st.vertices_out = out->vertex_count;
-        st.error_estimate = sqrt(max_est) * scale;
-        st.error = st.error_estimate;
-        if (desc->measure_error && out->tri_count) {
-            /* certified, not sampled: a sampled maximum misses peaks (by
-             * 10% on fandisk at 200k samples) */
-            double lower, upper;
-            hlod_result r = hlod_mesh_hausdorff_bound(in, out, 0.01, 1e-9 * hlod_mesh_bbox_diag(in), &lower, &upper);
-            if (r == HLOD_OK)
-                st.error = upper;
-        }
-        if (!out->tri_count)
-            st.error = hlod_mesh_bbox_diag(in);
+/* Phase "output": the mesh, and the error (certified, not sampled: a
+ * sampled maximum misses peaks, by 10% on fandisk at 200k samples). */
+static hlod_result output(state *s, const hlod_mesh *in, const hlod_simplify_desc *desc,
+                          const double centre[3], double scale, const run *r, double t0,
+                          hlod_mesh *out, hlod_simplify_stats *st)
+{
+    if (!s->wedge_uv)
+        untextured_wedges(s);
+    hlod_result res = emit(s, in, centre, scale, out);
+    st->seconds = now_s() - t0;
+    if (res != HLOD_OK)
+        return res;
+    st->tris_out = out->tri_count;
+    st->vertices_out = out->vertex_count;
+    st->error_estimate = sqrt(r->max_est) * scale;
+    st->error = st->error_estimate;
+    if (desc->measure_error && out->tri_count) {
+        double lower, upper;
+        hlod_result hr = hlod_mesh_hausdorff_bound(in, out, 0.01, 1e-9 * hlod_mesh_bbox_diag(in),
+                                                   &lower, &upper);
+        if (hr == HLOD_OK)
+            st->error = upper;
     }
-done:
-    free(table);
-    free(wcanon);
+    if (!out->tri_count)
+        st->error = hlod_mesh_bbox_diag(in);
+    return HLOD_OK;
+}
+
+hlod_result hlod_simplify(const hlod_mesh *in, const hlod_simplify_desc *desc,
+                          hlod_mesh *out, hlod_simplify_stats *stats)
+{
+    if (!in || !desc || !out || in == out)
+        return HLOD_ERR_INVALID_ARG;
+    hlod_mesh_free(out);
+    hlod_result res = check_input(in);
+    if (res != HLOD_OK)
+        return res;
+    hlod_simplify_stats st = {0};
+    st.tris_in = in->tri_count;
+    st.vertices_in = in->vertex_count;
+    double t0 = now_s();
+    double centre[3];
+    double scale = normalized_frame(in, centre), inv_scale = 1 / scale;
+
+    state s = {0};
+    s.n_wedges = in->vertex_count;
+    s.n_tris = in->tri_count;
+    nrec *recs = NULL;
+    size_t rcap = 0;
+    run r = {0};
+    r.target = desc->target_tris;
+    if (desc->target_error > 0)
+        r.err_limit2 = (desc->target_error * inv_scale) * (desc->target_error * inv_scale);
+    weld(&s, in);
+    if (!s.oom)
+        vertices(&s, in, centre, inv_scale, desc);
+    if (!s.oom)
+        r.live = triangles(&s, in);
+    if (!s.oom)
+        adjacency(&s, r.live);
+    if (!s.oom)
+        attributes(&s, in, desc);
+    if (!s.oom) {
+        face_quadrics(&s);
+        size_t nfeat = classify_vertices(&s, desc, &recs, &rcap);
+        if (!s.oom)
+            feature_planes(&s, nfeat);
+    }
+    res = s.oom ? HLOD_ERR_NOMEM : run_passes(&s, desc, &r, &recs, &rcap);
+    st.collapses = r.collapses;
+    if (res == HLOD_OK)
+        res = output(&s, in, desc, centre, scale, &r, t0, out, &st);
     free(recs);
     state_free(&s);
     if (stats)
