@@ -19,6 +19,7 @@
 
 #include <assert.h>
 #include <math.h>
+#include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 #include <time.h>
@@ -42,69 +43,98 @@ int hlod_policy_parse(const char *name, hlod_policy *out)
     return 0;
 }
 
-#define DEF(field, value) \
-    if (d->field == 0)    \
-    d->field = (value)
+/* ---- settings (the table HLOD_ENGINE_SETTINGS in engine.h) ---- */
 
 void hlod_engine_desc_defaults(hlod_engine_desc *d)
 {
-    DEF(target_ms, 33.3);
-    DEF(memory_budget_bytes, 512ull << 20);
-    DEF(c_vis, 4.0);
-    DEF(c_vis_falloff, 1.0);
-    DEF(c_fore, 0.25);
-    DEF(c_hyst_limit, 8.0);
-    DEF(c_hyst_switch, 2.0);
-    DEF(c_safety_slack, 0.10);
-    DEF(c_hyst_deadband, 0.10);
-    DEF(velocity_lookahead_s, 0.5);
-    DEF(sse_pixels, 2.0);
-    DEF(read_chunk_bytes, 64u << 10);
-    DEF(upload_budget_bytes, 16ull << 20);
-    DEF(max_inflight, 32);
-    DEF(fixed_v_time, 1e-4);
-    DEF(deterministic_load_bytes, 4ull << 20);
-    /* c_memory: 0 means "from the store", resolved at create */
-}
+#define DEF(key, field, kind, def, lo, lo_open, hi, live, help) \
+    if (d->field == 0)                                          \
+        d->field = (HLOD_SETTING_KIND_##kind)(def);
+    HLOD_ENGINE_SETTINGS(DEF)
 #undef DEF
+}
+
+static const hlod_engine_setting settings[] = {
+#define ROW(key, field, kind, def, lo, lo_open, hi, live, help) \
+    {#key, help, #kind, (double)(def), lo, hi, lo_open, live},
+    HLOD_ENGINE_SETTINGS(ROW)
+#undef ROW
+};
+
+const hlod_engine_setting *hlod_engine_settings(size_t *count)
+{
+    if (count)
+        *count = sizeof settings / sizeof *settings;
+    return settings;
+}
+
+static int store_D(double *field, double v)
+{
+    *field = v;
+    return 1;
+}
+
+static int store_U32(uint32_t *field, double v)
+{
+    if (!(v >= 0 && v <= (double)UINT32_MAX) || v != floor(v))
+        return 0;
+    *field = (uint32_t)v;
+    return 1;
+}
+
+static int store_U64(uint64_t *field, double v)
+{
+    if (!(v >= 0 && v < 18446744073709551616.0) || v != floor(v))
+        return 0;
+    *field = (uint64_t)v;
+    return 1;
+}
+
+hlod_result hlod_engine_desc_set(hlod_engine_desc *d, const char *key, double v)
+{
+    if (!d || !key || !isfinite(v))
+        return HLOD_ERR_INVALID_ARG;
+#define SET(k, field, kind, def, lo, lo_open, hi, live, help) \
+    if (strcmp(key, #k) == 0)                                 \
+        return store_##kind(&d->field, v) ? HLOD_OK : HLOD_ERR_INVALID_ARG;
+    HLOD_ENGINE_SETTINGS(SET)
+#undef SET
+    return HLOD_ERR_INVALID_ARG;
+}
+
+/* A setting's range as text: [lo, hi] or (lo, hi], "inf" for no limit. */
+static hlod_result out_of_range(const hlod_logger *lg, const char *key, double v, double lo,
+                                int lo_open, double hi)
+{
+    char l[32], h[32];
+    snprintf(l, sizeof l, lo <= -HLOD_UNBOUNDED ? "-inf" : "%g", lo);
+    snprintf(h, sizeof h, hi >= HLOD_UNBOUNDED ? "inf" : "%g", hi);
+    hlod_logf(lg, HLOD_LOG_ERROR, "engine: %s %g is not in %c%s, %s]", key, v, lo_open ? '(' : '[',
+              l, h);
+    return HLOD_ERR_INVALID_ARG;
+}
 
 static hlod_result check_desc(const hlod_engine_desc *d, const hlod_logger *lg)
 {
+#define RANGE(key, field, kind, def, lo, lo_open, hi, live, help)                      \
+    {                                                                                 \
+        double v_ = (double)d->field;                                                 \
+        if (!isfinite(v_) || v_ < (lo) || ((lo_open) && v_ == (lo)) || v_ > (hi))    \
+            return out_of_range(lg, #key, v_, lo, lo_open, hi);                       \
+    }
+    HLOD_ENGINE_SETTINGS(RANGE)
+#undef RANGE
 #define REQUIRE(cond, ...)                                \
     if (!(cond)) {                                        \
         hlod_logf(lg, HLOD_LOG_ERROR, __VA_ARGS__);       \
         return HLOD_ERR_INVALID_ARG;                      \
     }
-    REQUIRE(isfinite(d->target_ms) && d->target_ms > 0 && d->target_ms <= 1e6,
-            "engine: target_ms %g is not a positive time", d->target_ms);
-    REQUIRE(isfinite(d->c_vis) && d->c_vis >= 0, "engine: c_vis %g < 0", d->c_vis);
-    REQUIRE(isfinite(d->c_vis_falloff) && d->c_vis_falloff > 0,
-            "engine: c_vis_falloff %g <= 0", d->c_vis_falloff);
-    REQUIRE(isfinite(d->c_fore) && d->c_fore >= 0 && d->c_fore <= 1,
-            "engine: c_fore %g is not in [0, 1]", d->c_fore);
-    REQUIRE(isfinite(d->c_hyst_limit) && d->c_hyst_limit >= 1 && d->c_hyst_limit <= 1e6,
-            "engine: c_hyst_limit %g is not in [1, 1e6]", d->c_hyst_limit);
-    REQUIRE(isfinite(d->c_hyst_switch) && d->c_hyst_switch >= 1 &&
-                d->c_hyst_switch <= d->c_hyst_limit,
+    REQUIRE(d->c_hyst_switch <= d->c_hyst_limit,
             "engine: c_hyst_switch %g is not in [1, c_hyst_limit = %g]", d->c_hyst_switch,
             d->c_hyst_limit);
-    REQUIRE(isfinite(d->c_memory) && d->c_memory >= 0, "engine: c_memory %g < 0", d->c_memory);
-    REQUIRE(isfinite(d->c_safety_slack) && d->c_safety_slack >= 0 && d->c_safety_slack <= 10,
-            "engine: c_safety_slack %g is not in [0, 10]", d->c_safety_slack);
-    REQUIRE(isfinite(d->c_hyst_deadband) && d->c_hyst_deadband <= 1,
-            "engine: c_hyst_deadband %g is above 1", d->c_hyst_deadband);
-    REQUIRE(isfinite(d->velocity_lookahead_s) && d->velocity_lookahead_s >= 0,
-            "engine: velocity_lookahead_s %g < 0", d->velocity_lookahead_s);
-    REQUIRE(isfinite(d->upload_budget_ms) && d->upload_budget_ms >= 0,
-            "engine: upload_budget_ms %g < 0", d->upload_budget_ms);
-    REQUIRE(isfinite(d->sse_pixels) && d->sse_pixels > 0, "engine: sse_pixels %g <= 0",
-            d->sse_pixels);
-    REQUIRE((unsigned)d->policy < HLOD_POLICY_COUNT, "engine: unknown policy %d", (int)d->policy);
-    REQUIRE(isfinite(d->fixed_v_time) && d->fixed_v_time > 0, "engine: fixed_v_time %g <= 0",
-            d->fixed_v_time);
-    REQUIRE(isfinite(d->fixed_frame_ms) && d->fixed_frame_ms >= 0 &&
-                d->fixed_frame_ms < d->target_ms,
+    REQUIRE(d->fixed_frame_ms < d->target_ms,
             "engine: fixed_frame_ms %g is not in [0, target_ms)", d->fixed_frame_ms);
+    REQUIRE((unsigned)d->policy < HLOD_POLICY_COUNT, "engine: unknown policy %d", (int)d->policy);
     REQUIRE(!!d->allocator.alloc == !!d->allocator.free &&
                 !!d->allocator.alloc == !!d->allocator.realloc,
             "engine: an allocator needs alloc, realloc and free");
@@ -176,13 +206,16 @@ hlod_result hlod_engine_set(hlod_engine *e, const hlod_engine_desc *desc)
     hlod_engine_desc d = *desc;
     hlod_engine_desc_defaults(&d);
     /* fields that need a restart keep their values */
-    d.memory_budget_bytes = e->d.memory_budget_bytes;
+#define KEEP(key, field, kind, def, lo, lo_open, hi, live, help) \
+    if (!(live))                                                \
+        d.field = e->d.field;
+    HLOD_ENGINE_SETTINGS(KEEP)
+#undef KEEP
     d.renderer = e->d.renderer;
     d.deterministic = e->d.deterministic;
     d.read_hook = e->d.read_hook;
     d.read_hook_user = e->d.read_hook_user;
     d.allocator = e->d.allocator;
-    d.read_chunk_bytes = e->d.read_chunk_bytes;
     if (d.c_memory == 0)
         d.c_memory = e->d.c_memory;
     hlod_result r = check_desc(&d, &e->d.logger);

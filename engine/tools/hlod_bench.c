@@ -19,6 +19,7 @@
  * unavailable, output not writable), 2 bad command line.
  */
 #include <errno.h>
+#include <assert.h>
 #include <math.h>
 #include <stdint.h>
 #include <stdio.h>
@@ -67,10 +68,7 @@ static void usage(FILE *fp)
         "  --reference       render a full-detail reference per frame: PSNR, SSIM\n"
         "  --reference-every K  only every K-th frame (default 1); each reference\n"
         "                    is drawn once and reused by every policy and sweep run\n"
-        "  --set KEY=VALUE   engine constant: c_vis, c_vis_falloff, c_fore,\n"
-        "                    c_hyst_limit, c_hyst_switch, c_hyst_deadband,\n"
-        "                    c_memory, c_safety_slack, velocity_lookahead_s,\n"
-        "                    sse_pixels, target_ms, v_time, fixed_ms (repeatable)\n"
+        "  --set KEY=VALUE   an engine setting (repeatable; below)\n"
         "  --sweep KEY=V1,V2 run once per value of KEY (any --set key)\n"
         "  --deterministic   fixed v_time and fixed_ms (calibrated in a short\n"
         "                    warm-up unless given with --set) and a loader that\n"
@@ -88,7 +86,13 @@ static void usage(FILE *fp)
         "peak_resident_bytes, memory_budget_bytes, missing_wanted_frames,\n"
         "render_waits, traversal_ms_mean, traversal_ms_max, policy, path.\n"
         "\n"
-        "Exit status: 0 success, 1 a run failed, 2 bad command line.\n");
+        "Exit status: 0 success, 1 a run failed, 2 bad command line.\n"
+        "\n"
+        "Engine settings (--set KEY=VALUE; default, then meaning):\n");
+    size_t n;
+    const hlod_engine_setting *set = hlod_engine_settings(&n);
+    for (size_t i = 0; i < n; i++)
+        fprintf(fp, "  %-24s %-10.15g %s\n", set[i].key, set[i].def, set[i].help);
 }
 
 /* ---- options ---- */
@@ -116,34 +120,31 @@ typedef struct options {
     int nsweep;
 } options;
 
-static const char *const set_keys[] = {"c_vis", "c_vis_falloff", "c_fore", "c_hyst_limit",
-                                       "c_hyst_switch", "c_hyst_deadband", "c_memory",
-                                       "c_safety_slack", "velocity_lookahead_s", "sse_pixels",
-                                       "target_ms", "v_time", "fixed_ms", NULL};
-
+/* A --set or --sweep key: one of the engine's settings, and a value its
+ * kind can hold. */
 static int known_key(const char *k)
 {
-    for (int i = 0; set_keys[i]; i++)
-        if (strcmp(k, set_keys[i]) == 0)
-            return 1;
+    hlod_engine_desc d = {0};
+    return hlod_engine_desc_set(&d, k, 0) == HLOD_OK;
+}
+
+static int value_ok(const char *k, double v)
+{
+    hlod_engine_desc d = {0};
+    if (hlod_engine_desc_set(&d, k, v) == HLOD_OK)
+        return 1;
+    char what[160];
+    snprintf(what, sizeof what, "%s=%g", k, v);
+    hlod_cli_usage_error(PROG, "--set/--sweep %s: not a value the setting can hold (a count is a "
+                         "whole number >= 0)", what);
     return 0;
 }
 
 static void apply_setting(hlod_engine_desc *d, const char *k, double v)
 {
-    if (!strcmp(k, "c_vis")) d->c_vis = v;
-    else if (!strcmp(k, "c_vis_falloff")) d->c_vis_falloff = v;
-    else if (!strcmp(k, "c_fore")) d->c_fore = v;
-    else if (!strcmp(k, "c_hyst_limit")) d->c_hyst_limit = v;
-    else if (!strcmp(k, "c_hyst_switch")) d->c_hyst_switch = v;
-    else if (!strcmp(k, "c_hyst_deadband")) d->c_hyst_deadband = v;
-    else if (!strcmp(k, "c_memory")) d->c_memory = v;
-    else if (!strcmp(k, "c_safety_slack")) d->c_safety_slack = v;
-    else if (!strcmp(k, "velocity_lookahead_s")) d->velocity_lookahead_s = v;
-    else if (!strcmp(k, "sse_pixels")) d->sse_pixels = v;
-    else if (!strcmp(k, "target_ms")) d->target_ms = v;
-    else if (!strcmp(k, "v_time")) d->fixed_v_time = v;
-    else if (!strcmp(k, "fixed_ms")) d->fixed_frame_ms = v;
+    hlod_result r = hlod_engine_desc_set(d, k, v);
+    assert(r == HLOD_OK); /* keys and values were checked when parsed */
+    (void)r;
 }
 
 /* "KEY=VALUE" */
@@ -164,7 +165,8 @@ static int parse_set(const char *text, setting *out)
         return 0;
     }
     out->key = k;
-    return hlod_cli_parse_double(PROG, k, eq + 1, -1e12, 1e12, 0, &out->value);
+    return hlod_cli_parse_double(PROG, k, eq + 1, -1e12, 1e12, 0, &out->value) &&
+           value_ok(k, out->value);
 }
 
 static int parse_sweep(const char *text, options *o)
@@ -193,7 +195,8 @@ static int parse_sweep(const char *text, options *o)
         }
         memcpy(buf, p, n);
         buf[n] = 0;
-        if (!hlod_cli_parse_double(PROG, "--sweep", buf, -1e12, 1e12, 0, &o->sweep[o->nsweep]))
+        if (!hlod_cli_parse_double(PROG, "--sweep", buf, -1e12, 1e12, 0, &o->sweep[o->nsweep]) ||
+            !value_ok(key, o->sweep[o->nsweep]))
             return 0;
         o->nsweep++;
         p += n + (c ? 1 : 0);

@@ -79,42 +79,80 @@ typedef hlod_result (*hlod_read_hook)(void *user_data, uint32_t node, uint64_t o
  * nothing off the budget and stop at upload_budget_bytes only). */
 typedef double (*hlod_time_model)(void *user_data, double drawn_cost, uint64_t drawn_tris);
 
-/* Engine settings.  Zero means "default" for every field; defaults are
- * filled in one place (hlod_engine_desc_defaults). */
-typedef struct hlod_engine_desc {
-    double target_ms;            /* c_targetTime; default 33.3 */
-    uint64_t memory_budget_bytes;/* maxMemory; default 512 MiB */
-    double c_vis;                /* vis = 1 + c_vis * frustumVis; default 4 */
-    double c_vis_falloff;        /* falloff outside the frustum, in node radii; default 1 */
-    double c_fore;               /* foreshorten = 1 + c_fore * (view . avgNormal); default 0.25 */
-    double c_hyst_limit;         /* default 8 */
-    double c_hyst_switch;        /* in [1, c_hyst_limit]; default 2 */
-    double c_memory;             /* bytes per unit of cost; default: from the store
-                                    (payload bytes / total cost) */
-    double c_safety_slack;       /* siblings' timeNeeded over their share that forces
-                                    the parent regardless of counters; default 0.10 */
-    double c_hyst_deadband;      /* |timeSlice - timeNeeded| / timeNeeded below this
-                                    leaves hyst unchanged (Lakhia: "almost the same"
-                                    stays near 0); default 0.10, negative = none */
-    double velocity_lookahead_s; /* distance advanced by this much camera motion; default 0.5 */
-    double sse_pixels;           /* initial SSE threshold; default 2 */
-    hlod_policy policy;          /* default HLOD_POLICY_LAKHIA */
-    uint32_t read_chunk_bytes;   /* loader increment; default 64 KiB */
-    uint64_t upload_budget_bytes;/* GL uploads per frame; default 16 MiB */
-    double upload_budget_ms;     /* GL upload time per frame (at least one
-                                    upload is made); default 0 = 10% of
-                                    target_ms; not applied when deterministic
-                                    or under a time model */
-    uint32_t max_inflight;       /* requests handed to the loader at once; default 32 */
+/* The engine's numeric settings, one row each (README, "Engine
+ * settings"; a test keeps that table equal to this one):
+ *
+ *   X(key, field, kind, default, lo, lo_open, hi, live, help)
+ *
+ *   key      the setting's name (hlod-bench --set KEY=VALUE)
+ *   field    its member of hlod_engine_desc
+ *   kind     D (double), U32 or U64 (unsigned counts)
+ *   default  what a zero field becomes (hlod_engine_desc_defaults); 0 where
+ *            zero itself means something, as the help says
+ *   lo, hi   the valid range once defaults are filled in (lo excluded when
+ *            lo_open; HLOD_UNBOUNDED: no limit)
+ *   live     1: hlod_engine_set applies a change; 0: it needs a new engine
+ *   help     one line
+ *
+ * One row feeds the field, its default, its check, hlod_engine_set,
+ * hlod-bench's --set and its help text. */
+#define HLOD_UNBOUNDED 1e300
+#define HLOD_ENGINE_SETTINGS(X)                                                                  \
+    X(target_ms, target_ms, D, 33.3, 0, 1, 1e6, 1,                                               \
+      "c_targetTime: the frame time to meet, ms")                                                \
+    X(memory_budget_bytes, memory_budget_bytes, U64, 512ull << 20, 0, 0, HLOD_UNBOUNDED, 0,      \
+      "maxMemory: bytes of resident nodes plus reads in flight (512 MiB)")                       \
+    X(c_vis, c_vis, D, 4.0, 0, 0, HLOD_UNBOUNDED, 1, "vis = 1 + c_vis * frustumVis")             \
+    X(c_vis_falloff, c_vis_falloff, D, 1.0, 0, 1, HLOD_UNBOUNDED, 1,                             \
+      "frustumVis falls to 0 over this many node radii outside the frustum")                     \
+    X(c_fore, c_fore, D, 0.25, 0, 0, 1, 1, "foreshorten = 1 + c_fore * (view . avgNormal)")      \
+    X(c_hyst_limit, c_hyst_limit, D, 8.0, 1, 0, 1e6, 1, "hyst is clamped to +-c_hyst_limit")     \
+    X(c_hyst_switch, c_hyst_switch, D, 2.0, 1, 0, 1e6, 1,                                        \
+      "cumHyst sums trunc(hyst / c_hyst_switch); at most c_hyst_limit")                          \
+    X(c_memory, c_memory, D, 0, 0, 0, HLOD_UNBOUNDED, 1,                                         \
+      "bytes per unit of cost; 0: the store's payload bytes / total cost")                       \
+    X(c_safety_slack, c_safety_slack, D, 0.10, 0, 0, 10, 1,                                      \
+      "children's timeNeeded over their share by this much draws the parent")                    \
+    X(c_hyst_deadband, c_hyst_deadband, D, 0.10, -HLOD_UNBOUNDED, 0, 1, 1,                       \
+      "abs(slice - needed) / needed below this leaves hyst unchanged; negative: none")              \
+    X(velocity_lookahead_s, velocity_lookahead_s, D, 0.5, 0, 0, HLOD_UNBOUNDED, 1,               \
+      "distances are taken from the eye advanced by this much camera motion, s")                 \
+    X(sse_pixels, sse_pixels, D, 2.0, 0, 1, HLOD_UNBOUNDED, 1,                                   \
+      "initial screen-space error threshold of the sse policy, pixels")                          \
+    X(read_chunk_bytes, read_chunk_bytes, U32, 64u << 10, 1, 0, HLOD_UNBOUNDED, 0,               \
+      "the loader reads a payload in steps of this many bytes")                                  \
+    X(upload_budget_bytes, upload_budget_bytes, U64, 16ull << 20, 1, 0, HLOD_UNBOUNDED, 1,       \
+      "GL uploads per frame, bytes (at least one upload is made)")                               \
+    X(upload_budget_ms, upload_budget_ms, D, 0, 0, 0, HLOD_UNBOUNDED, 1,                         \
+      "GL upload time per frame; 0: 10% of target_ms; not when deterministic or timed by a model") \
+    X(max_inflight, max_inflight, U32, 32, 1, 0, HLOD_UNBOUNDED, 1,                              \
+      "requests handed to the loader at once")                                                   \
+    X(v_time, fixed_v_time, D, 1e-4, 0, 1, HLOD_UNBOUNDED, 1,                                    \
+      "deterministic runs: ms per unit of cost, held instead of fitted")                         \
+    X(fixed_ms, fixed_frame_ms, D, 0, 0, 0, HLOD_UNBOUNDED, 1,                                   \
+      "deterministic runs: the frame's fixed part, ms, below target_ms")                         \
+    X(deterministic_load_bytes, deterministic_load_bytes, U64, 4ull << 20, 1, 0, HLOD_UNBOUNDED, 1, \
+      "deterministic runs: bytes the synchronous loader reads per frame")
 
-    /* Reproducible runs: v_time and the fixed frame part are held at these
-     * values (ms per cost unit, ms) instead of fitted from measurements, and
-     * the loader runs synchronously inside frame() reading at most
+#define HLOD_SETTING_KIND_D double
+#define HLOD_SETTING_KIND_U32 uint32_t
+#define HLOD_SETTING_KIND_U64 uint64_t
+
+/* Engine settings.  Zero means "default" for every numeric field (the
+ * table above); defaults are filled in one place
+ * (hlod_engine_desc_defaults). */
+typedef struct hlod_engine_desc {
+#define HLOD_SETTING_FIELD(key, field, kind, def, lo, lo_open, hi, live, help) \
+    HLOD_SETTING_KIND_##kind field;
+    HLOD_ENGINE_SETTINGS(HLOD_SETTING_FIELD)
+#undef HLOD_SETTING_FIELD
+    hlod_policy policy;          /* default HLOD_POLICY_LAKHIA */
+
+    /* Reproducible runs: v_time and the fixed frame part are held at
+     * fixed_v_time and fixed_frame_ms instead of fitted from measurements,
+     * and the loader runs synchronously inside frame() reading at most
      * deterministic_load_bytes per frame in priority order. */
     int deterministic;
-    double fixed_v_time;         /* default: 1e-4 ms per cost unit */
-    double fixed_frame_ms;       /* default 0 */
-    uint64_t deterministic_load_bytes; /* default 4 MiB */
 
     hlod_renderer *renderer;     /* NULL: select only, draw nothing (tests) */
     hlod_time_model time_model;  /* NULL: wall time (glFinish-bounded) */
@@ -124,6 +162,22 @@ typedef struct hlod_engine_desc {
     hlod_logger logger;          /* func NULL: silent; may be called from the loader thread */
     hlod_allocator allocator;    /* alloc NULL: malloc/realloc/free */
 } hlod_engine_desc;
+
+/* One row of HLOD_ENGINE_SETTINGS, for listing and parsing by name. */
+typedef struct hlod_engine_setting {
+    const char *key, *help;
+    const char *kind;            /* "D", "U32", "U64" */
+    double def, lo, hi;
+    int lo_open, live;
+} hlod_engine_setting;
+
+/* The settings in table order; *count gets their number. */
+const hlod_engine_setting *hlod_engine_settings(size_t *count);
+
+/* Sets the setting called key in d.  HLOD_ERR_INVALID_ARG for an unknown
+ * key, a non-finite value, or one its kind cannot hold (a negative or
+ * fractional count).  The range is checked at create/set. */
+hlod_result hlod_engine_desc_set(hlod_engine_desc *d, const char *key, double value);
 
 /* Fills every zero field of d with its default.  Idempotent. */
 void hlod_engine_desc_defaults(hlod_engine_desc *d);
