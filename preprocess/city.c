@@ -1325,216 +1325,240 @@ static hlod_result check_desc(const hlod_city_desc *d, const hlod_logger *lg)
     return HLOD_OK;
 }
 
+/* What generating one city holds while its blocks are made. */
+typedef struct city_job {
+    hlod_city_desc d;
+    const hlod_logger *lg;
+    int textured;
+    size_t ncols, nrows;
+    double radius;              /* of the street grid, for the building heights */
+    gen g, cg;                  /* the mesh, and a counting pass for the detail */
+    block bk;
+    hlod_image img;             /* one block's atlas */
+    chart *charts, **sorted;
+    size_t charts_cap;
+    hlod_material *mats;        /* blocks + 1 (the ground) */
+    hlod_object *objs;
+    hlod_city_stats st;
+} city_job;
+
+/* The atlas of block bi (its charts laid out, painted and written). */
+static hlod_result block_texture(city_job *J, size_t bi, const char *name, double k,
+                                 double *scale)
+{
+    const block *bk = &J->bk;
+    if (bk->nb * 5 > J->charts_cap) {
+        free(J->charts);
+        free(J->sorted);
+        J->charts_cap = bk->nb * 5;
+        J->charts = malloc(J->charts_cap * sizeof *J->charts);
+        J->sorted = malloc(J->charts_cap * sizeof *J->sorted);
+        if (!J->charts || !J->sorted) {
+            J->charts_cap = 0;
+            return HLOD_ERR_NOMEM;
+        }
+    }
+    *scale = layout_atlas(&J->bk, J->d.texture_size, J->charts, J->sorted);
+    if (!(*scale > 0)) {
+        hlod_logf(J->lg, HLOD_LOG_ERROR,
+                  "city: a %dx%d texture cannot hold the %zu charts of block %zu",
+                  J->d.texture_size, J->d.texture_size, bk->nb * 5, bi);
+        return HLOD_ERR_INVALID_ARG;
+    }
+    paint_block(&J->g, &J->img, &J->bk, J->charts, *scale, k, hash2(J->d.seed, bi));
+    return write_texture(&J->d, name, &J->img, &J->mats[bi].texture_path, &J->st);
+}
+
+/* Block bi: its layout, its detail for the triangle budget, its texture,
+ * its triangles and its material. */
+static hlod_result city_block(city_job *J, size_t bi)
+{
+    const hlod_city_desc *d = &J->d;
+    size_t ci = bi % J->ncols, cj = bi / J->ncols;
+    double ox, oy;
+    cell_origin(J->ncols, J->nrows, ci, cj, &ox, &oy);
+    double cx = ox + CELL_W / 2, cy = oy + CELL_D / 2;
+    double rr = hypot(cx, cy) / (J->radius > 0 ? J->radius : 1);
+    double floors_mean = 3.5 + 4.5 * exp(-3 * rr * rr);
+    if (!layout_block(d->seed, bi, ox + STREET_HALF, oy + STREET_HALF, floors_mean, &J->bk))
+        return HLOD_ERR_NOMEM;
+    double k, lsub;
+    size_t n = choose_detail(&J->cg, &J->bk, d->tris_per_block, &k, &lsub);
+    if (J->cg.oom || J->cg.sc.oom)
+        return HLOD_ERR_NOMEM;
+    if (fabs((double)n - (double)d->tris_per_block) > BUDGET_TOLERANCE * (double)d->tris_per_block)
+        hlod_logf(J->lg, HLOD_LOG_WARN,
+                  "city: block %zu has %zu triangles, more than 10%% off its budget of %zu", bi, n,
+                  d->tris_per_block);
+    char name[32];
+    snprintf(name, sizeof name, "block_%04zu", bi);
+    double scale = 0;
+    hlod_result res = J->textured ? block_texture(J, bi, name, k, &scale) : HLOD_OK;
+    if (res != HLOD_OK)
+        return res;
+    hlod_object *ob = &J->objs[bi];
+    hlod_material *mat = &J->mats[bi];
+    ob->first_tri = J->g.nt;
+    J->g.material = (uint32_t)bi;
+    emit_block(&J->g, &J->bk, k, lsub, J->textured ? J->charts : NULL, scale);
+    if (J->g.oom || J->g.sc.oom)
+        return HLOD_ERR_NOMEM;
+    ob->tri_count = J->g.nt - ob->first_tri;
+    if (!(ob->name = strdup(name)) || !(mat->name = strdup(name)))
+        return HLOD_ERR_NOMEM;
+    float avg[3] = {0, 0, 0};
+    for (size_t i = 0; i < J->bk.nb; i++)
+        for (int c = 0; c < 3; c++)
+            avg[c] += J->bk.b[i].wall_rgb[c] / (float)J->bk.nb;
+    for (int c = 0; c < 3; c++)
+        mat->diffuse[c] = J->textured ? 1.0f : to_linear(avg[c]);
+    mat->diffuse[3] = 1;
+    J->st.block_tris += ob->tri_count;
+    if (ob->tri_count < J->st.min_block_tris)
+        J->st.min_block_tris = ob->tri_count;
+    if (ob->tri_count > J->st.max_block_tris)
+        J->st.max_block_tris = ob->tri_count;
+    return HLOD_OK;
+}
+
+/* The ground, last. */
+static hlod_result city_ground(city_job *J)
+{
+    size_t gi = J->d.blocks;
+    hlod_result res;
+    if (J->textured) {
+        paint_ground(&J->img, hash2(J->d.seed, 0x67726f756e64ULL));
+        if ((res = write_texture(&J->d, "ground", &J->img, &J->mats[gi].texture_path, &J->st)))
+            return res;
+    }
+    hlod_object *ob = &J->objs[gi];
+    ob->first_tri = J->g.nt;
+    J->g.material = (uint32_t)gi;
+    J->g.noise = NOISE_GROUND;
+    emit_ground(&J->g, J->ncols, J->nrows);
+    if (J->g.oom)
+        return HLOD_ERR_NOMEM;
+    ob->tri_count = J->g.nt - ob->first_tri;
+    J->st.ground_tris = ob->tri_count;
+    if (!(ob->name = strdup("ground")) || !(J->mats[gi].name = strdup("ground")))
+        return HLOD_ERR_NOMEM;
+    for (int c = 0; c < 3; c++)
+        J->mats[gi].diffuse[c] = J->textured ? 1.0f : to_linear(120);
+    J->mats[gi].diffuse[3] = 1;
+    return HLOD_OK;
+}
+
+/* Frees the job's scratch, and on failure what the mesh would have owned. */
+static void city_release(city_job *J, int failed)
+{
+    if (failed) {
+        for (size_t i = 0; J->mats && i <= J->d.blocks; i++) {
+            free(J->mats[i].name);
+            free(J->mats[i].texture_path);
+        }
+        for (size_t i = 0; J->objs && i <= J->d.blocks; i++)
+            free(J->objs[i].name);
+        free(J->mats);
+        free(J->objs);
+        free(J->g.pos);
+        free(J->g.uv);
+        free(J->g.idx);
+        free(J->g.mat);
+    }
+    scratch_free(&J->g.sc);
+    scratch_free(&J->cg.sc);
+    free(J->bk.b);
+    free(J->charts);
+    free(J->sorted);
+    hlod_image_free(&J->img);
+}
+
+/* The job's settings, grid and tables; then every block and the ground. */
+static hlod_result city_run(city_job *J)
+{
+    const hlod_city_desc *d = &J->d;
+    J->st.blocks = d->blocks;
+    J->st.min_block_tris = SIZE_MAX;
+    J->textured = !d->untextured;
+    if (J->textured && mkdir(d->texture_dir, 0777) != 0 && errno != EEXIST) {
+        hlod_logf(J->lg, HLOD_LOG_ERROR, "%s: cannot create texture folder: %s", d->texture_dir,
+                  strerror(errno));
+        return HLOD_ERR_IO;
+    }
+    city_grid(d->blocks, &J->ncols, &J->nrows);
+    J->g.with_uv = J->textured;
+    J->g.noise_seed = mix64(d->seed ^ 0x6e6f697365ULL);
+    J->g.size = d->texture_size;
+    J->g.noise = NOISE_WALL;
+    memcpy(J->g.origin, d->origin, sizeof J->g.origin);
+    J->cg.count_only = 1;
+    J->mats = calloc(d->blocks + 1, sizeof *J->mats);
+    J->objs = calloc(d->blocks + 1, sizeof *J->objs);
+    if (!J->mats || !J->objs)
+        return HLOD_ERR_NOMEM;
+    if (J->textured) {
+        J->img.width = J->img.height = d->texture_size;
+        J->img.channels = 3;
+        J->img.pixels = malloc((size_t)d->texture_size * (size_t)d->texture_size * 3);
+        if (!J->img.pixels)
+            return HLOD_ERR_NOMEM;
+    }
+    /* Taller buildings towards the centre: a downtown and a fringe. */
+    J->radius = 0.5 * hypot((double)J->ncols * CELL_W, (double)J->nrows * CELL_D);
+    for (size_t bi = 0; bi < d->blocks; bi++) {
+        hlod_result res = city_block(J, bi);
+        if (res != HLOD_OK)
+            return res;
+        if (d->progress)
+            d->progress(d->progress_user, (double)(bi + 1), (double)(d->blocks + 1));
+    }
+    hlod_result res = city_ground(J);
+    if (res == HLOD_OK && d->progress)
+        d->progress(d->progress_user, (double)(d->blocks + 1), (double)(d->blocks + 1));
+    return res;
+}
+
 hlod_result hlod_city_generate(const hlod_city_desc *desc, hlod_mesh *out, hlod_city_stats *stats)
 {
     if (!desc || !out)
         return HLOD_ERR_INVALID_ARG;
     hlod_mesh_free(out);
-    hlod_city_desc d = *desc;
-    if (!d.blocks)
-        d.blocks = 200;
-    if (!d.tris_per_block)
-        d.tris_per_block = 35000;
-    if (!d.texture_size)
-        d.texture_size = 1024;
-    const hlod_logger *lg = d.logger;
-    hlod_result res = check_desc(&d, lg);
+    city_job J;
+    memset(&J, 0, sizeof J);
+    J.d = *desc;
+    if (!J.d.blocks)
+        J.d.blocks = 200;
+    if (!J.d.tris_per_block)
+        J.d.tris_per_block = 35000;
+    if (!J.d.texture_size)
+        J.d.texture_size = 1024;
+    J.lg = J.d.logger;
+    hlod_result res = check_desc(&J.d, J.lg);
     if (res)
         return res;
-    hlod_city_stats st;
-    memset(&st, 0, sizeof st);
-    st.blocks = d.blocks;
-    st.min_block_tris = SIZE_MAX;
-
-    int textured = !d.untextured;
-    if (textured && mkdir(d.texture_dir, 0777) != 0 && errno != EEXIST) {
-        hlod_logf(lg, HLOD_LOG_ERROR, "%s: cannot create texture folder: %s", d.texture_dir,
-                  strerror(errno));
-        return HLOD_ERR_IO;
+    res = city_run(&J);
+    if (res != HLOD_OK) {
+        if (res == HLOD_ERR_NOMEM)
+            hlod_logf(J.lg, HLOD_LOG_ERROR, "city: out of memory");
+        city_release(&J, 1);
+        return res;
     }
-
-    size_t ncols, nrows;
-    city_grid(d.blocks, &ncols, &nrows);
-    gen g, cg;
-    memset(&g, 0, sizeof g);
-    memset(&cg, 0, sizeof cg);
-    g.with_uv = textured;
-    g.noise_seed = mix64(d.seed ^ 0x6e6f697365ULL);
-    g.size = d.texture_size;
-    g.noise = NOISE_WALL;
-    memcpy(g.origin, d.origin, sizeof g.origin);
-    cg.count_only = 1;
-
-    block bk = {0};
-    hlod_image img = {0};
-    chart *charts = NULL, **sorted = NULL;
-    size_t charts_cap = 0;
-    hlod_material *mats = calloc(d.blocks + 1, sizeof *mats);
-    hlod_object *objs = calloc(d.blocks + 1, sizeof *objs);
-    if (!mats || !objs) {
-        res = HLOD_ERR_NOMEM;
-        goto fail;
-    }
-    if (textured) {
-        img.width = img.height = d.texture_size;
-        img.channels = 3;
-        img.pixels = malloc((size_t)d.texture_size * (size_t)d.texture_size * 3);
-        if (!img.pixels) {
-            res = HLOD_ERR_NOMEM;
-            goto fail;
-        }
-    }
-    /* Taller buildings towards the centre: a downtown and a fringe. */
-    double radius = 0.5 * hypot((double)ncols * CELL_W, (double)nrows * CELL_D);
-    for (size_t bi = 0; bi < d.blocks; bi++) {
-        size_t ci = bi % ncols, cj = bi / ncols;
-        double ox, oy;
-        cell_origin(ncols, nrows, ci, cj, &ox, &oy);
-        double cx = ox + CELL_W / 2, cy = oy + CELL_D / 2;
-        double rr = hypot(cx, cy) / (radius > 0 ? radius : 1);
-        double floors_mean = 3.5 + 4.5 * exp(-3 * rr * rr);
-        if (!layout_block(d.seed, bi, ox + STREET_HALF, oy + STREET_HALF, floors_mean, &bk)) {
-            res = HLOD_ERR_NOMEM;
-            goto fail;
-        }
-        double k, lsub;
-        size_t n = choose_detail(&cg, &bk, d.tris_per_block, &k, &lsub);
-        if (cg.oom || cg.sc.oom) {
-            res = HLOD_ERR_NOMEM;
-            goto fail;
-        }
-        if (fabs((double)n - (double)d.tris_per_block) > BUDGET_TOLERANCE * (double)d.tris_per_block)
-            hlod_logf(lg, HLOD_LOG_WARN,
-                      "city: block %zu has %zu triangles, more than 10%% off its budget of %zu",
-                      bi, n, d.tris_per_block);
-
-        char name[32];
-        snprintf(name, sizeof name, "block_%04zu", bi);
-        double scale = 0;
-        if (textured) {
-            if (bk.nb * 5 > charts_cap) {
-                free(charts);
-                free(sorted);
-                charts_cap = bk.nb * 5;
-                charts = malloc(charts_cap * sizeof *charts);
-                sorted = malloc(charts_cap * sizeof *sorted);
-                if (!charts || !sorted) {
-                    charts_cap = 0;
-                    res = HLOD_ERR_NOMEM;
-                    goto fail;
-                }
-            }
-            scale = layout_atlas(&bk, d.texture_size, charts, sorted);
-            if (!(scale > 0)) {
-                hlod_logf(lg, HLOD_LOG_ERROR,
-                          "city: a %dx%d texture cannot hold the %zu charts of block %zu",
-                          d.texture_size, d.texture_size, bk.nb * 5, bi);
-                res = HLOD_ERR_INVALID_ARG;
-                goto fail;
-            }
-            paint_block(&g, &img, &bk, charts, scale, k, hash2(d.seed, bi));
-            if ((res = write_texture(&d, name, &img, &mats[bi].texture_path, &st)))
-                goto fail;
-        }
-        objs[bi].first_tri = g.nt;
-        g.material = (uint32_t)bi;
-        emit_block(&g, &bk, k, lsub, textured ? charts : NULL, scale);
-        if (g.oom || g.sc.oom) {
-            res = HLOD_ERR_NOMEM;
-            goto fail;
-        }
-        objs[bi].tri_count = g.nt - objs[bi].first_tri;
-        if (!(objs[bi].name = strdup(name)) || !(mats[bi].name = strdup(name))) {
-            res = HLOD_ERR_NOMEM;
-            goto fail;
-        }
-        float avg[3] = {0, 0, 0};
-        for (size_t i = 0; i < bk.nb; i++)
-            for (int c = 0; c < 3; c++)
-                avg[c] += bk.b[i].wall_rgb[c] / (float)bk.nb;
-        for (int c = 0; c < 3; c++)
-            mats[bi].diffuse[c] = textured ? 1.0f : to_linear(avg[c]);
-        mats[bi].diffuse[3] = 1;
-        st.block_tris += objs[bi].tri_count;
-        if (objs[bi].tri_count < st.min_block_tris)
-            st.min_block_tris = objs[bi].tri_count;
-        if (objs[bi].tri_count > st.max_block_tris)
-            st.max_block_tris = objs[bi].tri_count;
-        if (d.progress)
-            d.progress(d.progress_user, (double)(bi + 1), (double)(d.blocks + 1));
-    }
-
-    /* The ground, last. */
-    size_t gi = d.blocks;
-    if (textured) {
-        paint_ground(&img, hash2(d.seed, 0x67726f756e64ULL));
-        if ((res = write_texture(&d, "ground", &img, &mats[gi].texture_path, &st)))
-            goto fail;
-    }
-    objs[gi].first_tri = g.nt;
-    g.material = (uint32_t)gi;
-    g.noise = NOISE_GROUND;
-    emit_ground(&g, ncols, nrows);
-    if (g.oom) {
-        res = HLOD_ERR_NOMEM;
-        goto fail;
-    }
-    objs[gi].tri_count = g.nt - objs[gi].first_tri;
-    st.ground_tris = objs[gi].tri_count;
-    if (!(objs[gi].name = strdup("ground")) || !(mats[gi].name = strdup("ground"))) {
-        res = HLOD_ERR_NOMEM;
-        goto fail;
-    }
-    for (int c = 0; c < 3; c++)
-        mats[gi].diffuse[c] = textured ? 1.0f : to_linear(120);
-    mats[gi].diffuse[3] = 1;
-    if (d.progress)
-        d.progress(d.progress_user, (double)(d.blocks + 1), (double)(d.blocks + 1));
-
-    out->vertex_count = g.nv;
-    out->positions = g.pos;
-    out->uvs = g.uv;
-    out->tri_count = g.nt;
-    out->indices = g.idx;
-    out->tri_material = g.mat;
-    out->material_count = d.blocks + 1;
-    out->materials = mats;
-    out->object_count = d.blocks + 1;
-    out->objects = objs;
-    st.tris = g.nt;
-    st.vertices = g.nv;
-    if (st.min_block_tris == SIZE_MAX)
-        st.min_block_tris = 0;
+    out->vertex_count = J.g.nv;
+    out->positions = J.g.pos;
+    out->uvs = J.g.uv;
+    out->tri_count = J.g.nt;
+    out->indices = J.g.idx;
+    out->tri_material = J.g.mat;
+    out->material_count = J.d.blocks + 1;
+    out->materials = J.mats;
+    out->object_count = J.d.blocks + 1;
+    out->objects = J.objs;
+    J.st.tris = J.g.nt;
+    J.st.vertices = J.g.nv;
+    if (J.st.min_block_tris == SIZE_MAX)
+        J.st.min_block_tris = 0;
     if (stats)
-        *stats = st;
-    scratch_free(&g.sc);
-    scratch_free(&cg.sc);
-    free(bk.b);
-    free(charts);
-    free(sorted);
-    hlod_image_free(&img);
+        *stats = J.st;
+    city_release(&J, 0);
     return HLOD_OK;
-
-fail:
-    if (res == HLOD_ERR_NOMEM)
-        hlod_logf(lg, HLOD_LOG_ERROR, "city: out of memory");
-    for (size_t i = 0; mats && i <= d.blocks; i++) {
-        free(mats[i].name);
-        free(mats[i].texture_path);
-    }
-    for (size_t i = 0; objs && i <= d.blocks; i++)
-        free(objs[i].name);
-    free(mats);
-    free(objs);
-    free(g.pos);
-    free(g.uv);
-    free(g.idx);
-    free(g.mat);
-    scratch_free(&g.sc);
-    scratch_free(&cg.sc);
-    free(bk.b);
-    free(charts);
-    free(sorted);
-    hlod_image_free(&img);
-    return res;
 }

@@ -288,24 +288,15 @@ void hlod_dgrid_free(hlod_dgrid *g)
     memset(g, 0, sizeof *g);
 }
 
-hlod_result hlod_dgrid_build(hlod_dgrid *g, const double *positions, const uint32_t *indices,
-                             size_t tri_count, const double origin[3])
+/* The triangles relative to origin, with their normals and Gram
+ * matrices; lo/hi get their bounds. */
+static void prepare_tris(hlod_dgrid_tri *raw, const double *positions, const uint32_t *indices,
+                         size_t tri_count, const double origin[3], double lo[3], double hi[3])
 {
-    assert(g && positions && indices && origin);
-    memset(g, 0, sizeof *g);
-    if (!tri_count)
-        return HLOD_ERR_EMPTY;
-    if (tri_count >= UINT32_MAX)
-        return HLOD_ERR_INVALID_ARG;
-    g->tri_count = tri_count;
-    hlod_dgrid_tri *raw = malloc(tri_count * sizeof *raw);
-    uint32_t *key = malloc(tri_count * sizeof *key);
-    g->tris = aligned_alloc(64, tri_count * sizeof *g->tris);
-    g->stamp = calloc(tri_count, sizeof *g->stamp);
-    if (!raw || !key || !g->tris || !g->stamp)
-        goto nomem;
-
-    double lo[3] = {DBL_MAX, DBL_MAX, DBL_MAX}, hi[3] = {-DBL_MAX, -DBL_MAX, -DBL_MAX};
+    for (int k = 0; k < 3; k++) {
+        lo[k] = DBL_MAX;
+        hi[k] = -DBL_MAX;
+    }
     for (size_t i = 0; i < tri_count; i++) {
         hlod_dgrid_tri *t = &raw[i];
         double *dst[3] = {t->a, t->b, t->c};
@@ -339,7 +330,12 @@ hlod_result hlod_dgrid_build(hlod_dgrid *g, const double *positions, const uint3
         t->g11 = g11;
         t->inv_det = n2 > 1e-4 * g00 * g11 && det > 0 ? 1.0 / det : 0;
     }
+}
 
+/* The cell size, and the grid's corner and cell counts. */
+static void choose_cells(hlod_dgrid *g, const hlod_dgrid_tri *raw, size_t tri_count,
+                         const double lo[3], const double hi[3])
+{
     /* Cubic cells sized to the surface, not the box: a plane of area A
      * crosses about 1.5 A / h^2 cells (the mean of |nx| + |ny| + |nz|), so
      * this h gives about one occupied cell per TRIS_PER_CELL triangles.  A
@@ -383,6 +379,68 @@ hlod_result hlod_dgrid_build(hlod_dgrid *g, const double *positions, const uint3
         g->lo[k] = lo[k];
         g->n[k] = (int)dmax(1.0, ceil(ext[k] / h));
     }
+}
+
+/* The occupancy pyramid over the filled cells; 0 when out of memory. */
+static int build_pyramid(hlod_dgrid *g, size_t cells)
+{
+    /* Occupancy pyramid: level l has blocks of 2^l cells a side, the top
+     * level a single block; a byte says whether any cell below holds a
+     * triangle.  About 1/7 byte per cell on top of level 0. */
+    size_t bytes = 0;
+    int l = 0;
+    for (;; l++) {
+        assert(l < HLOD_DGRID_MAX_LEVELS);
+        size_t count = 1;
+        for (int k = 0; k < 3; k++) {
+            g->level_n[l][k] = (int)(((size_t)g->n[k] + ((size_t)1 << l) - 1) >> l);
+            count *= (size_t)g->level_n[l][k];
+        }
+        g->level_first[l] = bytes;
+        bytes += count;
+        if (count == 1)
+            break;
+    }
+    g->levels = l + 1;
+    g->occupied = calloc(bytes, 1);
+    if (!g->occupied)
+        return 0;
+    for (size_t c = 0; c < cells; c++)
+        g->occupied[c] = g->cell_start[c + 1] > g->cell_start[c];
+    for (l = 1; l < g->levels; l++) {
+        const int *cn = g->level_n[l - 1], *pn = g->level_n[l];
+        const uint8_t *child = g->occupied + g->level_first[l - 1];
+        uint8_t *parent = g->occupied + g->level_first[l];
+        for (int z = 0; z < cn[2]; z++)
+            for (int y = 0; y < cn[1]; y++)
+                for (int x = 0; x < cn[0]; x++)
+                    if (child[(size_t)x + (size_t)cn[0] * ((size_t)y + (size_t)cn[1] * z)])
+                        parent[(size_t)(x >> 1) + (size_t)pn[0] * ((size_t)(y >> 1) + (size_t)pn[1] * (z >> 1))] = 1;
+    }
+    return 1;
+}
+
+hlod_result hlod_dgrid_build(hlod_dgrid *g, const double *positions, const uint32_t *indices,
+                             size_t tri_count, const double origin[3])
+{
+    assert(g && positions && indices && origin);
+    memset(g, 0, sizeof *g);
+    if (!tri_count)
+        return HLOD_ERR_EMPTY;
+    if (tri_count >= UINT32_MAX)
+        return HLOD_ERR_INVALID_ARG;
+    g->tri_count = tri_count;
+    hlod_dgrid_tri *raw = malloc(tri_count * sizeof *raw);
+    uint32_t *key = malloc(tri_count * sizeof *key);
+    g->tris = aligned_alloc(64, tri_count * sizeof *g->tris);
+    g->stamp = calloc(tri_count, sizeof *g->stamp);
+    if (!raw || !key || !g->tris || !g->stamp)
+        goto nomem;
+
+    double lo[3], hi[3];
+    prepare_tris(raw, positions, indices, tri_count, origin, lo, hi);
+
+    choose_cells(g, raw, tri_count, lo, hi);
 
     size_t cells = (size_t)g->n[0] * (size_t)g->n[1] * (size_t)g->n[2];
     g->cell_start = calloc(cells + 1, sizeof *g->cell_start);
@@ -427,39 +485,8 @@ hlod_result hlod_dgrid_build(hlod_dgrid *g, const double *positions, const uint3
     free(fill);
     fill = NULL;
 
-    /* Occupancy pyramid: level l has blocks of 2^l cells a side, the top
-     * level a single block; a byte says whether any cell below holds a
-     * triangle.  About 1/7 byte per cell on top of level 0. */
-    size_t bytes = 0;
-    int l = 0;
-    for (;; l++) {
-        assert(l < HLOD_DGRID_MAX_LEVELS);
-        size_t count = 1;
-        for (int k = 0; k < 3; k++) {
-            g->level_n[l][k] = (int)(((size_t)g->n[k] + ((size_t)1 << l) - 1) >> l);
-            count *= (size_t)g->level_n[l][k];
-        }
-        g->level_first[l] = bytes;
-        bytes += count;
-        if (count == 1)
-            break;
-    }
-    g->levels = l + 1;
-    g->occupied = calloc(bytes, 1);
-    if (!g->occupied)
+    if (!build_pyramid(g, cells))
         goto nomem_fill;
-    for (size_t c = 0; c < cells; c++)
-        g->occupied[c] = g->cell_start[c + 1] > g->cell_start[c];
-    for (l = 1; l < g->levels; l++) {
-        const int *cn = g->level_n[l - 1], *pn = g->level_n[l];
-        const uint8_t *child = g->occupied + g->level_first[l - 1];
-        uint8_t *parent = g->occupied + g->level_first[l];
-        for (int z = 0; z < cn[2]; z++)
-            for (int y = 0; y < cn[1]; y++)
-                for (int x = 0; x < cn[0]; x++)
-                    if (child[(size_t)x + (size_t)cn[0] * ((size_t)y + (size_t)cn[1] * z)])
-                        parent[(size_t)(x >> 1) + (size_t)pn[0] * ((size_t)(y >> 1) + (size_t)pn[1] * (z >> 1))] = 1;
-    }
     return HLOD_OK;
 
 nomem_fill:

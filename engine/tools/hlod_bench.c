@@ -890,6 +890,29 @@ static int file_exists(const char *p)
     return stat(p, &sb) == 0 && S_ISREG(sb.st_mode);
 }
 
+/* pareto.png and sweep_frame_time.png from DIR/sweep.csv. */
+static int plot_sweep(const options *o)
+{
+    char s[2048];
+    snprintf(s, sizeof s,
+             "set datafile separator ','\nset terminal pngcairo size 900,600\n"
+             "set grid\nset key outside\nset xlabel 'mean frame time (ms)'\n"
+             "set ylabel 'mean PSNR (dB)'\nset output 'pareto->png'\n"
+             "set title 'Run time vs error, one curve per policy'\n"
+             "plot for [p in '%s%s%s%s%s'] '< grep ^'.p.', sweep.csv' using 6:13 "
+             "with linespoints title p\n"
+             "set output 'sweep_frame_time.png'\nset ylabel 'ms'\n"
+             "set xlabel 'run'\nset title 'Mean and p95 frame time per run'\n"
+             "plot 'sweep.csv' every ::1 using 0:6 with linespoints title 'mean', "
+             "'' every ::1 using 0:7 with linespoints title 'p95', '' every ::1 using "
+             "0:5 with lines dt 2 title 'target'\n",
+             hlod_policy_name(o->policies[0]), o->npolicies > 1 ? " " : "",
+             o->npolicies > 1 ? hlod_policy_name(o->policies[1]) : "",
+             o->npolicies > 2 ? " " : "",
+             o->npolicies > 2 ? hlod_policy_name(o->policies[2]) : "");
+    return run_gnuplot(o->out, "sweep", s);
+}
+
 int main(int argc, char **argv)
 {
     options o;
@@ -998,24 +1021,7 @@ int main(int argc, char **argv)
             hlod_atomic_abort(&sweep_af);
         }
         if (rc == 0 && o.plots) {
-            char s[2048];
-            snprintf(s, sizeof s,
-                     "set datafile separator ','\nset terminal pngcairo size 900,600\n"
-                     "set grid\nset key outside\nset xlabel 'mean frame time (ms)'\n"
-                     "set ylabel 'mean PSNR (dB)'\nset output 'pareto.png'\n"
-                     "set title 'Run time vs error, one curve per policy'\n"
-                     "plot for [p in '%s%s%s%s%s'] '< grep ^'.p.', sweep.csv' using 6:13 "
-                     "with linespoints title p\n"
-                     "set output 'sweep_frame_time.png'\nset ylabel 'ms'\n"
-                     "set xlabel 'run'\nset title 'Mean and p95 frame time per run'\n"
-                     "plot 'sweep.csv' every ::1 using 0:6 with linespoints title 'mean', "
-                     "'' every ::1 using 0:7 with linespoints title 'p95', '' every ::1 using "
-                     "0:5 with lines dt 2 title 'target'\n",
-                     hlod_policy_name(o.policies[0]), o.npolicies > 1 ? " " : "",
-                     o.npolicies > 1 ? hlod_policy_name(o.policies[1]) : "",
-                     o.npolicies > 2 ? " " : "",
-                     o.npolicies > 2 ? hlod_policy_name(o.policies[2]) : "");
-            rc = run_gnuplot(o.out, "sweep", s);
+            rc = plot_sweep(&o);
         }
     }
     if (rc == 0 && o.json) {
