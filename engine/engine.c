@@ -15,7 +15,7 @@
  */
 #include "engine_internal.h"
 
-#include "engine_clock.h"
+#include "hlod_clock.h"
 
 #include <assert.h>
 #include <math.h>

@@ -26,7 +26,7 @@
  */
 #include "residency.h"
 
-#include "engine_clock.h"
+#include "hlod_clock.h"
 
 #include <assert.h>
 #include <math.h>

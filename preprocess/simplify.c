@@ -37,6 +37,7 @@
  *   the time in sift-down on bunny00.off, and this is 3x faster).
  * - Vertices and triangles are numbered internally along a Morton curve.
  */
+#include "hlod_clock.h"
 #include "hlod/simplify.h"
 #include "hlod/distance.h"
 #include "hlod/vec3.h"
@@ -1585,13 +1586,6 @@ static void state_free(state *s)
     free(s->off_b);
 }
 
-static double now_s(void)
-{
-    struct timespec ts;
-    clock_gettime(CLOCK_MONOTONIC, &ts);
-    return ts.tv_sec + ts.tv_nsec * 1e-9;
-}
-
 /* Untextured, the walk leaves the corners' wedges alone (collapse()):
  * each live vertex keeps the one wedge it started with, s->pos_wedge. */
 static void untextured_wedges(state *s)
@@ -2343,7 +2337,7 @@ static hlod_result output(state *s, const hlod_mesh *in, const hlod_simplify_des
     if (!s->wedge_uv)
         untextured_wedges(s);
     hlod_result res = emit(s, in, centre, scale, out);
-    st->seconds = now_s() - t0;
+    st->seconds = hlod_now_s() - t0;
     if (res != HLOD_OK)
         return res;
     st->tris_out = out->tri_count;
@@ -2374,7 +2368,7 @@ hlod_result hlod_simplify(const hlod_mesh *in, const hlod_simplify_desc *desc,
     hlod_simplify_stats st = {0};
     st.tris_in = in->tri_count;
     st.vertices_in = in->vertex_count;
-    double t0 = now_s();
+    double t0 = hlod_now_s();
     double centre[3];
     double scale = normalized_frame(in, centre), inv_scale = 1 / scale;
 

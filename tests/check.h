@@ -108,6 +108,29 @@ static inline const char *check_src_path(const char *rel, char *buf, size_t n)
     return buf;
 }
 
+/* A whole file, NUL-terminated (text can be searched as a string); *n
+ * (may be NULL) gets its size.  NULL when it cannot be read. */
+static inline char *check_slurp(const char *path, size_t *n)
+{
+    FILE *f = fopen(path, "rb");
+    if (!f)
+        return NULL;
+    fseek(f, 0, SEEK_END);
+    long len = ftell(f);
+    fseek(f, 0, SEEK_SET);
+    char *b = malloc(len > 0 ? (size_t)len + 1 : 1);
+    if (b && len > 0 && fread(b, 1, (size_t)len, f) != (size_t)len) {
+        free(b);
+        b = NULL;
+    }
+    if (b)
+        b[len > 0 ? len : 0] = 0;
+    fclose(f);
+    if (n)
+        *n = len > 0 ? (size_t)len : 0;
+    return b;
+}
+
 /* Runs a shell command built printf-style; its exit status, or -1 when it
  * did not exit normally. */
 static inline int check_sh(const char *fmt, ...)

@@ -33,31 +33,11 @@ static int exists(const char *p)
     return stat(p, &st) == 0;
 }
 
-static unsigned char *slurp(const char *p, size_t *n)
-{
-    FILE *f = fopen(p, "rb");
-    if (!f)
-        return NULL;
-    fseek(f, 0, SEEK_END);
-    long len = ftell(f);
-    fseek(f, 0, SEEK_SET);
-    unsigned char *b = malloc(len > 0 ? (size_t)len + 1 : 1);
-    if (b && fread(b, 1, (size_t)len, f) != (size_t)len) {
-        free(b);
-        b = NULL;
-    }
-    if (b)
-        b[len > 0 ? len : 0] = 0;   /* text files can be searched as strings */
-    fclose(f);
-    *n = (size_t)len;
-    return b;
-}
-
 /* 1 when both files exist and hold the same bytes. */
 static int same_bytes(const char *a, const char *b)
 {
     size_t na = 0, nb = 0;
-    unsigned char *x = slurp(a, &na), *y = slurp(b, &nb);
+    char *x = check_slurp(a, &na), *y = check_slurp(b, &nb);
     int same = x && y && na == nb && memcmp(x, y, na) == 0;
     free(x);
     free(y);
@@ -256,7 +236,7 @@ static void test_untextured(void)
     for (size_t i = 0; i < back.material_count; i++)
         CHECK(back.materials[i].texture_path == NULL);
     size_t n = 0;
-    char *text = (char *)slurp(mtl, &n);
+    char *text = check_slurp(mtl, &n);
     CHECK(text && !strstr(text, "map_Kd"));
     free(text);
     hlod_mesh_free(&back);
@@ -527,7 +507,7 @@ static void test_tool_command_line(void)
     CHECK(run(cmd) == 0);
     snprintf(p, sizeof p, "%s/cli/j.json", root);
     size_t n = 0;
-    char *js = (char *)slurp(p, &n);
+    char *js = check_slurp(p, &n);
     CHECK(js != NULL);
     const char *keys[] = {"\"blocks\": 2,", "\"tris\": ", "\"vertices\": ", "\"textures\": 3,",
                           "\"texture_pixels\": 12288,", "\"bytes_written\": ", "\"seconds\": ",

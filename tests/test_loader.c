@@ -13,6 +13,7 @@
  * TSan too.
  */
 #define _GNU_SOURCE /* RUSAGE_THREAD (cpu_span.h) */
+#include "hlod_clock.h"
 #include "check.h"
 #include "cpu_span.h"
 #include "hlod/store.h"
@@ -34,13 +35,6 @@ static const char *tmp_path(const char *name, char *buf, size_t n)
 {
     snprintf(buf, n, "%s/%s", g_dir, name);
     return buf;
-}
-
-static double now_s(void)
-{
-    struct timespec ts;
-    clock_gettime(CLOCK_MONOTONIC, &ts);
-    return (double)ts.tv_sec + 1e-9 * (double)ts.tv_nsec;
 }
 
 static void sleep_us(long us)
@@ -315,8 +309,8 @@ static void post_nodes(hlod_loader *l, const int *logical, size_t n)
         req[i].node = g_idx[logical[i]];
         req[i].priority = (float)(n - i);
     }
-    double t0 = now_s();
-    while (!hlod_loader_post(l, req, n) && now_s() - t0 < 10)
+    double t0 = hlod_now_s();
+    while (!hlod_loader_post(l, req, n) && hlod_now_s() - t0 < 10)
         sleep_us(100);
 }
 
@@ -325,10 +319,10 @@ static void post_nodes(hlod_loader *l, const int *logical, size_t n)
 static size_t collect_until(hlod_loader *l, hlod_load_result *out, size_t want, double timeout_s)
 {
     size_t got = 0;
-    double t0 = now_s();
+    double t0 = hlod_now_s();
     while (got < want) {
         got += hlod_loader_collect(l, out + got, want - got);
-        if (got >= want || now_s() - t0 > timeout_s)
+        if (got >= want || hlod_now_s() - t0 > timeout_s)
             break;
         sleep_us(500);
     }
@@ -360,8 +354,8 @@ static hlod_loader_counters counters(hlod_loader *l)
 /* Waits until cond(h) or timeout; returns cond. */
 #define WAIT_FOR(cond, timeout_s)                                       \
     do {                                                                \
-        double t0_ = now_s();                                           \
-        while (!(cond) && now_s() - t0_ < (timeout_s))                  \
+        double t0_ = hlod_now_s();                                           \
+        while (!(cond) && hlod_now_s() - t0_ < (timeout_s))                  \
             sleep_us(200);                                              \
     } while (0)
 
@@ -850,9 +844,9 @@ static void test_destroy_in_flight(void)
     CHECK(counters(l).reads_done == 1);     /* S1 queued, not collected */
     /* BIG's read takes 1024 steps of 50 ms (51 s); the current step ends
      * within 50 ms.  10 s tells the two apart on any loaded machine. */
-    double t0 = now_s();
+    double t0 = hlod_now_s();
     hlod_loader_destroy(l);
-    double dt = now_s() - t0;
+    double dt = hlod_now_s() - t0;
     CHECKF(dt < 10.0, "destroy took %.3f s (the whole read takes 51 s)", dt);
 }
 

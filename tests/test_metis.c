@@ -6,6 +6,7 @@
  * (one part, a disconnected block, a tiny block, coincident triangles),
  * and reproducibility.
  */
+#include "hlod_clock.h"
 #include "build.h"
 #include "btree_check.h"
 #include "check.h"
@@ -232,13 +233,6 @@ static int leaves_are_block(const hlod_btree *t, const hlod_mesh *block)
     return same;
 }
 
-static double seconds(void)
-{
-    struct timespec ts;
-    clock_gettime(CLOCK_MONOTONIC, &ts);
-    return (double)ts.tv_sec + 1e-9 * (double)ts.tv_nsec;
-}
-
 /* ---------- invariants on a 35k-triangle block ---------- */
 
 static hlod_mesh block35;
@@ -254,10 +248,10 @@ static void build_block35(void)
     logbook lb = {0};
     hlod_logger lg = {record, &lb};
     p.logger = &lg;
-    double t0 = seconds();
+    double t0 = hlod_now_s();
     CHECK(hlod_build_metis(&block35, &tex35, &p, &tree35) == HLOD_OK);
     fprintf(stderr, "     %zu triangles, N_v %zu, N_l %zu, N_n %zu: %zu nodes in %.2f s\n", block35.tri_count, NV,
-            NL, NN, tree35.count, seconds() - t0);
+            NL, NN, tree35.count, hlod_now_s() - t0);
     CHECK(lb.warn == 0 && lb.error == 0);
 }
 

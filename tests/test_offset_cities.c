@@ -26,6 +26,7 @@
  *                        removed when the test passes)
  * Prints "REPORT offset ..." lines for tests/reliability_report.sh.
  */
+#include "hlod_clock.h"
 #include "check.h"
 #include "engine_internal.h"
 #include "hlod/renderer.h"
@@ -51,13 +52,6 @@ static const char *env(const char *name, const char *def)
 {
     const char *v = getenv(name);
     return v && *v ? v : def;
-}
-
-static double now_s(void)
-{
-    struct timespec ts;
-    clock_gettime(CLOCK_MONOTONIC, &ts);
-    return (double)ts.tv_sec + (double)ts.tv_nsec * 1e-9;
 }
 
 static int exists(const char *path)
@@ -177,12 +171,12 @@ static void offset_cities_match(void)
         check_src_path(rel, path_file, sizeof path_file);
     }
 
-    double t0 = now_s();
+    double t0 = hlod_now_s();
     int built = 1;
     for (int k = 0; k < CITIES && built; k++)
         built = build_city(k, preset, tris);
     CHECKF(built, "generating or building the %s city failed", preset);
-    double t_build = now_s() - t0;
+    double t_build = hlod_now_s() - t0;
 
     hlod_store *s[CITIES] = {0};
     for (int k = 0; k < CITIES && built; k++) {
@@ -264,7 +258,7 @@ static void offset_cities_match(void)
     CHECKF(frames_done == frames, "%d of %d frames", frames_done, frames);
     CHECKF(refined_frames > frames / 4, "the selection refined in only %d frames",
            refined_frames);
-    double t_all = now_s() - t0;
+    double t_all = hlod_now_s() - t0;
     for (int k = 1; k < CITIES; k++) {
         const double *o = g_origins[k];
         fprintf(stderr, "  %s city at (%g, %g, %g): %d frames, PSNR min %.2f mean %.2f dB, "

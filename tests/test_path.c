@@ -35,26 +35,6 @@ static const char *tmp_path(const char *name, char *buf, size_t n)
     return buf;
 }
 
-static char *slurp(const char *p, size_t *n)
-{
-    FILE *f = fopen(p, "rb");
-    if (!f)
-        return NULL;
-    fseek(f, 0, SEEK_END);
-    long len = ftell(f);
-    fseek(f, 0, SEEK_SET);
-    char *b = malloc(len > 0 ? (size_t)len + 1 : 1);
-    if (b && fread(b, 1, (size_t)len, f) != (size_t)len) {
-        free(b);
-        b = NULL;
-    }
-    if (b)
-        b[len > 0 ? len : 0] = 0;
-    fclose(f);
-    *n = len > 0 ? (size_t)len : 0;
-    return b;
-}
-
 static int same_bits(const double *a, const double *b, size_t n)
 {
     return memcmp(a, b, n * sizeof *a) == 0;
@@ -447,7 +427,7 @@ static void test_write_round_trip(void)
     CHECK(hlod_path_load(file, &lg, &q) == HLOD_OK);
     CHECK(same_path(&p, &q));
     size_t n;
-    char *text = slurp(file, &n);
+    char *text = check_slurp(file, &n);
     CHECK(text && !strncmp(text, "# recorded by a test\n#\n# line three\n# t px py pz lx ly lz\n",
                            strlen("# recorded by a test\n#\n# line three\n# t px py pz lx ly lz\n")));
     /* shortest round-trip numbers: 0.1 is written as "0.1" */
@@ -495,7 +475,7 @@ static void test_city_paths_match_committed_files(void)
             snprintf(rel, sizeof rel, "data/paths/%s/%s.path", PRESETS[pi], name);
             check_src_path(rel, file, sizeof file);
             size_t n = 0, m = 0;
-            char *committed = slurp(file, &n), *made = NULL;
+            char *committed = check_slurp(file, &n), *made = NULL;
             CHECKF(committed, "%s is missing", file);
             CHECK(hlod_city_path_text(&d, name, &made, &m) == HLOD_OK);
             CHECKF(committed && made && n == m && !memcmp(committed, made, n),
@@ -544,7 +524,7 @@ static void test_city_paths_tool(void)
                      hlod_city_path_names[i]);
             check_src_path(rel, b, sizeof b);
             size_t na = 0, nb = 0;
-            char *x = slurp(a, &na), *y = slurp(b, &nb);
+            char *x = check_slurp(a, &na), *y = check_slurp(b, &nb);
             CHECKF(x && y && na == nb && !memcmp(x, y, na), "%s", a);
             free(x);
             free(y);

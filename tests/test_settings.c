@@ -14,25 +14,6 @@
 #include <string.h>
 #include <unistd.h>
 
-static char *slurp(const char *path)
-{
-    FILE *fp = fopen(path, "rb");
-    if (!fp)
-        return NULL;
-    fseek(fp, 0, SEEK_END);
-    long n = ftell(fp);
-    fseek(fp, 0, SEEK_SET);
-    char *b = malloc((size_t)n + 1);
-    if (b && fread(b, 1, (size_t)n, fp) != (size_t)n) {
-        free(b);
-        b = NULL;
-    }
-    if (b)
-        b[n] = 0;
-    fclose(fp);
-    return b;
-}
-
 static void range_text(const hlod_engine_setting *s, char *out, size_t n)
 {
     char lo[32], hi[32];
@@ -69,7 +50,7 @@ static void readme_table_matches(void)
     const char *src = getenv("HLOD_SOURCE_DIR");
     char path[1024];
     snprintf(path, sizeof path, "%s/README.md", src ? src : ".");
-    char *text = slurp(path);
+    char *text = check_slurp(path, NULL);
     CHECKF(text, "%s is missing", path);
     if (!text)
         return;

@@ -21,6 +21,7 @@
  * looser bound; they are kept small so the test stays a few seconds (a
  * few tens under ASan).
  */
+#include "hlod_clock.h"
 #include "check.h"
 #include "hlod/vec3.h"
 #include "hlod/distance.h"
@@ -32,13 +33,6 @@
 #include <unistd.h>
 
 /* ---------- mesh helpers ---------- */
-
-static double now_s(void)
-{
-    struct timespec ts;
-    clock_gettime(CLOCK_MONOTONIC, &ts);
-    return ts.tv_sec + ts.tv_nsec * 1e-9;
-}
 
 static void set_v(hlod_mesh *m, size_t i, double x, double y, double z)
 {
@@ -194,9 +188,9 @@ static size_t check_case(const char *name, const hlod_mesh *in, size_t target,
     d.target_tris = target;
     d.measure_error = 1;
     hlod_simplify_stats st;
-    double t0 = now_s();
+    double t0 = hlod_now_s();
     hlod_result r = hlod_simplify(in, &d, &out, &st);
-    double secs = now_s() - t0;
+    double secs = hlod_now_s() - t0;
     CHECKF(r == HLOD_OK, "%s -> %zu: %s", name, target, hlod_result_str(r));
     if (r != HLOD_OK)
         return 0;
@@ -572,11 +566,11 @@ static void creased_roof_is_bounded_tightly(void)
     d.target_tris = m.tri_count / 2;
     d.measure_error = 1;
     hlod_simplify_stats st;
-    double t0 = now_s();
+    double t0 = hlod_now_s();
     alarm(600); /* a hang fails; its speed belongs in a benchmark */
     CHECK(hlod_simplify(&m, &d, &o, &st) == HLOD_OK);
     alarm(0);
-    double secs = now_s() - t0, diag = hlod_mesh_bbox_diag(&m);
+    double secs = hlod_now_s() - t0, diag = hlod_mesh_bbox_diag(&m);
     CHECKF(st.error <= 1.01e-9 * diag, "reported %g, diagonal %g", st.error, diag);
     fprintf(stderr, "  creased roof: %.2f s\n", secs);
     free(xs);

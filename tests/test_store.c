@@ -35,24 +35,6 @@ static const char *tmp_path(const char *name, char *buf, size_t n)
     return buf;
 }
 
-static uint8_t *read_all(const char *path, size_t *size)
-{
-    FILE *fp = fopen(path, "rb");
-    if (!fp)
-        return NULL;
-    fseek(fp, 0, SEEK_END);
-    long n = ftell(fp);
-    fseek(fp, 0, SEEK_SET);
-    uint8_t *buf = malloc(n > 0 ? (size_t)n : 1);
-    if (buf && fread(buf, 1, (size_t)n, fp) != (size_t)n) {
-        free(buf);
-        buf = NULL;
-    }
-    fclose(fp);
-    *size = (size_t)n;
-    return buf;
-}
-
 static int write_all(const char *path, const void *buf, size_t size)
 {
     FILE *fp = fopen(path, "wb");
@@ -473,7 +455,7 @@ static void test_every_truncation(void)
     char path[1024], cut[1024];
     CHECK(good_store(&ts, "tr.hlod", path, sizeof path) == HLOD_OK);
     size_t size = 0;
-    uint8_t *buf = read_all(path, &size);
+    uint8_t *buf = (uint8_t *)check_slurp(path, &size);
     CHECK(buf && size > 4096);
     tmp_path("cut.hlod", cut, sizeof cut);
     CHECK(buf && write_all(cut, buf, size));
@@ -727,7 +709,7 @@ static void test_forged_tables(void)
     CHECK(good_store(&ts, "forge.hlod", path, sizeof path) == HLOD_OK);
     tmp_path("forged.hlod", forged, sizeof forged);
     size_t size = 0;
-    uint8_t *good = read_all(path, &size);
+    uint8_t *good = (uint8_t *)check_slurp(path, &size);
     uint8_t *img = malloc(size);
     CHECK(good && img);
     if (!good || !img)
@@ -858,7 +840,7 @@ static void test_abort_leaves_nothing(void)
     CHECK(hlod_store_writer_add(w, &ts.mesh[R0].d, &n[0]) == HLOD_OK);
     hlod_store_writer_abort(w);
     size_t size = 0;
-    uint8_t *buf = read_all(path, &size);
+    uint8_t *buf = (uint8_t *)check_slurp(path, &size);
     CHECK(buf && size == 3 && memcmp(buf, "old", 3) == 0);
     CHECK(dir_entries() == 1);
     free(buf);
@@ -1090,10 +1072,10 @@ static int run_info(const char *args, char *out, size_t n_out, char *err, size_t
     snprintf(cmd, sizeof cmd, "'%s/hlod-info' %s >'%s' 2>'%s' </dev/null", bin, args, o, e);
     int st = system(cmd);
     size_t size = 0;
-    uint8_t *b = read_all(o, &size);
+    uint8_t *b = (uint8_t *)check_slurp(o, &size);
     snprintf(out, n_out, "%.*s", b ? (int)size : 0, b ? (const char *)b : "");
     free(b);
-    b = read_all(e, &size);
+    b = (uint8_t *)check_slurp(e, &size);
     snprintf(err, n_err, "%.*s", b ? (int)size : 0, b ? (const char *)b : "");
     free(b);
     unlink(o);

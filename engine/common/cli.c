@@ -7,6 +7,7 @@
  * one buffer and written with one fwrite so a concurrent log line cannot
  * land in its middle.
  */
+#include "hlod_clock.h"
 #include "cli.h"
 
 #include <errno.h>
@@ -24,9 +25,7 @@
 
 double hlod_cli_now(void)
 {
-    struct timespec ts;
-    clock_gettime(CLOCK_MONOTONIC, &ts);
-    return (double)ts.tv_sec + (double)ts.tv_nsec * 1e-9;
+    return hlod_now_s();
 }
 
 size_t hlod_cli_peak_rss(void)

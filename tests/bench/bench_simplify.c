@@ -29,6 +29,7 @@
  * unwelded flat-shaded mesh (Wuson.ply) or glTF would not simplify at all.
  * Our simplifier does the same welding inside its timed call.
  */
+#include "hlod_clock.h"
 #include "atomic_file.h"
 #include "cli.h"
 #include "hlod/distance.h"
@@ -69,13 +70,6 @@ typedef struct row {
     int measured;           /* 0: the output was empty, d is meaningless */
     int more_tris;          /* ours kept more triangles than meshopt */
 } row;
-
-static double now(void)
-{
-    struct timespec ts;
-    clock_gettime(CLOCK_MONOTONIC, &ts);
-    return (double)ts.tv_sec + (double)ts.tv_nsec * 1e-9;
-}
 
 static void usage(FILE *fp)
 {
@@ -151,10 +145,10 @@ static size_t time_meshopt(const hlod_mesh *m, const uint32_t *indices, const fl
                            size_t target_index_count, uint32_t *dest, double *seconds)
 {
     float result_error = 0;
-    double t = now();
+    double t = hlod_now_s();
     size_t n = meshopt_simplify(dest, indices, 3 * m->tri_count, pos, vertex_count, 3 * sizeof(float),
                                 target_index_count, FLT_MAX, 0, &result_error);
-    *seconds = now() - t;
+    *seconds = hlod_now_s() - t;
     return n;
 }
 
@@ -163,9 +157,9 @@ static hlod_result time_ours(const hlod_mesh *m, size_t target_tris, hlod_mesh *
 {
     hlod_simplify_desc desc = {0};
     desc.target_tris = target_tris;
-    double t = now();
+    double t = hlod_now_s();
     hlod_result res = hlod_simplify(m, &desc, out, NULL);
-    *seconds = now() - t;
+    *seconds = hlod_now_s() - t;
     return res;
 }
 
