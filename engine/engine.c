@@ -107,8 +107,8 @@ static hlod_result out_of_range(const hlod_logger *lg, const char *key, double v
                                 int lo_open, double hi)
 {
     char l[32], h[32];
-    snprintf(l, sizeof l, lo <= -HLOD_UNBOUNDED ? "-inf" : "%g", lo);
-    snprintf(h, sizeof h, hi >= HLOD_UNBOUNDED ? "inf" : "%g", hi);
+    snprintf(l, sizeof l, isinf(lo) ? "-inf" : "%g", lo);
+    snprintf(h, sizeof h, isinf(hi) ? "inf" : "%g", hi);
     hlod_logf(lg, HLOD_LOG_ERROR, "engine: %s %g is not in %c%s, %s]", key, v, lo_open ? '(' : '[',
               l, h);
     return HLOD_ERR_INVALID_ARG;

@@ -494,6 +494,28 @@ void hlod_build_desc_defaults(hlod_build_desc *d)
     d->seed = 1;
 }
 
+/* The descriptor's values, each in the range hlod-build's flags allow. */
+static hlod_result check_desc(const hlod_build_desc *d, const hlod_logger *lg)
+{
+    const char *bad = NULL;
+    if (d->method != HLOD_BUILD_CUTPLANE && d->method != HLOD_BUILD_METIS)
+        bad = "method is not cutplane or metis";
+    else if (!(isfinite(d->grid) && d->grid >= 0 && d->grid <= 1e12))
+        bad = "grid is not a cell size in [0, 1e12]";
+    else if (d->desired_tris < 1 || d->voxel_tris < 1 || d->node_tris < 1 || d->leaf_tris < 2)
+        bad = "a triangle count is zero (leaf_tris needs 2)";
+    else if (!(d->level_factor >= 2 && d->level_factor <= 64) || d->level_factor != floor(d->level_factor))
+        bad = "level_factor is not a whole number in [2, 64]";
+    else if (!(d->c_tex >= 0 && d->c_tex <= 1))
+        bad = "c_tex is not in [0, 1]";
+    else if (d->threads > 256)
+        bad = "threads is over 256";
+    if (!bad)
+        return HLOD_OK;
+    hlod_logf(lg, HLOD_LOG_ERROR, "build: %s", bad);
+    return HLOD_ERR_INVALID_ARG;
+}
+
 /* The output folder must exist before hours of work. */
 static hlod_result check_out_dir(const char *out, const hlod_logger *lg)
 {
@@ -647,7 +669,9 @@ hlod_result hlod_build_store(const hlod_build_desc *d, const char *const *inputs
         *report = rep;
     if (!d || !inputs || !n || !out_path)
         return HLOD_ERR_INVALID_ARG;
-    hlod_result r = check_out_dir(out_path, lg);
+    hlod_result r = check_desc(d, lg);
+    if (r == HLOD_OK)
+        r = check_out_dir(out_path, lg);
     if (r != HLOD_OK)
         return r;
     hlod_mesh *meshes = calloc(n, sizeof *meshes);

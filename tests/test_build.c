@@ -157,6 +157,28 @@ static void library_errors_leave_nothing(void)
     hlod_build_desc d;
     hlod_build_desc_defaults(&d);
     CHECK(hlod_build_store(&d, NULL, 0, p, NULL, NULL) == HLOD_ERR_INVALID_ARG);
+    /* descriptor values out of the flags' ranges are refused, naming them */
+    char in[2048], out[2048];
+    snprintf(in, sizeof in, "%s/c.obj", tmp);
+    snprintf(out, sizeof out, "%s/lib-desc.hlod", tmp);
+    const char *inputs[] = {in};
+    for (int i = 0; i < 4; i++) {
+        hlod_build_desc_defaults(&d);
+        const char *what[] = {"c_tex", "grid", "level_factor", "method"};
+        if (i == 0)
+            d.c_tex = 1.5;
+        else if (i == 1)
+            d.grid = NAN;
+        else if (i == 2)
+            d.level_factor = 2.5;
+        else
+            d.method = (hlod_build_method)7;
+        hlod_logger lg = rec_logger(&log);
+        CHECKF(hlod_build_store(&d, inputs, 1, out, &lg, NULL) == HLOD_ERR_INVALID_ARG &&
+                   strstr(log.last, what[i]),
+               "%s: %s", what[i], log.last);
+        CHECK(file_size(out) < 0);
+    }
 }
 
 /* The same city at (5e5, 4.1e6, 0): same tree, node boxes shifted by the

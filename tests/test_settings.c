@@ -17,8 +17,8 @@
 static void range_text(const hlod_engine_setting *s, char *out, size_t n)
 {
     char lo[32], hi[32];
-    snprintf(lo, sizeof lo, s->lo <= -HLOD_UNBOUNDED ? "-inf" : "%g", s->lo);
-    snprintf(hi, sizeof hi, s->hi >= HLOD_UNBOUNDED ? "inf" : "%g", s->hi);
+    snprintf(lo, sizeof lo, isinf(s->lo) ? "-inf" : "%g", s->lo);
+    snprintf(hi, sizeof hi, isinf(s->hi) ? "inf" : "%g", s->hi);
     snprintf(out, n, "%c%s, %s]", s->lo_open ? '(' : '[', lo, hi);
 }
 
@@ -149,7 +149,7 @@ static void ranges_are_checked(void)
         const hlod_engine_setting *s = &set[i];
         double bad[2] = {s->lo_open ? s->lo : s->lo - 1, s->hi * 2 + 1};
         for (int b = 0; b < 2; b++) {
-            if (fabs(bad[b]) >= HLOD_UNBOUNDED || (s->kind[0] == 'U' && bad[b] < 0))
+            if (isinf(bad[b]) || (s->kind[0] == 'U' && bad[b] < 0))
                 continue; /* no such bound, or not representable */
             if (bad[b] == 0)
                 continue; /* zero means the default */
@@ -162,6 +162,29 @@ static void ranges_are_checked(void)
             if (s->live)
                 CHECKF(hlod_engine_set(e, &d) == HLOD_ERR_INVALID_ARG, "%s = %g set", s->key, bad[b]);
         }
+    }
+    /* an unbounded side takes any finite value (old limits were only
+     * "finite"), and no value is NaN or infinite */
+    for (size_t i = 0; i < n && e; i++) {
+        const hlod_engine_setting *s = &set[i];
+        if (s->kind[0] != 'D')
+            continue;
+        double big[2] = {isinf(s->lo) ? -1e308 : NAN, isinf(s->hi) ? 1e308 : NAN};
+        for (int b = 0; b < 2; b++) {
+            if (isnan(big[b]))
+                continue;
+            if (!strcmp(s->key, "fixed_ms"))
+                continue; /* it must stay under target_ms */
+            hlod_engine_desc d = base;
+            CHECK(hlod_engine_desc_set(&d, s->key, big[b]) == HLOD_OK);
+            hlod_engine *x = NULL;
+            CHECKF(hlod_engine_create(st, &d, &x) == HLOD_OK, "%s = %g refused", s->key, big[b]);
+            hlod_engine_destroy(x);
+        }
+        hlod_engine_desc d = base;
+        d.c_vis = INFINITY;
+        hlod_engine *x = NULL;
+        CHECK(hlod_engine_create(st, &d, &x) == HLOD_ERR_INVALID_ARG && !x);
     }
     /* live settings change, restart ones keep the engine's value */
     if (e) {

@@ -140,6 +140,15 @@ static int value_ok(const char *k, double v)
     return 0;
 }
 
+/* Was key given with --set (or is it the sweep's key)? */
+static int given(const options *o, const setting *extra, const char *key)
+{
+    for (int i = 0; i < o->nsets; i++)
+        if (!strcmp(o->sets[i].key, key))
+            return 1;
+    return extra && !strcmp(extra->key, key);
+}
+
 static void apply_setting(hlod_engine_desc *d, const char *k, double v)
 {
     hlod_result r = hlod_engine_desc_set(d, k, v);
@@ -754,15 +763,7 @@ static int run(context *c, hlod_policy policy, const char *dir, const setting *e
     if (extra)
         apply_setting(&d, extra->key, extra->value);
     if (o->deterministic) {
-        int have_v = 0, have_fixed = 0;
-        for (int i = 0; i < o->nsets; i++) {
-            have_v |= !strcmp(o->sets[i].key, "v_time");
-            have_fixed |= !strcmp(o->sets[i].key, "fixed_ms");
-        }
-        if (extra) {
-            have_v |= !strcmp(extra->key, "v_time");
-            have_fixed |= !strcmp(extra->key, "fixed_ms");
-        }
+        int have_v = given(o, extra, "v_time"), have_fixed = given(o, extra, "fixed_ms");
         if (!have_v || !have_fixed) {
             double v, fixed;
             if (calibrate(c, &d, &v, &fixed) != HLOD_OK) {
@@ -778,7 +779,8 @@ static int run(context *c, hlod_policy policy, const char *dir, const setting *e
                     d.fixed_frame_ms);
         }
         d.deterministic = 1;
-        d.deterministic_load_bytes = (uint64_t)(o->io_mbps * 1e6 * o->dt);
+        if (!given(o, extra, "deterministic_load_bytes")) /* else --set wins over --io-mbps */
+            d.deterministic_load_bytes = (uint64_t)(o->io_mbps * 1e6 * o->dt);
         if (!d.deterministic_load_bytes)
             d.deterministic_load_bytes = 1;
     }
@@ -897,7 +899,7 @@ static int plot_sweep(const options *o)
     snprintf(s, sizeof s,
              "set datafile separator ','\nset terminal pngcairo size 900,600\n"
              "set grid\nset key outside\nset xlabel 'mean frame time (ms)'\n"
-             "set ylabel 'mean PSNR (dB)'\nset output 'pareto->png'\n"
+             "set ylabel 'mean PSNR (dB)'\nset output 'pareto.png'\n"
              "set title 'Run time vs error, one curve per policy'\n"
              "plot for [p in '%s%s%s%s%s'] '< grep ^'.p.', sweep.csv' using 6:13 "
              "with linespoints title p\n"

@@ -62,9 +62,12 @@ typedef struct hlod_build_report {
 void hlod_build_desc_defaults(hlod_build_desc *d);
 
 /* Builds the store.  Errors are logged (naming the file and the problem)
- * and returned: HLOD_ERR_IO for an unreadable input, a missing output
- * folder or a block that failed (its own error is logged), HLOD_ERR_EMPTY
- * for no triangles, HLOD_ERR_NOMEM; report (may be NULL) is filled on success. */
+ * and returned: HLOD_ERR_INVALID_ARG for a descriptor value out of range
+ * (those of hlod-build's flags), the importer's error for an unreadable
+ * input, HLOD_ERR_IO for a missing output folder or a block that failed
+ * (its own error is logged), HLOD_ERR_EMPTY for no triangles,
+ * HLOD_ERR_NOMEM; report (may be NULL) is filled on success.  lg may be
+ * called from the build threads at once: it must be thread-safe. */
 hlod_result hlod_build_store(const hlod_build_desc *d, const char *const *inputs, size_t n,
                              const char *out_path, const hlod_logger *lg,
                              hlod_build_report *report);

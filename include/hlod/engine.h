@@ -33,6 +33,8 @@
 #include "hlod/hlod.h"
 #include "hlod/store.h"
 
+#include <math.h>
+
 #ifdef __cplusplus
 extern "C" {
 #endif
@@ -96,7 +98,7 @@ typedef double (*hlod_time_model)(void *user_data, double drawn_cost, uint64_t d
  *
  * One row feeds the field, its default, its check, hlod_engine_set,
  * hlod-bench's --set and its help text. */
-#define HLOD_UNBOUNDED 1e300
+#define HLOD_UNBOUNDED HUGE_VAL /* no limit: any finite value passes */
 #define HLOD_ENGINE_SETTINGS(X)                                                                  \
     X(target_ms, target_ms, D, 33.3, 0, 1, 1e6, 1,                                               \
       "c_targetTime: the frame time to meet, ms")                                                \
