@@ -157,6 +157,19 @@ typedef struct adjrec {
     uint32_t start, count, cap;
 } adjrec;
 
+/* Constraints the passes relax, in this order, only when no collapse is
+ * left (state.relax): the target is then reached wherever the caller's
+ * locks allow, and the quadrics' feature planes still price what moves.
+ *   RELAX_NONE     feature lines keep their topology: an edge between two
+ *                  feature vertices that is no feature edge is refused,
+ *                  and corners (1 or 3+ feature edges) never move;
+ *   RELAX_ACROSS   such an edge may collapse (two feature lines meet);
+ *   RELAX_CORNERS  corners may move too; only the caller's locks
+ *                  (vertex_lock, lock_border) and non-manifold vertices
+ *                  hold. */
+enum { RELAX_NONE, RELAX_ACROSS, RELAX_CORNERS, RELAX_LAST = RELAX_CORNERS };
+/* Past RELAX_LAST, whole parts that cannot shrink go (prune_parts). */
+
 /* Per-vertex flags of a pass (state.vflag). */
 enum {
     VF_LOCK = 1,    /* changed by this pass: its queued prices are stale */
@@ -178,6 +191,7 @@ typedef struct state {
     size_t n_tris;             /* triangles (= input triangles) */
     int oom;                   /* an allocation failed: every phase stops
                                   and hlod_simplify returns HLOD_ERR_NOMEM */
+    int relax;                 /* constraints relaxed so far (RELAX_*) */
     /* position vertices (phase "vertices": one allocation) */
     pvert *verts;
     double (*pos)[3];          /* their positions, normalized frame: apart
@@ -847,10 +861,14 @@ static void evaluate(state *s, uint32_t a, uint32_t b, int edge_feature,
     e->allowed = 0;
     e->ncand = 0;
     int la = s->verts[a].locked, lb = s->verts[b].locked;
+    if (s->relax >= RELAX_CORNERS) { /* only the caller's and non-manifold locks hold */
+        la = s->verts[a].ulock;
+        lb = s->verts[b].ulock;
+    }
     int fta = la || s->verts[a].fdeg > 0, ftb = lb || s->verts[b].fdeg > 0;
     if (la && lb)
         return;
-    if (edge_feature)
+    if (edge_feature || (fta && ftb && s->relax >= RELAX_ACROSS))
         e->forced = la ? 1 : lb ? 2 : 0;
     else if (fta && ftb)
         return;
@@ -2114,6 +2132,7 @@ typedef struct run {
     double max_est;            /* the largest squared estimate collapsed */
     size_t collapses;
     int stop;                  /* the error limit was reached */
+    int stalled;               /* no valid collapse was left */
 } run;
 
 /* Before a pass (not the first): keep last pass's candidates whose ends
@@ -2267,6 +2286,203 @@ static size_t walk_pass(state *s, run *r, float cost_goal, nrec **recs, size_t *
     return pass_collapses;
 }
 
+/* ---------- the last resort: parts that cannot shrink further ---------- */
+
+static uint32_t uf_find(uint32_t *parent, uint32_t x)
+{
+    while (parent[x] != x) {
+        parent[x] = parent[parent[x]];
+        x = parent[x];
+    }
+    return x;
+}
+
+/* For every live vertex, the distance to the nearest live vertex of
+ * another part (INFINITY when there is none): a uniform grid of about two
+ * vertices a cell, searched ring by ring until the ring lies farther than
+ * the best found. */
+static int other_part_distances(const state *s, const uint32_t *part, const uint32_t *live_v,
+                                size_t n, double *dist)
+{
+    double lo[3] = {INFINITY, INFINITY, INFINITY}, hi[3] = {-INFINITY, -INFINITY, -INFINITY};
+    for (size_t i = 0; i < n; i++)
+        for (int k = 0; k < 3; k++) {
+            lo[k] = fmin(lo[k], s->pos[live_v[i]][k]);
+            hi[k] = fmax(hi[k], s->pos[live_v[i]][k]);
+        }
+    double ext = fmax(hi[0] - lo[0], fmax(hi[1] - lo[1], hi[2] - lo[2]));
+    int g = (int)ceil(cbrt((double)n / 2));
+    g = g < 1 ? 1 : g > 128 ? 128 : g;
+    double h = ext > 0 ? ext / g : 1;
+    size_t cells = (size_t)g * g * g;
+    uint32_t *start = calloc(cells + 1, sizeof *start), *list = malloc(n * sizeof *list),
+             *cell = malloc(n * sizeof *cell);
+    if (!start || !list || !cell) {
+        free(start);
+        free(list);
+        free(cell);
+        return 0;
+    }
+    int c3[3];
+    for (size_t i = 0; i < n; i++) {
+        for (int k = 0; k < 3; k++) {
+            int c = (int)((s->pos[live_v[i]][k] - lo[k]) / h);
+            c3[k] = c < 0 ? 0 : c >= g ? g - 1 : c;
+        }
+        cell[i] = (uint32_t)(c3[0] + g * (c3[1] + g * c3[2]));
+        start[cell[i] + 1]++;
+    }
+    for (size_t c = 0; c < cells; c++)
+        start[c + 1] += start[c];
+    for (size_t i = 0; i < n; i++)
+        list[start[cell[i]]++] = (uint32_t)i;
+    for (size_t c = cells; c > 0; c--)
+        start[c] = start[c - 1];
+    start[0] = 0;
+    for (size_t i = 0; i < n; i++) {
+        const double *p = s->pos[live_v[i]];
+        int ci[3] = {(int)(cell[i] % g), (int)(cell[i] / g % g), (int)(cell[i] / g / g)};
+        double best2 = INFINITY;
+        for (int ring = 0; ring < g; ring++) {
+            /* a ring past the best found cannot hold a nearer vertex */
+            double near = (ring - 1) * h;
+            if (ring > 0 && near > 0 && near * near > best2)
+                break;
+            for (int z = ci[2] - ring; z <= ci[2] + ring; z++)
+                for (int y = ci[1] - ring; y <= ci[1] + ring; y++)
+                    for (int x = ci[0] - ring; x <= ci[0] + ring; x++) {
+                        if (x < 0 || y < 0 || z < 0 || x >= g || y >= g || z >= g)
+                            continue;
+                        if (abs(x - ci[0]) != ring && abs(y - ci[1]) != ring && abs(z - ci[2]) != ring)
+                            continue; /* inside: an earlier ring */
+                        size_t c = (size_t)x + (size_t)g * ((size_t)y + (size_t)g * (size_t)z);
+                        for (uint32_t j = start[c]; j < start[c + 1]; j++) {
+                            uint32_t o = list[j];
+                            if (part[live_v[o]] == part[live_v[i]])
+                                continue;
+                            double d[3];
+                            hlod_sub3(d, s->pos[live_v[o]], p);
+                            double d2 = hlod_dot3(d, d);
+                            if (d2 < best2)
+                                best2 = d2;
+                        }
+                    }
+        }
+        dist[i] = sqrt(best2);
+    }
+    free(start);
+    free(list);
+    free(cell);
+    return 1;
+}
+
+typedef struct part_cost {
+    double cost;       /* normalized units: how far its vertices lie from the rest */
+    uint32_t part, tris;
+    uint8_t locked;
+} part_cost;
+
+static int cmp_part_cost(const void *a, const void *b)
+{
+    const part_cost *x = a, *y = b;
+    if (x->cost != y->cost)
+        return x->cost < y->cost ? -1 : 1;
+    return (x->part > y->part) - (x->part < y->part);
+}
+
+/* RELAX_PARTS, when no collapse is left: whole parts (connected pieces
+ * of the surface) that can shrink no further go, cheapest first, until the
+ * target is met.  A part's cost is the largest distance from one of its
+ * vertices to the nearest vertex of another part: what the surface loses
+ * when it goes, the limit of Garland-Heckbert's aggregation of a small
+ * part into its neighbour.  Parts with a locked vertex stay, as does the
+ * last part; the error limit holds. */
+static void prune_parts(state *s, run *r)
+{
+    if (!r->target && !(r->err_limit2 > 0))
+        return; /* no goal to prune for: collapses went as far as they go */
+    size_t nv = s->n_pos, n = 0;
+    uint32_t *parent = malloc(nv * sizeof *parent), *live_v = malloc(nv * sizeof *live_v);
+    double *dist = malloc(nv * sizeof *dist);
+    part_cost *pc = calloc(nv, sizeof *pc);
+    if (!parent || !live_v || !dist || !pc) {
+        s->oom = 1;
+        goto out;
+    }
+    for (size_t v = 0; v < nv; v++)
+        parent[v] = (uint32_t)v;
+    for (size_t t = 0; t < s->n_tris; t++)
+        if (s->tri_alive[t]) {
+            const uint32_t *tv = s->tri_pos + 3 * t;
+            parent[uf_find(parent, tv[0])] = uf_find(parent, tv[1]);
+            parent[uf_find(parent, tv[1])] = uf_find(parent, tv[2]);
+        }
+    for (size_t v = 0; v < nv; v++)
+        if (s->verts[v].alive && s->adj[v].count)
+            live_v[n++] = (uint32_t)v;
+    for (size_t v = 0; v < nv; v++)
+        parent[v] = uf_find(parent, (uint32_t)v);
+    if (!other_part_distances(s, parent, live_v, n, dist)) {
+        s->oom = 1;
+        goto out;
+    }
+    for (size_t i = 0; i < nv; i++)
+        pc[i].part = (uint32_t)i;
+    for (size_t i = 0; i < n; i++) {
+        part_cost *c = &pc[parent[live_v[i]]];
+        c->cost = fmax(c->cost, dist[i]);
+        c->locked |= s->verts[live_v[i]].ulock;
+    }
+    for (size_t t = 0; t < s->n_tris; t++)
+        if (s->tri_alive[t])
+            pc[parent[s->tri_pos[3 * t]]].tris++;
+    size_t np = 0;
+    for (size_t i = 0; i < nv; i++)
+        if (pc[i].tris)
+            pc[np++] = pc[i];
+    qsort(pc, np, sizeof *pc, cmp_part_cost);
+    size_t kept = np, last = 0;
+    uint8_t *gone = s->pos_flag; /* scratch: cleared before the next pass */
+    memset(gone, 0, nv);
+    for (size_t i = 0; i < np && r->live > r->target && kept > 1; i++) {
+        double c2 = pc[i].cost * pc[i].cost;
+        if (pc[i].locked || !isfinite(c2))
+            continue;
+        if (r->err_limit2 > 0 && c2 > r->err_limit2) {
+            r->stop = 1;
+            break;
+        }
+        gone[pc[i].part] = 1;
+        r->live -= pc[i].tris;
+        kept--;
+        last = i + 1;
+    }
+    /* The last part taken may overshoot the target by far: parts taken
+     * before it come back, dearest first, while the target still holds. */
+    for (size_t i = last; i-- > 0;)
+        if (gone[pc[i].part] && last && i + 1 < last && r->live + pc[i].tris <= r->target) {
+            gone[pc[i].part] = 0;
+            r->live += pc[i].tris;
+        }
+    for (size_t i = 0; i < last; i++)
+        if (gone[pc[i].part])
+            r->max_est = fmax(r->max_est, pc[i].cost * pc[i].cost);
+    for (size_t t = 0; t < s->n_tris; t++)
+        if (s->tri_alive[t] && gone[parent[s->tri_pos[3 * t]]])
+            s->tri_alive[t] = 0;
+    for (size_t i = 0; i < n; i++)
+        if (gone[parent[live_v[i]]]) {
+            s->verts[live_v[i]].alive = 0;
+            s->adj[live_v[i]].count = 0;
+        }
+    memset(gone, 0, nv);
+out:
+    free(parent);
+    free(live_v);
+    free(dist);
+    free(pc);
+}
+
 /* Phase "passes": price, sort, walk, until the target, the error limit,
  * or no valid collapse is left. */
 static hlod_result run_passes(state *s, const hlod_simplify_desc *desc, run *r, nrec **recs,
@@ -2287,8 +2503,18 @@ static hlod_result run_passes(state *s, const hlod_simplify_desc *desc, run *r, 
         selfcheck_prices(s, recs, rcap);
 #endif
         first_pass = 0;
-        if (!s->n_cand)
+        if (!s->n_cand && s->relax < RELAX_LAST) {
+            s->relax++;
+            s->n_parked = 0;
+            first_pass = 1;
+            unlimited = 0;
+            continue;
+        }
+        if (!s->n_cand) {
+            r->stalled = 1;
+            prune_parts(s, r);
             break;
+        }
         /* Each interior collapse removes two triangles.  Stop the pass at
          * 1.5x the cost of the collapse that would reach the goal, so a
          * pass never runs far ahead of a strict priority order.  Only the
@@ -2310,11 +2536,23 @@ static hlod_result run_passes(state *s, const hlod_simplify_desc *desc, run *r, 
         if (s->oom)
             return HLOD_ERR_NOMEM;
         /* When every candidate under the bound was refused, retry once
-         * without the bound before giving up. */
+         * without the bound; when that finds nothing either, relax the
+         * next constraint and price every edge anew (prices and refusals
+         * depend on it); past the last, give up. */
         if (!pass_collapses) {
-            if (unlimited)
+            if (!unlimited) {
+                unlimited = 1;
+                continue;
+            }
+            if (s->relax == RELAX_LAST) {
+                r->stalled = 1;
+                prune_parts(s, r);
                 break;
-            unlimited = 1;
+            }
+            s->relax++;
+            s->n_parked = 0;
+            first_pass = 1;
+            unlimited = 0;
             continue;
         }
         unlimited = 0;
@@ -2342,6 +2580,14 @@ static hlod_result output(state *s, const hlod_mesh *in, const hlod_simplify_des
         return res;
     st->tris_out = out->tri_count;
     st->vertices_out = out->vertex_count;
+    for (size_t v = 0; v < s->n_pos; v++)
+        st->locked_vertices += s->verts[v].alive && s->adj[v].count && s->verts[v].ulock;
+    if (r->stop)
+        st->stop_reason = "error_limit";
+    else if (r->stalled && r->live > r->target)
+        st->stop_reason = st->locked_vertices ? "locked" : "no_valid_collapse";
+    else
+        st->stop_reason = "target";
     st->error_estimate = sqrt(r->max_est) * scale;
     st->error = st->error_estimate;
     if (desc->measure_error && out->tri_count) {

@@ -472,6 +472,93 @@ static void random_meshes_never_break(void)
     CHECKF(flipped == 0, "%zu flipped faces", flipped);
 }
 
+/* ---------- stalls: the target is reached, or the stop says why ---------- */
+
+/* A regular tetrahedron of edge e at c (4 vertices, 4 triangles, closed:
+ * no collapse can shrink it). */
+static void add_tetra(hlod_mesh *m, size_t *v, size_t *t, const double c[3], double e)
+{
+    static const double k[4][3] = {{1, 1, 1}, {1, -1, -1}, {-1, 1, -1}, {-1, -1, 1}};
+    for (int i = 0; i < 4; i++)
+        set_v(m, *v + i, c[0] + 0.35 * e * k[i][0], c[1] + 0.35 * e * k[i][1], c[2] + 0.35 * e * k[i][2]);
+    uint32_t b = (uint32_t)*v;
+    set_t(m, *t, b, b + 1, b + 2);
+    set_t(m, *t + 1, b, b + 3, b + 1);
+    set_t(m, *t + 2, b, b + 2, b + 3);
+    set_t(m, *t + 3, b + 1, b + 3, b + 2);
+    *v += 4;
+    *t += 4;
+}
+
+/* 40 tetrahedra, none can shrink: 20 in a tight cluster next to each
+ * other, 20 spread far apart.  Asked for 50%, whole parts go, the
+ * clustered ones first (each lies close to the others: little is lost). */
+static void separate_parts_reach_the_target(void)
+{
+    hlod_mesh m = {0}, o = {0};
+    hlod_mesh_alloc(&m, 160, 160, 0);
+    size_t v = 0, t = 0;
+    for (int i = 0; i < 20; i++) {
+        double c[3] = {0.3 * (i % 5), 0.3 * (i / 5), 0};
+        add_tetra(&m, &v, &t, c, 0.25);
+    }
+    for (int i = 0; i < 20; i++) {
+        double c[3] = {20.0 * (i % 5) + 10, 20.0 * (i / 5) + 10, 15};
+        add_tetra(&m, &v, &t, c, 0.25);
+    }
+    hlod_simplify_desc d = {0};
+    d.target_tris = 80;
+    hlod_simplify_stats st;
+    CHECK(hlod_simplify(&m, &d, &o, &st) == HLOD_OK);
+    CHECKF(o.tri_count <= 80 && o.tri_count >= 78, "%zu triangles for 80", o.tri_count);
+    CHECKF(!strcmp(st.stop_reason, "target"), "%s", st.stop_reason);
+    /* every far tetrahedron is still there (z = 15) */
+    size_t far = 0;
+    for (size_t i = 0; i < o.tri_count; i++)
+        far += o.positions[3 * (size_t)o.indices[3 * i] + 2] > 10;
+    CHECKF(far == 80, "%zu far triangles kept of 80", far);
+    /* the reported estimate covers what went: a tetrahedron's spacing */
+    CHECKF(st.error_estimate > 0.05 && st.error_estimate < 0.5, "estimate %g", st.error_estimate);
+    /* no count target and no error limit: nothing is pruned */
+    hlod_mesh o2 = {0};
+    hlod_simplify_desc d2 = {0};
+    CHECK(hlod_simplify(&m, &d2, &o2, &st) == HLOD_OK);
+    CHECKF(o2.tri_count == 160, "%zu", o2.tri_count);
+    /* an error limit under the cluster's spacing keeps them all */
+    d.target_error = 0.01;
+    CHECK(hlod_simplify(&m, &d, &o2, &st) == HLOD_OK);
+    CHECKF(o2.tri_count == 160 && !strcmp(st.stop_reason, "error_limit"), "%zu, %s", o2.tri_count,
+           st.stop_reason);
+    hlod_mesh_free(&m);
+    hlod_mesh_free(&o);
+    hlod_mesh_free(&o2);
+}
+
+/* Locks that make the target impossible are the stop's reason. */
+static void locked_stop_is_reported(void)
+{
+    hlod_mesh m = {0}, o = {0};
+    grid(&m, 6, 0);
+    uint8_t *lock = malloc(m.vertex_count);
+    memset(lock, 1, m.vertex_count);
+    hlod_simplify_desc d = {0};
+    d.target_tris = 4;
+    d.vertex_lock = lock;
+    hlod_simplify_stats st;
+    CHECK(hlod_simplify(&m, &d, &o, &st) == HLOD_OK);
+    CHECKF(o.tri_count == m.tri_count && !strcmp(st.stop_reason, "locked") &&
+               st.locked_vertices == m.vertex_count,
+           "%zu triangles, %s, %zu locked", o.tri_count, st.stop_reason, st.locked_vertices);
+    /* reached: "target" */
+    d.vertex_lock = NULL;
+    CHECK(hlod_simplify(&m, &d, &o, &st) == HLOD_OK);
+    CHECKF(o.tri_count <= 4 && !strcmp(st.stop_reason, "target") && st.locked_vertices == 0,
+           "%zu triangles, %s", o.tri_count, st.stop_reason);
+    free(lock);
+    hlod_mesh_free(&m);
+    hlod_mesh_free(&o);
+}
+
 int main(void)
 {
     RUN(tetrahedron_cannot_collapse);
@@ -485,5 +572,7 @@ int main(void)
     RUN(bad_input_is_rejected);
     RUN(zero_area_and_duplicate_triangles_survive);
     RUN(random_meshes_never_break);
+    RUN(separate_parts_reach_the_target);
+    RUN(locked_stop_is_reported);
     return check_done();
 }

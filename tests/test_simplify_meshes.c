@@ -80,71 +80,6 @@ static edge_stats edges(const hlod_mesh *m)
     return es;
 }
 
-/* The fewest triangles a valid simplification can keep: a closed
- * component cannot go below a tetrahedron; an open one may vanish. */
-static size_t floor_tris(const hlod_mesh *m)
-{
-    /* union-find over welded vertices */
-    pkey *k = malloc(m->vertex_count * sizeof *k);
-    uint32_t *id = malloc(m->vertex_count * sizeof *id), *parent = malloc(m->vertex_count * sizeof *parent);
-    for (size_t i = 0; i < m->vertex_count; i++) {
-        memcpy(k[i].p, m->positions + 3 * i, sizeof k[i].p);
-        k[i].v = (uint32_t)i;
-        parent[i] = (uint32_t)i;
-    }
-    qsort(k, m->vertex_count, sizeof *k, cmp_pkey);
-    for (size_t i = 0; i < m->vertex_count; i++)
-        id[k[i].v] = (i && !cmp_pkey(&k[i], &k[i - 1])) ? id[k[i - 1].v] : k[i].v;
-    for (size_t t = 0; t < m->tri_count; t++)
-        for (int c = 1; c < 3; c++) {
-            uint32_t a = id[m->indices[3 * t]], b = id[m->indices[3 * t + c]];
-            while (parent[a] != a)
-                a = parent[a] = parent[parent[a]];
-            while (parent[b] != b)
-                b = parent[b] = parent[parent[b]];
-            parent[a] = b;
-        }
-    /* a component is closed when none of its edges is a border edge; count
-     * border edges per component with the same sort as edges() */
-    size_t ne = m->tri_count * 3, floor = 0;
-    uint64_t *e = malloc(ne * sizeof *e);
-    for (size_t t = 0; t < m->tri_count; t++)
-        for (int c = 0; c < 3; c++) {
-            uint64_t a = id[m->indices[3 * t + c]], b = id[m->indices[3 * t + (c + 1) % 3]];
-            e[3 * t + c] = a < b ? (a << 32 | b) : (b << 32 | a);
-        }
-    qsort(e, ne, sizeof *e, cmp_u64);
-    uint8_t *open = calloc(m->vertex_count, 1), *seen = calloc(m->vertex_count, 1);
-    for (size_t i = 0; i < ne;) {
-        size_t j = i;
-        while (j < ne && e[j] == e[i])
-            j++;
-        if (j - i == 1) {
-            uint32_t a = (uint32_t)(e[i] >> 32);
-            while (parent[a] != a)
-                a = parent[a];
-            open[a] = 1;
-        }
-        i = j;
-    }
-    for (size_t t = 0; t < m->tri_count; t++) {
-        uint32_t a = id[m->indices[3 * t]];
-        while (parent[a] != a)
-            a = parent[a];
-        if (!seen[a]) {
-            seen[a] = 1;
-            floor += open[a] ? 0 : 4;
-        }
-    }
-    free(k);
-    free(id);
-    free(parent);
-    free(e);
-    free(open);
-    free(seen);
-    return floor;
-}
-
 static int load(const char *rel, hlod_mesh *m)
 {
     char path[1024];
@@ -154,7 +89,7 @@ static int load(const char *rel, hlod_mesh *m)
     return r == HLOD_OK;
 }
 
-static void check_mesh(const char *rel, int closed)
+static void check_mesh(const char *rel, int closed, int multipart)
 {
     hlod_mesh m = {0};
     if (!load(rel, &m))
@@ -162,7 +97,6 @@ static void check_mesh(const char *rel, int closed)
     edge_stats in = edges(&m);
     CHECKF(!closed || in.border == 0, "%s: expected a closed mesh, %zu border edges", rel, in.border);
     double diag = hlod_mesh_bbox_diag(&m);
-    size_t floor = floor_tris(&m);
     const double ratios[2] = {0.1, 0.01};
     for (int r = 0; r < 2; r++) {
         hlod_mesh o = {0};
@@ -171,21 +105,12 @@ static void check_mesh(const char *rel, int closed)
         d.measure_error = 1;
         hlod_simplify_stats st;
         CHECK(hlod_simplify(&m, &d, &o, &st) == HLOD_OK);
-        if (o.tri_count > d.target_tris) {
-            /* Only allowed when nothing valid is left to collapse (closed
-             * parts stop at a tetrahedron, seams and material borders at
-             * their corners), so another run removes next to nothing: its
-             * fresh quadrics may place a collapse elsewhere, where no face
-             * flips (spider.obj at 1%: 78 -> 74), but a run that stopped
-             * early would leave it far more. */
-            hlod_mesh o2 = {0};
-            hlod_simplify_desc d2 = {0};
-            CHECK(hlod_simplify(&o, &d2, &o2, NULL) == HLOD_OK);
-            CHECKF(o2.tri_count * 10 >= o.tri_count * 9 && o.tri_count <= 2 * floor,
-                   "%s %.2f: stopped at %zu triangles for a target of %zu, %zu possible (floor %zu)", rel,
-                   ratios[r], o.tri_count, d.target_tris, o2.tri_count, floor);
-            hlod_mesh_free(&o2);
-        }
+        /* The target is reached within 2% (RELAX stages, then whole
+         * parts that cannot shrink go), unless the caller's locks forbid:
+         * none here. */
+        CHECKF((double)o.tri_count <= 1.02 * (double)d.target_tris && !strcmp(st.stop_reason, "target"),
+               "%s %.2f: stopped at %zu triangles for a target of %zu: %s", rel, ratios[r],
+               o.tri_count, d.target_tris, st.stop_reason);
         edge_stats out = edges(&o);
         CHECKF(!closed || out.border == 0, "%s %.2f: closed mesh opened (%zu border edges)", rel,
                ratios[r], out.border);
@@ -200,8 +125,11 @@ static void check_mesh(const char *rel, int closed)
          * (sampling itself misses peaks by up to ~10% here) */
         CHECKF(st.error <= hd.max * 1.10, "%s %.2f: reported %g, measured only %g", rel, ratios[r], st.error,
                hd.max);
-        CHECKF(st.error > 0 && st.error < 0.2 * diag, "%s %.2f: reported error %g of diagonal %g", rel,
-               ratios[r], st.error, diag);
+        /* 1% of a many-part mesh keeps fewer triangles than it has parts
+         * (spider.obj: 13 for 18 parts): some parts go whole */
+        double worst = r == 0 || !multipart ? 0.2 : 0.5;
+        CHECKF(st.error > 0 && st.error < worst * diag, "%s %.2f: reported error %g of diagonal %g",
+               rel, ratios[r], st.error, diag);
         fprintf(stderr, "     %s %.2f: %zu -> %zu tris, error %.4f%% of diagonal\n", rel, ratios[r], m.tri_count,
                 o.tri_count, 100 * st.error / diag);
         hlod_mesh_free(&o);
@@ -209,10 +137,14 @@ static void check_mesh(const char *rel, int closed)
     hlod_mesh_free(&m);
 }
 
-static void bunny(void) { check_mesh("data/meshes/bunny00.off", 0); }
-static void fandisk(void) { check_mesh("data/meshes/fandisk.off", 1); }
-static void shark_open_borders(void) { check_mesh("data/meshes/mech-holes-shark.off", 0); }
-static void spider_textured(void) { check_mesh("data/meshes/spider.obj", 0); }
+static void bunny(void) { check_mesh("data/meshes/bunny00.off", 0, 0); }
+static void fandisk(void) { check_mesh("data/meshes/fandisk.off", 1, 0); }
+static void shark_open_borders(void) { check_mesh("data/meshes/mech-holes-shark.off", 0, 0); }
+static void spider_textured(void) { check_mesh("data/meshes/spider.obj", 0, 1); }
+/* 86 parts, most vertices on open borders and material changes */
+static void engine_many_parts(void) { check_mesh("data/meshes/2CylinderEngine.glb", 0, 1); }
+/* textured, 51 parts, UV seams everywhere */
+static void wuson_seams(void) { check_mesh("data/meshes/Wuson.ply", 0, 1); }
 
 static void shark_locked_border_stays(void)
 {
@@ -256,6 +188,8 @@ int main(void)
     RUN(fandisk);
     RUN(shark_open_borders);
     RUN(spider_textured);
+    RUN(engine_many_parts);
+    RUN(wuson_seams);
     RUN(shark_locked_border_stays);
     RUN(target_error_is_respected);
     return check_done();

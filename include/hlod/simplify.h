@@ -66,6 +66,15 @@ typedef struct hlod_simplify_stats {
      * error_estimate. */
     double error;
     double seconds;             /* time spent simplifying (not measuring) */
+    /* Why the collapses stopped: "target" (target_tris reached, or no
+     * count target and nothing left to do within target_error),
+     * "error_limit" (the next collapse would exceed target_error),
+     * "locked" (no valid collapse is left and vertices the caller locked,
+     * border locks or non-manifold vertices remain), "no_valid_collapse"
+     * (none is left: every remaining edge would fold a face or break the
+     * surface's topology).  A static string. */
+    const char *stop_reason;
+    size_t locked_vertices;     /* live vertices under a lock that never relaxes */
 } hlod_simplify_stats;
 
 /* Simplifies in into *out (freed first; may not alias in).  Materials,

@@ -252,6 +252,10 @@ int main(int argc, char **argv)
 
     double diag = hlod_mesh_bbox_diag(&in);
     double rel = diag > 0 ? ss.error / diag : NAN;
+    if (!o.quiet && sd.target_tris && out.tri_count > sd.target_tris)
+        fprintf(stderr, "%s: warning: %s: stopped at %zu triangles for a target of %zu: %s (%zu "
+                "locked vertices)\n", PROG, o.in, out.tri_count, sd.target_tris, ss.stop_reason,
+                ss.locked_vertices);
     if (!o.quiet) {
         fprintf(stderr,
                 "%s: %s -> %s: %zu -> %zu triangles (%.2f%%) in %.3f s, "
@@ -277,6 +281,8 @@ int main(int argc, char **argv)
         hlod_json_size(&j, "vertices_in", in.vertex_count);
         hlod_json_size(&j, "vertices_out", out.vertex_count);
         hlod_json_size(&j, "collapses", ss.collapses);
+        hlod_json_string(&j, "stop_reason", ss.stop_reason);
+        hlod_json_size(&j, "locked_vertices", ss.locked_vertices);
         hlod_json_size(&j, "tris_read", is.tris_read);
         hlod_json_size(&j, "degenerate_dropped", is.degenerate_dropped);
         hlod_json_size(&j, "duplicate_dropped", is.duplicate_dropped);
