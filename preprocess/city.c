@@ -451,6 +451,7 @@ static void scratch_free(scratch *sc)
 
 typedef struct gen {
     int count_only, with_uv;
+    int parts;                  /* HLOD_CITY_STYLE_PARTS: buildings of separate boxes */
     size_t nv, nt;
     double *pos;
     float *uv;
@@ -829,9 +830,116 @@ static void set_chart(gen *g, const chart *charts, size_t i, double scale, doubl
     g->cs = scale;
 }
 
+/* ---- the parts style: buildings as separate boxes, as BIM exports are ---- */
+
+/* One face of a box: a grid of na x nb quads from o along a and b (points
+ * in the wall frame: u along the wall, n outward, z up), facing a x b.
+ * Each face has its own vertices: the box is closed once positions are
+ * welded, as every consumer does. */
+static void put_face(gen *g, const wall *w, const double o[3], const double a[3], const double b[3],
+                     double lsub)
+{
+    double la = sqrt(a[0] * a[0] + a[1] * a[1] + a[2] * a[2]);
+    double lb = sqrt(b[0] * b[0] + b[1] * b[1] + b[2] * b[2]);
+    int na = subdivisions(la, lsub), nb = subdivisions(lb, lsub);
+    uint32_t first = (uint32_t)g->nv;
+    for (int j = 0; j <= nb; j++)
+        for (int i = 0; i <= na; i++) {
+            double fa = (double)i / na, fb = (double)j / nb, q[3], x, y;
+            for (int k = 0; k < 3; k++)
+                q[k] = o[k] + fa * a[k] + fb * b[k];
+            wall_point(w, q[0], q[1], &x, &y);
+            put_vertex(g, x, y, q[2], 0, 0);
+        }
+    for (int j = 0; j < nb; j++)
+        for (int i = 0; i < na; i++) {
+            uint32_t v = first + (uint32_t)(j * (na + 1) + i);
+            put_quad(g, v, v + 1, v + 1 + (uint32_t)(na + 1), v + (uint32_t)(na + 1));
+        }
+}
+
+/* A box [u0, u1] x [n0, n1] x [z0, z1] in wall w's frame, outward faces. */
+static void put_box(gen *g, const wall *w, double u0, double u1, double n0, double n1, double z0,
+                    double z1, double lsub)
+{
+    if (!(u1 > u0 && n1 > n0 && z1 > z0))
+        return;
+    double du = u1 - u0, dn = n1 - n0, dz = z1 - z0;
+    const double U[3] = {du, 0, 0}, mU[3] = {-du, 0, 0}, N[3] = {0, dn, 0}, mN[3] = {0, -dn, 0},
+                 Z[3] = {0, 0, dz};
+    put_face(g, w, (double[3]){u0, n1, z0}, U, Z, lsub);   /* +n */
+    put_face(g, w, (double[3]){u1, n0, z0}, mU, Z, lsub);  /* -n */
+    put_face(g, w, (double[3]){u1, n1, z0}, mN, Z, lsub);  /* +u */
+    put_face(g, w, (double[3]){u0, n0, z0}, N, Z, lsub);   /* -u */
+    put_face(g, w, (double[3]){u0, n0, z1}, N, U, lsub);   /* +z */
+    put_face(g, w, (double[3]){u0, n0, z0}, U, N, lsub);   /* -z */
+}
+
+#define PART_WALL 0.25      /* wall and slab thickness */
+#define PART_FRAME 0.06     /* window frame width and depth */
+
+/* One storey of one wall: a slab, or piers, spandrels, frames and panes
+ * around k-spaced windows. */
+static void parts_storey(gen *g, const building *b, const wall *w, int has_windows, double k,
+                         double z0, double h, double wb, double wt, double lsub)
+{
+    double span = w->len - 2 * b->margin, bay = b->bay_w * k;
+    int nwin = has_windows && span > bay ? (int)floor(span / bay) : 0;
+    if (!nwin) {
+        put_box(g, w, 0, w->len, -PART_WALL, 0, z0, z0 + h, lsub);
+        return;
+    }
+    double step = span / nwin, half = 0.5 * b->win_w, prev = 0, fr = PART_FRAME;
+    for (int i = 0; i < nwin; i++) {
+        double c = b->margin + (i + 0.5) * step, l = c - half, r = c + half;
+        put_box(g, w, prev, l, -PART_WALL, 0, z0, z0 + h, lsub);    /* pier */
+        put_box(g, w, l, r, -PART_WALL, 0, z0, wb, lsub);           /* spandrel below */
+        put_box(g, w, l, r, -PART_WALL, 0, wt, z0 + h, lsub);       /* and above */
+        double n1 = -b->recess, n0 = n1 - fr;
+        put_box(g, w, l, l + fr, n0, n1, wb, wt, lsub);             /* frame */
+        put_box(g, w, r - fr, r, n0, n1, wb, wt, lsub);
+        put_box(g, w, l + fr, r - fr, n0, n1, wb, wb + fr, lsub);
+        put_box(g, w, l + fr, r - fr, n0, n1, wt - fr, wt, lsub);
+        put_box(g, w, l + fr, r - fr, n0 + 0.02, n1 - 0.02, wb + fr, wt - fr, lsub); /* pane */
+        prev = r;
+    }
+    put_box(g, w, prev, w->len, -PART_WALL, 0, z0, z0 + h, lsub);
+}
+
+static void emit_building_parts(gen *g, const building *b, double k, double lsub)
+{
+    wall ws[4];
+    building_walls(b, ws);
+    double top = b->ground_h + (b->floors - 1) * b->floor_h;
+    for (int s = 0; s < 4; s++) {
+        const wall *w = &ws[s];
+        int win = (b->windows >> s) & 1;
+        parts_storey(g, b, w, win, k, 0, b->ground_h, b->gwin_b, b->gwin_t, lsub);
+        for (int f = 1; f < b->floors; f++) {
+            double z0 = b->ground_h + (f - 1) * b->floor_h;
+            parts_storey(g, b, w, win, k, z0, b->floor_h, z0 + b->sill, z0 + b->sill + b->win_h, lsub);
+        }
+        put_box(g, w, 0, w->len, -b->par_t, 0, top, top + b->par_h, lsub); /* parapet */
+    }
+    /* floor slabs, and the roof: boxes over the footprint (the south wall's
+     * frame: u along x, n towards -y) */
+    const wall *sw = &ws[SIDE_S];
+    double depth = b->y1 - b->y0;
+    for (int f = 0; f <= b->floors; f++) {
+        double z = f == 0 ? 0 : b->ground_h + (f - 1) * b->floor_h;
+        put_box(g, sw, PART_WALL, sw->len - PART_WALL, -depth + PART_WALL, -PART_WALL, z - PART_WALL,
+                z, lsub);
+    }
+}
+
 static void emit_block(gen *g, const block *bk, double k, double lsub, const chart *charts,
                        double scale)
 {
+    if (g->parts) {
+        for (size_t i = 0; i < bk->nb && !g->oom; i++)
+            emit_building_parts(g, &bk->b[i], k, lsub);
+        return;
+    }
     ppt prof[MAX_PROFILE];
     for (size_t i = 0; i < bk->nb && !g->oom; i++) {
         const building *b = &bk->b[i];
@@ -1308,6 +1416,14 @@ static hlod_result check_desc(const hlod_city_desc *d, const hlod_logger *lg)
                   d->blocks, d->tris_per_block);
         return HLOD_ERR_INVALID_ARG;
     }
+    if (d->style != HLOD_CITY_STYLE_SCAN && d->style != HLOD_CITY_STYLE_PARTS) {
+        hlod_logf(lg, HLOD_LOG_ERROR, "city: unknown style %d", d->style);
+        return HLOD_ERR_INVALID_ARG;
+    }
+    if (d->style == HLOD_CITY_STYLE_PARTS && !d->untextured) {
+        hlod_logf(lg, HLOD_LOG_ERROR, "city: the parts style is untextured (set untextured)");
+        return HLOD_ERR_INVALID_ARG;
+    }
     if (!d->untextured && (d->texture_size < 16 || d->texture_size > 16384)) {
         hlod_logf(lg, HLOD_LOG_ERROR, "city: texture size %d is out of range (16..16384)",
                   d->texture_size);
@@ -1487,6 +1603,7 @@ static hlod_result city_run(city_job *J)
     }
     city_grid(d->blocks, &J->ncols, &J->nrows);
     J->g.with_uv = J->textured;
+    J->g.parts = J->cg.parts = d->style == HLOD_CITY_STYLE_PARTS;
     J->g.noise_seed = mix64(d->seed ^ 0x6e6f697365ULL);
     J->g.size = d->texture_size;
     J->g.noise = NOISE_WALL;

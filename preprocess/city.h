@@ -40,6 +40,12 @@
 extern "C" {
 #endif
 
+/* How buildings are made.  SCAN: each building one closed surface of
+ * dense, scan-like facades.  PARTS: each building many separate closed
+ * boxes, as BIM exports are (wall piers and spandrels, floor slabs, window
+ * frames and panes, parapets), untextured. */
+enum { HLOD_CITY_STYLE_SCAN = 0, HLOD_CITY_STYLE_PARTS = 1 };
+
 typedef struct hlod_city_desc {
     size_t blocks;              /* 0: 200 */
     size_t tris_per_block;      /* approximate budget per block; 0: 35000 */
@@ -47,6 +53,7 @@ typedef struct hlod_city_desc {
     uint64_t seed;              /* any value, 0 included */
     double origin[3];           /* added to every position, exactly */
     int untextured;             /* non-zero: no UVs, no textures, colours only */
+    int style;                  /* HLOD_CITY_STYLE_SCAN (0) or _PARTS (untextured) */
     const char *texture_dir;    /* required unless untextured */
     hlod_progress_fn progress;  /* blocks done of blocks + 1; may be NULL */
     void *progress_user;

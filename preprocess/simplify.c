@@ -145,7 +145,8 @@ typedef struct pvert {
     double w;          /* area weight sum, for error estimates */
     uint8_t alive;
     uint8_t locked;    /* never moves (user, border lock, corner, complex) */
-    uint8_t ulock;     /* sticky user / complex lock */
+    uint8_t ulock;     /* sticky user lock (vertex_lock, lock_border) */
+    uint8_t xlock;     /* sticky complex lock: on a non-manifold edge */
     uint8_t moved;     /* position differs from its input */
     uint8_t fdeg;      /* feature edges here (capped at 255) */
     uint8_t plain;     /* plain_interior() at the last classification */
@@ -166,8 +167,12 @@ typedef struct adjrec {
  *   RELAX_ACROSS   such an edge may collapse (two feature lines meet);
  *   RELAX_CORNERS  corners may move too; only the caller's locks
  *                  (vertex_lock, lock_border) and non-manifold vertices
- *                  hold. */
-enum { RELAX_NONE, RELAX_ACROSS, RELAX_CORNERS, RELAX_LAST = RELAX_CORNERS };
+ *                  hold;
+ *   RELAX_COMPLEX  vertices on non-manifold edges may move too (separate
+ *                  parts that touch, welded by position, make such edges
+ *                  everywhere in BIM-like models); the non-manifold edges
+ *                  themselves never collapse. */
+enum { RELAX_NONE, RELAX_ACROSS, RELAX_CORNERS, RELAX_COMPLEX, RELAX_LAST = RELAX_COMPLEX };
 /* Past RELAX_LAST, whole parts that cannot shrink go (prune_parts). */
 
 /* Per-vertex flags of a pass (state.vflag). */
@@ -192,6 +197,8 @@ typedef struct state {
     int oom;                   /* an allocation failed: every phase stops
                                   and hlod_simplify returns HLOD_ERR_NOMEM */
     int relax;                 /* constraints relaxed so far (RELAX_*) */
+    uint32_t *part;            /* position vertex -> its part (find_parts) */
+    size_t n_parts;
     /* position vertices (phase "vertices": one allocation) */
     pvert *verts;
     double (*pos)[3];          /* their positions, normalized frame: apart
@@ -747,7 +754,7 @@ static void classify(state *s, uint32_t v, nrec **recs, size_t *rcap)
     s->verts[v].plain = (uint8_t)plain_interior(s, v);
     if (s->verts[v].plain) {
         s->verts[v].fdeg = 0;
-        s->verts[v].locked = s->verts[v].ulock;
+        s->verts[v].locked = s->verts[v].ulock | s->verts[v].xlock;
         return;
     }
     long cnt = neighbours(s, v, recs, rcap);
@@ -761,9 +768,9 @@ static void classify(state *s, uint32_t v, nrec **recs, size_t *rcap)
             complex_ = 1;
     }
     if (complex_)
-        s->verts[v].ulock = 1;
+        s->verts[v].xlock = 1;
     s->verts[v].fdeg = (uint8_t)(f > 255 ? 255 : f);
-    s->verts[v].locked = s->verts[v].ulock || f == 1 || f > 2;
+    s->verts[v].locked = s->verts[v].ulock || s->verts[v].xlock || f == 1 || f > 2;
 }
 
 /* ---------- collapse evaluation ---------- */
@@ -862,8 +869,8 @@ static void evaluate(state *s, uint32_t a, uint32_t b, int edge_feature,
     e->ncand = 0;
     int la = s->verts[a].locked, lb = s->verts[b].locked;
     if (s->relax >= RELAX_CORNERS) { /* only the caller's and non-manifold locks hold */
-        la = s->verts[a].ulock;
-        lb = s->verts[b].ulock;
+        la = s->verts[a].ulock | (s->relax < RELAX_COMPLEX ? s->verts[a].xlock : 0);
+        lb = s->verts[b].ulock | (s->relax < RELAX_COMPLEX ? s->verts[b].xlock : 0);
     }
     int fta = la || s->verts[a].fdeg > 0, ftb = lb || s->verts[b].fdeg > 0;
     if (la && lb)
@@ -1042,7 +1049,8 @@ static void selfcheck_prices(state *s, nrec **recs, size_t *rcap)
     cand *sorted = malloc((n ? n : 1) * sizeof *sorted);
     if (!sorted)
         return;
-    memcpy(sorted, s->cand, s->n_cand * sizeof *sorted);
+    if (s->n_cand) /* (cand is NULL until the first candidate) */
+        memcpy(sorted, s->cand, s->n_cand * sizeof *sorted);
     if (s->n_parked)
         memcpy(sorted + s->n_cand, s->parked, s->n_parked * sizeof *sorted);
     /* every vertex's class is what its star says now */
@@ -1391,6 +1399,7 @@ static void collapse(state *s, uint32_t a, uint32_t b, const double x[3], const 
     }
     memcpy(s->pos[b], x, sizeof s->pos[b]);
     s->verts[b].ulock |= s->verts[a].ulock;
+    s->verts[b].xlock |= s->verts[a].xlock;
     /* UVs of wedges whose data or position changed. */
     if (s->wedge_aq) {
         for (uint32_t i = 0; i < k; i++) {
@@ -1405,7 +1414,7 @@ static void collapse(state *s, uint32_t a, uint32_t b, const double x[3], const 
      * endpoints were plain interior vertices: then every merged edge is
      * interior too and nothing around them changes. */
     if (!had_features) {
-        s->verts[b].locked = s->verts[b].ulock;
+        s->verts[b].locked = s->verts[b].ulock | s->verts[b].xlock;
         /* (past 32 faces plain_interior() no longer looks: b is classed
          * as a feature-free vertex that is not plain) */
         if (k > 32)
@@ -1590,6 +1599,7 @@ static void canonical_wedges(state *s, const hlod_mesh *in, uint32_t *canon)
 
 static void state_free(state *s)
 {
+    free(s->part);
     free(s->weld_block);
     free(s->vert_block);
     free(s->attr_block);
@@ -2133,6 +2143,7 @@ typedef struct run {
     size_t collapses;
     int stop;                  /* the error limit was reached */
     int stalled;               /* no valid collapse was left */
+    double pruned_at;          /* max_est at the last pass's pruning */
 } run;
 
 /* Before a pass (not the first): keep last pass's candidates whose ends
@@ -2300,9 +2311,10 @@ static uint32_t uf_find(uint32_t *parent, uint32_t x)
 /* For every live vertex, the distance to the nearest live vertex of
  * another part (INFINITY when there is none): a uniform grid of about two
  * vertices a cell, searched ring by ring until the ring lies farther than
- * the best found. */
+ * the best found, or past limit (farther counts as INFINITY). */
 static int other_part_distances(const state *s, const uint32_t *part, const uint32_t *live_v,
-                                size_t n, double *dist)
+                                size_t n, double limit, double *dist, uint32_t *near_part,
+                                const uint32_t *order, uint8_t *skip)
 {
     double lo[3] = {INFINITY, INFINITY, INFINITY}, hi[3] = {-INFINITY, -INFINITY, -INFINITY};
     for (size_t i = 0; i < n; i++)
@@ -2339,15 +2351,22 @@ static int other_part_distances(const state *s, const uint32_t *part, const uint
     for (size_t c = cells; c > 0; c--)
         start[c] = start[c - 1];
     start[0] = 0;
-    for (size_t i = 0; i < n; i++) {
+    for (size_t oi = 0; oi < n; oi++) {
+        size_t i = order[oi];
+        if (skip[part[live_v[i]]]) { /* not wanted, or a vertex of it is too far */
+            dist[i] = INFINITY;
+            near_part[i] = UINT32_MAX;
+            continue;
+        }
         const double *p = s->pos[live_v[i]];
         int ci[3] = {(int)(cell[i] % g), (int)(cell[i] / g % g), (int)(cell[i] / g / g)};
         double best2 = INFINITY;
+        uint32_t best_part = UINT32_MAX;
         for (int ring = 0; ring < g; ring++) {
             /* a ring past the best found cannot hold a nearer vertex */
             double near = (ring - 1) * h;
-            if (ring > 0 && near > 0 && near * near > best2)
-                break;
+            if (ring > 0 && near > 0 && (near * near > best2 || near > limit))
+                break; /* nothing nearer, or nothing within the limit */
             for (int z = ci[2] - ring; z <= ci[2] + ring; z++)
                 for (int y = ci[1] - ring; y <= ci[1] + ring; y++)
                     for (int x = ci[0] - ring; x <= ci[0] + ring; x++) {
@@ -2363,12 +2382,17 @@ static int other_part_distances(const state *s, const uint32_t *part, const uint
                             double d[3];
                             hlod_sub3(d, s->pos[live_v[o]], p);
                             double d2 = hlod_dot3(d, d);
-                            if (d2 < best2)
+                            if (d2 < best2) {
                                 best2 = d2;
+                                best_part = part[live_v[o]];
+                            }
                         }
                     }
         }
-        dist[i] = sqrt(best2);
+        dist[i] = best2 <= limit * limit ? sqrt(best2) : INFINITY;
+        near_part[i] = best_part;
+        if (!(dist[i] < INFINITY))
+            skip[part[live_v[i]]] = 1; /* the part costs more than limit */
     }
     free(start);
     free(list);
@@ -2390,24 +2414,146 @@ static int cmp_part_cost(const void *a, const void *b)
     return (x->part > y->part) - (x->part < y->part);
 }
 
-/* RELAX_PARTS, when no collapse is left: whole parts (connected pieces
- * of the surface) that can shrink no further go, cheapest first, until the
- * target is met.  A part's cost is the largest distance from one of its
+/* When no collapse is left: whole parts (connected pieces of the surface)
+ * go, cheapest first, until the target is met, those costing more than
+ * limit2 (squared, normalized) excepted.  Each stall first takes the parts
+ * that cost no more than the error already made, before any constraint
+ * relaxes; the last stall takes what it must.  A part's cost is the largest distance from one of its
  * vertices to the nearest vertex of another part: what the surface loses
  * when it goes, the limit of Garland-Heckbert's aggregation of a small
  * part into its neighbour.  Parts with a locked vertex stay, as does the
  * last part; the error limit holds. */
-static void prune_parts(state *s, run *r)
+#define UNDERSHOOT 0.98 /* a part may take the count this far under the target */
+
+static size_t prune_parts(state *s, run *r, double limit2, int may_undershoot)
 {
-    if (!r->target && !(r->err_limit2 > 0))
-        return; /* no goal to prune for: collapses went as far as they go */
-    size_t nv = s->n_pos, n = 0;
-    uint32_t *parent = malloc(nv * sizeof *parent), *live_v = malloc(nv * sizeof *live_v);
+    if (s->n_parts < 2 || (!r->target && !(r->err_limit2 > 0)))
+        return 0; /* one part, or no goal to prune for */
+    size_t removed = 0;
+    size_t nv = s->n_pos, np = s->n_parts, n = 0;
+    uint32_t *live_v = malloc(nv * sizeof *live_v), *near = malloc(nv * sizeof *near);
+    uint32_t *first = calloc(np + 1, sizeof *first), *by_part = malloc(nv * sizeof *by_part);
     double *dist = malloc(nv * sizeof *dist);
-    part_cost *pc = calloc(nv, sizeof *pc);
-    if (!parent || !live_v || !dist || !pc) {
+    part_cost *pc = calloc(np, sizeof *pc);
+    uint8_t *gone = calloc(np, 1);
+    if (!live_v || !near || !first || !by_part || !dist || !pc || !gone) {
         s->oom = 1;
         goto out;
+    }
+    for (size_t v = 0; v < nv; v++)
+        if (s->verts[v].alive && s->adj[v].count)
+            live_v[n++] = (uint32_t)v;
+    for (size_t i = 0; i < np; i++)
+        pc[i].part = (uint32_t)i;
+    for (size_t t = 0; t < s->n_tris; t++)
+        if (s->tri_alive[t])
+            pc[s->part[s->tri_pos[3 * t]]].tris++;
+    for (size_t i = 0; i < n; i++) {
+        pc[s->part[live_v[i]]].locked |= s->verts[live_v[i]].ulock;
+        first[s->part[live_v[i]] + 1]++;
+    }
+    /* each part's live vertices, in part order */
+    for (size_t i = 0; i < np; i++)
+        first[i + 1] += first[i];
+    for (size_t i = 0; i < n; i++)
+        by_part[first[s->part[live_v[i]]]++] = (uint32_t)i;
+    for (size_t i = np; i > 0; i--)
+        first[i] = first[i - 1];
+    first[0] = 0;
+    /* measure only parts that could go: unlocked, and not so large that
+     * they would take the count too far under the target */
+    for (size_t i = 0; i < np; i++)
+        gone[i] = !pc[i].tris || pc[i].locked ||
+                  (!may_undershoot &&
+                   (double)(r->live - pc[i].tris) < UNDERSHOOT * (double)r->target);
+    if (!other_part_distances(s, s->part, live_v, n, sqrt(limit2), dist, near, by_part, gone)) {
+        s->oom = 1;
+        goto out;
+    }
+    for (size_t i = 0; i < n; i++) {
+        part_cost *c = &pc[s->part[live_v[i]]];
+        c->cost = fmax(c->cost, dist[i]);
+    }
+    memset(gone, 0, np);
+    size_t live_parts = 0;
+    for (size_t i = 0; i < np; i++)
+        live_parts += pc[i].tris > 0;
+    qsort(pc, np, sizeof *pc, cmp_part_cost);
+    size_t last = 0;
+    for (size_t i = 0; i < np && r->live > r->target && live_parts > 1; i++) {
+        double c2 = pc[i].cost * pc[i].cost;
+        if (!pc[i].tris || pc[i].locked || !isfinite(c2))
+            continue;
+        if (c2 > limit2)
+            break;
+        if (!may_undershoot && (double)(r->live - pc[i].tris) < UNDERSHOOT * (double)r->target)
+            continue; /* collapses can still get there more finely (not measured) */
+        if (r->err_limit2 > 0 && c2 > r->err_limit2) {
+            r->stop = 1;
+            break;
+        }
+        /* its cost was measured to parts that are still there */
+        int stale = 0;
+        for (uint32_t j = first[pc[i].part]; j < first[pc[i].part + 1] && !stale; j++)
+            stale = near[by_part[j]] != UINT32_MAX && gone[near[by_part[j]]];
+        if (stale)
+            break; /* measured again on the next call, before any dearer part */
+        gone[pc[i].part] = 1;
+        r->live -= pc[i].tris;
+        live_parts--;
+        last = i + 1;
+    }
+    /* The last part taken may overshoot the target by far: parts taken
+     * before it come back, dearest first, while the target still holds. */
+    for (size_t i = last; i-- > 0;)
+        if (gone[pc[i].part] && i + 1 < last && r->live + pc[i].tris <= r->target) {
+            gone[pc[i].part] = 0;
+            r->live += pc[i].tris;
+        }
+    for (size_t i = 0; i < last; i++)
+        if (gone[pc[i].part]) {
+            r->max_est = fmax(r->max_est, pc[i].cost * pc[i].cost);
+            removed++;
+        }
+    for (size_t t = 0; t < s->n_tris; t++)
+        if (s->tri_alive[t] && gone[s->part[s->tri_pos[3 * t]]])
+            s->tri_alive[t] = 0;
+    for (size_t i = 0; i < n; i++)
+        if (gone[s->part[live_v[i]]]) {
+            s->verts[live_v[i]].alive = 0;
+            s->adj[live_v[i]].count = 0;
+            s->pos_flag[live_v[i]] |= VF_STALE; /* their candidates go */
+        }
+out:
+    free(live_v);
+    free(near);
+    free(first);
+    free(by_part);
+    free(dist);
+    free(pc);
+    free(gone);
+    return removed;
+}
+
+/* prune_parts until it takes nothing more (a part measured against one
+ * that went is measured again first). */
+static void prune_all(state *s, run *r, double limit2, int may_undershoot)
+{
+    while (r->live > r->target && !r->stop && !s->oom && prune_parts(s, r, limit2, may_undershoot))
+        ;
+}
+
+/* Phase "parts": the connected pieces of the surface, numbered 0..n_parts
+ * (collapses stay inside a part, so the numbers hold to the end). */
+static void find_parts(state *s)
+{
+    size_t nv = s->n_pos;
+    uint32_t *parent = malloc(nv * sizeof *parent);
+    s->part = malloc(nv * sizeof *s->part);
+    if (!parent || !s->part) {
+        free(parent);
+        s->oom = 1;
+        return;
     }
     for (size_t v = 0; v < nv; v++)
         parent[v] = (uint32_t)v;
@@ -2418,69 +2564,36 @@ static void prune_parts(state *s, run *r)
             parent[uf_find(parent, tv[1])] = uf_find(parent, tv[2]);
         }
     for (size_t v = 0; v < nv; v++)
-        if (s->verts[v].alive && s->adj[v].count)
-            live_v[n++] = (uint32_t)v;
-    for (size_t v = 0; v < nv; v++)
-        parent[v] = uf_find(parent, (uint32_t)v);
-    if (!other_part_distances(s, parent, live_v, n, dist)) {
-        s->oom = 1;
-        goto out;
+        s->part[v] = UINT32_MAX;
+    s->n_parts = 0;
+    for (size_t v = 0; v < nv; v++) {
+        uint32_t root = uf_find(parent, (uint32_t)v);
+        if (!s->adj[root].count && root == v)
+            continue; /* an unused vertex */
+        if (s->part[root] == UINT32_MAX)
+            s->part[root] = (uint32_t)s->n_parts++;
+        s->part[v] = s->part[root];
     }
-    for (size_t i = 0; i < nv; i++)
-        pc[i].part = (uint32_t)i;
-    for (size_t i = 0; i < n; i++) {
-        part_cost *c = &pc[parent[live_v[i]]];
-        c->cost = fmax(c->cost, dist[i]);
-        c->locked |= s->verts[live_v[i]].ulock;
-    }
-    for (size_t t = 0; t < s->n_tris; t++)
-        if (s->tri_alive[t])
-            pc[parent[s->tri_pos[3 * t]]].tris++;
-    size_t np = 0;
-    for (size_t i = 0; i < nv; i++)
-        if (pc[i].tris)
-            pc[np++] = pc[i];
-    qsort(pc, np, sizeof *pc, cmp_part_cost);
-    size_t kept = np, last = 0;
-    uint8_t *gone = s->pos_flag; /* scratch: cleared before the next pass */
-    memset(gone, 0, nv);
-    for (size_t i = 0; i < np && r->live > r->target && kept > 1; i++) {
-        double c2 = pc[i].cost * pc[i].cost;
-        if (pc[i].locked || !isfinite(c2))
-            continue;
-        if (r->err_limit2 > 0 && c2 > r->err_limit2) {
-            r->stop = 1;
-            break;
-        }
-        gone[pc[i].part] = 1;
-        r->live -= pc[i].tris;
-        kept--;
-        last = i + 1;
-    }
-    /* The last part taken may overshoot the target by far: parts taken
-     * before it come back, dearest first, while the target still holds. */
-    for (size_t i = last; i-- > 0;)
-        if (gone[pc[i].part] && last && i + 1 < last && r->live + pc[i].tris <= r->target) {
-            gone[pc[i].part] = 0;
-            r->live += pc[i].tris;
-        }
-    for (size_t i = 0; i < last; i++)
-        if (gone[pc[i].part])
-            r->max_est = fmax(r->max_est, pc[i].cost * pc[i].cost);
-    for (size_t t = 0; t < s->n_tris; t++)
-        if (s->tri_alive[t] && gone[parent[s->tri_pos[3 * t]]])
-            s->tri_alive[t] = 0;
-    for (size_t i = 0; i < n; i++)
-        if (gone[parent[live_v[i]]]) {
-            s->verts[live_v[i]].alive = 0;
-            s->adj[live_v[i]].count = 0;
-        }
-    memset(gone, 0, nv);
-out:
     free(parent);
-    free(live_v);
-    free(dist);
-    free(pc);
+}
+
+/* No collapse is left: parts that cost no more than the error made so far
+ * go first; if the target still is not met, the next constraint relaxes
+ * (and every edge is priced anew); past the last, parts go at any cost.
+ * Returns 1 when the passes are over. */
+static int stall(state *s, run *r)
+{
+    prune_all(s, r, r->max_est, 0);
+    if (s->oom || r->live <= r->target || r->stop)
+        return 1;
+    if (s->relax == RELAX_LAST) {
+        r->stalled = 1;
+        prune_all(s, r, INFINITY, 1);
+        return 1;
+    }
+    s->relax++;
+    s->n_parked = 0;
+    return 0;
 }
 
 /* Phase "passes": price, sort, walk, until the target, the error limit,
@@ -2491,6 +2604,18 @@ static hlod_result run_passes(state *s, const hlod_simplify_desc *desc, run *r, 
     const size_t tris_start = r->live;
     int first_pass = 1, unlimited = 0;
     while (r->live > r->target && !r->stop) {
+        /* Parts whose loss costs no more than the error already made go
+         * as soon as it has been made (Garland-Heckbert's aggregation in
+         * cost order): the quadrics would otherwise pay far more to
+         * shrink the large parts than the small ones cost whole. */
+        if (!first_pass && r->max_est > 2 * r->pruned_at) { /* (each doubling) */
+            prune_all(s, r, r->max_est, 0);
+            r->pruned_at = r->max_est;
+        }
+        if (s->oom)
+            return HLOD_ERR_NOMEM;
+        if (r->live <= r->target)
+            break;
         if (first_pass)
             s->n_cand = 0;
         else
@@ -2503,17 +2628,12 @@ static hlod_result run_passes(state *s, const hlod_simplify_desc *desc, run *r, 
         selfcheck_prices(s, recs, rcap);
 #endif
         first_pass = 0;
-        if (!s->n_cand && s->relax < RELAX_LAST) {
-            s->relax++;
-            s->n_parked = 0;
+        if (!s->n_cand) {
+            if (stall(s, r))
+                break;
             first_pass = 1;
             unlimited = 0;
             continue;
-        }
-        if (!s->n_cand) {
-            r->stalled = 1;
-            prune_parts(s, r);
-            break;
         }
         /* Each interior collapse removes two triangles.  Stop the pass at
          * 1.5x the cost of the collapse that would reach the goal, so a
@@ -2544,13 +2664,8 @@ static hlod_result run_passes(state *s, const hlod_simplify_desc *desc, run *r, 
                 unlimited = 1;
                 continue;
             }
-            if (s->relax == RELAX_LAST) {
-                r->stalled = 1;
-                prune_parts(s, r);
+            if (stall(s, r))
                 break;
-            }
-            s->relax++;
-            s->n_parked = 0;
             first_pass = 1;
             unlimited = 0;
             continue;
@@ -2636,6 +2751,8 @@ hlod_result hlod_simplify(const hlod_mesh *in, const hlod_simplify_desc *desc,
         adjacency(&s, r.live);
     if (!s.oom)
         attributes(&s, in, desc);
+    if (!s.oom)
+        find_parts(&s);
     if (!s.oom) {
         face_quadrics(&s);
         size_t nfeat = classify_vertices(&s, desc, &recs, &rcap);

@@ -517,8 +517,10 @@ static void separate_parts_reach_the_target(void)
     for (size_t i = 0; i < o.tri_count; i++)
         far += o.positions[3 * (size_t)o.indices[3 * i] + 2] > 10;
     CHECKF(far == 80, "%zu far triangles kept of 80", far);
-    /* the reported estimate covers what went: a tetrahedron's spacing */
-    CHECKF(st.error_estimate > 0.05 && st.error_estimate < 0.5, "estimate %g", st.error_estimate);
+    /* the reported estimate covers what went: the last of the cluster
+     * lies about 19.6 m from the nearest far tetrahedron (a pruned part
+     * costs its distance to what is left, not to what went with it) */
+    CHECKF(st.error_estimate > 15 && st.error_estimate < 25, "estimate %g", st.error_estimate);
     /* no count target and no error limit: nothing is pruned */
     hlod_mesh o2 = {0};
     hlod_simplify_desc d2 = {0};

@@ -3,7 +3,7 @@
  *
  *   hlod-gen-city -o OUT.{obj,gltf,glb} [--preset default|small|tiny]
  *                 [--blocks N] [--tris-per-block M] [--texture-size S]
- *                 [--seed K] [--origin X Y Z] [--untextured] [--paths DIR]
+ *                 [--seed K] [--origin X Y Z] [--untextured] [--style scan|parts] [--paths DIR]
  *                 [--json] [--quiet]
  *   hlod-gen-city --paths DIR [--preset P] [--blocks N] [--origin X Y Z]
  *
@@ -40,7 +40,8 @@ static void usage(FILE *fp)
     fprintf(fp,
         "usage: hlod-gen-city -o OUT.{obj,gltf,glb} [--preset default|small|tiny]\n"
         "                     [--blocks N] [--tris-per-block M] [--texture-size S]\n"
-        "                     [--seed K] [--origin X Y Z] [--untextured] [--paths DIR]\n"
+        "                     [--seed K] [--origin X Y Z] [--untextured] [--style scan|parts]\n"
+        "                     [--paths DIR]\n"
         "                     [--json] [--quiet]\n"
         "       hlod-gen-city --paths DIR [--preset P] [--blocks N] [--origin X Y Z]\n"
         "\n"
@@ -69,6 +70,11 @@ static void usage(FILE *fp)
         "  --origin X Y Z       added to every position exactly; the city is centred\n"
         "                       on (X, Y) with its ground at Z, e.g. 5e5 4.1e6 0\n"
         "  --untextured         no UVs and no textures; one diffuse colour per block\n"
+        "  --style S            scan (default): each building one closed surface of\n"
+        "                       dense facades; parts: each building many separate\n"
+        "                       boxes (wall piers and spandrels, floor slabs, window\n"
+        "                       frames and panes, parapets), as BIM exports are;\n"
+        "                       untextured\n"
         "  --paths DIR          also write the built-in camera paths for this city's\n"
         "                       streets to DIR/NAME.path (walk, walk-drive,\n"
         "                       walk-to-fly, fly, orbit, still; model coordinates,\n"
@@ -89,7 +95,7 @@ typedef struct options {
     int have_blocks, have_tris, have_size;
     size_t blocks, tris, size, seed;
     double origin[3];
-    int untextured, json, quiet;
+    int untextured, json, quiet, parts;
 } options;
 
 static int match_flag(int argc, char **argv, int *i, const char *flag, const char **value)
@@ -129,6 +135,11 @@ static int parse_args(int argc, char **argv, options *o)
             if (!v || !*v)
                 return usage_error("%s needs an output file name", a);
             o->out = v;
+        } else if (match_flag(argc, argv, &i, "--style", &v)) {
+            if (v && !strcmp(v, "parts"))
+                o->parts = 1;
+            else if (!v || strcmp(v, "scan"))
+                return usage_error("--style: '%s' is not scan or parts", v ? v : "");
         } else if (match_flag(argc, argv, &i, "--paths", &v)) {
             if (!v || !*v)
                 return usage_error("%s needs a folder name", a);
@@ -286,7 +297,8 @@ int main(int argc, char **argv)
         d.texture_size = (int)o.size;
     d.seed = o.seed;
     memcpy(d.origin, o.origin, sizeof d.origin);
-    d.untextured = o.untextured;
+    d.untextured = o.untextured || o.parts;
+    d.style = o.parts ? HLOD_CITY_STYLE_PARTS : HLOD_CITY_STYLE_SCAN;
     if (!o.out)
         return write_paths(&o, &d) ? 0 : 1;
 
@@ -369,6 +381,7 @@ int main(int argc, char **argv)
         hlod_json_double(&j, "seconds_generate", t_gen);
         hlod_json_double(&j, "seconds_export", t_export);
         hlod_json_size(&j, "seed", o.seed);
+        hlod_json_string(&j, "style", o.parts ? "parts" : "scan");
         hlod_json_size(&j, "peak_rss_bytes", hlod_cli_peak_rss());
         if (o.paths)
             hlod_json_string(&j, "paths_dir", o.paths);
