@@ -137,6 +137,38 @@ static void reproducible_byte_for_byte(void)
     CHECK(r1.nodes == r2.nodes && m1.nodes == m2.nodes && m1.tris_in == r1.tris_in);
 }
 
+/* A BIM-like city (separate boxes, non-manifold where they touch): every
+ * block's hlod_0 is within 10% of C_desiredTri, and the leaves hold the
+ * input's triangles. */
+static void parts_city_meets_desired_tris(void)
+{
+    CHECK(check_sh("'%s/hlod-gen-city' --preset tiny --blocks 3 --tris-per-block 4000 --style parts "
+                   "--quiet -o '%s/parts.obj'", bin, tmp) == 0);
+    for (int metis = 0; metis < 2; metis++) {
+        hlod_build_report rep;
+        const char *out = metis ? "parts-m.hlod" : "parts-c.hlod";
+        CHECK(lib_build("parts", out, metis ? HLOD_BUILD_METIS : HLOD_BUILD_CUTPLANE, 2, &rep, NULL) ==
+              HLOD_OK);
+        CHECKF(rep.tris_leaf <= rep.tris_in * 105 / 100, "%s: %zu leaf triangles of %zu", out,
+               rep.tris_leaf, rep.tris_in);
+        char p[2048];
+        snprintf(p, sizeof p, "%s/%s", tmp, out);
+        hlod_store *s = NULL;
+        CHECK(hlod_store_open(p, NULL, &s) == HLOD_OK);
+        if (!s)
+            continue;
+        const hlod_store_node *n = hlod_store_nodes(s);
+        /* cutplane: C_desiredTri (500 here); metis: N_n (2000), or the
+         * block itself when it is one leaf (under N_l) */
+        uint32_t cap = metis ? 2200 : 550;
+        for (uint32_t r = 0; r < hlod_store_root_count(s); r++)
+            CHECKF(n[r].tri_count <= cap ||
+                       (metis && hlod_store_first_child(n, r) == hlod_store_child_end(n, r)),
+                   "%s: block %u's hlod_0 holds %u triangles (at most %u)", out, r, n[r].tri_count, cap);
+        hlod_store_close(s);
+    }
+}
+
 /* The library's errors: named in the log, nothing written, an old store kept. */
 static void library_errors_leave_nothing(void)
 {
@@ -269,6 +301,7 @@ int main(void)
     RUN(json_keys);
     RUN(reproducible_byte_for_byte);
     RUN(library_errors_leave_nothing);
+    RUN(parts_city_meets_desired_tris);
     RUN(large_coordinates);
     RUN(bad_input_leaves_nothing);
     check_sh("rm -rf '%s'", tmp);

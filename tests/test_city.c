@@ -448,6 +448,84 @@ static void test_facades_are_closed_and_detailed(void)
 
 /* ---- errors ---- */
 
+/* ---- the parts style ---- */
+
+static uint32_t find_root(uint32_t *par, uint32_t x)
+{
+    while (par[x] != x)
+        x = par[x] = par[par[x]];
+    return x;
+}
+
+/* Connected parts of triangles [first, first + count) of m, by shared
+ * vertex index (the generator shares no vertex between boxes). */
+static size_t parts_of(const hlod_mesh *m, size_t first, size_t count)
+{
+    uint32_t *par = malloc(m->vertex_count * sizeof *par);
+    if (!par)
+        return 0;
+    for (size_t v = 0; v < m->vertex_count; v++)
+        par[v] = (uint32_t)v;
+    for (size_t t = first; t < first + count; t++) {
+        const uint32_t *ix = m->indices + 3 * t;
+        par[find_root(par, ix[0])] = find_root(par, ix[1]);
+        par[find_root(par, ix[1])] = find_root(par, ix[2]);
+    }
+    size_t n = 0;
+    uint8_t *seen = calloc(m->vertex_count, 1);
+    for (size_t t = first; t < first + count && seen; t++) {
+        uint32_t r = find_root(par, m->indices[3 * t]);
+        n += !seen[r];
+        seen[r] = 1;
+    }
+    free(seen);
+    free(par);
+    return n;
+}
+
+/* Buildings of separate boxes, untextured, within the budget; the
+ * simplifier takes a block to its target, the parts merging as they go. */
+static void test_parts_style(void)
+{
+    hlod_city_desc d = {0};
+    CHECK(hlod_city_preset("tiny", &d));
+    d.blocks = 2;
+    d.tris_per_block = 6000;
+    d.style = HLOD_CITY_STYLE_PARTS;
+    hlod_mesh m = {0}, again = {0};
+    hlod_city_stats st;
+    char dir[512];
+    d.texture_dir = path_in(dir, sizeof dir, "parts_tex");
+    CHECK(hlod_city_generate(&d, &m, NULL) == HLOD_ERR_INVALID_ARG); /* textured parts: refused */
+    d.untextured = 1;
+    CHECK(hlod_city_generate(&d, &m, &st) == HLOD_OK);
+    CHECK(hlod_city_generate(&d, &again, NULL) == HLOD_OK);
+    CHECK(m.tri_count == again.tri_count &&
+          !memcmp(m.positions, again.positions, 3 * m.vertex_count * sizeof *m.positions));
+    CHECK(m.uvs == NULL && st.textures == 0);
+    CHECK(m.object_count == 3);
+    for (size_t b = 0; b < 2 && m.object_count == 3; b++) {
+        size_t n = m.objects[b].tri_count, parts = parts_of(&m, m.objects[b].first_tri, n);
+        CHECKF(fabs((double)n - 6000) <= 0.15 * 6000, "block %zu: %zu triangles", b, n);
+        /* boxes: 12 triangles each, most of them separate */
+        CHECKF(parts >= n / 24, "block %zu: %zu parts in %zu triangles", b, parts, n);
+        if (b == 0) {
+            hlod_mesh blk = {0}, out = {0};
+            extract(&m, 0, &blk);
+            hlod_simplify_desc sd = {0};
+            sd.target_tris = 600;
+            hlod_simplify_stats ss;
+            CHECK(hlod_simplify(&blk, &sd, &out, &ss) == HLOD_OK);
+            CHECKF(out.tri_count <= 612 && !strcmp(ss.stop_reason, "target"), "%zu triangles: %s",
+                   out.tri_count, ss.stop_reason);
+            hlod_mesh_free(&blk);
+            hlod_mesh_free(&out);
+        }
+    }
+    hlod_mesh_free(&m);
+    hlod_mesh_free(&again);
+}
+
 static void test_bad_descriptions(void)
 {
     hlod_mesh m = {0};
@@ -541,6 +619,7 @@ int main(void)
     RUN(test_untextured);
     RUN(test_origin_round_trip);
     RUN(test_facades_are_closed_and_detailed);
+    RUN(test_parts_style);
     RUN(test_bad_descriptions);
     RUN(test_tool_command_line);
     int rc = check_done();
