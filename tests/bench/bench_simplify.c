@@ -30,7 +30,9 @@
  * (meshopt_generateVertexRemapMulti, not timed), as its documentation asks:
  * it locks every vertex whose copies it cannot pair up as a seam, so an
  * unwelded flat-shaded mesh (Wuson.ply) or glTF would not simplify at all.
- * Our simplifier does the same welding inside its timed call.
+ * Our simplifier does the same welding inside its timed call.  When node
+ * and the npm package are installed (npm ci), meshoptimizer 1.3 runs too
+ * (tests/bench/meshopt_js.mjs: Prune and Permissive, positions only).
  */
 #include "hlod_clock.h"
 #include "atomic_file.h"
@@ -65,7 +67,10 @@ typedef struct row {
     const char *mesh;       /* file name, without its folder */
     double ratio;
     const char *simplifier; /* "meshopt", "hlod" (both at the requested
-                               target) or "hlod_eq" (at meshopt's count) */
+                               target), "hlod_eq" (at meshopt's count) or
+                               "meshopt_js" (the npm package's current
+                               simplifier, Prune + Permissive, at the
+                               requested target; when installed) */
     size_t tris_in, tris_target, tris_out;
     double seconds;         /* best of `runs` */
     int runs;               /* timed runs of each simplifier */
@@ -158,6 +163,48 @@ static size_t time_meshopt(const hlod_mesh *m, const uint32_t *indices, const fl
 }
 
 /* One timed hlod_simplify call into *out. */
+/* The npm package's simplifier through node (tests/bench/meshopt_js.mjs),
+ * when node and the package are installed (npm ci in the source tree):
+ * returns the index count into dest, or (size_t)-1 when it cannot run. */
+static size_t time_meshopt_js(const char *tmp_dir, const uint32_t *indices, size_t n_idx,
+                              const float *pos, size_t vertex_count, size_t target_index_count,
+                              uint32_t *dest, double *seconds)
+{
+    char pkg[4096], in[4200], out[4200], cmd[16384];
+    snprintf(pkg, sizeof pkg, "%s/node_modules/meshoptimizer/package.json", HLOD_SOURCE_DIR);
+    FILE *probe = fopen(pkg, "rb");
+    if (!probe)
+        return (size_t)-1;
+    fclose(probe);
+    snprintf(in, sizeof in, "%s/meshopt_js.in", tmp_dir);
+    snprintf(out, sizeof out, "%s/meshopt_js.out", tmp_dir);
+    FILE *f = fopen(in, "wb");
+    if (!f)
+        return (size_t)-1;
+    uint32_t head[3] = {(uint32_t)vertex_count, (uint32_t)n_idx, (uint32_t)target_index_count};
+    int ok = fwrite(head, sizeof head, 1, f) == 1 &&
+             fwrite(pos, 3 * sizeof(float), vertex_count, f) == vertex_count &&
+             fwrite(indices, sizeof(uint32_t), n_idx, f) == n_idx;
+    ok &= fclose(f) == 0;
+    snprintf(cmd, sizeof cmd, "node '%s/tests/bench/meshopt_js.mjs' '%s' '%s'", HLOD_SOURCE_DIR, in,
+             out);
+    if (!ok || system(cmd) != 0) {
+        remove(in);
+        return (size_t)-1;
+    }
+    size_t n = (size_t)-1;
+    f = fopen(out, "rb");
+    uint32_t cnt = 0;
+    if (f && fread(&cnt, 4, 1, f) == 1 && fread(seconds, 8, 1, f) == 1 && cnt <= n_idx &&
+        fread(dest, 4, cnt, f) == cnt)
+        n = cnt;
+    if (f)
+        fclose(f);
+    remove(in);
+    remove(out);
+    return n;
+}
+
 static hlod_result time_ours(const hlod_mesh *m, size_t target_tris, hlod_mesh *out, double *seconds)
 {
     hlod_simplify_desc desc = {0};
@@ -304,9 +351,9 @@ typedef struct summary {
     int missed_ours, missed_meshopt; /* pairs where each missed the target */
 } summary;
 
-/* Rows come in threes: meshopt, hlod (both at the requested target),
- * hlod_eq (at meshopt's count). */
-#define GROUP 3
+/* Rows come in fours: meshopt, hlod (both at the requested target),
+ * hlod_eq (at meshopt's count), meshopt_js (measured only when installed). */
+#define GROUP 4
 
 static double pair_ratio(double ours, double theirs)
 {
@@ -315,14 +362,15 @@ static double pair_ratio(double ours, double theirs)
     return ours > 0 ? INFINITY : 1.0;
 }
 
-/* ours_at = 1: at the requested target; 2: at equal count. */
-static summary summarise(const row *rows, int n, int ours_at)
+/* ours_at = 1: at the requested target; 2: at equal count.  ref_at = 0:
+ * against meshopt 0.18; 3: against meshopt_js. */
+static summary summarise(const row *rows, int n, int ours_at, int ref_at)
 {
     summary s = {1, 0, 0, DBL_MAX, 0, 0, 0, 0};
     double sum = 0, log_sum = 0;
     int timed = 0;
     for (int i = 0; i + GROUP - 1 < n; i += GROUP) {
-        const row *m = &rows[i], *o = &rows[i + ours_at], *t = &rows[i + 1];
+        const row *m = &rows[i + ref_at], *o = &rows[i + ours_at], *t = &rows[i + 1];
         s.missed_ours += t->missed;
         s.missed_meshopt += m->missed;
         if (mtri_per_s(t) < s.min_mtri)
@@ -371,7 +419,8 @@ static void json_summary(FILE *fp, const summary *s, const char *suffix)
 }
 
 static hlod_result write_json(const char *path, const row *rows, int n, const summary *s,
-                              const summary *eq, size_t samples, const hlod_logger *lg)
+                              const summary *eq, const summary *js, size_t samples,
+                              const hlod_logger *lg)
 {
     hlod_atomic_file f;
     hlod_result r = hlod_atomic_open(&f, path, lg);
@@ -409,11 +458,23 @@ static hlod_result write_json(const char *path, const row *rows, int n, const su
         json_distances(fp, m, o, "");
         fprintf(fp, ",\n     ");
         json_distances(fp, m, e, "_eq");
+        const row *j = &rows[i + 3];
+        fprintf(fp, ",\n     \"tris_out_meshopt_js\": ");
+        put_num(fp, j->measured, (double)j->tris_out, "null");
+        fprintf(fp, ", \"max_meshopt_js\": ");
+        put_num(fp, j->measured, j->d.max, "null");
+        fprintf(fp, ", \"mean_meshopt_js\": ");
+        put_num(fp, j->measured, j->d.mean, "null");
+        fprintf(fp, ", \"seconds_meshopt_js\": ");
+        put_num(fp, j->measured, j->seconds, "null");
+        fprintf(fp, ", ");
+        json_distances(fp, j, o, "_js");
         fprintf(fp, "}%s\n", i + GROUP < n ? "," : "");
     }
     fprintf(fp, "  ],\n");
     json_summary(fp, s, "");
     json_summary(fp, eq, "_eq");
+    json_summary(fp, js, "_js");
     fprintf(fp, "  \"mean_ratio_target\": %.17g,\n", TARGET_MEAN_RATIO);
     fprintf(fp, "  \"pairs_missed_target_ours\": %d,\n  \"pairs_missed_target_meshopt\": %d,\n",
             s->missed_ours, s->missed_meshopt);
@@ -570,7 +631,7 @@ int main(int argc, char **argv)
                 memcpy(wposd + 3 * (size_t)remap[v], m->positions + 3 * v, 3 * sizeof(double));
 
         for (int j = 0; j < n_ratios; j++) {
-            row *rm = &rows[n_rows++], *ro = &rows[n_rows++], *re = &rows[n_rows++];
+            row *rm = &rows[n_rows++], *ro = &rows[n_rows++], *re = &rows[n_rows++], *rj = &rows[n_rows++];
             const char *slash = strrchr(paths[i], '/');
             size_t target = (size_t)(ratios[j] * (double)m->tri_count), n_idx = 0;
             *rm = (row){.mesh = slash ? slash + 1 : paths[i], .ratio = ratios[j], .simplifier = "meshopt",
@@ -608,10 +669,33 @@ int main(int argc, char **argv)
             re->tris_out = eq.tri_count;
             re->missed = (double)re->tris_out > REACH_SLACK * (double)re->tris_target;
 
+            /* meshoptimizer's current simplifier, when installed */
+            *rj = *rm;
+            rj->simplifier = "meshopt_js";
+            rj->seconds = 0;
+            rj->tris_out = 0;
+            uint32_t *destj = malloc(3 * m->tri_count * sizeof *destj);
+            size_t nj = destj && make_dirs(out_dir)
+                            ? time_meshopt_js(out_dir, widx, 3 * m->tri_count, wpos, wn, 3 * target,
+                                              destj, &rj->seconds)
+                            : (size_t)-1;
+            hlod_mesh mj = mo;
+            mj.indices = destj;
+            if (nj != (size_t)-1) {
+                rj->tris_out = nj / 3;
+                rj->missed = (double)rj->tris_out > REACH_SLACK * (double)target;
+                mj.tri_count = rj->tris_out;
+            }
+
             hlod_result r1 = measure(m, &mo, samples, rm);
             hlod_result r2 = measure(m, &ours, samples, ro);
             if (r2 == HLOD_OK)
                 r2 = measure(m, &eq, samples, re);
+            if (r1 == HLOD_OK && nj != (size_t)-1)
+                r1 = measure(m, &mj, samples, rj);
+            else
+                rj->measured = 0;
+            free(destj);
             hlod_mesh_free(&eq);
             if (r1 != HLOD_OK || r2 != HLOD_OK) {
                 hlod_cli_error(PROG, "%s: hlod_mesh_distance failed: %s", paths[i],
@@ -622,6 +706,8 @@ int main(int argc, char **argv)
             print_row(rm);
             print_row(ro);
             print_row(re);
+            if (nj != (size_t)-1)
+                print_row(rj);
         }
         free(pos);
         free(uv);
@@ -632,7 +718,8 @@ int main(int argc, char **argv)
         free(widx);
     }
 
-    summary s = summarise(rows, n_rows, 1), se = summarise(rows, n_rows, 2);
+    summary s = summarise(rows, n_rows, 1, 0), se = summarise(rows, n_rows, 2, 0),
+            sj = summarise(rows, n_rows, 1, 3);
     printf("\nsummary: ours / meshopt, both at the requested target (eq: ours at meshopt's count)\n");
     printf("%-22s %6s %8s %8s %8s %8s %8s %8s %8s %5s\n", "mesh", "ratio", "target", "meshopt",
            "ours", "max", "mean", "max_eq", "mean_eq", "time");
@@ -658,6 +745,23 @@ int main(int argc, char **argv)
            s.missed_ours, s.missed_meshopt);
     printf("our min throughput: %.2f Mtri/s; our time / meshopt's: geometric mean %.2f, worst %.2f\n",
            s.min_mtri, s.time_ratio_geo, s.time_ratio_max);
+    if (sj.mean_ratio_pairs) {
+        printf("\nagainst meshoptimizer's current simplifier (npm, Prune + Permissive), both at the "
+               "requested target:\n");
+        printf("%-22s %6s %8s %8s %8s %8s %8s\n", "mesh", "ratio", "target", "js", "ours", "max", "mean");
+        for (int i = 0; i + GROUP - 1 < n_rows; i += GROUP) {
+            const row *j = &rows[i + 3], *o = &rows[i + 1];
+            if (!j->measured || !o->measured)
+                continue;
+            printf("%-22s %6g %8zu %8zu %8zu %8.3f %8.3f%s\n", j->mesh, j->ratio, j->tris_target,
+                   j->tris_out, o->tris_out, pair_ratio(o->d.max, j->d.max),
+                   pair_ratio(o->d.mean, j->d.mean), j->missed ? "  ! js missed" : "");
+        }
+        printf("our max <= its max on every pair: %s; average mean ratio %.3f\n",
+               sj.all_max_le ? "yes" : "no", sj.mean_ratio_avg);
+    } else {
+        printf("meshoptimizer's npm package: not installed (npm ci in the source tree), not compared\n");
+    }
 
     char csv[4200], json[4200];
     snprintf(csv, sizeof csv, "%s/simplify.csv", out_dir);
@@ -668,7 +772,7 @@ int main(int argc, char **argv)
         goto done;
     }
     if (write_csv(csv, rows, n_rows, &lg) != HLOD_OK ||
-        write_json(json, rows, n_rows, &s, &se, samples, &lg) != HLOD_OK) {
+        write_json(json, rows, n_rows, &s, &se, &sj, samples, &lg) != HLOD_OK) {
         hlod_cli_error(PROG, "cannot write %s or %s", csv, json);
         status = 1;
         goto done;
