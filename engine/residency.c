@@ -421,19 +421,6 @@ void hlod_residency_begin_frame(hlod_residency *rs, uint32_t frame)
     rs->want.n = 0;
 }
 
-int hlod_residency_want(hlod_residency *rs, uint32_t node, double priority)
-{
-    hlod_node_res *nr = &rs->res[node];
-    if (nr->state == HLOD_NODE_RESIDENT || nr->state == HLOD_NODE_BAD)
-        return 1;
-    if (nr->wanted == rs->frame)
-        return 1;
-    if (nr->state == HLOD_NODE_ABSENT && nr->retry_frame > rs->frame)
-        return 1;
-    nr->wanted = rs->frame;
-    return hlod_req_push(&rs->d->allocator, &rs->want, node, priority);
-}
-
 void hlod_residency_end_frame(hlod_residency *rs)
 {
     hlod_loader_counters lc;

@@ -70,8 +70,20 @@ void hlod_residency_begin_frame(hlod_residency *r, uint32_t frame);
 
 /* The selection would like node resident: queues it for admission unless
  * it is resident, bad, already asked for this frame, or backing off after
- * a failure.  0 on allocation failure. */
-int hlod_residency_want(hlod_residency *r, uint32_t node, double priority);
+ * a failure.  0 on allocation failure.  (Inline: the selection asks once
+ * for every node it prices.) */
+static inline int hlod_residency_want(hlod_residency *r, uint32_t node, double priority)
+{
+    hlod_node_res *nr = &r->res[node];
+    if (nr->state == HLOD_NODE_RESIDENT || nr->state == HLOD_NODE_BAD)
+        return 1;
+    if (nr->wanted == r->frame)
+        return 1;
+    if (nr->state == HLOD_NODE_ABSENT && nr->retry_frame > r->frame)
+        return 1;
+    nr->wanted = r->frame;
+    return hlod_req_push(&r->d->allocator, &r->want, node, priority);
+}
 
 static inline hlod_node_state hlod_residency_state(const hlod_residency *r, uint32_t node)
 {
