@@ -238,12 +238,14 @@ static hlod_result make_blocks(const hlod_mesh *m, const char *file, double grid
         /* cells by centroid; cells sorted by (cy, cx) for a stable order */
         double lo[3], hi[3];
         hlod_mesh_bounds(m, lo, hi);
-        size_t nx = (size_t)floor((hi[0] - lo[0]) / grid) + 1, ny = (size_t)floor((hi[1] - lo[1]) / grid) + 1;
-        if (nx * ny > 1000000) {
+        /* (counted in double first: a tiny cell must not overflow size_t) */
+        double fx = floor((hi[0] - lo[0]) / grid) + 1, fy = floor((hi[1] - lo[1]) / grid) + 1;
+        if (!(fx * fy <= 1000000)) {
             free(tris);
             splitter_free(&sp);
             return HLOD_ERR_INVALID_ARG;
         }
+        size_t nx = (size_t)fx, ny = (size_t)fy;
         uint32_t *cell = malloc((m->tri_count ? m->tri_count : 1) * sizeof *cell);
         size_t *start = calloc(nx * ny + 1, sizeof *start);
         if (!cell || !start) {

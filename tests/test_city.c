@@ -316,8 +316,12 @@ static int edge_cmp(const void *a, const void *b)
 /* Welds the block triangles of m by exact position and checks that every
  * edge has exactly two triangles, except the open bottom rims at ground
  * level: no cracks at corners, mitres, recesses or the roof. */
-static void check_closed(const hlod_mesh *m, size_t first, size_t count)
+/* Edges of triangles [first, first + count) after welding positions:
+ * open (one triangle), open above the ground, and over two triangles. */
+static void edge_counts(const hlod_mesh *m, size_t first, size_t count, size_t *open,
+                        size_t *open_high, size_t *over)
 {
+    *open = *open_high = *over = 0;
     wkey *keys = malloc(m->vertex_count * sizeof *keys);
     uint32_t *id = malloc(m->vertex_count * sizeof *id);
     double *zid = malloc(m->vertex_count * sizeof *zid);
@@ -345,30 +349,36 @@ static void check_closed(const hlod_mesh *m, size_t first, size_t count)
             edges[ne++] = a < b ? a << 32 | b : b << 32 | a;
         }
     qsort(edges, ne, sizeof *edges, edge_cmp);
-    size_t open_high = 0, over = 0, open = 0;
     for (size_t i = 0; i < ne;) {
         size_t j = i;
         while (j < ne && edges[j] == edges[i])
             j++;
         if (j - i > 2)
-            over++;
+            (*over)++;
         if (j - i == 1) {
-            open++;
-            /* an open edge must be a wall's bottom, on the ground */
+            (*open)++;
             double za = zid[edges[i] >> 32], zb = zid[(uint32_t)edges[i]];
             if (fabs(za) > 0.05 || fabs(zb) > 0.05)
-                open_high++;
+                (*open_high)++;
         }
         i = j;
     }
-    CHECKF(open_high == 0, "%zu open edges above the ground (of %zu open)", open_high, open);
-    CHECKF(over == 0, "%zu edges with more than two triangles", over);
-    CHECK(open > 0);
 done:
     free(keys);
     free(id);
     free(zid);
     free(edges);
+}
+
+/* Closed but for the bottom: an open edge must be a wall's bottom, on the
+ * ground; no edge in more than two triangles. */
+static void check_closed(const hlod_mesh *m, size_t first, size_t count)
+{
+    size_t open, open_high, over;
+    edge_counts(m, first, count, &open, &open_high, &over);
+    CHECKF(open_high == 0, "%zu open edges above the ground (of %zu open)", open_high, open);
+    CHECKF(over == 0, "%zu edges with more than two triangles", over);
+    CHECK(open > 0);
 }
 
 /* Copies object k into its own mesh (used vertices only). */
@@ -458,7 +468,8 @@ static uint32_t find_root(uint32_t *par, uint32_t x)
 }
 
 /* Connected parts of triangles [first, first + count) of m, by shared
- * vertex index (the generator shares no vertex between boxes). */
+ * vertex index (the generator gives every face of a box its own vertices:
+ * this counts faces, a lower bound that the budget check uses). */
 static size_t parts_of(const hlod_mesh *m, size_t first, size_t count)
 {
     uint32_t *par = malloc(m->vertex_count * sizeof *par);
@@ -500,15 +511,20 @@ static void test_parts_style(void)
     d.untextured = 1;
     CHECK(hlod_city_generate(&d, &m, &st) == HLOD_OK);
     CHECK(hlod_city_generate(&d, &again, NULL) == HLOD_OK);
-    CHECK(m.tri_count == again.tri_count &&
+    CHECK(m.tri_count == again.tri_count && m.vertex_count == again.vertex_count &&
           !memcmp(m.positions, again.positions, 3 * m.vertex_count * sizeof *m.positions));
     CHECK(m.uvs == NULL && st.textures == 0);
     CHECK(m.object_count == 3);
     for (size_t b = 0; b < 2 && m.object_count == 3; b++) {
         size_t n = m.objects[b].tri_count, parts = parts_of(&m, m.objects[b].first_tri, n);
         CHECKF(fabs((double)n - 6000) <= 0.15 * 6000, "block %zu: %zu triangles", b, n);
-        /* boxes: 12 triangles each, most of them separate */
+        /* boxes: 12 triangles or more each, every face its own vertices */
         CHECKF(parts >= n / 24, "block %zu: %zu parts in %zu triangles", b, parts, n);
+        /* and every box closed once positions are welded (faces meet
+         * exactly: no crack), touching boxes sharing edges */
+        size_t open, open_high, over;
+        edge_counts(&m, m.objects[b].first_tri, n, &open, &open_high, &over);
+        CHECKF(open == 0 && over > 0, "block %zu: %zu open edges, %zu shared by boxes", b, open, over);
         if (b == 0) {
             hlod_mesh blk = {0}, out = {0};
             extract(&m, 0, &blk);

@@ -162,7 +162,6 @@ static size_t time_meshopt(const hlod_mesh *m, const uint32_t *indices, const fl
     return n;
 }
 
-/* One timed hlod_simplify call into *out. */
 /* The npm package's simplifier through node (tests/bench/meshopt_js.mjs),
  * when node and the package are installed (npm ci in the source tree):
  * returns the index count into dest, or (size_t)-1 when it cannot run. */
@@ -205,6 +204,7 @@ static size_t time_meshopt_js(const char *tmp_dir, const uint32_t *indices, size
     return n;
 }
 
+/* One timed hlod_simplify call into *out. */
 static hlod_result time_ours(const hlod_mesh *m, size_t target_tris, hlod_mesh *out, double *seconds)
 {
     hlod_simplify_desc desc = {0};
@@ -315,6 +315,8 @@ static hlod_result write_csv(const char *path, const row *rows, int n, const hlo
                   "runs\n");
     for (int i = 0; i < n; i++) {
         const row *w = &rows[i];
+        if (!strcmp(w->simplifier, "meshopt_js") && !w->measured)
+            continue; /* not installed (or failed): no row */
         /* Mesh names with a comma or quote get CSV quoting. */
         if (strpbrk(w->mesh, ",\"")) {
             fputc('"', f.fp);
@@ -662,10 +664,14 @@ int main(int argc, char **argv)
             re->simplifier = "hlod_eq";
             re->tris_target = rm->tris_out ? rm->tris_out : 1;
             re->seconds = 0;
+            re->runs = 0;
             hlod_mesh eq = {0};
             double t_eq;
-            if (r == HLOD_OK)
-                r = time_ours(m, re->tris_target, &eq, &t_eq);
+            if (r == HLOD_OK && (r = time_ours(m, re->tris_target, &eq, &t_eq)) != HLOD_OK) {
+                hlod_cli_error(PROG, "%s: hlod_simplify at meshopt's count failed: %s", paths[i],
+                               hlod_result_str(r));
+                status = 1;
+            }
             re->tris_out = eq.tri_count;
             re->missed = (double)re->tris_out > REACH_SLACK * (double)re->tris_target;
 
@@ -674,6 +680,8 @@ int main(int argc, char **argv)
             rj->simplifier = "meshopt_js";
             rj->seconds = 0;
             rj->tris_out = 0;
+            rj->missed = 0;
+            rj->runs = 0;
             uint32_t *destj = malloc(3 * m->tri_count * sizeof *destj);
             size_t nj = destj && make_dirs(out_dir)
                             ? time_meshopt_js(out_dir, widx, 3 * m->tri_count, wpos, wn, 3 * target,
