@@ -107,7 +107,8 @@ CITY=$OUT/city/$PRESET
 REPORT=$ROOT/out/report
 mkdir -p "$OUT/city" "$REPORT"
 # The store's hlod_0 level must fit a software rasteriser's frame: 450
-# triangles per block (90k for the default city's 201 blocks).  With the
+# triangles per block (90k for the default city's 201 blocks; with the
+# city levels above them the coarsest frame is one root of 450).  With the
 # blocks' 33.7k-36.1k triangles, s_0 = 75..80 and s_4 = s_0 / 3^4 < 1: the
 # leaves are depth 4.  400 would put s_4 just over 1 and add a fifth level
 # that is a 92% copy of the leaves (a third more build time and store).

@@ -11,7 +11,7 @@
  *             in that order while c_memory * sum(cost) and the real bytes
  *             (resident + reserved for reads in flight) stay under
  *             maxMemory, evicting resident nodes of lower priority to make
- *             room: never an hlod_0 node, never one drawn this frame.  The
+ *             room: never a top node (group or hlod_0), never one drawn this frame.  The
  *             admitted list goes to the loader.
  *
  * Admission reserves a node's bytes before it is read, so the budget holds
@@ -74,7 +74,7 @@ static hlod_result make_resident(hlod_residency *rs, uint32_t node, hlod_store_p
 static void evict(hlod_residency *rs, uint32_t node)
 {
     hlod_node_res *nr = &rs->res[node];
-    assert(nr->state == HLOD_NODE_RESIDENT && node >= rs->root_count);
+    assert(nr->state == HLOD_NODE_RESIDENT && node >= rs->top_count);
     if (rs->d->renderer)
         hlod_gpu_release(rs->d->renderer, &nr->gpu);
     uint32_t last = rs->resident.v[rs->resident.n - 1];
@@ -133,19 +133,19 @@ hlod_result hlod_residency_load_now(hlod_residency *rs, uint32_t node)
     return res;
 }
 
-static hlod_result load_roots(hlod_residency *rs)
+static hlod_result load_top(hlod_residency *rs)
 {
-    for (uint32_t i = 0; i < rs->root_count; i++) {
+    for (uint32_t i = 0; i < rs->top_count; i++) {
         hlod_result r = hlod_residency_load_now(rs, i);
         if (r != HLOD_OK) {
-            hlod_logf(&rs->d->logger, HLOD_LOG_ERROR, "%s: hlod_0 node %u cannot be loaded: %s",
+            hlod_logf(&rs->d->logger, HLOD_LOG_ERROR, "%s: top node %u (a group or hlod_0) cannot be loaded: %s",
                       hlod_store_path(rs->store), i, hlod_result_str(r));
             return r;
         }
     }
     if (rs->resident_bytes > rs->d->memory_budget_bytes)
         hlod_logf(&rs->d->logger, HLOD_LOG_WARN,
-                  "%s: the hlod_0 nodes alone take %llu bytes, over the %llu-byte budget",
+                  "%s: the top nodes (groups and hlod_0) alone take %llu bytes, over the %llu-byte budget",
                   hlod_store_path(rs->store), (unsigned long long)rs->resident_bytes,
                   (unsigned long long)rs->d->memory_budget_bytes);
     return HLOD_OK;
@@ -249,7 +249,7 @@ static int cmp_request(const void *a, const void *b)
 }
 
 /* Resident nodes that may be evicted, least valuable first (the order's
- * keys); hlod_0 nodes never. */
+ * keys); top nodes (groups, hlod_0) never. */
 static victim *victims(hlod_residency *rs, const hlod_evict_order *order, size_t *count)
 {
     victim *v = hlod_mem_alloc(&rs->d->allocator, (rs->resident.n + 1) * sizeof *v);
@@ -258,7 +258,7 @@ static victim *victims(hlod_residency *rs, const hlod_evict_order *order, size_t
         return NULL;
     for (size_t k = 0; k < rs->resident.n; k++) {
         uint32_t i = rs->resident.v[k];
-        if (i < rs->root_count || !order->key(order->user, i, &v[n].key))
+        if (i < rs->top_count || !order->key(order->user, i, &v[n].key))
             continue;
         v[n].node = i;
         n++;
@@ -368,14 +368,14 @@ hlod_result hlod_residency_init(hlod_residency *rs, const hlod_store *store,
     rs->store = store;
     rs->nodes = hlod_store_nodes(store);
     rs->node_count = hlod_store_node_count(store);
-    rs->root_count = hlod_store_root_count(store);
+    rs->top_count = hlod_store_top_count(store);
     rs->d = d;
     rs->st = st;
     rs->res = hlod_mem_alloc(&d->allocator, (size_t)rs->node_count * sizeof *rs->res);
     if (!rs->res)
         return HLOD_ERR_NOMEM;
     memset(rs->res, 0, (size_t)rs->node_count * sizeof *rs->res);
-    hlod_result r = load_roots(rs);
+    hlod_result r = load_top(rs);
     if (r == HLOD_OK) {
         hlod_loader_desc ld = {0};
         ld.threaded = !d->deterministic;

@@ -31,7 +31,8 @@ typedef struct hlod_node_res {
 typedef struct hlod_residency {
     const hlod_store *store;
     const hlod_store_node *nodes;
-    uint32_t node_count, root_count;
+    uint32_t node_count, top_count; /* [0, top_count) stay resident: groups and
+                                       the blocks' hlod_0 nodes */
     const hlod_engine_desc *d;  /* the engine's settings, read only */
     hlod_frame_stats *st;       /* the engine's stats of the current frame */
     uint32_t frame;             /* current frame stamp (1-based; 0 = before any) */
@@ -57,7 +58,7 @@ typedef struct hlod_evict_order {
     void *user;
 } hlod_evict_order;
 
-/* Reads and uploads every hlod_0 node, then starts the loader (threaded
+/* Reads and uploads every top node (groups and hlod_0 nodes), then starts the loader (threaded
  * unless deterministic).  d and st must outlive r.  On failure everything
  * is released. */
 hlod_result hlod_residency_init(hlod_residency *r, const hlod_store *store,

@@ -1,7 +1,8 @@
 /*
  * traverse.c - node selection (Lakhia III-C; README, "The runtime").
  *
- * Top-down and breadth-first from the hlod_0 nodes.  Each visible node is
+ * Top-down and breadth-first from the roots (the city's group root, or
+ * each block's hlod_0 node without city levels).  Each visible node is
  * priced (priority = benefit / cost); a node's time slice is its parent's
  * slice shared among the visible siblings by priority (eq. 4), and its
  * timeNeeded is v_time * cost.  For each node p on the current front the
@@ -402,7 +403,7 @@ hlod_result hlod_select(hlod_selection *s, struct hlod_residency *res, const hlo
     s->cap_hits = s->slice_denied = 0;
     front fr = {0, in->budget_ms};
 
-    /* hlod_0: the visible roots share share_ms (shareTime: c_targetTime less
+    /* the visible roots share share_ms (shareTime: c_targetTime less
      * the fixed frame part, times the engine's share gain); they are always
      * resident and drawn. */
     double sum_pr = 0;

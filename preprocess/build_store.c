@@ -14,6 +14,8 @@
  *   freed, so memory holds the input plus a few trees per thread.
  * - Untextured nodes carry the material's diffuse colour per vertex, and
  *   every node gets per-vertex normals (area-weighted) when it has none.
+ * - City levels (city_levels.c): once every block is built, group nodes
+ *   over the blocks' hlod_0 nodes, up to one root.
  * - The store appears at the output path only when complete (temporary
  *   file + rename); any failure leaves nothing there and an old store
  *   untouched.
@@ -21,6 +23,7 @@
 #include "hlod/build_store.h"
 
 #include "build.h"
+#include "city_levels.h"
 #include "hlod/image.h"
 #include "hlod/mesh_io.h"
 #include "hlod/store_write.h"
@@ -301,6 +304,7 @@ typedef struct block_out {
     size_t count;
     size_t tris_leaf, tris_total;
     uint32_t depth;             /* deepest level + 1 */
+    hlod_city_item top;         /* city levels: its hlod_0 node, kept */
 } block_out;
 
 typedef struct job {
@@ -310,6 +314,7 @@ typedef struct job {
     block_out *out;
     hlod_store_writer *w;
     const hlod_logger *lg;
+    int keep_top;           /* keep each block's hlod_0 for the city levels */
     size_t next;            /* next block to build (under turn_mu) */
     atomic_size_t done_blocks;
     atomic_int failed;
@@ -329,6 +334,63 @@ typedef struct job {
 
 #define LOOKAHEAD 8
 
+/* Adds one node's payload: the mesh, its texture on triangles [0,
+ * tex_tris) when tex has pixels, per-vertex colours (colors, or rgba for
+ * every vertex) when some triangle is untextured, area-weighted normals
+ * when the mesh has none. */
+static hlod_result add_payload(hlod_store_writer *w, const hlod_mesh *m, const hlod_image *tex,
+                               size_t tex_tris, const uint8_t *colors, const uint8_t rgba[4],
+                               hlod_store_node *node)
+{
+    double lo[3], hi[3];
+    hlod_mesh_bounds(m, lo, hi);
+    hlod_store_payload_desc d = {0};
+    d.vertex_count = (uint32_t)m->vertex_count;
+    d.positions = m->positions;
+    for (int a = 0; a < 3; a++)
+        d.origin[a] = 0.5 * (lo[a] + hi[a]);
+    float *normals = NULL;
+    uint8_t *own = NULL;
+    if (m->normals) {
+        d.normals = m->normals;
+    } else {
+        normals = malloc((m->vertex_count * 3 + 1) * sizeof *normals);
+        if (!normals || hlod_mesh_vertex_normals(m, normals) != HLOD_OK) {
+            free(normals);
+            return HLOD_ERR_NOMEM;
+        }
+        d.normals = normals;
+    }
+    d.tri_count = (uint32_t)m->tri_count;
+    d.indices = m->indices;
+    if (!(tex && tex->width && m->uvs))
+        tex_tris = 0;
+    if (tex_tris) {
+        d.uvs = m->uvs;
+        d.tex_tri_count = (uint32_t)tex_tris;
+        d.tex_width = (uint32_t)tex->width;
+        d.tex_height = (uint32_t)tex->height;
+        d.tex_channels = (uint32_t)tex->channels;
+        d.pixels = tex->pixels;
+    }
+    if (tex_tris < m->tri_count) {
+        if (!colors) {
+            own = malloc(m->vertex_count * 4 + 1);
+            if (!own) {
+                free(normals);
+                return HLOD_ERR_NOMEM;
+            }
+            for (size_t v = 0; v < m->vertex_count; v++)
+                memcpy(own + 4 * v, rgba, 4);
+        }
+        d.colors = colors ? colors : own;
+    }
+    hlod_result r = hlod_store_writer_add(w, &d, node);
+    free(normals);
+    free(own);
+    return r;
+}
+
 static hlod_result emit_block(job *J, size_t bi, hlod_btree *t)
 {
     block *b = &J->bs->b[bi];
@@ -346,47 +408,7 @@ static hlod_result emit_block(job *J, size_t bi, hlod_btree *t)
     for (size_t k = 0; k < t->count; k++) {
         const hlod_bnode *n = &t->nodes[k];
         const hlod_mesh *m = &n->mesh;
-        double lo[3], hi[3];
-        hlod_mesh_bounds(m, lo, hi);
-        hlod_store_payload_desc d = {0};
-        d.vertex_count = (uint32_t)m->vertex_count;
-        d.positions = m->positions;
-        for (int a = 0; a < 3; a++)
-            d.origin[a] = 0.5 * (lo[a] + hi[a]);
-        float *normals = NULL;
-        uint8_t *colors = NULL;
-        if (m->normals) {
-            d.normals = m->normals;
-        } else {
-            normals = malloc((m->vertex_count * 3 + 1) * sizeof *normals);
-            if (!normals || hlod_mesh_vertex_normals(m, normals) != HLOD_OK) {
-                free(normals);
-                return HLOD_ERR_NOMEM;
-            }
-            d.normals = normals;
-        }
-        d.tri_count = (uint32_t)m->tri_count;
-        d.indices = m->indices;
-        if (n->tex.width && m->uvs) {
-            d.uvs = m->uvs;
-            d.tex_tri_count = d.tri_count;
-            d.tex_width = (uint32_t)n->tex.width;
-            d.tex_height = (uint32_t)n->tex.height;
-            d.tex_channels = (uint32_t)n->tex.channels;
-            d.pixels = n->tex.pixels;
-        } else {
-            colors = malloc(m->vertex_count * 4 + 1);
-            if (!colors) {
-                free(normals);
-                return HLOD_ERR_NOMEM;
-            }
-            for (size_t v = 0; v < m->vertex_count; v++)
-                memcpy(colors + 4 * v, rgba, 4);
-            d.colors = colors;
-        }
-        hlod_result r = hlod_store_writer_add(J->w, &d, &o->nodes[k]);
-        free(normals);
-        free(colors);
+        hlod_result r = add_payload(J->w, m, &n->tex, m->tri_count, NULL, rgba, &o->nodes[k]);
         if (r != HLOD_OK)
             return r;
         o->nodes[k].error = n->error;
@@ -400,6 +422,20 @@ static hlod_result emit_block(job *J, size_t bi, hlod_btree *t)
             leaf = t->nodes[c].parent != k;
         if (leaf)
             o->tris_leaf += m->tri_count;
+    }
+    if (J->keep_top) {
+        /* the hlod_0 node moves out of the tree, which is freed next */
+        hlod_city_item *it = &o->top;
+        hlod_bnode *n0 = &t->nodes[0];
+        it->mesh = n0->mesh;
+        it->tex = n0->tex;
+        memset(&n0->mesh, 0, sizeof n0->mesh);
+        memset(&n0->tex, 0, sizeof n0->tex);
+        it->tex_tris = it->tex.width && it->mesh.uvs ? it->mesh.tri_count : 0;
+        memcpy(it->color, rgba, 4);
+        it->error = n0->error;
+        it->source_tris = n0->source_tris ? n0->source_tris : it->mesh.tri_count;
+        it->solid = b->solid;
     }
     return HLOD_OK;
 }
@@ -494,6 +530,7 @@ void hlod_build_desc_defaults(hlod_build_desc *d)
     d->node_tris = 2000;
     d->c_tex = 0.5;
     d->seed = 1;
+    d->city_levels = 1;
 }
 
 /* The descriptor's values, each in the range hlod-build's flags allow. */
@@ -575,12 +612,24 @@ static hlod_result read_blocks(const hlod_build_desc *d, const char *const *inpu
     return HLOD_OK;
 }
 
+static size_t build_threads(const hlod_build_desc *d)
+{
+    long cpus = sysconf(_SC_NPROCESSORS_ONLN);
+    return d->threads ? d->threads : cpus > 0 ? (size_t)cpus : 1;
+}
+
+/* City levels are built over more than one block unless turned off. */
+static int want_levels(const hlod_build_desc *d, const blocks *bs)
+{
+    return d->city_levels && bs->n >= 2;
+}
+
 /* Builds every block on the worker threads and streams their nodes into
  * w; the calling thread reports progress. */
 static hlod_result build_blocks(const hlod_build_desc *d, blocks *bs, block_out *outs,
                                 hlod_store_writer *w, const hlod_logger *lg)
 {
-    job J = {.desc = d, .bs = bs, .out = outs, .w = w, .lg = lg};
+    job J = {.desc = d, .bs = bs, .out = outs, .w = w, .lg = lg, .keep_top = want_levels(d, bs)};
     J.bp.desired_tris = d->desired_tris;
     J.bp.level_factor = d->level_factor;
     J.bp.voxel_tris = d->voxel_tris;
@@ -589,8 +638,7 @@ static hlod_result build_blocks(const hlod_build_desc *d, blocks *bs, block_out 
     J.bp.seed = d->seed;
     J.slot = calloc(bs->n, sizeof *J.slot);
     J.ready = calloc(bs->n, 1);
-    long cpus = sysconf(_SC_NPROCESSORS_ONLN);
-    size_t threads = d->threads ? d->threads : cpus > 0 ? (size_t)cpus : 1;
+    size_t threads = build_threads(d);
     size_t nth = threads < bs->n ? threads : bs->n;
     pthread_t *th = calloc(nth, sizeof *th);
     if (!J.slot || !J.ready || !th) {
@@ -624,11 +672,84 @@ static hlod_result build_blocks(const hlod_build_desc *d, blocks *bs, block_out 
     return !started || atomic_load(&J.failed) ? HLOD_ERR_IO : HLOD_OK;
 }
 
-/* The global node list (blocks in order, parents as global indices) and
- * the store's finish.  Consumes w. */
+/* ---- city levels ------------------------------------------------------------ */
+
+/* The group nodes as city_levels.c emits them; global indices: the blocks'
+ * nodes in block order, then the groups in emission order. */
+typedef struct top_levels {
+    hlod_store_writer *w;
+    hlod_store_node *nodes;     /* group nodes, filled by the writer */
+    size_t n, cap;
+    size_t base;                /* global index of the first group */
+    uint32_t *up;               /* per global index: parent, or NO_PARENT */
+    size_t tris;
+    uint32_t levels;
+} top_levels;
+
+/* called from the thread that runs hlod_city_levels */
+static hlod_result emit_group(void *user, hlod_city_item *g, const hlod_city_item *const *kids,
+                              size_t n)
+{
+    top_levels *T = user;
+    if (T->n == T->cap)
+        return HLOD_ERR_INVALID_ARG; /* more groups than blocks: cannot be */
+    hlod_store_node *node = &T->nodes[T->n];
+    hlod_result r = add_payload(T->w, &g->mesh, &g->tex, g->tex_tris, g->colors, g->color, node);
+    if (r != HLOD_OK)
+        return r;
+    node->error = g->error;
+    node->render_flags = g->solid ? HLOD_RENDER_SOLID : 0;
+    node->block = HLOD_STORE_NO_BLOCK;
+    g->node = (uint32_t)(T->base + T->n);
+    for (size_t k = 0; k < n; k++)
+        T->up[kids[k]->node] = g->node;
+    T->tris += g->mesh.tri_count;
+    T->n++;
+    return HLOD_OK;
+}
+
+/* Groups over the blocks' hlod_0 nodes (outs[b].top), up to one root. */
+static hlod_result build_levels(const hlod_build_desc *d, const blocks *bs, block_out *outs,
+                                hlod_store_writer *w, top_levels *T, const hlod_logger *lg)
+{
+    size_t base = 0;
+    for (size_t b = 0; b < bs->n; b++)
+        base += outs[b].count;
+    T->w = w;
+    T->base = base;
+    T->cap = bs->n;
+    T->nodes = calloc(T->cap, sizeof *T->nodes);
+    T->up = malloc((base + T->cap) * sizeof *T->up);
+    hlod_city_item *items = malloc(bs->n * sizeof *items);
+    if (!T->nodes || !T->up || !items) {
+        free(items);
+        return HLOD_ERR_NOMEM;
+    }
+    for (size_t i = 0; i < base + T->cap; i++)
+        T->up[i] = HLOD_STORE_NO_PARENT;
+    for (size_t b = 0, at = 0; b < bs->n; at += outs[b].count, b++) {
+        items[b] = outs[b].top; /* shallow: outs keeps ownership */
+        items[b].node = (uint32_t)at;
+    }
+    hlod_city_levels_desc cd = {0};
+    cd.target_tris = d->method == HLOD_BUILD_METIS ? d->node_tris : d->desired_tris;
+    cd.group_size = (size_t)llround(d->level_factor * d->level_factor);
+    cd.threads = build_threads(d);
+    cd.logger = lg;
+    cd.emit = emit_group;
+    cd.user = T;
+    hlod_result r = hlod_city_levels(items, bs->n, &cd, &T->levels);
+    free(items);
+    if (r != HLOD_OK)
+        hlod_logf(lg, HLOD_LOG_ERROR, "city levels over %zu blocks: %s", bs->n, hlod_result_str(r));
+    return r;
+}
+
+/* The global node list (blocks in order, then the groups, parents as
+ * global indices) and the store's finish.  Consumes w. */
 static hlod_result finish_store(hlod_store_writer *w, const blocks *bs, const block_out *outs,
-                                const char *out_path, hlod_build_report *rep,
-                                const hlod_logger *lg)
+                                const top_levels *T, const char *out_path,
+                                hlod_build_report *rep, const hlod_logger *lg)
 {
     size_t total = 0;
     for (size_t b = 0; b < bs->n; b++) {
@@ -637,6 +758,12 @@ static hlod_result finish_store(hlod_store_writer *w, const blocks *bs, const bl
         rep->tris_total += outs[b].tris_total;
         rep->levels = outs[b].depth > rep->levels ? outs[b].depth : rep->levels;
     }
+    size_t blocks_nodes = total;
+    total += T->n;
+    rep->groups = T->n;
+    rep->block_depth = T->levels;
+    rep->levels += T->levels;
+    rep->tris_total += T->tris;
     hlod_store_node *all = total < UINT32_MAX ? calloc(total, sizeof *all) : NULL;
     if (!all) {
         hlod_store_writer_abort(w);
@@ -647,11 +774,17 @@ static hlod_result finish_store(hlod_store_writer *w, const blocks *bs, const bl
         for (size_t k = 0; k < outs[b].count; k++) {
             hlod_store_node *n = &all[base + k];
             *n = outs[b].nodes[k];
-            n->parent = outs[b].parent[k] == HLOD_BNODE_NONE ? HLOD_STORE_NO_PARENT
-                                                             : (uint32_t)(base + outs[b].parent[k]);
+            if (outs[b].parent[k] != HLOD_BNODE_NONE)
+                n->parent = (uint32_t)(base + outs[b].parent[k]);
+            else
+                n->parent = T->up ? T->up[base + k] : HLOD_STORE_NO_PARENT;
             n->block = (uint32_t)b;
         }
         base += outs[b].count;
+    }
+    for (size_t g = 0; g < T->n; g++) {
+        all[blocks_nodes + g] = T->nodes[g];
+        all[blocks_nodes + g].parent = T->up[blocks_nodes + g];
     }
     hlod_result r = hlod_store_writer_finish(w, all, (uint32_t)total, NULL);
     free(all);
@@ -701,16 +834,22 @@ hlod_result hlod_build_store(const hlod_build_desc *d, const char *const *inputs
     if (r == HLOD_OK)
         r = build_blocks(d, &bs, outs, w, lg);
     rep.blocks = bs.n;
+    top_levels T = {0};
+    if (r == HLOD_OK && want_levels(d, &bs))
+        r = build_levels(d, &bs, outs, w, &T, lg);
     if (r == HLOD_OK) {
-        r = finish_store(w, &bs, outs, out_path, &rep, lg);
+        r = finish_store(w, &bs, outs, &T, out_path, &rep, lg);
         w = NULL;
     }
+    free(T.nodes);
+    free(T.up);
     if (w)
         hlod_store_writer_abort(w);
     if (outs)
         for (size_t b = 0; b < bs.n; b++) {
             free(outs[b].nodes);
             free(outs[b].parent);
+            hlod_city_item_free(&outs[b].top);
         }
     free(outs);
     for (size_t b = 0; b < bs.n; b++)

@@ -2308,12 +2308,15 @@ static uint32_t uf_find(uint32_t *parent, uint32_t x)
     return x;
 }
 
-/* For every live vertex, the distance to the nearest live vertex of
- * another part (INFINITY when there is none): a uniform grid of about two
- * vertices a cell, searched ring by ring until the ring lies farther than
- * the best found, or past limit (farther counts as INFINITY). */
+/* For every query point q[i] of part qpart[i], the distance to the
+ * nearest live vertex of another part (INFINITY when there is none): a
+ * uniform grid of about two vertices a cell, searched ring by ring until
+ * the ring lies farther than the best found, or past limit (farther counts
+ * as INFINITY).  Queries go in `order`; a part found to cost more than
+ * limit is skipped from then on. */
 static int other_part_distances(const state *s, const uint32_t *part, const uint32_t *live_v,
-                                size_t n, double limit, double *dist, uint32_t *near_part,
+                                size_t n, const double (*q)[3], const uint32_t *qpart, size_t nq,
+                                double limit, double *dist, uint32_t *near_part,
                                 const uint32_t *order, uint8_t *skip)
 {
     double lo[3] = {INFINITY, INFINITY, INFINITY}, hi[3] = {-INFINITY, -INFINITY, -INFINITY};
@@ -2351,15 +2354,19 @@ static int other_part_distances(const state *s, const uint32_t *part, const uint
     for (size_t c = cells; c > 0; c--)
         start[c] = start[c - 1];
     start[0] = 0;
-    for (size_t oi = 0; oi < n; oi++) {
+    for (size_t oi = 0; oi < nq; oi++) {
         size_t i = order[oi];
-        if (skip[part[live_v[i]]]) { /* not wanted, or a vertex of it is too far */
+        if (skip[qpart[i]]) { /* not wanted, or a point of it is too far */
             dist[i] = INFINITY;
             near_part[i] = UINT32_MAX;
             continue;
         }
-        const double *p = s->pos[live_v[i]];
-        int ci[3] = {(int)(cell[i] % g), (int)(cell[i] / g % g), (int)(cell[i] / g / g)};
+        const double *p = q[i];
+        int ci[3];
+        for (int k = 0; k < 3; k++) {
+            int c = (int)((p[k] - lo[k]) / h);
+            ci[k] = c < 0 ? 0 : c >= g ? g - 1 : c;
+        }
         double best2 = INFINITY;
         uint32_t best_part = UINT32_MAX;
         for (int ring = 0; ring < g; ring++) {
@@ -2377,7 +2384,7 @@ static int other_part_distances(const state *s, const uint32_t *part, const uint
                         size_t c = (size_t)x + (size_t)g * ((size_t)y + (size_t)g * (size_t)z);
                         for (uint32_t j = start[c]; j < start[c + 1]; j++) {
                             uint32_t o = list[j];
-                            if (part[live_v[o]] == part[live_v[i]])
+                            if (part[live_v[o]] == qpart[i])
                                 continue;
                             double d[3];
                             hlod_sub3(d, s->pos[live_v[o]], p);
@@ -2392,7 +2399,7 @@ static int other_part_distances(const state *s, const uint32_t *part, const uint
         dist[i] = best2 <= limit * limit ? sqrt(best2) : INFINITY;
         near_part[i] = best_part;
         if (!(dist[i] < INFINITY))
-            skip[part[live_v[i]]] = 1; /* the part costs more than limit */
+            skip[qpart[i]] = 1; /* the part costs more than limit */
     }
     free(start);
     free(list);
@@ -2430,13 +2437,15 @@ static size_t prune_parts(state *s, run *r, double limit2, int may_undershoot)
     if (s->n_parts < 2 || (!r->target && !(r->err_limit2 > 0)))
         return 0; /* one part, or no goal to prune for */
     size_t removed = 0;
-    size_t nv = s->n_pos, np = s->n_parts, n = 0;
-    uint32_t *live_v = malloc(nv * sizeof *live_v), *near = malloc(nv * sizeof *near);
-    uint32_t *first = calloc(np + 1, sizeof *first), *by_part = malloc(nv * sizeof *by_part);
-    double *dist = malloc(nv * sizeof *dist);
+    size_t nv = s->n_pos, np = s->n_parts, n = 0, nq = 0, mq = nv + s->n_tris;
+    uint32_t *live_v = malloc(nv * sizeof *live_v), *near = malloc(mq * sizeof *near);
+    uint32_t *first = calloc(np + 1, sizeof *first), *by_part = malloc(mq * sizeof *by_part);
+    uint32_t *qpart = malloc(mq * sizeof *qpart);
+    double(*q)[3] = malloc(mq * sizeof *q);
+    double *dist = malloc(mq * sizeof *dist);
     part_cost *pc = calloc(np, sizeof *pc);
     uint8_t *gone = calloc(np, 1);
-    if (!live_v || !near || !first || !by_part || !dist || !pc || !gone) {
+    if (!live_v || !near || !first || !by_part || !qpart || !q || !dist || !pc || !gone) {
         s->oom = 1;
         goto out;
     }
@@ -2445,18 +2454,29 @@ static size_t prune_parts(state *s, run *r, double limit2, int may_undershoot)
             live_v[n++] = (uint32_t)v;
     for (size_t i = 0; i < np; i++)
         pc[i].part = (uint32_t)i;
-    for (size_t t = 0; t < s->n_tris; t++)
-        if (s->tri_alive[t])
-            pc[s->part[s->tri_pos[3 * t]]].tris++;
+    /* what a part's loss is measured at: its vertices, and its triangles'
+     * centroids (a big face far from everything else, like a ground
+     * plane among buildings, costs what its middle lies from the rest) */
     for (size_t i = 0; i < n; i++) {
+        memcpy(q[nq], s->pos[live_v[i]], sizeof q[nq]);
+        qpart[nq++] = s->part[live_v[i]];
         pc[s->part[live_v[i]]].locked |= s->verts[live_v[i]].ulock;
-        first[s->part[live_v[i]] + 1]++;
     }
-    /* each part's live vertices, in part order */
+    for (size_t t = 0; t < s->n_tris; t++)
+        if (s->tri_alive[t]) {
+            const uint32_t *tv = s->tri_pos + 3 * t;
+            for (int k = 0; k < 3; k++)
+                q[nq][k] = (s->pos[tv[0]][k] + s->pos[tv[1]][k] + s->pos[tv[2]][k]) / 3;
+            qpart[nq++] = s->part[tv[0]];
+            pc[s->part[tv[0]]].tris++;
+        }
+    for (size_t i = 0; i < nq; i++)
+        first[qpart[i] + 1]++;
+    /* each part's query points, in part order */
     for (size_t i = 0; i < np; i++)
         first[i + 1] += first[i];
-    for (size_t i = 0; i < n; i++)
-        by_part[first[s->part[live_v[i]]]++] = (uint32_t)i;
+    for (size_t i = 0; i < nq; i++)
+        by_part[first[qpart[i]]++] = (uint32_t)i;
     for (size_t i = np; i > 0; i--)
         first[i] = first[i - 1];
     first[0] = 0;
@@ -2466,12 +2486,13 @@ static size_t prune_parts(state *s, run *r, double limit2, int may_undershoot)
         gone[i] = !pc[i].tris || pc[i].locked ||
                   (!may_undershoot &&
                    (double)(r->live - pc[i].tris) < UNDERSHOOT * (double)r->target);
-    if (!other_part_distances(s, s->part, live_v, n, sqrt(limit2), dist, near, by_part, gone)) {
+    if (!other_part_distances(s, s->part, live_v, n, (const double(*)[3])q, qpart, nq, sqrt(limit2),
+                              dist, near, by_part, gone)) {
         s->oom = 1;
         goto out;
     }
-    for (size_t i = 0; i < n; i++) {
-        part_cost *c = &pc[s->part[live_v[i]]];
+    for (size_t i = 0; i < nq; i++) {
+        part_cost *c = &pc[qpart[i]];
         c->cost = fmax(c->cost, dist[i]);
     }
     memset(gone, 0, np);
@@ -2529,6 +2550,8 @@ out:
     free(near);
     free(first);
     free(by_part);
+    free(qpart);
+    free(q);
     free(dist);
     free(pc);
     free(gone);

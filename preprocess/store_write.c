@@ -394,13 +394,22 @@ static hlod_result bfs_order(const hlod_store_node *nodes, uint32_t count, uint3
         hlod_logf(lg, HLOD_LOG_ERROR, "%s: no root node (parent = HLOD_STORE_NO_PARENT)", name);
         goto done;
     }
-    /* roots go to order[block] */
+    /* block roots go to order[block]; group roots (HLOD_STORE_NO_BLOCK)
+     * keep the caller's order */
+    uint32_t group_roots = 0;
+    for (uint32_t k = 0; k < count; k++)
+        group_roots += nodes[k].parent == HLOD_STORE_NO_PARENT && nodes[k].block == HLOD_STORE_NO_BLOCK;
+    if (group_roots && group_roots != roots) {
+        hlod_logf(lg, HLOD_LOG_ERROR, "%s: %u of the %u roots are group nodes: roots must be "
+                  "all blocks or all groups", name, group_roots, roots);
+        goto done;
+    }
     for (uint32_t i = 0; i < roots; i++)
         order[i] = UINT32_MAX;
-    for (uint32_t k = 0; k < count; k++) {
+    for (uint32_t k = 0, g = 0; k < count; k++) {
         if (nodes[k].parent != HLOD_STORE_NO_PARENT)
             continue;
-        uint32_t b = nodes[k].block;
+        uint32_t b = group_roots ? g++ : nodes[k].block;
         if (b >= roots || order[b] != UINT32_MAX) {
             hlod_logf(lg, HLOD_LOG_ERROR, "%s: root node %u has block %u; the %u roots need "
                       "blocks 0..%u, one each", name, k, b, roots, roots - 1);
@@ -432,6 +441,81 @@ done:
     free(kids);
     free(fill);
     return r;
+}
+
+/* The node table in store order (finish's first half): first_child,
+ * parent, depth and block of every node, checked against the payloads
+ * added.  Sets the block count, their depth and the top node count. */
+static hlod_result fill_table(hlod_store_writer *w, const hlod_store_node *nodes, uint32_t count,
+                              const uint32_t *order, const uint32_t *child_count,
+                              const uint32_t *index, uint32_t roots, hlod_store_node *table,
+                              uint32_t *blocks_out, uint32_t *depth_out, uint32_t *top_out)
+{
+    const hlod_logger *lg = w->lg;
+    const char *name = w->file.final_path;
+    /* The table in store order; children of pos are [first_child, next's).
+     * A node the caller marked HLOD_STORE_NO_BLOCK is a group; a node under
+     * a group or at the top that is not one is a block's hlod_0 node, and
+     * blocks are numbered in store order. */
+    uint32_t next_child = roots, blocks = 0, block_depth = 0, top = 0;
+    hlod_result r = HLOD_ERR_INVALID_ARG;
+    for (uint32_t pos = 0; pos < count; pos++) {
+        uint32_t k = order[pos];
+        hlod_store_node *t = &table[pos];
+        *t = nodes[k];
+        t->first_child = next_child;
+        next_child += child_count[k];
+        int group = nodes[k].block == HLOD_STORE_NO_BLOCK;
+        uint32_t up = HLOD_STORE_NO_BLOCK;
+        if (nodes[k].parent == HLOD_STORE_NO_PARENT) {
+            t->parent = HLOD_STORE_NO_PARENT;
+            t->depth = 0;
+        } else {
+            t->parent = index[nodes[k].parent];
+            t->depth = table[t->parent].depth + 1;  /* parent comes first in BFS */
+            up = table[t->parent].block;
+        }
+        if (group && up != HLOD_STORE_NO_BLOCK) {
+            hlod_logf(lg, HLOD_LOG_ERROR, "%s: node %u: a group node under block %u", name, k, up);
+            return r;
+        }
+        if (group && !child_count[k]) {
+            hlod_logf(lg, HLOD_LOG_ERROR, "%s: node %u: a group node without children", name, k);
+            return r;
+        }
+        if (group) {
+            t->block = HLOD_STORE_NO_BLOCK;
+            top = pos + 1;
+        } else if (up == HLOD_STORE_NO_BLOCK) {
+            if (blocks && t->depth != block_depth) {
+                hlod_logf(lg, HLOD_LOG_ERROR, "%s: node %u: a block at depth %u, another at %u: "
+                          "every block's hlod_0 node needs the same depth", name, k, t->depth,
+                          block_depth);
+                return r;
+            }
+            block_depth = t->depth;
+            t->block = blocks++;
+            top = pos + 1;
+        } else {
+            t->block = up;
+        }
+        payload_record *rec = find_record(w, t->payload_offset);
+        if (!rec || !node_matches(t, rec)) {
+            hlod_logf(lg, HLOD_LOG_ERROR, "%s: node %u (store node %u): its payload fields do "
+                      "not match a payload added to this writer", name, k, pos);
+            return r;
+        }
+        if (rec->used) {
+            hlod_logf(lg, HLOD_LOG_ERROR, "%s: node %u: payload at %llu is used by two nodes",
+                      name, k, (unsigned long long)rec->offset);
+            return r;
+        }
+        rec->used = 1;
+    }
+    *blocks_out = blocks;
+    *depth_out = block_depth;
+    *top_out = top;
+    return HLOD_OK;
 }
 
 /* called from the owner thread */
@@ -468,38 +552,10 @@ hlod_result hlod_store_writer_finish(hlod_store_writer *w, const hlod_store_node
     for (uint32_t pos = 0; pos < count; pos++)
         index[order[pos]] = pos;
 
-    /* The table in store order; children of pos are [first_child, next's). */
-    uint32_t next_child = roots;
-    for (uint32_t pos = 0; pos < count; pos++) {
-        uint32_t k = order[pos];
-        hlod_store_node *t = &table[pos];
-        *t = nodes[k];
-        t->first_child = next_child;
-        next_child += child_count[k];
-        if (nodes[k].parent == HLOD_STORE_NO_PARENT) {
-            t->parent = HLOD_STORE_NO_PARENT;
-            t->depth = 0;
-            t->block = pos;     /* = nodes[k].block: roots are ordered by block */
-        } else {
-            t->parent = index[nodes[k].parent];
-            t->depth = table[t->parent].depth + 1;  /* parent comes first in BFS */
-            t->block = table[t->parent].block;
-        }
-        payload_record *rec = find_record(w, t->payload_offset);
-        if (!rec || !node_matches(t, rec)) {
-            hlod_logf(lg, HLOD_LOG_ERROR, "%s: node %u (store node %u): its payload fields do "
-                      "not match a payload added to this writer", name, k, pos);
-            r = HLOD_ERR_INVALID_ARG;
-            goto fail;
-        }
-        if (rec->used) {
-            hlod_logf(lg, HLOD_LOG_ERROR, "%s: node %u: payload at %llu is used by two nodes",
-                      name, k, (unsigned long long)rec->offset);
-            r = HLOD_ERR_INVALID_ARG;
-            goto fail;
-        }
-        rec->used = 1;
-    }
+    uint32_t blocks = 0, block_depth = 0, top = 0;
+    r = fill_table(w, nodes, count, order, child_count, index, roots, table, &blocks, &block_depth, &top);
+    if (r != HLOD_OK)
+        goto fail;
     table[count].first_child = count;   /* the sentinel */
     for (size_t i = 0; i < w->record_count; i++)
         if (!w->records[i].used) {
@@ -518,6 +574,9 @@ hlod_result hlod_store_writer_finish(hlod_store_writer *w, const hlod_store_node
     h.node_size = sizeof(hlod_store_node);
     h.node_count = count;
     h.root_count = roots;
+    h.block_count = blocks;
+    h.block_depth = block_depth;
+    h.top_count = top;
     h.payload_align = w->desc.payload_align;
     h.build = w->desc.build;
     for (int k = 0; k < 3; k++) {

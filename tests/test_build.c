@@ -79,9 +79,23 @@ static void builds_and_verifies_both_methods(void)
         const hlod_store_header *h = hlod_store_get_header(s);
         CHECK(h->depth_count >= 2);
         CHECK(h->flags & HLOD_STORE_TEXTURED);
-        CHECK(h->root_count == 5); /* 4 blocks + ground */
+        /* 4 blocks + ground under one group root */
+        CHECKF(h->block_count == 5 && h->root_count == 1 && h->block_depth == 1 && h->top_count == 6,
+               "%u blocks at depth %u, %u roots, %u top nodes", h->block_count, h->block_depth,
+               h->root_count, h->top_count);
         hlod_store_close(s);
     }
+    /* --city-levels off: the paper's layout, every block a root */
+    CHECK(build("c", "flat.hlod", "--city-levels off") == 0);
+    snprintf(p, sizeof p, "%s/flat.hlod", tmp);
+    CHECK(hlod_store_open(p, NULL, &s) == HLOD_OK);
+    if (s) {
+        const hlod_store_header *h = hlod_store_get_header(s);
+        CHECKF(h->block_count == 5 && h->root_count == 5 && h->block_depth == 0 && h->top_count == 5,
+               "%u blocks at depth %u, %u roots", h->block_count, h->block_depth, h->root_count);
+        hlod_store_close(s);
+    }
+    CHECK(build("c", "bad.hlod", "--city-levels maybe") == 2);
 }
 
 static void json_keys(void)
@@ -96,7 +110,8 @@ static void json_keys(void)
     if (fp)
         fclose(fp);
     const char *keys[] = {"\"blocks\"", "\"nodes\"", "\"levels\"", "\"tris_in\"", "\"tris_leaf\"",
-                          "\"tris_total\"", "\"bytes\"", "\"seconds\"", "\"peak_rss_bytes\""};
+                          "\"tris_total\"", "\"bytes\"", "\"seconds\"", "\"peak_rss_bytes\"",
+                          "\"groups\"", "\"block_depth\""};
     for (size_t i = 0; i < sizeof keys / sizeof *keys; i++)
         CHECKF(strstr(line, keys[i]), "missing %s in %s", keys[i], line);
 }
@@ -126,8 +141,10 @@ static void reproducible_byte_for_byte(void)
     if (s) {
         CHECKF(r1.nodes == hlod_store_node_count(s), "%zu vs %u nodes", r1.nodes,
                hlod_store_node_count(s));
-        CHECKF(r1.blocks == hlod_store_root_count(s), "%zu blocks, %u roots", r1.blocks,
-               hlod_store_root_count(s));
+        CHECKF(r1.blocks == hlod_store_block_count(s), "%zu blocks, %u in the store", r1.blocks,
+               hlod_store_block_count(s));
+        CHECKF(r1.groups == hlod_store_first_block(s) && r1.block_depth == hlod_store_get_header(s)->block_depth,
+               "%zu groups, block depth %zu", r1.groups, r1.block_depth);
         CHECKF(r1.levels == hlod_store_get_header(s)->depth_count, "%zu levels", r1.levels);
         hlod_store_close(s);
     }
@@ -161,10 +178,15 @@ static void parts_city_meets_desired_tris(void)
         /* cutplane: C_desiredTri (500 here); metis: N_n (2000), or the
          * block itself when it is one leaf (under N_l) */
         uint32_t cap = metis ? 2200 : 550;
-        for (uint32_t r = 0; r < hlod_store_root_count(s); r++)
+        for (uint32_t r = hlod_store_first_block(s); r < hlod_store_top_count(s); r++)
             CHECKF(n[r].tri_count <= cap ||
                        (metis && hlod_store_first_child(n, r) == hlod_store_child_end(n, r)),
                    "%s: block %u's hlod_0 holds %u triangles (at most %u)", out, r, n[r].tri_count, cap);
+        /* the group nodes above them too, and one root */
+        CHECK(hlod_store_root_count(s) == 1 && hlod_store_first_block(s) >= 1);
+        for (uint32_t g = 0; g < hlod_store_first_block(s); g++)
+            CHECKF(n[g].tri_count <= cap, "%s: group %u holds %u triangles (at most %u)", out, g,
+                   n[g].tri_count, cap);
         hlod_store_close(s);
     }
 }
@@ -173,7 +195,7 @@ static void parts_city_meets_desired_tris(void)
 static void library_errors_leave_nothing(void)
 {
     rec_log log;
-    hlod_build_report rep = {1, 1, 1, 1, 1, 1};
+    hlod_build_report rep = {1, 1, 1, 1, 1, 1, 1, 1};
     CHECK(lib_build("missing", "lib-bad.hlod", HLOD_BUILD_CUTPLANE, 1, &rep, &log) == HLOD_ERR_IO);
     CHECKF(strstr(log.last, "missing.obj") && strstr(log.last, "cannot read"), "%s", log.last);
     CHECK(rep.nodes == 0 && rep.blocks == 0);

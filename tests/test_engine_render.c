@@ -286,7 +286,11 @@ static void solid_blocks_cull_invisibly(void)
     uint32_t solid = 0;
     for (uint32_t i = 0; i < h->node_count; i++)
         solid += (n[i].render_flags & HLOD_RENDER_SOLID) != 0;
-    uint32_t ground = n[h->root_count - 1].block; /* the ground is the last object */
+    /* the ground: the flattest block */
+    uint32_t ground = h->top_count - h->block_count;
+    for (uint32_t i = ground; i < h->top_count; i++)
+        if (n[i].bbox_max[2] - n[i].bbox_min[2] < n[ground].bbox_max[2] - n[ground].bbox_min[2])
+            ground = i;
     fprintf(stderr, "  %u of %u nodes solid\n", solid, h->node_count);
     CHECK(solid > h->node_count / 2);
     CHECK(!(n[ground].render_flags & HLOD_RENDER_SOLID));

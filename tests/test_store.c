@@ -629,6 +629,9 @@ static void f_table_offset(forge_ctx *f) { f->h->node_table_offset = f->size; }
 static void f_table_offset_huge(forge_ctx *f) { f->h->node_table_offset = UINT64_MAX - 100; }
 static void f_roots_zero(forge_ctx *f) { f->h->root_count = 0; }
 static void f_roots_many(forge_ctx *f) { f->h->root_count = NODES + 1; }
+static void f_blocks_zero(forge_ctx *f) { f->h->block_count = 0; }
+static void f_top_many(forge_ctx *f) { f->h->top_count = NODES; }
+static void f_block_depth(forge_ctx *f) { f->h->block_depth = 1; }
 static void f_nan_bbox(forge_ctx *f) { f->t[2].bbox_max[1] = NAN; }
 static void f_inf_error(forge_ctx *f) { f->t[8].error = INFINITY; }
 static void f_error_order(forge_ctx *f) { f->t[8].error = 10.0; }
@@ -673,7 +676,7 @@ static void test_forged_tables(void)
         {"child range at itself", f_child_self, HLOD_ERR_FORMAT, "are not a range"},
         {"wrong parent", f_parent, HLOD_ERR_FORMAT, "disagree"},
         {"wrong depth", f_depth, HLOD_ERR_FORMAT, "disagree"},
-        {"wrong block", f_block, HLOD_ERR_FORMAT, "disagree"},
+        {"wrong block", f_block, HLOD_ERR_FORMAT, "its parent's"},
         {"root with a parent", f_root_parent, HLOD_ERR_FORMAT, "root 1"},
         {"sentinel field", f_sentinel, HLOD_ERR_FORMAT, "sentinel"},
         {"sentinel range", f_sentinel_child, HLOD_ERR_FORMAT, "sentinel"},
@@ -683,6 +686,9 @@ static void test_forged_tables(void)
         {"table offset wraps", f_table_offset_huge, HLOD_ERR_FORMAT, "outside the file"},
         {"no roots", f_roots_zero, HLOD_ERR_FORMAT, "roots"},
         {"too many roots", f_roots_many, HLOD_ERR_FORMAT, "roots"},
+        {"no blocks", f_blocks_zero, HLOD_ERR_FORMAT, "0 blocks"},
+        {"top past the roots", f_top_many, HLOD_ERR_FORMAT, "top nodes"},
+        {"blocks below the roots", f_block_depth, HLOD_ERR_FORMAT, "top nodes"},
         {"NaN box", f_nan_bbox, HLOD_ERR_NAN, "non-finite"},
         {"infinite error", f_inf_error, HLOD_ERR_NAN, "non-finite"},
         {"error not monotone", f_error_order, HLOD_ERR_FORMAT, "exceeds its parent"},
@@ -1106,7 +1112,7 @@ static void test_info_tool(void)
 
     snprintf(args, sizeof args, "'%s'", path);
     CHECK(run_info(args, out, sizeof out, err, sizeof err) == 0);
-    CHECKF(strstr(out, "blocks 2, nodes 9") != NULL, "%s", out);
+    CHECKF(strstr(out, "blocks 2 at depth 0 (0 group nodes above, 2 roots), nodes 9") != NULL, "%s", out);
 
     /* a corrupt payload: open still works, --verify names the node */
     hlod_store *s = NULL;

@@ -215,6 +215,11 @@ hlod_result hlod_store_validate(const hlod_store_header *h, const hlod_store_nod
     if (nodes[0].first_child != roots)
         BAD(HLOD_ERR_FORMAT, "%s: node 0: children start at %u, not after the %u roots", name,
             nodes[0].first_child, roots);
+    const uint32_t bdepth = h->block_depth, top = h->top_count, blocks = h->block_count;
+    if (blocks == 0 || top > n || blocks > top || (bdepth == 0 && (blocks != roots || top != roots)))
+        BAD(HLOD_ERR_FORMAT, "%s: %u blocks at depth %u, %u top nodes, %u roots for %u nodes", name,
+            blocks, bdepth, top, roots, n);
+    const uint32_t first_block = top - blocks;
 
     uint64_t payload_bytes = 0;
     uint32_t max_depth = 0;
@@ -231,17 +236,32 @@ hlod_result hlod_store_validate(const hlod_store_header *h, const hlod_store_nod
         if (c0 > c1 || c1 > n || c0 <= i)
             BAD(HLOD_ERR_FORMAT, "%s: node %u: children [%u, %u) are not a range after it "
                 "inside the %u nodes", name, i, c0, c1, n);
-        if (i < roots) {
-            if (nd->parent != HLOD_STORE_NO_PARENT || nd->depth != 0 || nd->block != i)
-                BAD(HLOD_ERR_FORMAT, "%s: root %u: parent %u, depth %u, block %u (want none, "
-                    "0, %u)", name, i, nd->parent, nd->depth, nd->block, i);
-        }
+        if (i < roots && (nd->parent != HLOD_STORE_NO_PARENT || nd->depth != 0))
+            BAD(HLOD_ERR_FORMAT, "%s: root %u: parent %u, depth %u (want none, 0)", name, i,
+                nd->parent, nd->depth);
+        /* depth is monotone (breadth-first, checked through the children),
+         * so the top nodes are those at depth <= block_depth exactly when
+         * the last top node and the first other one say so */
+        int is_block = i >= first_block && i < top, is_group = i < first_block;
+        if ((i < top) != (nd->depth <= bdepth) || is_block != (nd->depth == bdepth))
+            BAD(HLOD_ERR_FORMAT, "%s: node %u at depth %u lies %s the %u top nodes (blocks at "
+                "depth %u are nodes [%u, %u))", name, i, nd->depth, i < top ? "inside" : "after",
+                top, bdepth, first_block, top);
+        uint32_t want_block = is_group ? HLOD_STORE_NO_BLOCK
+                              : is_block ? i - first_block
+                                         : nodes[nd->parent].block;
+        if (nd->block != want_block)
+            BAD(HLOD_ERR_FORMAT, "%s: node %u: block %u, want %u (%s)", name, i, nd->block,
+                want_block, is_group ? "a group node" : is_block ? "block hlod_0 nodes in order"
+                                                                  : "its parent's");
+        if (is_group && c0 == c1)
+            BAD(HLOD_ERR_FORMAT, "%s: group node %u has no children", name, i);
         for (uint32_t c = c0; c < c1; c++) {
             const hlod_store_node *ch = &nodes[c];
-            if (ch->parent != i || ch->depth != nd->depth + 1 || ch->block != nd->block)
-                BAD(HLOD_ERR_FORMAT, "%s: node %u: parent %u, depth %u, block %u disagree with "
-                    "its place among node %u's children (depth %u, block %u)", name, c,
-                    ch->parent, ch->depth, ch->block, i, nd->depth, nd->block);
+            if (ch->parent != i || ch->depth != nd->depth + 1)
+                BAD(HLOD_ERR_FORMAT, "%s: node %u: parent %u, depth %u disagree with its place "
+                    "among node %u's children (depth %u)", name, c, ch->parent, ch->depth, i,
+                    nd->depth);
             if (isfinite(ch->error) && ch->error > nd->error) /* NaN: caught below */
                 BAD(HLOD_ERR_FORMAT, "%s: node %u: error %.17g exceeds its parent %u's %.17g",
                     name, c, ch->error, i, nd->error);
@@ -335,7 +355,7 @@ static hlod_result check_header(const hlod_store_header *h, uint64_t file_size, 
     if (h->file_size != file_size)
         BAD(HLOD_ERR_FORMAT, "%s: file is %llu bytes, its header says %llu (truncated?)", name,
             (unsigned long long)file_size, (unsigned long long)h->file_size);
-    if (h->reserved0 || h->build.reserved || !is_zero(h->reserved, sizeof h->reserved))
+    if (h->build.reserved || !is_zero(h->reserved, sizeof h->reserved))
         BAD(HLOD_ERR_FORMAT, "%s: reserved header fields are not zero", name);
     if (h->node_count == 0 || h->node_count == UINT32_MAX)
         BAD(HLOD_ERR_FORMAT, "%s: %u nodes", name, h->node_count);
@@ -451,6 +471,12 @@ const hlod_store_header *hlod_store_get_header(const hlod_store *s) { return &s-
 const hlod_store_node *hlod_store_nodes(const hlod_store *s) { return s->nodes; }
 uint32_t hlod_store_node_count(const hlod_store *s) { return s->header.node_count; }
 uint32_t hlod_store_root_count(const hlod_store *s) { return s->header.root_count; }
+uint32_t hlod_store_block_count(const hlod_store *s) { return s->header.block_count; }
+uint32_t hlod_store_top_count(const hlod_store *s) { return s->header.top_count; }
+uint32_t hlod_store_first_block(const hlod_store *s)
+{
+    return s->header.top_count - s->header.block_count;
+}
 const char *hlod_store_path(const hlod_store *s) { return s->path; }
 
 /* ---- payload reads ---- */

@@ -43,6 +43,9 @@ typedef struct hlod_build_desc {
     size_t node_tris;           /* N_n (metis); default 2000 */
     double c_tex;               /* c_tex of Lakhia eq. 1, in [0, 1]; default 0.5 */
     uint64_t seed;              /* every choice's seed; default 1 */
+    int city_levels;            /* non-zero (default): group nodes over the
+                                   blocks up to one root (README, "City
+                                   levels"); 0: every block is a root */
     size_t threads;             /* 0 (default): every core */
     /* Called from the calling thread about every 100 ms while blocks
      * build; NULL for none. */
@@ -55,6 +58,8 @@ typedef struct hlod_build_report {
     size_t tris_in;             /* triangles read */
     size_t tris_leaf;           /* triangles in leaves (the source's, split by blocks) */
     size_t tris_total;          /* triangles in all nodes */
+    size_t groups;              /* group nodes above the blocks */
+    size_t block_depth;         /* depth of the blocks' hlod_0 nodes */
 } hlod_build_report;
 
 /* Every field set to its default (0 is a valid c_tex, so zero does not

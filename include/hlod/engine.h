@@ -219,7 +219,7 @@ typedef struct hlod_frame_stats {
     uint32_t render_waits;       /* render thread blocked on the loader: must be 0 */
 } hlod_frame_stats;
 
-/* Creates an engine over an open store: reads every hlod_0 node
+/* Creates an engine over an open store: reads every top node (groups and hlod_0)
  * synchronously (they are always resident), uploads them when a renderer is
  * given, and starts the loader thread (not in deterministic mode).
  * HLOD_ERR_INVALID_ARG for a bad desc (e.g. c_hyst_switch outside [1,

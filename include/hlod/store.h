@@ -20,13 +20,23 @@
  * a store may be larger than RAM, and the header is written at the end.
  *
  * Tree rule (Nexus style): node_count nodes, breadth-first, the root_count
- * hlod_0 nodes first (root b is block b).  The children of node i are the
- * nodes [nodes[i].first_child, nodes[i + 1].first_child); node i is a leaf
- * when the range is empty.  nodes[node_count] is the sentinel: first_child =
+ * roots (depth 0) first.  The children of node i are the nodes
+ * [nodes[i].first_child, nodes[i + 1].first_child); node i is a leaf when
+ * the range is empty.  nodes[node_count] is the sentinel: first_child =
  * node_count, every other byte zero.  Hence nodes[0].first_child =
- * root_count, first_child never decreases, and the ranges tile
- * [root_count, node_count) so every non-root node has exactly one parent.
- * A child has depth parent.depth + 1 and the parent's block.
+ * root_count, first_child never decreases, depth never decreases with the
+ * index, and the ranges tile [root_count, node_count) so every non-root node
+ * has exactly one parent.  A child has depth parent.depth + 1.
+ *
+ * Blocks and city levels (README, "City levels"): every block's hlod_0 node
+ * lies at depth block_depth, and those block_count nodes are the nodes
+ * [top_count - block_count, top_count), block b being node top_count -
+ * block_count + b.  A node below them has its block's index in `block`.
+ * With block_depth = 0 the roots are the blocks (the paper's layout).
+ * Above them, nodes at depths [0, block_depth) are group nodes (block =
+ * HLOD_STORE_NO_BLOCK): each the union of its children simplified, none a
+ * leaf.  The top_count nodes at depth <= block_depth are the top of the
+ * tree, which the runtime keeps resident.
  *
  * Payload layout (offsets from the payload's first byte):
  *   hlod_store_payload_header (64 bytes)
@@ -72,12 +82,13 @@ extern "C" {
 /* ---- format ---- */
 
 #define HLOD_STORE_MAGIC "HLODSTOR"     /* 8 bytes, no terminator on disk */
-#define HLOD_STORE_VERSION 1u
+#define HLOD_STORE_VERSION 2u       /* 2: city levels (block_depth, top_count) */
 #define HLOD_STORE_ENDIAN 0x01020304u   /* read back as 0x04030201: wrong byte order */
 #define HLOD_STORE_DEFAULT_ALIGN 4096u
 #define HLOD_STORE_MIN_ALIGN 64u
 #define HLOD_STORE_MAX_ALIGN (1u << 20)
 #define HLOD_STORE_NO_PARENT 0xffffffffu
+#define HLOD_STORE_NO_BLOCK 0xffffffffu /* node.block of a group node */
 #define HLOD_STORE_MAX_TEXTURE 65536u   /* width and height limit */
 
 /* header.flags */
@@ -109,10 +120,10 @@ typedef struct hlod_store_header {
     uint32_t node_size;         /*  20 sizeof(hlod_store_node) = 192 */
     uint32_t flags;             /*  24 HLOD_STORE_TEXTURED */
     uint32_t node_count;        /*  28 nodes, sentinel excluded, >= 1 */
-    uint32_t root_count;        /*  32 hlod_0 nodes = blocks, >= 1 */
+    uint32_t root_count;        /*  32 depth-0 nodes, >= 1 */
     uint32_t depth_count;       /*  36 deepest depth + 1 */
     uint32_t payload_align;     /*  40 power of two in [64, 1 MiB] */
-    uint32_t reserved0;         /*  44 0 */
+    uint32_t block_depth;       /*  44 depth of the blocks' hlod_0 nodes */
     uint64_t file_size;         /*  48 bytes in the file */
     uint64_t node_table_offset; /*  56 */
     uint64_t node_table_size;   /*  64 (node_count + 1) * node_size */
@@ -121,7 +132,9 @@ typedef struct hlod_store_header {
     double bbox_min[3];         /*  88 union of the node boxes, model units */
     double bbox_max[3];         /* 112 */
     hlod_store_build_info build; /* 136 */
-    uint8_t reserved[56];       /* 192 zero */
+    uint32_t block_count;       /* 192 blocks, >= 1 */
+    uint32_t top_count;         /* 196 nodes at depth <= block_depth */
+    uint8_t reserved[48];       /* 200 zero */
     uint64_t header_hash;       /* 248 XXH3-64 of bytes [0, 248) */
 } hlod_store_header;
 
@@ -143,8 +156,9 @@ typedef struct hlod_store_header {
 typedef struct hlod_store_node {
     uint32_t first_child;       /*   0 see the tree rule above */
     uint32_t parent;            /*   4 HLOD_STORE_NO_PARENT for roots */
-    uint32_t depth;             /*   8 0 for roots (hlod_0) */
-    uint32_t block;             /*  12 the root's index */
+    uint32_t depth;             /*   8 0 for roots */
+    uint32_t block;             /*  12 its block's index; HLOD_STORE_NO_BLOCK
+                                   above the blocks (group nodes) */
     uint32_t flags;             /*  16 HLOD_NODE_* */
     uint32_t vertex_count;      /*  20 */
     uint32_t tri_count;         /*  24 >= 1; = tex_tri_count + untex_tri_count */
@@ -238,6 +252,11 @@ const hlod_store_header *hlod_store_get_header(const hlod_store *s);
 const hlod_store_node *hlod_store_nodes(const hlod_store *s);
 uint32_t hlod_store_node_count(const hlod_store *s);
 uint32_t hlod_store_root_count(const hlod_store *s);
+uint32_t hlod_store_block_count(const hlod_store *s);
+/* Nodes [0, top_count): the groups and the blocks' hlod_0 nodes. */
+uint32_t hlod_store_top_count(const hlod_store *s);
+/* The first block's hlod_0 node: top_count - block_count. */
+uint32_t hlod_store_first_block(const hlod_store *s);
 const char *hlod_store_path(const hlod_store *s);
 
 /* A node's payload in memory, ready to upload: one allocation (memory, bytes)

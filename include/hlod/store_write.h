@@ -10,7 +10,8 @@
  *   hlod_store_writer_add(w, &payload, &my_nodes[k]);   // fills my_nodes[k]
  *   // the owner, after every add has returned:
  *   my_nodes[k].parent = index of k's parent in my_nodes, or HLOD_STORE_NO_PARENT;
- *   my_nodes[k].block = block id (roots only; 0 .. blocks-1, one root each);
+ *   my_nodes[k].block = block id (roots only; 0 .. blocks-1, one root each),
+ *                       or HLOD_STORE_NO_BLOCK for a group node (city levels);
  *   my_nodes[k].error = geometric error (>= each child's);
  *   hlod_store_writer_finish(w, my_nodes, count, final_index);  // or _abort(w)
  *
@@ -87,7 +88,12 @@ hlod_result hlod_store_writer_add(hlod_store_writer *w, const hlod_store_payload
  * in any order, each filled by add and then given its parent (an index into
  * nodes, or HLOD_STORE_NO_PARENT for a root), its error, and for roots its
  * block (roots must have blocks 0..R-1, each once).  Children keep the
- * relative order they have in nodes.  Every payload added must be used by
+ * relative order they have in nodes.  Group nodes (block =
+ * HLOD_STORE_NO_BLOCK) sit above the blocks: a root or a group's child,
+ * never a leaf; when the roots are groups they keep their order in nodes.
+ * The nodes that are not groups but whose parent is one (or none) are the
+ * blocks' hlod_0 nodes: they must share one depth (block_depth) and are
+ * numbered as blocks in store order.  Every payload added must be used by
  * exactly one node.  first_child, depth and non-root blocks are computed
  * here (values passed are ignored).  When store_index is not NULL,
  * store_index[k] receives nodes[k]'s index in the store.  The writer is

@@ -4,7 +4,8 @@
  *   hlod-build INPUT... -o OUT.hlod [--method cutplane|metis]
  *              [--blocks objects|grid:SIZE] [--desired-tris N]
  *              [--level-factor F] [--voxel-tris N] [--leaf-tris N]
- *              [--node-tris N] [--c-tex C] [--threads T] [--json] [--quiet]
+ *              [--node-tris N] [--c-tex C] [--city-levels on|off] [--threads T]
+ *              [--json] [--quiet]
  *
  * The pipeline is the library's (hlod/build_store.h, preprocess/build_store.c);
  * this file parses flags, draws the progress bar and prints the summary.
@@ -51,10 +52,14 @@ static void usage(FILE *fp)
             "  --leaf-tris N          N_l: leaf size (metis, default 4000)\n"
             "  --node-tris N          N_n: inner node size (metis, default 2000)\n"
             "  --c-tex C              c_tex of Lakhia eq. 1 in [0, 1] (default 0.5)\n"
+            "  --city-levels L        on (default): group nodes over the blocks, about\n"
+            "                         F^2 neighbours each, up to one root; off: every\n"
+            "                         block's hlod_0 is a root (the paper's layout)\n"
             "  --threads T            build threads (default: every core)\n"
             "  --json                 print one JSON object on stdout: blocks, nodes,\n"
-            "                         levels, tris_in, tris_leaf, tris_total, bytes,\n"
-            "                         seconds, peak_rss_bytes\n"
+            "                         levels, groups, block_depth, tris_in,\n"
+            "                         tris_leaf, tris_total, bytes, seconds,\n"
+            "                         peak_rss_bytes\n"
             "  --quiet                errors only, no progress bar\n"
             "  -h, --help             show this help\n"
             "\n"
@@ -151,6 +156,14 @@ static int parse(int argc, char **argv, options *o)
             NEED_VAL();
             if (!hlod_cli_parse_size(PROG, a, val, 1, 256, &o->bd.threads))
                 return 0;
+        } else if (!strcmp(a, "--city-levels")) {
+            NEED_VAL();
+            if (!strcmp(val, "on") || !strcmp(val, "off")) {
+                o->bd.city_levels = !strcmp(val, "on");
+            } else {
+                hlod_cli_error(PROG, "--city-levels: '%s' is not on or off", val);
+                return 0;
+            }
         } else if (!strcmp(a, "--json")) {
             o->json = 1;
         } else if (!strcmp(a, "--quiet")) {
@@ -206,14 +219,18 @@ int main(int argc, char **argv)
     size_t bytes = stat(opt.out, &st) == 0 ? (size_t)st.st_size : 0;
     double secs = hlod_cli_now() - t0;
     if (!opt.quiet)
-        fprintf(stderr, "%s: %s: %zu blocks, %zu nodes, %zu levels, %zu -> %zu leaf triangles, %.1f MB, %.1f s\n",
-                PROG, opt.out, rep.blocks, rep.nodes, rep.levels, rep.tris_in, rep.tris_leaf, bytes / 1e6, secs);
+        fprintf(stderr, "%s: %s: %zu blocks (depth %zu, %zu groups above), %zu nodes, %zu levels, "
+                "%zu -> %zu leaf triangles, %.1f MB, %.1f s\n", PROG, opt.out, rep.blocks,
+                rep.block_depth, rep.groups, rep.nodes, rep.levels, rep.tris_in, rep.tris_leaf,
+                bytes / 1e6, secs);
     if (opt.json) {
         hlod_json j;
         hlod_json_begin(&j, stdout);
         hlod_json_size(&j, "blocks", rep.blocks);
         hlod_json_size(&j, "nodes", rep.nodes);
         hlod_json_size(&j, "levels", rep.levels);
+        hlod_json_size(&j, "groups", rep.groups);
+        hlod_json_size(&j, "block_depth", rep.block_depth);
         hlod_json_size(&j, "tris_in", rep.tris_in);
         hlod_json_size(&j, "tris_leaf", rep.tris_leaf);
         hlod_json_size(&j, "tris_total", rep.tris_total);

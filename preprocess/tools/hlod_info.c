@@ -37,6 +37,7 @@ static void usage(FILE *fp)
         "  --verify      read every payload, check its checksum and contents;\n"
         "                exit 1 naming each corrupt node\n"
         "  --json        print one JSON object on stdout: nodes, blocks, depths,\n"
+        "                block_depth (depth of the blocks' hlod_0 nodes), groups,\n"
         "                nodes_per_depth, tris_per_depth, bytes, payload_bytes,\n"
         "                texture_bytes, error_min, error_max, verified and more\n"
         "  -h, --help    show this help\n"
@@ -147,8 +148,10 @@ static int print_json(FILE *fp, const char *file, const hlod_store *s, const sta
         else
             fputc(*c, fp);
     }
-    fprintf(fp, "\",\"version\":%u,\"nodes\":%u,\"blocks\":%u,\"depths\":%u", h->version,
-            h->node_count, h->root_count, h->depth_count);
+    fprintf(fp, "\",\"version\":%u,\"nodes\":%u,\"blocks\":%u,\"depths\":%u,\"block_depth\":%u"
+            ",\"groups\":%u,\"roots\":%u,\"top_nodes\":%u", h->version, h->node_count,
+            h->block_count, h->depth_count, h->block_depth, h->top_count - h->block_count,
+            h->root_count, h->top_count);
     fputs(",\"nodes_per_depth\":[", fp);
     for (uint32_t d = 0; d < h->depth_count; d++)
         fprintf(fp, "%s%llu", d ? "," : "", (unsigned long long)st->depth[d].nodes);
@@ -206,9 +209,11 @@ static void print_table(FILE *fp, const char *file, const hlod_store *s, const s
             (unsigned long long)b->node_tris, b->c_tex);
     fprintf(fp, "bbox: (%.17g, %.17g, %.17g) - (%.17g, %.17g, %.17g)\n", h->bbox_min[0],
             h->bbox_min[1], h->bbox_min[2], h->bbox_max[0], h->bbox_max[1], h->bbox_max[2]);
-    fprintf(fp, "blocks %u, nodes %u, leaves %llu, depths %u, triangles %llu (leaves %llu)\n",
-            h->root_count, h->node_count, (unsigned long long)st->leaves, h->depth_count,
-            (unsigned long long)st->tris, (unsigned long long)st->leaf_tris);
+    fprintf(fp, "blocks %u at depth %u (%u group nodes above, %u roots), nodes %u, leaves %llu, "
+            "depths %u, triangles %llu (leaves %llu)\n", h->block_count, h->block_depth,
+            h->top_count - h->block_count, h->root_count, h->node_count,
+            (unsigned long long)st->leaves, h->depth_count, (unsigned long long)st->tris,
+            (unsigned long long)st->leaf_tris);
     fprintf(fp, "payload %llu bytes (leaves %llu), texture %llu bytes, error %.6g .. %.6g\n",
             (unsigned long long)st->payload_bytes, (unsigned long long)st->leaf_payload_bytes,
             (unsigned long long)st->texture_bytes, st->error_min, st->error_max);

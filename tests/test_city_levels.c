@@ -1,0 +1,228 @@
+/*
+ * test_city_levels.c - group nodes above the blocks (README, "City
+ * levels"): the store's shape, each group's content (triangles, texture or
+ * colours, error, extent) and the runtime's use of them (the top stays
+ * resident, the coarsest frame is the root alone).  Generated cities:
+ * textured (scan style) and multi-part untextured (parts style), built with
+ * C_levelFactor 2 so groups have at most 4 children and there are two
+ * group levels.
+ */
+#include "check.h"
+#include "engine_internal.h"
+#include "hlod/build_store.h"
+#include "hlod/engine.h"
+#include "hlod/store.h"
+
+#include <math.h>
+#include <stdint.h>
+#include <stdlib.h>
+#include <string.h>
+#include <unistd.h>
+
+#define DESIRED 500
+#define BLOCKS 12 /* + the ground: 13 blocks, 4 groups, 1 root */
+
+static char bin[1024], tmp[1024];
+
+static hlod_store *build(const char *style, int levels, const char *out)
+{
+    char obj[2048], path[2048];
+    snprintf(obj, sizeof obj, "%s/%s.obj", tmp, style);
+    snprintf(path, sizeof path, "%s/%s", tmp, out);
+    if (access(obj, R_OK) != 0)
+        CHECK(check_sh("'%s/hlod-gen-city' --preset tiny --blocks %d --style %s --quiet -o '%s'", bin,
+                       BLOCKS, style, obj) == 0);
+    hlod_build_desc d;
+    hlod_build_desc_defaults(&d);
+    d.desired_tris = DESIRED;
+    d.level_factor = 2;
+    d.city_levels = levels;
+    d.threads = 2;
+    const char *in[] = {obj};
+    hlod_build_report rep;
+    CHECK(hlod_build_store(&d, in, 1, path, NULL, &rep) == HLOD_OK);
+    CHECKF(rep.tris_leaf == rep.tris_in, "%s: %zu leaf triangles of %zu", out, rep.tris_leaf, rep.tris_in);
+    hlod_store *s = NULL;
+    CHECK(hlod_store_open(path, NULL, &s) == HLOD_OK);
+    return s;
+}
+
+/* Every group: non-leaf, at most C_levelFactor^2 children, at most 1.1 x
+ * C_desiredTri triangles, an error at least each child's, and a box that
+ * covers its children's within its error (simplification may not lose
+ * whole children at the edge of the group).  Returns the groups. */
+static uint32_t check_groups(hlod_store *s, const char *name, int textured)
+{
+    const hlod_store_header *h = hlod_store_get_header(s);
+    const hlod_store_node *n = hlod_store_nodes(s);
+    CHECKF(h->root_count == 1 && h->block_count == BLOCKS + 1 && h->block_depth == 2,
+           "%s: %u roots, %u blocks at depth %u", name, h->root_count, h->block_count, h->block_depth);
+    uint32_t groups = hlod_store_first_block(s);
+    for (uint32_t g = 0; g < groups; g++) {
+        uint32_t c0 = hlod_store_first_child(n, g), c1 = hlod_store_child_end(n, g);
+        CHECKF(c1 > c0 && c1 - c0 <= 4, "%s: group %u has %u children", name, g, c1 - c0);
+        CHECKF(n[g].tri_count <= DESIRED * 11 / 10, "%s: group %u holds %u triangles", name, g,
+               n[g].tri_count);
+        CHECKF(n[g].block == HLOD_STORE_NO_BLOCK && n[g].error > 0, "%s: group %u: block %u, error %g",
+               name, g, n[g].block, n[g].error);
+        CHECKF(textured ? n[g].tex_tri_count == n[g].tri_count && (n[g].flags & HLOD_NODE_TEXTURE)
+                        : n[g].tex_tri_count == 0 && !(n[g].flags & HLOD_NODE_TEXTURE) &&
+                              (n[g].flags & HLOD_NODE_COLORS),
+               "%s: group %u: %u of %u triangles textured, flags %#x", name, g, n[g].tex_tri_count,
+               n[g].tri_count, n[g].flags);
+        for (int a = 0; a < 3; a++) {
+            double lo = INFINITY, hi = -INFINITY;
+            for (uint32_t c = c0; c < c1; c++) {
+                lo = fmin(lo, n[c].bbox_min[a]);
+                hi = fmax(hi, n[c].bbox_max[a]);
+            }
+            double tol = n[g].error + 1e-6 * (hi - lo);
+            CHECKF(n[g].bbox_min[a] >= lo - tol && n[g].bbox_max[a] <= hi + tol,
+                   "%s: group %u sticks out of its children on axis %d", name, g, a);
+            if (textured) /* the scan-style city's groups keep their children's extent */
+                CHECKF(n[g].bbox_min[a] <= lo + tol && n[g].bbox_max[a] >= hi - tol,
+                       "%s: group %u lost part of its children on axis %d: [%g, %g] of [%g, %g], "
+                       "error %g", name, g, a, n[g].bbox_min[a], n[g].bbox_max[a], lo, hi, n[g].error);
+        }
+    }
+    return groups;
+}
+
+/* An untextured group's colours are colours of the blocks under it. */
+static void check_group_colors(hlod_store *s)
+{
+    uint32_t first = hlod_store_first_block(s), top = hlod_store_top_count(s);
+    uint8_t block_rgba[BLOCKS + 1][4];
+    for (uint32_t b = first; b < top; b++) {
+        hlod_store_payload p;
+        CHECK(hlod_store_read_node(s, b, 1 << 20, &p) == HLOD_OK);
+        CHECK(p.colors != NULL);
+        if (p.colors)
+            memcpy(block_rgba[b - first], p.colors, 4);
+        hlod_store_payload_free(&p);
+    }
+    size_t distinct = 0;
+    for (uint32_t g = 0; g < first; g++) {
+        hlod_store_payload p;
+        CHECK(hlod_store_read_node(s, g, 1 << 20, &p) == HLOD_OK);
+        if (!p.colors)
+            continue;
+        uint32_t bad = 0;
+        for (uint32_t v = 0; v < p.vertex_count; v++) {
+            int found = 0;
+            for (uint32_t b = 0; b < top - first && !found; b++)
+                found = memcmp(p.colors + 4 * v, block_rgba[b], 4) == 0;
+            bad += !found;
+            if (v && memcmp(p.colors + 4 * v, p.colors, 4) != 0)
+                distinct++;
+        }
+        CHECKF(bad == 0, "group %u: %u vertices with a colour no block has", g, bad);
+        hlod_store_payload_free(&p);
+    }
+    CHECKF(distinct > 0, "the groups carry one colour only: the blocks' colours were lost");
+}
+
+static void textured_city(void)
+{
+    hlod_store *s = build("scan", 1, "scan.hlod");
+    if (!s)
+        return;
+    CHECK(check_groups(s, "scan", 1) == 5);
+    hlod_store_close(s);
+}
+
+static void parts_city(void)
+{
+    hlod_store *s = build("parts", 1, "parts.hlod");
+    if (!s)
+        return;
+    CHECK(check_groups(s, "parts", 0) == 5);
+    check_group_colors(s);
+    hlod_store_close(s);
+}
+
+static void look_down(hlod_camera *cam, const hlod_store_header *h)
+{
+    double c[3], r = 0;
+    for (int a = 0; a < 3; a++) {
+        c[a] = 0.5 * (h->bbox_min[a] + h->bbox_max[a]);
+        r = fmax(r, h->bbox_max[a] - h->bbox_min[a]);
+    }
+    double eye[3] = {c[0], c[1] - 0.8 * r, c[2] + 1.2 * r}, up[3] = {0, 0, 1};
+    CHECK(hlod_camera_look_at(cam, eye, c, up, 60, 0.5, 1e5, 1280, 720) == HLOD_OK);
+}
+
+/* The runtime: every top node resident from the start and never evicted
+ * (memory budget of one byte), the coarsest frame is the root alone; with
+ * --city-levels off it is every block in view. */
+static void runtime_uses_the_root(void)
+{
+    const char *names[2] = {"scan-flat.hlod", "scan.hlod"};
+    for (int levels = 0; levels < 2; levels++) {
+        hlod_store *s = levels ? NULL : build("scan", 0, names[0]);
+        if (levels) {
+            char p[2048];
+            snprintf(p, sizeof p, "%s/%s", tmp, names[1]);
+            CHECK(hlod_store_open(p, NULL, &s) == HLOD_OK);
+        }
+        if (!s)
+            continue;
+        const hlod_store_header *h = hlod_store_get_header(s);
+        hlod_engine_desc d = {0};
+        d.deterministic = 1;
+        d.fixed_v_time = 1e-3;
+        d.target_ms = 1e-3; /* nothing can refine */
+        d.memory_budget_bytes = 1;
+        hlod_engine *e = NULL;
+        CHECK(hlod_engine_create(s, &d, &e) == HLOD_OK);
+        if (!e) {
+            hlod_store_close(s);
+            continue;
+        }
+        hlod_camera cam;
+        look_down(&cam, h);
+        hlod_frame_stats st;
+        for (int f = 0; f < 10; f++)
+            CHECK(hlod_engine_frame(e, &cam, 1.0 / 30, &st) == HLOD_OK);
+        uint32_t resident = 0;
+        for (uint32_t i = 0; i < h->top_count; i++)
+            resident += hlod_engine_node_state(e, i) == HLOD_NODE_RESIDENT;
+        CHECKF(resident == h->top_count, "%s: %u of %u top nodes resident", names[levels], resident,
+               h->top_count);
+        if (levels)
+            CHECKF(st.nodes_drawn == 1 && st.tris_drawn == hlod_store_nodes(s)[0].tri_count,
+                   "%s: the coarsest frame draws %u nodes, %llu triangles", names[levels],
+                   st.nodes_drawn, (unsigned long long)st.tris_drawn);
+        else
+            CHECKF(st.nodes_drawn > 1 && st.nodes_drawn <= h->block_count,
+                   "%s: the coarsest frame draws %u nodes", names[levels], st.nodes_drawn);
+        hlod_engine_destroy(e);
+        /* a generous target refines below the blocks */
+        d.target_ms = 1e3;
+        d.memory_budget_bytes = 1ull << 30;
+        d.deterministic_load_bytes = 1u << 30;
+        CHECK(hlod_engine_create(s, &d, &e) == HLOD_OK);
+        for (int f = 0; e && f < 30; f++)
+            CHECK(hlod_engine_frame(e, &cam, 1.0 / 30, &st) == HLOD_OK);
+        uint32_t below = 0;
+        for (uint32_t k = h->block_depth + 1; k < HLOD_STATS_MAX_DEPTH; k++)
+            below += st.nodes_per_depth[k];
+        CHECKF(e && below > 0 && below == st.nodes_drawn, "%s: %u of %u nodes drawn below the blocks",
+               names[levels], below, st.nodes_drawn);
+        hlod_engine_destroy(e);
+        hlod_store_close(s);
+    }
+}
+
+int main(void)
+{
+    const char *b = getenv("HLOD_BIN_DIR");
+    snprintf(bin, sizeof bin, "%s", b ? b : "build/bin");
+    snprintf(tmp, sizeof tmp, "/tmp/hlod-test-levels-%ld", (long)getpid());
+    check_sh("rm -rf '%s' && mkdir -p '%s'", tmp, tmp);
+    RUN(textured_city);
+    RUN(parts_city);
+    RUN(runtime_uses_the_root);
+    check_sh("rm -rf '%s'", tmp);
+    return check_done();
+}
