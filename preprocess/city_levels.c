@@ -469,6 +469,7 @@ hlod_result hlod_city_group(const hlod_city_item *const *kids, size_t n, size_t 
         r = make_union(kids, n, e, &atlas, &pal, &u, &tex_in);
     if (r == HLOD_OK) {
         hlod_simplify_desc d = {0};
+        d.strict_texture = 1; /* HLOD nodes: no smeared texture (README, "hlod-build") */
         d.target_tris = target_tris;
         d.logger = lg;
         r = u.tri_count > target_tris ? hlod_simplify(&u, &d, &s, NULL) : hlod_mesh_copy(&s, &u);

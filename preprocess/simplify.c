@@ -71,6 +71,10 @@
 #ifndef SLIVER_Q
 #define SLIVER_Q 0.01         /* triangle quality 4*sqrt(3)*A / sum(l^2) floor */
 #endif
+#ifndef UV_STRETCH_MAX
+#define UV_STRETCH_MAX 4.0    /* texture stretch: sigma_max / sigma_min of the
+                                 UV-to-surface map of a face, in UV units */
+#endif
 
 typedef struct quadric {
     double a00, a01, a02, a11, a12, a22; /* symmetric 3x3 */
@@ -171,8 +175,10 @@ typedef struct adjrec {
  *   RELAX_COMPLEX  vertices on non-manifold edges may move too (separate
  *                  parts that touch, welded by position, make such edges
  *                  everywhere in BIM-like models); the non-manifold edges
- *                  themselves never collapse. */
-enum { RELAX_NONE, RELAX_ACROSS, RELAX_CORNERS, RELAX_COMPLEX, RELAX_LAST = RELAX_COMPLEX };
+ *                  themselves never collapse;
+ *   RELAX_TEXTURE  a face's texture may stretch past UV_STRETCH_MAX or
+ *                  flip (uv_ok). */
+enum { RELAX_NONE, RELAX_ACROSS, RELAX_CORNERS, RELAX_COMPLEX, RELAX_TEXTURE, RELAX_LAST = RELAX_TEXTURE };
 /* Past RELAX_LAST, whole parts that cannot shrink go (prune_parts). */
 
 /* Per-vertex flags of a pass (state.vflag). */
@@ -231,6 +237,7 @@ typedef struct state {
     uint32_t *wedge_mark;      /* scratch stamps (edge_groups) */
     uint32_t wedge_clock;
     double uv_weight;
+    int strict_texture;        /* desc->strict_texture: RELAX_TEXTURE never comes */
     /* passes (grow, so allocated apart) */
     cand *cand;                /* this pass's candidates */
     size_t n_cand, cand_cap;
@@ -1172,6 +1179,105 @@ static int star_ok(const state *s, uint32_t v, const uint32_t *f, size_t nf, con
     return 1;
 }
 
+/* Texture stretch of a face (positions p, UVs t): (sigma_max /
+ * sigma_min)^2 of the map from UV to the surface (the Jacobian's singular
+ * values, Sander et al.'s stretch), INFINITY when the UV triangle is
+ * degenerate; *orient gets the UV triangle's winding (+1, -1, 0). */
+static double uv_stretch2(const double *p0, const double *p1, const double *p2, const float *t0,
+                          const float *t1, const float *t2, int *orient)
+{
+    double e1[3], e2[3];
+    hlod_sub3(e1, p1, p0);
+    hlod_sub3(e2, p2, p0);
+    double s1 = (double)t1[0] - t0[0], s2 = (double)t2[0] - t0[0];
+    double u1 = (double)t1[1] - t0[1], u2 = (double)t2[1] - t0[1];
+    double det = s1 * u2 - s2 * u1;
+    *orient = (det > 0) - (det < 0);
+    if (det == 0)
+        return INFINITY;
+    double js[3], jt[3];
+    for (int k = 0; k < 3; k++) {
+        js[k] = (e1[k] * u2 - e2[k] * u1) / det;
+        jt[k] = (e2[k] * s1 - e1[k] * s2) / det;
+    }
+    double a = hlod_dot3(js, js), b = hlod_dot3(js, jt), c = hlod_dot3(jt, jt);
+    double tr = a + c, d = sqrt(fmax(0, (a - c) * (a - c) + 4 * b * b));
+    double lo = 0.5 * (tr - d), hi = 0.5 * (tr + d);
+    return lo > 1e-300 * hi && hi > 0 ? hi / lo : INFINITY;
+}
+
+/* The UV a wedge of a or b gets when (a, b) collapses to x (as collapse()
+ * will set it): paired wedges share the merged attribute quadric's
+ * optimum, an unpaired one is refitted when its vertex moves. */
+static void predicted_uv(const state *s, uint32_t a, uint32_t b, const double x[3], const wgroup *g,
+                         int ng, uint32_t w, float uv[2])
+{
+    int moved = x[0] != s->pos[b][0] || x[1] != s->pos[b][1] || x[2] != s->pos[b][2];
+    int a_stays = x[0] == s->pos[a][0] && x[1] == s->pos[a][1] && x[2] == s->pos[a][2];
+    memcpy(uv, s->wedge_uv[w], 2 * sizeof *uv);
+    for (int i = 0; i < ng; i++) {
+        if (g[i].w[0] != w && (g[i].n < 2 || g[i].w[1] != w))
+            continue;
+        if (g[i].n == 2 && g[i].w[0] != g[i].w[1]) {
+            if (a_stays) {
+                memcpy(uv, s->wedge_uv[g[i].w[0]], 2 * sizeof *uv);
+            } else if (moved) {
+                attrq m = s->wedge_aq[g[i].w[0]];
+                aq_add(&m, &s->wedge_aq[g[i].w[1]]);
+                aq_uv(&m, x, uv);
+            } else {
+                memcpy(uv, s->wedge_uv[g[i].w[1]], 2 * sizeof *uv);
+            }
+        } else {
+            uint32_t owner = s->wedge_pos[w];
+            if ((owner == b && moved) || (owner == a && !a_stays))
+                aq_uv(&s->wedge_aq[w], x, uv);
+        }
+        return;
+    }
+}
+
+/* Does the collapse of (a, b) to x keep the texture on the faces off the
+ * edge (fa of a, fb of b) unfolded and unstretched?  A face may not flip
+ * its UV winding, and its stretch may not pass UV_STRETCH_MAX unless it
+ * was already past it and grows no worse (within rounding: a chart mapped
+ * linearly, however anisotropic in UV units, has one stretch on every
+ * face): a long thin face whose UVs do not follow smears the texture
+ * along it (slivers at street level). */
+#define STRETCH_SLACK2 1.02
+static int uv_ok(state *s, uint32_t a, uint32_t b, const double x[3], size_t star_na, size_t star_nb,
+                 const uint32_t *fa, size_t na, const uint32_t *fb, size_t nb)
+{
+    if (!s->wedge_uv || !s->wedge_aq || s->relax >= RELAX_TEXTURE)
+        return 1;
+    wgroup g[MAX_GROUPS];
+    int ng = edge_groups(s, b, s->star_a, star_na, s->star_b, star_nb, g);
+    const double lim2 = UV_STRETCH_MAX * UV_STRETCH_MAX;
+    for (int side = 0; side < 2; side++) {
+        const uint32_t *f = side ? fb : fa;
+        size_t nf = side ? nb : na;
+        for (size_t i = 0; i < nf; i++) {
+            uint32_t t = ENT_T(f[i]);
+            int c = ENT_C(f[i]);
+            const uint32_t *tv = s->tri_pos + 3 * (size_t)t, *tw = s->tri_wedge + 3 * (size_t)t;
+            const double *p[3] = {s->pos[tv[0]], s->pos[tv[1]], s->pos[tv[2]]};
+            const float *uv[3] = {s->wedge_uv[tw[0]], s->wedge_uv[tw[1]], s->wedge_uv[tw[2]]};
+            int o0, o1;
+            double before = uv_stretch2(p[0], p[1], p[2], uv[0], uv[1], uv[2], &o0);
+            float moved_uv[2];
+            predicted_uv(s, a, b, x, g, ng, tw[c], moved_uv);
+            p[c] = x;
+            uv[c] = moved_uv;
+            double after = uv_stretch2(p[0], p[1], p[2], uv[0], uv[1], uv[2], &o1);
+            if (o0 && o1 != o0)
+                return 0;
+            if (after > lim2 && after > STRETCH_SLACK2 * before)
+                return 0;
+        }
+    }
+    return 1;
+}
+
 /* Link condition: the common neighbours of a and b are exactly the apexes
  * of the edge's faces, and no face of a and face of b share an opposite
  * edge (which would fold the mesh onto itself, e.g. a tetrahedron). */
@@ -1271,7 +1377,8 @@ static int try_edge(state *s, uint32_t a, uint32_t b, eval *e, size_t *na_, size
     for (int k = 1; k < e->ncand; k++)
         if (e->cand[k].cost < e->cand[first].cost)
             first = k;
-    if (star_ok(s, a, s->off_a, nra, e->cand[first].x) && star_ok(s, b, s->off_b, nrb, e->cand[first].x))
+    if (star_ok(s, a, s->off_a, nra, e->cand[first].x) && star_ok(s, b, s->off_b, nrb, e->cand[first].x) &&
+        uv_ok(s, a, b, e->cand[first].x, na, nb, s->off_a, nra, s->off_b, nrb))
         return first;
     evaluate(s, a, b, feature, s->star_a, na, s->star_b, nb, 1, e);
     /* Cheapest valid placement. */
@@ -1284,7 +1391,8 @@ static int try_edge(state *s, uint32_t a, uint32_t b, eval *e, size_t *na_, size
         }
     for (int k = 0; k < e->ncand; k++) {
         const plan *pl = &e->cand[order[k]];
-        if (star_ok(s, a, s->off_a, nra, pl->x) && star_ok(s, b, s->off_b, nrb, pl->x))
+        if (star_ok(s, a, s->off_a, nra, pl->x) && star_ok(s, b, s->off_b, nrb, pl->x) &&
+            uv_ok(s, a, b, pl->x, na, nb, s->off_a, nra, s->off_b, nrb))
             return order[k];
     }
     return -1;
@@ -1978,6 +2086,7 @@ static void attributes(state *s, const hlod_mesh *in, const hlod_simplify_desc *
     if (in->uvs) {
         memcpy(s->wedge_uv, in->uvs, s->n_wedges * sizeof *s->wedge_uv);
         s->uv_weight = desc->uv_weight > 0 ? desc->uv_weight : 1.0;
+        s->strict_texture = desc->strict_texture != 0;
     } else {
         for (size_t t = 0; t < s->n_tris; t++)
             if (s->tri_alive[t])
@@ -2609,7 +2718,7 @@ static int stall(state *s, run *r)
     prune_all(s, r, r->max_est, 0);
     if (s->oom || r->live <= r->target || r->stop)
         return 1;
-    if (s->relax == RELAX_LAST) {
+    if (s->relax == (s->strict_texture ? RELAX_TEXTURE - 1 : RELAX_LAST)) {
         r->stalled = 1;
         prune_all(s, r, INFINITY, 1);
         return 1;

@@ -9,7 +9,9 @@
  * Vertices are placed at the quadric optimum when the system is well
  * conditioned (a scale-invariant test), else at the best point on the edge,
  * else at an endpoint; collapses that flip or fold a face, create slivers,
- * or move a vertex far outside its neighbourhood are rejected.  Texture
+ * or move a vertex far outside its neighbourhood are rejected, and so are
+ * those that would stretch a face's texture past 4:1 or flip it (relaxed
+ * last, when nothing else is left, unless strict_texture).  Texture
  * coordinates enter the error (Hoppe-style attribute quadrics) and UV seams
  * stay closed: the copies of a seam vertex move and collapse together.
  * Open borders and seams keep their shape through boundary quadrics; locked
@@ -46,6 +48,12 @@ typedef struct hlod_simplify_desc {
     /* Weight of UV error against geometric error; 0 selects the default
      * (1.0: a UV shift of 0.01 costs like moving 1% of the mesh size). */
     double uv_weight;
+    /* Non-zero: a face's texture never stretches past the bound (4:1,
+     * sigma_max / sigma_min of its UV-to-surface map) nor flips, even
+     * where the target then cannot be met (HLOD nodes: a few more
+     * triangles rather than smeared texture).  Zero (default): that
+     * constraint is the last to relax when the target needs it. */
+    int strict_texture;
     /* Non-zero: after simplifying, bound the two-sided Hausdorff distance
      * to the input (hlod_mesh_hausdorff_bound, within 1%) and report the
      * upper bound in stats->error. */
