@@ -234,6 +234,8 @@ typedef struct state {
     float (*wedge_uv)[2];      /* NULL when untextured */
     attrq *wedge_aq;           /* attribute quadrics; NULL when untextured */
     uint8_t *wedge_touched;    /* uv must be recomputed from wedge_aq */
+    float *wedge_sref;         /* the source's worst stretch (squared) around
+                                  the wedge, merged as wedges merge (uv_ok) */
     uint32_t *wedge_mark;      /* scratch stamps (edge_groups) */
     uint32_t wedge_clock;
     double uv_weight;
@@ -1206,52 +1208,55 @@ static double uv_stretch2(const double *p0, const double *p1, const double *p2, 
     return lo > 1e-300 * hi && hi > 0 ? hi / lo : INFINITY;
 }
 
-/* The UV a wedge of a or b gets when (a, b) collapses to x (as collapse()
- * will set it): paired wedges share the merged attribute quadric's
- * optimum, an unpaired one is refitted when its vertex moves. */
-static void predicted_uv(const state *s, uint32_t a, uint32_t b, const double x[3], const wgroup *g,
-                         int ng, uint32_t w, float uv[2])
+/* The UVs the wedges of a and b get when (a, b) collapses to x (as
+ * collapse() will set them), one per wedge group: paired wedges share the
+ * merged attribute quadric's optimum, an unpaired one is refitted when its
+ * vertex moves. */
+static void predicted_uvs(const state *s, uint32_t a, uint32_t b, const double x[3], const wgroup *g,
+                          int ng, float (*uv)[2])
 {
     int moved = x[0] != s->pos[b][0] || x[1] != s->pos[b][1] || x[2] != s->pos[b][2];
     int a_stays = x[0] == s->pos[a][0] && x[1] == s->pos[a][1] && x[2] == s->pos[a][2];
-    memcpy(uv, s->wedge_uv[w], 2 * sizeof *uv);
     for (int i = 0; i < ng; i++) {
-        if (g[i].w[0] != w && (g[i].n < 2 || g[i].w[1] != w))
-            continue;
+        uint32_t w = g[i].w[0];
+        memcpy(uv[i], s->wedge_uv[w], sizeof uv[i]);
         if (g[i].n == 2 && g[i].w[0] != g[i].w[1]) {
             if (a_stays) {
-                memcpy(uv, s->wedge_uv[g[i].w[0]], 2 * sizeof *uv);
+                continue; /* wb takes wa's UV */
             } else if (moved) {
-                attrq m = s->wedge_aq[g[i].w[0]];
+                attrq m = s->wedge_aq[w];
                 aq_add(&m, &s->wedge_aq[g[i].w[1]]);
-                aq_uv(&m, x, uv);
+                aq_uv(&m, x, uv[i]);
             } else {
-                memcpy(uv, s->wedge_uv[g[i].w[1]], 2 * sizeof *uv);
+                memcpy(uv[i], s->wedge_uv[g[i].w[1]], sizeof uv[i]);
             }
         } else {
             uint32_t owner = s->wedge_pos[w];
             if ((owner == b && moved) || (owner == a && !a_stays))
-                aq_uv(&s->wedge_aq[w], x, uv);
+                aq_uv(&s->wedge_aq[w], x, uv[i]);
         }
-        return;
     }
 }
 
 /* Does the collapse of (a, b) to x keep the texture on the faces off the
  * edge (fa of a, fb of b) unfolded and unstretched?  A face may not flip
- * its UV winding, and its stretch may not pass UV_STRETCH_MAX unless it
- * was already past it and grows no worse (within rounding: a chart mapped
- * linearly, however anisotropic in UV units, has one stretch on every
- * face): a long thin face whose UVs do not follow smears the texture
- * along it (slivers at street level). */
+ * its UV winding, and its stretch may not pass UV_STRETCH_MAX, or
+ * SOURCE_SLACK x the source's worst stretch around its corners where the
+ * source itself is stretched (an atlas packed anisotropically in UV units
+ * has every face past 4:1), unless it was already past that and grows no
+ * worse (within rounding): a long thin face whose UVs do not follow
+ * smears the texture along it (slivers at street level). */
 #define STRETCH_SLACK2 1.02
+#define SOURCE_SLACK 1.25
 static int uv_ok(state *s, uint32_t a, uint32_t b, const double x[3], size_t star_na, size_t star_nb,
                  const uint32_t *fa, size_t na, const uint32_t *fb, size_t nb)
 {
     if (!s->wedge_uv || !s->wedge_aq || s->relax >= RELAX_TEXTURE)
         return 1;
     wgroup g[MAX_GROUPS];
+    float puv[MAX_GROUPS][2];
     int ng = edge_groups(s, b, s->star_a, star_na, s->star_b, star_nb, g);
+    predicted_uvs(s, a, b, x, g, ng, puv);
     const double lim2 = UV_STRETCH_MAX * UV_STRETCH_MAX;
     for (int side = 0; side < 2; side++) {
         const uint32_t *f = side ? fb : fa;
@@ -1262,16 +1267,37 @@ static int uv_ok(state *s, uint32_t a, uint32_t b, const double x[3], size_t sta
             const uint32_t *tv = s->tri_pos + 3 * (size_t)t, *tw = s->tri_wedge + 3 * (size_t)t;
             const double *p[3] = {s->pos[tv[0]], s->pos[tv[1]], s->pos[tv[2]]};
             const float *uv[3] = {s->wedge_uv[tw[0]], s->wedge_uv[tw[1]], s->wedge_uv[tw[2]]};
-            int o0, o1;
-            double before = uv_stretch2(p[0], p[1], p[2], uv[0], uv[1], uv[2], &o0);
-            float moved_uv[2];
-            predicted_uv(s, a, b, x, g, ng, tw[c], moved_uv);
+            const float *moved_uv = uv[c];
+            for (int k = 0; k < ng; k++)
+                if (g[k].w[0] == tw[c] || (g[k].n == 2 && g[k].w[1] == tw[c])) {
+                    moved_uv = puv[k];
+                    break;
+                }
+            const double *pc = p[c];
+            const float *uc = uv[c];
+            /* the moved corner takes its group's merged reference */
+            float ref = fmaxf(s->wedge_sref[tw[(c + 1) % 3]], s->wedge_sref[tw[(c + 2) % 3]]);
+            for (int k = 0; k < ng; k++)
+                if (g[k].w[0] == tw[c] || (g[k].n == 2 && g[k].w[1] == tw[c]))
+                    ref = fmaxf(ref, fmaxf(s->wedge_sref[g[k].w[0]], s->wedge_sref[g[k].w[g[k].n - 1]]));
+            double bound2 = fmax(lim2, SOURCE_SLACK * SOURCE_SLACK * (double)ref);
             p[c] = x;
             uv[c] = moved_uv;
+            int o0, o1;
             double after = uv_stretch2(p[0], p[1], p[2], uv[0], uv[1], uv[2], &o1);
+            /* the UV winding before: only c's UV changes it */
+            double det0 = ((double)uv[(c + 1) % 3][0] - uc[0]) * ((double)uv[(c + 2) % 3][1] - uc[1]) -
+                          ((double)uv[(c + 2) % 3][0] - uc[0]) * ((double)uv[(c + 1) % 3][1] - uc[1]);
+            o0 = (det0 > 0) - (det0 < 0);
             if (o0 && o1 != o0)
                 return 0;
-            if (after > lim2 && after > STRETCH_SLACK2 * before)
+            if (after <= bound2)
+                continue;
+            /* the stretch before, only when it matters */
+            p[c] = pc;
+            uv[c] = uc;
+            double before = uv_stretch2(p[0], p[1], p[2], uv[0], uv[1], uv[2], &o0);
+            if (after > STRETCH_SLACK2 * before)
                 return 0;
         }
     }
@@ -1433,8 +1459,10 @@ static void collapse(state *s, uint32_t a, uint32_t b, const double x[3], const 
     for (int i = 0; i < ng; i++) {
         if (g[i].n == 2 && g[i].w[0] != g[i].w[1]) {
             uint32_t wa = g[i].w[0], wb = g[i].w[1];
-            if (s->wedge_aq)
+            if (s->wedge_aq) {
                 aq_add(&s->wedge_aq[wb], &s->wedge_aq[wa]);
+                s->wedge_sref[wb] = fmaxf(s->wedge_sref[wb], s->wedge_sref[wa]);
+            }
             /* An endpoint that stays put keeps its exact UV (locked cut
              * boundaries and seams must not drift); a moved one is refit. */
             if (s->wedge_uv && a_stays)
@@ -1895,6 +1923,7 @@ static void layout_attrs(state *s, carver *c, const hlod_mesh *in)
         s->wedge_uv = carve(c, nw * sizeof *s->wedge_uv);
         s->wedge_aq = carve(c, nw * sizeof *s->wedge_aq);
         s->wedge_touched = carve(c, nw);
+        s->wedge_sref = carve(c, nw * sizeof *s->wedge_sref);
         s->wedge_mark = carve(c, nw * sizeof *s->wedge_mark);
     } else {
         s->pos_wedge = carve(c, s->n_pos * sizeof *s->pos_wedge);
@@ -2143,6 +2172,12 @@ static void face_quadrics(state *s)
         }
         for (int c = 0; c < 3; c++)
             aq_add(&s->wedge_aq[tw[c]], &a);
+        /* the source's own texture stretch around each corner (uv_ok) */
+        int o;
+        double st = uv_stretch2(p0, p1, p2, s->wedge_uv[tw[0]], s->wedge_uv[tw[1]], s->wedge_uv[tw[2]], &o);
+        if (isfinite(st))
+            for (int c = 0; c < 3; c++)
+                s->wedge_sref[tw[c]] = fmaxf(s->wedge_sref[tw[c]], (float)st);
     }
 }
 
@@ -2540,6 +2575,7 @@ static int cmp_part_cost(const void *a, const void *b)
  * part into its neighbour.  Parts with a locked vertex stay, as does the
  * last part; the error limit holds. */
 #define UNDERSHOOT 0.98 /* a part may take the count this far under the target */
+#define CENTROID_FRAC 0.1 /* centroids nearer a corner than this x the vertex cost are skipped */
 
 static size_t prune_parts(state *s, run *r, double limit2, int may_undershoot)
 {
@@ -2563,25 +2599,73 @@ static size_t prune_parts(state *s, run *r, double limit2, int may_undershoot)
             live_v[n++] = (uint32_t)v;
     for (size_t i = 0; i < np; i++)
         pc[i].part = (uint32_t)i;
-    /* what a part's loss is measured at: its vertices, and its triangles'
-     * centroids (a big face far from everything else, like a ground
-     * plane among buildings, costs what its middle lies from the rest) */
+    /* What a part's loss is measured at: its vertices, then the centroids
+     * of its triangles that could matter (a big face far from everything
+     * else, like a ground plane among buildings, costs what its middle
+     * lies from the rest).  A centroid lies within the distance d of a
+     * corner's to the rest plus its distance r to that corner, so one whose
+     * nearest corner is under CENTROID_FRAC of the part's vertex cost can
+     * add little and is not measured. */
     for (size_t i = 0; i < n; i++) {
         memcpy(q[nq], s->pos[live_v[i]], sizeof q[nq]);
         qpart[nq++] = s->part[live_v[i]];
         pc[s->part[live_v[i]]].locked |= s->verts[live_v[i]].ulock;
     }
     for (size_t t = 0; t < s->n_tris; t++)
-        if (s->tri_alive[t]) {
-            const uint32_t *tv = s->tri_pos + 3 * t;
-            for (int k = 0; k < 3; k++)
-                q[nq][k] = (s->pos[tv[0]][k] + s->pos[tv[1]][k] + s->pos[tv[2]][k]) / 3;
-            qpart[nq++] = s->part[tv[0]];
-            pc[s->part[tv[0]]].tris++;
+        if (s->tri_alive[t])
+            pc[s->part[s->tri_pos[3 * t]]].tris++;
+    /* measure only parts that could go: unlocked, and not so large that
+     * they would take the count too far under the target */
+    for (size_t i = 0; i < np; i++)
+        gone[i] = !pc[i].tris || pc[i].locked ||
+                  (!may_undershoot &&
+                   (double)(r->live - pc[i].tris) < UNDERSHOOT * (double)r->target);
+    for (int phase = 0; phase < 2; phase++) {
+        size_t q0 = phase ? n : 0;
+        if (phase) {
+            for (size_t t = 0; t < s->n_tris; t++) {
+                if (!s->tri_alive[t])
+                    continue;
+                const uint32_t *tv = s->tri_pos + 3 * t;
+                uint32_t pt = s->part[tv[0]];
+                if (gone[pt])
+                    continue;
+                double c[3], r2 = INFINITY;
+                for (int k = 0; k < 3; k++)
+                    c[k] = (s->pos[tv[0]][k] + s->pos[tv[1]][k] + s->pos[tv[2]][k]) / 3;
+                for (int j = 0; j < 3; j++) {
+                    double d[3];
+                    hlod_sub3(d, c, s->pos[tv[j]]);
+                    r2 = fmin(r2, hlod_dot3(d, d));
+                }
+                if (r2 <= CENTROID_FRAC * CENTROID_FRAC * pc[pt].cost * pc[pt].cost)
+                    continue;
+                memcpy(q[nq], c, sizeof q[nq]);
+                qpart[nq++] = pt;
+            }
         }
+        /* this phase's query points, in part order */
+        memset(first, 0, (np + 1) * sizeof *first);
+        for (size_t i = q0; i < nq; i++)
+            first[qpart[i] + 1]++;
+        for (size_t i = 0; i < np; i++)
+            first[i + 1] += first[i];
+        for (size_t i = q0; i < nq; i++)
+            by_part[first[qpart[i]]++] = (uint32_t)i;
+        if (!other_part_distances(s, s->part, live_v, n, (const double(*)[3])q, qpart, nq - q0,
+                                  sqrt(limit2), dist, near, by_part, gone)) {
+            s->oom = 1;
+            goto out;
+        }
+        for (size_t i = q0; i < nq; i++) {
+            part_cost *c = &pc[qpart[i]];
+            c->cost = fmax(c->cost, dist[i]);
+        }
+    }
+    /* every part's query points, in part order (the stale check below) */
+    memset(first, 0, (np + 1) * sizeof *first);
     for (size_t i = 0; i < nq; i++)
         first[qpart[i] + 1]++;
-    /* each part's query points, in part order */
     for (size_t i = 0; i < np; i++)
         first[i + 1] += first[i];
     for (size_t i = 0; i < nq; i++)
@@ -2589,21 +2673,6 @@ static size_t prune_parts(state *s, run *r, double limit2, int may_undershoot)
     for (size_t i = np; i > 0; i--)
         first[i] = first[i - 1];
     first[0] = 0;
-    /* measure only parts that could go: unlocked, and not so large that
-     * they would take the count too far under the target */
-    for (size_t i = 0; i < np; i++)
-        gone[i] = !pc[i].tris || pc[i].locked ||
-                  (!may_undershoot &&
-                   (double)(r->live - pc[i].tris) < UNDERSHOOT * (double)r->target);
-    if (!other_part_distances(s, s->part, live_v, n, (const double(*)[3])q, qpart, nq, sqrt(limit2),
-                              dist, near, by_part, gone)) {
-        s->oom = 1;
-        goto out;
-    }
-    for (size_t i = 0; i < nq; i++) {
-        part_cost *c = &pc[qpart[i]];
-        c->cost = fmax(c->cost, dist[i]);
-    }
     memset(gone, 0, np);
     size_t live_parts = 0;
     for (size_t i = 0; i < np; i++)
