@@ -2565,18 +2565,72 @@ static int cmp_part_cost(const void *a, const void *b)
     return (x->part > y->part) - (x->part < y->part);
 }
 
+#define UNDERSHOOT 0.98 /* a part may take the count this far under the target */
+#define CENTROID_FRAC 0.1 /* centroids nearer a corner than this x the vertex cost are skipped */
+
+/* prune_parts' measurement: each part's cost (pc[].cost) over its
+ * vertices (queries [0, n) of q), then over the centroids that could
+ * matter (appended to q, *nq grows); parts over limit2 or gone are
+ * skipped.  first, by_part: scratch; dist, near: per query.  0 when out of
+ * memory. */
+static int part_costs(state *s, const uint32_t *live_v, size_t n, double (*q)[3], uint32_t *qpart,
+                      size_t *nq, uint32_t *first, uint32_t *by_part, double *dist, uint32_t *near,
+                      uint8_t *gone, part_cost *pc, double limit2)
+{
+    size_t np = s->n_parts;
+    for (int phase = 0; phase < 2; phase++) {
+        size_t q0 = phase ? n : 0;
+        if (phase) {
+            for (size_t t = 0; t < s->n_tris; t++) {
+                if (!s->tri_alive[t])
+                    continue;
+                const uint32_t *tv = s->tri_pos + 3 * t;
+                uint32_t pt = s->part[tv[0]];
+                if (gone[pt])
+                    continue;
+                double c[3], r2 = INFINITY;
+                for (int k = 0; k < 3; k++)
+                    c[k] = (s->pos[tv[0]][k] + s->pos[tv[1]][k] + s->pos[tv[2]][k]) / 3;
+                for (int j = 0; j < 3; j++) {
+                    double d[3];
+                    hlod_sub3(d, c, s->pos[tv[j]]);
+                    r2 = fmin(r2, hlod_dot3(d, d));
+                }
+                if (r2 <= CENTROID_FRAC * CENTROID_FRAC * pc[pt].cost * pc[pt].cost)
+                    continue;
+                memcpy(q[*nq], c, sizeof q[*nq]);
+                qpart[(*nq)++] = pt;
+            }
+        }
+        /* this phase's query points, in part order */
+        memset(first, 0, (np + 1) * sizeof *first);
+        for (size_t i = q0; i < *nq; i++)
+            first[qpart[i] + 1]++;
+        for (size_t i = 0; i < np; i++)
+            first[i + 1] += first[i];
+        for (size_t i = q0; i < *nq; i++)
+            by_part[first[qpart[i]]++] = (uint32_t)i;
+        if (!other_part_distances(s, s->part, live_v, n, (const double(*)[3])q, qpart, *nq - q0,
+                                  sqrt(limit2), dist, near, by_part, gone))
+            return 0;
+        for (size_t i = q0; i < *nq; i++) {
+            part_cost *c = &pc[qpart[i]];
+            c->cost = fmax(c->cost, dist[i]);
+        }
+    }
+    return 1;
+}
+
 /* When no collapse is left: whole parts (connected pieces of the surface)
  * go, cheapest first, until the target is met, those costing more than
  * limit2 (squared, normalized) excepted.  Each stall first takes the parts
  * that cost no more than the error already made, before any constraint
- * relaxes; the last stall takes what it must.  A part's cost is the largest distance from one of its
- * vertices to the nearest vertex of another part: what the surface loses
- * when it goes, the limit of Garland-Heckbert's aggregation of a small
- * part into its neighbour.  Parts with a locked vertex stay, as does the
- * last part; the error limit holds. */
-#define UNDERSHOOT 0.98 /* a part may take the count this far under the target */
-#define CENTROID_FRAC 0.1 /* centroids nearer a corner than this x the vertex cost are skipped */
-
+ * relaxes; the last stall takes what it must.  A part's cost is the
+ * largest distance from one of its vertices or triangle centroids to the
+ * nearest vertex of another part (part_costs): what the surface loses when
+ * it goes, the limit of Garland-Heckbert's aggregation of a small part into
+ * its neighbour.  Parts with a locked vertex stay, as does the last part;
+ * the error limit holds. */
 static size_t prune_parts(state *s, run *r, double limit2, int may_undershoot)
 {
     if (s->n_parts < 2 || (!r->target && !(r->err_limit2 > 0)))
@@ -2620,47 +2674,9 @@ static size_t prune_parts(state *s, run *r, double limit2, int may_undershoot)
         gone[i] = !pc[i].tris || pc[i].locked ||
                   (!may_undershoot &&
                    (double)(r->live - pc[i].tris) < UNDERSHOOT * (double)r->target);
-    for (int phase = 0; phase < 2; phase++) {
-        size_t q0 = phase ? n : 0;
-        if (phase) {
-            for (size_t t = 0; t < s->n_tris; t++) {
-                if (!s->tri_alive[t])
-                    continue;
-                const uint32_t *tv = s->tri_pos + 3 * t;
-                uint32_t pt = s->part[tv[0]];
-                if (gone[pt])
-                    continue;
-                double c[3], r2 = INFINITY;
-                for (int k = 0; k < 3; k++)
-                    c[k] = (s->pos[tv[0]][k] + s->pos[tv[1]][k] + s->pos[tv[2]][k]) / 3;
-                for (int j = 0; j < 3; j++) {
-                    double d[3];
-                    hlod_sub3(d, c, s->pos[tv[j]]);
-                    r2 = fmin(r2, hlod_dot3(d, d));
-                }
-                if (r2 <= CENTROID_FRAC * CENTROID_FRAC * pc[pt].cost * pc[pt].cost)
-                    continue;
-                memcpy(q[nq], c, sizeof q[nq]);
-                qpart[nq++] = pt;
-            }
-        }
-        /* this phase's query points, in part order */
-        memset(first, 0, (np + 1) * sizeof *first);
-        for (size_t i = q0; i < nq; i++)
-            first[qpart[i] + 1]++;
-        for (size_t i = 0; i < np; i++)
-            first[i + 1] += first[i];
-        for (size_t i = q0; i < nq; i++)
-            by_part[first[qpart[i]]++] = (uint32_t)i;
-        if (!other_part_distances(s, s->part, live_v, n, (const double(*)[3])q, qpart, nq - q0,
-                                  sqrt(limit2), dist, near, by_part, gone)) {
-            s->oom = 1;
-            goto out;
-        }
-        for (size_t i = q0; i < nq; i++) {
-            part_cost *c = &pc[qpart[i]];
-            c->cost = fmax(c->cost, dist[i]);
-        }
+    if (!part_costs(s, live_v, n, q, qpart, &nq, first, by_part, dist, near, gone, pc, limit2)) {
+        s->oom = 1;
+        goto out;
     }
     /* every part's query points, in part order (the stale check below) */
     memset(first, 0, (np + 1) * sizeof *first);
