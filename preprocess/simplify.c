@@ -39,6 +39,8 @@
  */
 #include "hlod_clock.h"
 #include "hlod/simplify.h"
+
+#include "cluster.h"
 #include "hlod/distance.h"
 #include "hlod/vec3.h"
 #include "prefetch.h"
@@ -2287,6 +2289,7 @@ typedef struct run {
     size_t collapses;
     int stop;                  /* the error limit was reached */
     int stalled;               /* no valid collapse was left */
+    size_t pruned;             /* parts pruned */
     double pruned_at;          /* max_est at the last pass's pruning */
 } run;
 
@@ -2756,8 +2759,9 @@ out:
  * that went is measured again first). */
 static void prune_all(state *s, run *r, double limit2, int may_undershoot)
 {
-    while (r->live > r->target && !r->stop && !s->oom && prune_parts(s, r, limit2, may_undershoot))
-        ;
+    size_t k;
+    while (r->live > r->target && !r->stop && !s->oom && (k = prune_parts(s, r, limit2, may_undershoot)))
+        r->pruned += k;
 }
 
 /* Phase "parts": the connected pieces of the surface, numbered 0..n_parts
@@ -2934,11 +2938,10 @@ static hlod_result output(state *s, const hlod_mesh *in, const hlod_simplify_des
     return HLOD_OK;
 }
 
-hlod_result hlod_simplify(const hlod_mesh *in, const hlod_simplify_desc *desc,
-                          hlod_mesh *out, hlod_simplify_stats *stats)
+/* One run of the phases; *pruned gets the parts pruning took. */
+static hlod_result simplify_once(const hlod_mesh *in, const hlod_simplify_desc *desc, hlod_mesh *out,
+                                 hlod_simplify_stats *stats, size_t *pruned)
 {
-    if (!in || !desc || !out || in == out)
-        return HLOD_ERR_INVALID_ARG;
     hlod_mesh_free(out);
     hlod_result res = check_input(in);
     if (res != HLOD_OK)
@@ -2978,6 +2981,7 @@ hlod_result hlod_simplify(const hlod_mesh *in, const hlod_simplify_desc *desc,
     }
     res = s.oom ? HLOD_ERR_NOMEM : run_passes(&s, desc, &r, &recs, &rcap);
     st.collapses = r.collapses;
+    *pruned = r.pruned;
     if (res == HLOD_OK)
         res = output(&s, in, desc, centre, scale, &r, t0, out, &st);
     free(recs);
@@ -2986,5 +2990,147 @@ hlod_result hlod_simplify(const hlod_mesh *in, const hlod_simplify_desc *desc,
         *stats = st;
     if (res != HLOD_OK)
         hlod_mesh_free(out);
+    return res;
+}
+
+/* ---------- the last resort for many parts: vertex clustering ---------- */
+
+#define CLUSTER_OVER 2 /* cluster to this x the target, then simplify */
+#define CLUSTER_GAIN 0.8 /* clustering is kept only this much nearer the input */
+
+/* Cell side for which clustering m leaves about `want` triangles (at
+ * most `want` when strict): a surface of area A in cells of side h makes
+ * about 2 A / h^2 triangles to start with, then the count measured steers
+ * h (it falls about as 1 / h^2). */
+static hlod_result cluster_to(const hlod_mesh *m, size_t want, int strict, hlod_mesh *out)
+{
+    double area = hlod_mesh_area(m);
+    double h = sqrt(2 * area / (double)want);
+    hlod_result r = HLOD_ERR_INVALID_ARG;
+    /* strict: bisection on h between a cell over the count (lo) and one
+     * under it (hi), to within 10% under the count */
+    double lo = 0, hi = INFINITY;
+    for (int it = 0; it < 16; it++) {
+        r = hlod_cluster_vertices(m, h, out);
+        if (r != HLOD_OK)
+            return r;
+        double ratio = (double)out->tri_count / (double)want;
+        if (!strict && ratio > 0.8 && ratio < 1.25)
+            break;
+        if (strict && ratio <= 1 && ratio >= 0.9)
+            break;
+        if (ratio > 1)
+            lo = h;
+        else
+            hi = h;
+        double guess = h * sqrt(ratio > 0.01 ? ratio : 0.01);
+        h = isfinite(hi) && lo > 0 ? (guess > lo && guess < hi ? guess : 0.5 * (lo + hi)) : guess;
+    }
+    if (strict && out->tri_count > want && isfinite(hi))
+        r = hlod_cluster_vertices(m, hi, out); /* the last cell under the count */
+    return r;
+}
+
+/* Is any vertex locked? */
+static int any_lock(const hlod_mesh *in, const hlod_simplify_desc *desc)
+{
+    if (desc->lock_border)
+        return 1;
+    for (size_t v = 0; desc->vertex_lock && v < in->vertex_count; v++)
+        if (desc->vertex_lock[v])
+            return 1;
+    return 0;
+}
+
+/* Alternative k (0: in clustered to about CLUSTER_OVER x the target,
+ * then simplified; 1: in clustered to the target itself) into alt. */
+static hlod_result clustered(const hlod_mesh *in, const hlod_simplify_desc *desc, int k,
+                             hlod_mesh *alt, hlod_simplify_stats *ast)
+{
+    size_t target = desc->target_tris;
+    memset(ast, 0, sizeof *ast);
+    if (k == 1) {
+        hlod_result res = cluster_to(in, target, 1, alt);
+        ast->tris_out = alt->tri_count;
+        ast->vertices_out = alt->vertex_count;
+        ast->stop_reason = alt->tri_count <= target ? "target" : "no_valid_collapse";
+        return res;
+    }
+    hlod_mesh c = {0};
+    size_t pruned = 0;
+    hlod_result res = cluster_to(in, CLUSTER_OVER * target, 0, &c);
+    if (res == HLOD_OK && c.tri_count) {
+        hlod_simplify_desc d = *desc;
+        d.measure_error = 0;
+        d.progress = NULL;
+        res = simplify_once(&c, &d, alt, ast, &pruned);
+    }
+    hlod_mesh_free(&c);
+    return res;
+}
+
+/* Simplifies in; when part pruning had to take parts and nothing forbids
+ * it (no UVs: clustering keeps none; no locks: clustering moves every
+ * vertex), two alternatives are made too, the input clustered to about
+ * CLUSTER_OVER x the target and simplified, and the input clustered to the
+ * target, and of those that meet the target the one nearest the input
+ * (certified Hausdorff bound, within 25%) is kept, a clustered one only
+ * when it is nearer by CLUSTER_GAIN (it may hold non-manifold edges).  Garland-Heckbert
+ * aggregation without virtual pairs: a facade of separate piers becomes
+ * one wall, where pruning could only take piers away until whole
+ * buildings went (a BIM-like city block of 35,000 triangles to 4000:
+ * 17.9 m pruned, 2.1 m clustered). */
+hlod_result hlod_simplify(const hlod_mesh *in, const hlod_simplify_desc *desc,
+                          hlod_mesh *out, hlod_simplify_stats *stats)
+{
+    if (!in || !desc || !out || in == out)
+        return HLOD_ERR_INVALID_ARG;
+    hlod_simplify_stats st = {0};
+    size_t pruned = 0;
+    hlod_result res = simplify_once(in, desc, out, &st, &pruned);
+    if (res != HLOD_OK || !pruned || in->uvs || !desc->target_tris || any_lock(in, desc) ||
+        in->tri_count <= CLUSTER_OVER * desc->target_tris) {
+        if (stats)
+            *stats = st;
+        return res;
+    }
+    double t0 = hlod_now_s();
+    double tol = 1e-3 * hlod_mesh_bbox_diag(in), lower, best = INFINITY;
+    res = hlod_mesh_hausdorff_bound(out, in, 0.25, tol, &lower, &best);
+    int chosen = -1;
+    for (int k = 0; k < 2 && res == HLOD_OK; k++) {
+        hlod_mesh alt = {0};
+        hlod_simplify_stats ast;
+        double e = INFINITY;
+        res = clustered(in, desc, k, &alt, &ast);
+        if (res == HLOD_OK && alt.tri_count && (double)alt.tri_count <= 1.02 * (double)desc->target_tris)
+            res = hlod_mesh_hausdorff_bound(&alt, in, 0.25, tol, &lower, &e);
+        if (res == HLOD_OK && e < CLUSTER_GAIN * best) {
+            best = e;
+            chosen = k;
+            hlod_mesh_free(out);
+            *out = alt;
+            memset(&alt, 0, sizeof alt);
+            ast.tris_in = st.tris_in;
+            ast.vertices_in = st.vertices_in;
+            ast.error_estimate = fmax(ast.error_estimate, e);
+            ast.error = e;
+            ast.seconds = st.seconds;
+            ast.collapses += st.collapses;
+            ast.clustered = 1;
+            st = ast;
+        }
+        hlod_mesh_free(&alt);
+    }
+    if (res == HLOD_OK && chosen >= 0 && desc->measure_error) {
+        double up;
+        res = hlod_mesh_hausdorff_bound(in, out, 0.01, 1e-9 * hlod_mesh_bbox_diag(in), &lower, &up);
+        st.error = up;
+    }
+    st.seconds += hlod_now_s() - t0;
+    if (res != HLOD_OK)
+        hlod_mesh_free(out);
+    if (stats)
+        *stats = st;
     return res;
 }

@@ -11,6 +11,8 @@
 #include "engine_internal.h"
 #include "hlod/build_store.h"
 #include "hlod/engine.h"
+#include "hlod/mesh_io.h"
+#include "hlod/simplify.h"
 #include "hlod/store.h"
 
 #include <math.h>
@@ -141,6 +143,45 @@ static void parts_city(void)
     hlod_store_close(s);
 }
 
+/* One BIM-like block (parts style, 35,000 triangles of separate boxes)
+ * simplified to 4000: part pruning alone took whole buildings (31 m of an
+ * 83 m diagonal, and 3296 triangles for 4000); the clustering fallback
+ * welds the boxes into walls (1.1 m). */
+static void parts_block_aggregates(void)
+{
+    char obj[2048];
+    snprintf(obj, sizeof obj, "%s/block.obj", tmp);
+    CHECK(check_sh("'%s/hlod-gen-city' --preset tiny --blocks 1 --tris-per-block 35000 --style parts "
+                   "--quiet -o '%s'", bin, obj) == 0);
+    hlod_mesh m = {0}, o = {0};
+    hlod_import_desc id = {0};
+    CHECK(hlod_mesh_import(obj, &id, &m, NULL) == HLOD_OK);
+    /* the block alone (the ground is the last object) */
+    if (m.object_count >= 2 && m.objects[0].first_tri == 0) {
+        hlod_mesh b = {0};
+        size_t nt = m.objects[0].tri_count;
+        CHECK(hlod_mesh_alloc(&b, m.vertex_count, nt, 0) == HLOD_OK);
+        memcpy(b.positions, m.positions, 3 * m.vertex_count * sizeof *b.positions);
+        memcpy(b.indices, m.indices, 3 * nt * sizeof *b.indices);
+        hlod_simplify_desc d = {0};
+        d.target_tris = 4000;
+        d.measure_error = 1;
+        hlod_simplify_stats st;
+        CHECK(hlod_simplify(&b, &d, &o, &st) == HLOD_OK);
+        double diag = hlod_mesh_bbox_diag(&b);
+        fprintf(stderr, "  block: %zu -> %zu triangles, error %.3g of diagonal %.3g, clustered %d\n",
+                b.tri_count, o.tri_count, st.error, diag, st.clustered);
+        CHECKF(o.tri_count <= 4000 && o.tri_count >= 3600, "%zu triangles for 4000", o.tri_count);
+        CHECKF(st.clustered && st.error < 0.03 * diag, "error %g of diagonal %g (clustered %d)",
+               st.error, diag, st.clustered);
+        hlod_mesh_free(&b);
+    } else {
+        CHECKF(0, "%s: %zu objects, the block not first", obj, m.object_count);
+    }
+    hlod_mesh_free(&m);
+    hlod_mesh_free(&o);
+}
+
 static void look_down(hlod_camera *cam, const hlod_store_header *h)
 {
     double c[3], r = 0;
@@ -222,6 +263,7 @@ int main(void)
     check_sh("rm -rf '%s' && mkdir -p '%s'", tmp, tmp);
     RUN(textured_city);
     RUN(parts_city);
+    RUN(parts_block_aggregates);
     RUN(runtime_uses_the_root);
     check_sh("rm -rf '%s'", tmp);
     return check_done();

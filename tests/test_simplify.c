@@ -9,6 +9,7 @@
 
 #include <math.h>
 #include <stdint.h>
+#include <stdlib.h>
 
 /* ---------- helpers ---------- */
 
@@ -490,6 +491,63 @@ static void add_tetra(hlod_mesh *m, size_t *v, size_t *t, const double c[3], dou
     *t += 4;
 }
 
+/* An axis-aligned box [lo, hi], 8 vertices, 12 outward triangles. */
+static void add_box(hlod_mesh *m, size_t *v, size_t *t, const double lo[3], const double hi[3])
+{
+    for (int i = 0; i < 8; i++)
+        set_v(m, *v + i, i & 1 ? hi[0] : lo[0], i & 2 ? hi[1] : lo[1], i & 4 ? hi[2] : lo[2]);
+    static const uint32_t f[12][3] = {{0, 2, 1}, {1, 2, 3}, {4, 5, 6}, {5, 7, 6}, {0, 1, 4}, {1, 5, 4},
+                                      {2, 6, 3}, {3, 6, 7}, {0, 4, 2}, {2, 4, 6}, {1, 3, 5}, {3, 7, 5}};
+    uint32_t b = (uint32_t)*v;
+    for (int k = 0; k < 12; k++)
+        set_t(m, *t + k, b + f[k][0], b + f[k][1], b + f[k][2]);
+    *v += 8;
+    *t += 12;
+}
+
+/* A facade of separate piers (a BIM export): 20 x 10 boxes of 0.8 x 0.3 x
+ * 0.8 m, 0.2 m apart, on a 20 x 10 m wall; 2400 triangles to 240.  No box
+ * can shrink below 12 triangles, so 180 of the 200 piers must go or weld:
+ * the target is met, the wall keeps its extent and the error stays under
+ * 8% of the diagonal whichever way (here pruning wins: clustering a grid of
+ * the piers' own period flattens whole rows).  With a lock nothing is
+ * clustered.  (The BIM-like city block, where clustering wins 30x, is in
+ * test_city_levels.c.) */
+static void facade_of_separate_boxes_aggregates(void)
+{
+    hlod_mesh m = {0}, o = {0};
+    hlod_mesh_alloc(&m, 200 * 8, 200 * 12, 0);
+    size_t v = 0, t = 0;
+    for (int i = 0; i < 20; i++)
+        for (int j = 0; j < 10; j++) {
+            double lo[3] = {i * 1.0, 0, j * 1.0}, hi[3] = {i * 1.0 + 0.8, 0.3, j * 1.0 + 0.8};
+            add_box(&m, &v, &t, lo, hi);
+        }
+    hlod_simplify_desc d = {0};
+    d.target_tris = 240;
+    d.measure_error = 1;
+    hlod_simplify_stats st;
+    CHECK(hlod_simplify(&m, &d, &o, &st) == HLOD_OK);
+    double diag = hlod_mesh_bbox_diag(&m);
+    CHECKF(o.tri_count <= 240 && o.tri_count >= 200, "%zu triangles for 240", o.tri_count);
+    CHECKF(st.error < 0.08 * diag, "clustered %d, error %g of diagonal %g", st.clustered, st.error,
+           diag);
+    /* the wall keeps its extent: no pier row lost at the edges */
+    double lo[3], hi[3];
+    hlod_mesh_bounds(&o, lo, hi);
+    CHECKF(lo[0] < 0.5 && hi[0] > 19.3 && lo[2] < 0.5 && hi[2] > 9.3, "box x [%g, %g] z [%g, %g]",
+           lo[0], hi[0], lo[2], hi[2]);
+    /* locked, nothing may be welded: no clustering */
+    uint8_t *lock = calloc(m.vertex_count, 1);
+    lock[0] = 1;
+    d.vertex_lock = lock;
+    CHECK(hlod_simplify(&m, &d, &o, &st) == HLOD_OK);
+    CHECK(!st.clustered);
+    free(lock);
+    hlod_mesh_free(&m);
+    hlod_mesh_free(&o);
+}
+
 /* 40 tetrahedra, none can shrink: 20 in a tight cluster next to each
  * other, 20 spread far apart.  Asked for 50%, whole parts go, the
  * clustered ones first (each lies close to the others: little is lost). */
@@ -575,6 +633,7 @@ int main(void)
     RUN(zero_area_and_duplicate_triangles_survive);
     RUN(random_meshes_never_break);
     RUN(separate_parts_reach_the_target);
+    RUN(facade_of_separate_boxes_aggregates);
     RUN(locked_stop_is_reported);
     return check_done();
 }

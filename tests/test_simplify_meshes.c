@@ -114,8 +114,9 @@ static void check_mesh(const char *rel, int closed, int multipart)
         edge_stats out = edges(&o);
         CHECKF(!closed || out.border == 0, "%s %.2f: closed mesh opened (%zu border edges)", rel,
                ratios[r], out.border);
-        CHECKF(in.nonmanifold || out.nonmanifold == 0, "%s %.2f: %zu non-manifold edges", rel, ratios[r],
-               out.nonmanifold);
+        /* (the last resort for many parts, clustering, welds parts) */
+        CHECKF(in.nonmanifold || out.nonmanifold == 0 || st.clustered, "%s %.2f: %zu non-manifold edges",
+               rel, ratios[r], out.nonmanifold);
         /* An independent, denser measurement with another seed. */
         hlod_distance hd;
         CHECK(hlod_mesh_distance(&m, &o, 400000, 99, &hd) == HLOD_OK);

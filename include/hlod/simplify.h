@@ -20,7 +20,10 @@
  * output normals are recomputed per vertex from the faces around it.
  * Collapses keep the mesh manifold (link condition), so a closed part stops
  * at a tetrahedron and the result may hold more than target_tris triangles
- * when nothing valid is left to collapse.
+ * when nothing valid is left to collapse.  Where whole parts had to go to
+ * meet a count target and the mesh has no UVs and no locks, vertex
+ * clustering of the input is tried as well (README, "hlod-simplify") and
+ * kept when clearly nearer the input; stats->clustered says so.
  *
  * Cost: O(n) per pass, about 10 passes; ~400 bytes per input vertex.
  * Thread safety: reentrant; distinct calls may run on distinct threads.
@@ -83,6 +86,10 @@ typedef struct hlod_simplify_stats {
      * surface's topology).  A static string. */
     const char *stop_reason;
     size_t locked_vertices;     /* live vertices under a lock that never relaxes */
+    /* Non-zero: the result came from the last resort for meshes of many
+     * parts (vertex clustering, then collapses): it may hold non-manifold
+     * edges where parts were welded. */
+    int clustered;
 } hlod_simplify_stats;
 
 /* Simplifies in into *out (freed first; may not alias in).  Materials,

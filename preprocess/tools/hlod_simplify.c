@@ -283,6 +283,7 @@ int main(int argc, char **argv)
         hlod_json_size(&j, "collapses", ss.collapses);
         hlod_json_string(&j, "stop_reason", ss.stop_reason);
         hlod_json_size(&j, "locked_vertices", ss.locked_vertices);
+        hlod_json_bool(&j, "clustered", ss.clustered);
         hlod_json_size(&j, "tris_read", is.tris_read);
         hlod_json_size(&j, "degenerate_dropped", is.degenerate_dropped);
         hlod_json_size(&j, "duplicate_dropped", is.duplicate_dropped);
