@@ -106,8 +106,8 @@ static hlod_result pick_representatives(const hlod_mesh *in, const uint32_t *map
 }
 
 /* Cluster of every vertex (*n_out clusters, positions in pos). */
-static hlod_result cluster_map(const hlod_mesh *in, double cell, uint32_t *map, double **pos,
-                               size_t *n_out)
+static hlod_result cluster_map(const hlod_mesh *in, double cell, const uint8_t *lock, uint32_t *map,
+                               double **pos, size_t *n_out)
 {
     size_t nv = in->vertex_count;
     double lo[3], hi[3];
@@ -125,7 +125,8 @@ static hlod_result cluster_map(const hlod_mesh *in, double cell, uint32_t *map, 
             double c = floor((in->positions[3 * v + a] - lo[a]) / cell);
             key = (key << 21) | (uint64_t)(c < 0 ? 0 : c);
         }
-        k[v] = (vkey){key, (uint32_t)v};
+        /* a locked vertex is a cluster of its own (keys past every cell's) */
+        k[v] = (vkey){lock && lock[v] ? (1ull << 63) | v : key, (uint32_t)v};
     }
     qsort(k, nv, sizeof *k, cmp_vkey);
     double *p = malloc((nv + 1) * 3 * sizeof *p);
@@ -216,7 +217,8 @@ static hlod_result copy_tables(const hlod_mesh *in, const uint8_t *keep, hlod_me
     return HLOD_OK;
 }
 
-hlod_result hlod_cluster_vertices(const hlod_mesh *in, double cell, hlod_mesh *out)
+hlod_result hlod_cluster_vertices(const hlod_mesh *in, double cell, const uint8_t *lock,
+                                  hlod_mesh *out)
 {
     hlod_mesh_free(out);
     if (!(cell > 0 && isfinite(cell)) || !in->vertex_count)
@@ -225,7 +227,7 @@ hlod_result hlod_cluster_vertices(const hlod_mesh *in, double cell, hlod_mesh *o
     uint8_t *keep = malloc(in->tri_count + 1);
     double *pos = NULL;
     size_t n = 0;
-    hlod_result r = map && keep ? cluster_map(in, cell, map, &pos, &n) : HLOD_ERR_NOMEM;
+    hlod_result r = map && keep ? cluster_map(in, cell, lock, map, &pos, &n) : HLOD_ERR_NOMEM;
     if (r == HLOD_OK)
         r = surviving(in, map, keep);
     size_t nt = 0;

@@ -3007,12 +3007,12 @@ static hlod_result simplify_once(const hlod_mesh *in, const hlod_simplify_desc *
  * to start with, then bisection on h between a side over the count (lo)
  * and one under it (hi), steered by the count measured (it falls about as
  * 1 / h^2). */
-static hlod_result cluster_to(const hlod_mesh *m, size_t want, hlod_mesh *out)
+static hlod_result cluster_to(const hlod_mesh *m, size_t want, const uint8_t *lock, hlod_mesh *out)
 {
     double h = sqrt(2 * hlod_mesh_area(m) / (double)want), lo = 0, hi = INFINITY;
     hlod_result r = HLOD_ERR_INVALID_ARG;
     for (int it = 0; it < 16; it++) {
-        r = hlod_cluster_vertices(m, h, out);
+        r = hlod_cluster_vertices(m, h, lock, out);
         if (r != HLOD_OK)
             return r;
         double ratio = (double)out->tri_count / (double)want;
@@ -3026,25 +3026,15 @@ static hlod_result cluster_to(const hlod_mesh *m, size_t want, hlod_mesh *out)
         h = isfinite(hi) && lo > 0 ? (guess > lo && guess < hi ? guess : 0.5 * (lo + hi)) : guess;
     }
     if (out->tri_count > want && isfinite(hi))
-        r = hlod_cluster_vertices(m, hi, out); /* the last side under the count */
+        r = hlod_cluster_vertices(m, hi, lock, out); /* the last side under the count */
     return r;
-}
-
-/* Is any vertex locked? */
-static int any_lock(const hlod_mesh *in, const hlod_simplify_desc *desc)
-{
-    if (desc->lock_border)
-        return 1;
-    for (size_t v = 0; desc->vertex_lock && v < in->vertex_count; v++)
-        if (desc->vertex_lock[v])
-            return 1;
-    return 0;
 }
 
 /* Simplifies in; when part pruning took parts holding at least
  * CLUSTER_WHEN x the target's triangles (the parts, not collapses, made
  * the count: a multi-part model) and nothing forbids it (no UVs:
- * clustering keeps none; no locks: clustering moves every vertex), the
+ * clustering keeps none; no border locks: clustering does not find
+ * borders; locked vertices are never welded), the
  * input clustered to the target is made too and kept when it is nearer
  * the input by CLUSTER_GAIN (certified Hausdorff bounds, within 25%; it
  * may hold non-manifold edges where parts welded).  Garland-Heckbert
@@ -3063,7 +3053,7 @@ hlod_result hlod_simplify(const hlod_mesh *in, const hlod_simplify_desc *desc,
     size_t pruned = 0;
     hlod_result res = simplify_once(in, desc, out, &st, &pruned);
     if (res != HLOD_OK || !desc->target_tris ||
-        (double)pruned < CLUSTER_WHEN * (double)desc->target_tris || in->uvs || any_lock(in, desc)) {
+        (double)pruned < CLUSTER_WHEN * (double)desc->target_tris || in->uvs || desc->lock_border) {
         if (stats)
             *stats = st;
         return res;
@@ -3073,7 +3063,7 @@ hlod_result hlod_simplify(const hlod_mesh *in, const hlod_simplify_desc *desc,
     hlod_mesh alt = {0};
     res = hlod_mesh_hausdorff_bound(out, in, CLUSTER_TOL, tol, &lower, &now);
     if (res == HLOD_OK)
-        res = cluster_to(in, desc->target_tris, &alt);
+        res = cluster_to(in, desc->target_tris, desc->vertex_lock, &alt);
     if (res == HLOD_OK && alt.tri_count && alt.tri_count <= desc->target_tris)
         res = hlod_mesh_hausdorff_bound(&alt, in, CLUSTER_TOL, tol, &lower, &e);
     if (res == HLOD_OK && e < CLUSTER_GAIN * now) {

@@ -10,6 +10,7 @@
 #include <math.h>
 #include <stdint.h>
 #include <stdlib.h>
+#include <string.h>
 
 /* ---------- helpers ---------- */
 
@@ -537,10 +538,24 @@ static void facade_of_separate_boxes_aggregates(void)
     hlod_mesh_bounds(&o, lo, hi);
     CHECKF(lo[0] < 0.5 && hi[0] > 19.3 && lo[2] < 0.5 && hi[2] > 9.3, "box x [%g, %g] z [%g, %g]",
            lo[0], hi[0], lo[2], hi[2]);
-    /* locked, nothing may be welded: no clustering */
+    /* locked vertices keep their exact place, clustered or not */
     uint8_t *lock = calloc(m.vertex_count, 1);
-    lock[0] = 1;
+    for (size_t i = 0; i < m.vertex_count; i += 97)
+        lock[i] = 1;
     d.vertex_lock = lock;
+    CHECK(hlod_simplify(&m, &d, &o, &st) == HLOD_OK);
+    size_t kept = 0;
+    for (size_t i = 0; i < m.vertex_count; i += 97)
+        for (size_t j = 0; j < o.vertex_count; j++)
+            if (!memcmp(o.positions + 3 * j, m.positions + 3 * i, 3 * sizeof(double))) {
+                kept++;
+                break;
+            }
+    CHECKF(kept == (m.vertex_count + 96) / 97, "%zu of %zu locked vertices in place (clustered %d)", kept,
+           (m.vertex_count + 96) / 97, st.clustered);
+    /* border locks: no clustering */
+    d.vertex_lock = NULL;
+    d.lock_border = 1;
     CHECK(hlod_simplify(&m, &d, &o, &st) == HLOD_OK);
     CHECK(!st.clustered);
     free(lock);
