@@ -185,38 +185,6 @@ static hlod_result surviving(const hlod_mesh *in, const uint32_t *map, uint8_t *
     return HLOD_OK;
 }
 
-static hlod_result copy_tables(const hlod_mesh *in, const uint8_t *keep, hlod_mesh *out)
-{
-    if (in->material_count) {
-        out->materials = calloc(in->material_count, sizeof *out->materials);
-        if (!out->materials)
-            return HLOD_ERR_NOMEM;
-        out->material_count = in->material_count;
-        for (size_t i = 0; i < in->material_count; i++) {
-            out->materials[i] = in->materials[i];
-            out->materials[i].name = in->materials[i].name ? strdup(in->materials[i].name) : NULL;
-            out->materials[i].texture_path =
-                in->materials[i].texture_path ? strdup(in->materials[i].texture_path) : NULL;
-        }
-    }
-    if (in->object_count) {
-        out->objects = calloc(in->object_count, sizeof *out->objects);
-        if (!out->objects)
-            return HLOD_ERR_NOMEM;
-        out->object_count = in->object_count;
-        size_t at = 0;
-        for (size_t o = 0; o < in->object_count; o++) {
-            const hlod_object *src = &in->objects[o];
-            out->objects[o].name = src->name ? strdup(src->name) : NULL;
-            out->objects[o].first_tri = at;
-            for (size_t t = src->first_tri; t < src->first_tri + src->tri_count; t++)
-                at += keep[t];
-            out->objects[o].tri_count = at - out->objects[o].first_tri;
-        }
-    }
-    return HLOD_OK;
-}
-
 hlod_result hlod_cluster_vertices(const hlod_mesh *in, double cell, const uint8_t *lock,
                                   hlod_mesh *out)
 {
@@ -247,7 +215,7 @@ hlod_result hlod_cluster_vertices(const hlod_mesh *in, double cell, const uint8_
                 out->tri_material[k] = in->tri_material[t];
             k++;
         }
-        r = copy_tables(in, keep, out);
+        r = hlod_mesh_copy_tables(out, in, keep);
     }
     free(map);
     free(keep);

@@ -1827,37 +1827,16 @@ static hlod_result emit(const state *s, const hlod_mesh *in, const double centre
     }
     free(remap);
     /* Materials and objects (triangle order is kept, so ranges shrink). */
-    if (in->material_count) {
-        m.material_count = in->material_count;
-        m.materials = calloc(in->material_count, sizeof *m.materials);
-        if (!m.materials) {
-            hlod_mesh_free(&m);
-            return HLOD_ERR_NOMEM;
-        }
-        for (size_t i = 0; i < in->material_count; i++) {
-            m.materials[i] = in->materials[i];
-            m.materials[i].name = in->materials[i].name ? strdup(in->materials[i].name) : NULL;
-            m.materials[i].texture_path =
-                in->materials[i].texture_path ? strdup(in->materials[i].texture_path) : NULL;
-        }
+    uint8_t *kept = in->object_count ? malloc(s->n_tris + 1) : NULL;
+    if (kept)
+        for (size_t t = 0; t < s->n_tris; t++)
+            kept[t] = s->tri_alive[s->tri_slot[t]];
+    if ((in->object_count && !kept) || hlod_mesh_copy_tables(&m, in, kept) != HLOD_OK) {
+        free(kept);
+        hlod_mesh_free(&m);
+        return HLOD_ERR_NOMEM;
     }
-    if (in->object_count) {
-        m.objects = calloc(in->object_count, sizeof *m.objects);
-        if (!m.objects) {
-            hlod_mesh_free(&m);
-            return HLOD_ERR_NOMEM;
-        }
-        m.object_count = in->object_count;
-        size_t kept = 0;
-        for (size_t i = 0; i < in->object_count; i++) {
-            const hlod_object *o = &in->objects[i];
-            m.objects[i].name = o->name ? strdup(o->name) : NULL;
-            m.objects[i].first_tri = kept;
-            for (size_t t = o->first_tri; t < o->first_tri + o->tri_count && t < s->n_tris; t++)
-                kept += s->tri_alive[s->tri_slot[t]];
-            m.objects[i].tri_count = kept - m.objects[i].first_tri;
-        }
-    }
+    free(kept);
     *out = m;
     return HLOD_OK;
 }

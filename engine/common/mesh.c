@@ -84,38 +84,51 @@ hlod_result hlod_mesh_copy(hlod_mesh *dst, const hlod_mesh *src)
     int bad = (src->positions && !m.positions) || (src->normals && !m.normals) ||
               (src->uvs && !m.uvs) || (src->indices && !m.indices) ||
               (src->tri_material && !m.tri_material);
-    if (src->material_count) {
-        m.materials = calloc(src->material_count, sizeof *m.materials);
-        bad |= !m.materials;
-        if (m.materials) {
-            m.material_count = src->material_count;
-            for (size_t i = 0; i < src->material_count; i++) {
-                m.materials[i] = src->materials[i];
-                m.materials[i].name = dup_str(src->materials[i].name);
-                m.materials[i].texture_path = dup_str(src->materials[i].texture_path);
-                bad |= (src->materials[i].name && !m.materials[i].name) ||
-                       (src->materials[i].texture_path && !m.materials[i].texture_path);
-            }
-        }
-    }
-    if (src->object_count) {
-        m.objects = calloc(src->object_count, sizeof *m.objects);
-        bad |= !m.objects;
-        if (m.objects) {
-            m.object_count = src->object_count;
-            for (size_t i = 0; i < src->object_count; i++) {
-                m.objects[i] = src->objects[i];
-                m.objects[i].name = dup_str(src->objects[i].name);
-                bad |= src->objects[i].name && !m.objects[i].name;
-            }
-        }
-    }
+    bad |= hlod_mesh_copy_tables(&m, src, NULL) != HLOD_OK;
     if (bad) {
         hlod_mesh_free(&m);
         return HLOD_ERR_NOMEM;
     }
     *dst = m;
     return HLOD_OK;
+}
+
+hlod_result hlod_mesh_copy_tables(hlod_mesh *dst, const hlod_mesh *src, const uint8_t *kept)
+{
+    int bad = 0;
+    if (src->material_count) {
+        dst->materials = calloc(src->material_count, sizeof *dst->materials);
+        if (!dst->materials)
+            return HLOD_ERR_NOMEM;
+        dst->material_count = src->material_count;
+        for (size_t i = 0; i < src->material_count; i++) {
+            dst->materials[i] = src->materials[i];
+            dst->materials[i].name = dup_str(src->materials[i].name);
+            dst->materials[i].texture_path = dup_str(src->materials[i].texture_path);
+            bad |= (src->materials[i].name && !dst->materials[i].name) ||
+                   (src->materials[i].texture_path && !dst->materials[i].texture_path);
+        }
+    }
+    if (src->object_count) {
+        dst->objects = calloc(src->object_count, sizeof *dst->objects);
+        if (!dst->objects)
+            return HLOD_ERR_NOMEM;
+        dst->object_count = src->object_count;
+        size_t at = 0;
+        for (size_t i = 0; i < src->object_count; i++) {
+            const hlod_object *o = &src->objects[i];
+            dst->objects[i] = *o;
+            dst->objects[i].name = dup_str(o->name);
+            bad |= o->name && !dst->objects[i].name;
+            if (!kept)
+                continue;
+            dst->objects[i].first_tri = at;
+            for (size_t t = o->first_tri; t < o->first_tri + o->tri_count && t < src->tri_count; t++)
+                at += kept[t] != 0;
+            dst->objects[i].tri_count = at - dst->objects[i].first_tri;
+        }
+    }
+    return bad ? HLOD_ERR_NOMEM : HLOD_OK;
 }
 
 int hlod_mesh_bounds(const hlod_mesh *m, double lo[3], double hi[3])

@@ -64,6 +64,13 @@ hlod_result hlod_mesh_alloc(hlod_mesh *m, size_t vertex_count, size_t tri_count,
 /* Deep copy of src into dst (dst is freed first). */
 hlod_result hlod_mesh_copy(hlod_mesh *dst, const hlod_mesh *src);
 
+/* Copies src's materials and objects into dst (which has none yet), for a
+ * mesh made from src's triangles in their order: kept[t] non-zero for each
+ * src triangle dst holds (NULL: all of them), so object ranges shrink to
+ * what is kept.  HLOD_ERR_NOMEM (dst then holds what was copied, freed
+ * with it). */
+hlod_result hlod_mesh_copy_tables(hlod_mesh *dst, const hlod_mesh *src, const uint8_t *kept);
+
 /* Axis-aligned bounds of the positions; returns 0 for an empty mesh. */
 int hlod_mesh_bounds(const hlod_mesh *m, double lo[3], double hi[3]);
 /* Length of the bounding-box diagonal (0 for an empty mesh). */
