@@ -791,6 +791,14 @@ typedef struct plan {
     double cost;      /* total quadric error at x */
 } plan;
 
+/* Wedge groups for an edge collapse: pairs joined through the edge faces. */
+typedef struct wgroup {
+    uint32_t w[2];
+    int n;
+} wgroup;
+
+#define MAX_GROUPS 64
+
 typedef struct eval {
     int allowed;
     int forced;        /* 0 free, 1 at a, 2 at b */
@@ -799,15 +807,10 @@ typedef struct eval {
     double w;          /* area weight for estimates */
     plan cand[4];
     int ncand;
+    wgroup g[MAX_GROUPS]; /* the edge's wedge groups (textured meshes) */
+    int ng;
 } eval;
 
-/* Wedge groups for an edge collapse: pairs joined through the edge faces. */
-typedef struct wgroup {
-    uint32_t w[2];
-    int n;
-} wgroup;
-
-#define MAX_GROUPS 64
 
 static int edge_groups(state *s, uint32_t b, const uint32_t *fa, size_t na,
                        const uint32_t *fb, size_t nb, wgroup *g)
@@ -898,8 +901,9 @@ static void evaluate(state *s, uint32_t a, uint32_t b, int edge_feature,
     q_add(&e->qgeo, &s->verts[b].q);
     e->qsum = e->qgeo;
     e->w = s->verts[a].w + s->verts[b].w;
+    e->ng = 0;
     if (s->wedge_aq) {
-        wgroup g[MAX_GROUPS];
+        wgroup *g = e->g;
         int ng;
         if (!s->verts[a].fdeg && !s->verts[b].fdeg) {
             /* no seam at either end: one wedge each, merged */
@@ -910,6 +914,7 @@ static void evaluate(state *s, uint32_t a, uint32_t b, int edge_feature,
         } else {
             ng = edge_groups(s, b, fa, na, fb, nb, g);
         }
+        e->ng = ng;
         for (int i = 0; i < ng; i++) {
             attrq t = s->wedge_aq[g[i].w[0]];
             if (g[i].n == 2)
@@ -1250,14 +1255,15 @@ static void predicted_uvs(const state *s, uint32_t a, uint32_t b, const double x
  * smears the texture along it (slivers at street level). */
 #define STRETCH_SLACK2 1.02
 #define SOURCE_SLACK 1.25
-static int uv_ok(state *s, uint32_t a, uint32_t b, const double x[3], size_t star_na, size_t star_nb,
+static int uv_ok(const state *s, uint32_t a, uint32_t b, const double x[3], const eval *e,
                  const uint32_t *fa, size_t na, const uint32_t *fb, size_t nb)
 {
     if (!s->wedge_uv || !s->wedge_aq || s->relax >= RELAX_TEXTURE)
         return 1;
-    wgroup g[MAX_GROUPS];
+    /* the wedge groups evaluate() found for the edge */
+    const wgroup *g = e->g;
+    int ng = e->ng;
     float puv[MAX_GROUPS][2];
-    int ng = edge_groups(s, b, s->star_a, star_na, s->star_b, star_nb, g);
     predicted_uvs(s, a, b, x, g, ng, puv);
     const double lim2 = UV_STRETCH_MAX * UV_STRETCH_MAX;
     for (int side = 0; side < 2; side++) {
@@ -1406,7 +1412,7 @@ static int try_edge(state *s, uint32_t a, uint32_t b, eval *e, size_t *na_, size
         if (e->cand[k].cost < e->cand[first].cost)
             first = k;
     if (star_ok(s, a, s->off_a, nra, e->cand[first].x) && star_ok(s, b, s->off_b, nrb, e->cand[first].x) &&
-        uv_ok(s, a, b, e->cand[first].x, na, nb, s->off_a, nra, s->off_b, nrb))
+        uv_ok(s, a, b, e->cand[first].x, e, s->off_a, nra, s->off_b, nrb))
         return first;
     evaluate(s, a, b, feature, s->star_a, na, s->star_b, nb, 1, e);
     /* Cheapest valid placement. */
@@ -1420,7 +1426,7 @@ static int try_edge(state *s, uint32_t a, uint32_t b, eval *e, size_t *na_, size
     for (int k = 0; k < e->ncand; k++) {
         const plan *pl = &e->cand[order[k]];
         if (star_ok(s, a, s->off_a, nra, pl->x) && star_ok(s, b, s->off_b, nrb, pl->x) &&
-            uv_ok(s, a, b, pl->x, na, nb, s->off_a, nra, s->off_b, nrb))
+            uv_ok(s, a, b, pl->x, e, s->off_a, nra, s->off_b, nrb))
             return order[k];
     }
     return -1;
