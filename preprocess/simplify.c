@@ -2441,16 +2441,23 @@ static uint32_t uf_find(uint32_t *parent, uint32_t x)
     return x;
 }
 
-/* For every query point q[i] of part qpart[i], the distance to the
- * nearest live vertex of another part (INFINITY when there is none): a
- * uniform grid of about two vertices a cell, searched ring by ring until
- * the ring lies farther than the best found, or past limit (farther counts
- * as INFINITY).  Queries go in `order`; a part found to cost more than
- * limit is skipped from then on. */
-static int other_part_distances(const state *s, const uint32_t *part, const uint32_t *live_v,
-                                size_t n, const double (*q)[3], const uint32_t *qpart, size_t nq,
-                                double limit, double *dist, uint32_t *near_part,
-                                const uint32_t *order, uint8_t *skip)
+/* A uniform grid over the live vertices, about two a cell (counting sort
+ * into cells): built once per prune_parts round, queried by both of its
+ * phases. */
+typedef struct vgrid {
+    double lo[3], h;
+    int g;
+    uint32_t *start, *list;   /* cell c holds list[start[c] .. start[c + 1]) */
+} vgrid;
+
+static void vgrid_free(vgrid *vg)
+{
+    free(vg->start);
+    free(vg->list);
+}
+
+/* 0 when out of memory. */
+static int vgrid_build(const state *s, const uint32_t *live_v, size_t n, vgrid *vg)
 {
     double lo[3] = {INFINITY, INFINITY, INFINITY}, hi[3] = {-INFINITY, -INFINITY, -INFINITY};
     for (size_t i = 0; i < n; i++)
@@ -2463,8 +2470,8 @@ static int other_part_distances(const state *s, const uint32_t *part, const uint
     g = g < 1 ? 1 : g > 128 ? 128 : g;
     double h = ext > 0 ? ext / g : 1;
     size_t cells = (size_t)g * g * g;
-    uint32_t *start = calloc(cells + 1, sizeof *start), *list = malloc(n * sizeof *list),
-             *cell = malloc(n * sizeof *cell);
+    uint32_t *start = calloc(cells + 1, sizeof *start), *list = malloc((n + 1) * sizeof *list),
+             *cell = malloc((n + 1) * sizeof *cell);
     if (!start || !list || !cell) {
         free(start);
         free(list);
@@ -2487,6 +2494,29 @@ static int other_part_distances(const state *s, const uint32_t *part, const uint
     for (size_t c = cells; c > 0; c--)
         start[c] = start[c - 1];
     start[0] = 0;
+    free(cell);
+    memcpy(vg->lo, lo, sizeof lo);
+    vg->h = h;
+    vg->g = g;
+    vg->start = start;
+    vg->list = list;
+    return 1;
+}
+
+/* For every query point q[i] of part qpart[i], the distance to the
+ * nearest live vertex (of the grid vg over live_v) of another part
+ * (INFINITY when there is none), searched ring by ring until the ring lies
+ * farther than the best found, or past limit (farther counts as INFINITY).
+ * Queries go in `order`; a part found to cost more than limit is skipped
+ * from then on. */
+static void other_part_distances(const state *s, const vgrid *vg, const uint32_t *part,
+                                 const uint32_t *live_v, const double (*q)[3],
+                                 const uint32_t *qpart, size_t nq, double limit, double *dist,
+                                 uint32_t *near_part, const uint32_t *order, uint8_t *skip)
+{
+    const int g = vg->g;
+    const double h = vg->h, *lo = vg->lo;
+    const uint32_t *start = vg->start, *list = vg->list;
     for (size_t oi = 0; oi < nq; oi++) {
         size_t i = order[oi];
         if (skip[qpart[i]]) { /* not wanted, or a point of it is too far */
@@ -2534,10 +2564,6 @@ static int other_part_distances(const state *s, const uint32_t *part, const uint
         if (!(dist[i] < INFINITY))
             skip[qpart[i]] = 1; /* the part costs more than limit */
     }
-    free(start);
-    free(list);
-    free(cell);
-    return 1;
 }
 
 typedef struct part_cost {
@@ -2567,6 +2593,9 @@ static int part_costs(state *s, const uint32_t *live_v, size_t n, double (*q)[3]
                       uint8_t *gone, part_cost *pc, double limit2)
 {
     size_t np = s->n_parts;
+    vgrid vg;
+    if (!vgrid_build(s, live_v, n, &vg))
+        return 0;
     for (int phase = 0; phase < 2; phase++) {
         size_t q0 = phase ? n : 0;
         if (phase) {
@@ -2599,14 +2628,14 @@ static int part_costs(state *s, const uint32_t *live_v, size_t n, double (*q)[3]
             first[i + 1] += first[i];
         for (size_t i = q0; i < *nq; i++)
             by_part[first[qpart[i]]++] = (uint32_t)i;
-        if (!other_part_distances(s, s->part, live_v, n, (const double(*)[3])q, qpart, *nq - q0,
-                                  sqrt(limit2), dist, near, by_part, gone))
-            return 0;
+        other_part_distances(s, &vg, s->part, live_v, (const double(*)[3])q, qpart, *nq - q0,
+                             sqrt(limit2), dist, near, by_part, gone);
         for (size_t i = q0; i < *nq; i++) {
             part_cost *c = &pc[qpart[i]];
             c->cost = fmax(c->cost, dist[i]);
         }
     }
+    vgrid_free(&vg);
     return 1;
 }
 
