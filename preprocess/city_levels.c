@@ -437,8 +437,9 @@ static hlod_result node_texture(const hlod_image *atlas, hlod_city_item *out, do
     return hlod_node_texture(atlas, &view, factor, &out->tex);
 }
 
-hlod_result hlod_city_group(const hlod_city_item *const *kids, size_t n, size_t target_tris,
-                            const hlod_logger *lg, hlod_city_item *out)
+/* One group node from its children (steps 1-5 above). */
+static hlod_result city_group(const hlod_city_item *const *kids, size_t n, size_t target_tris,
+                              const hlod_logger *lg, hlod_city_item *out)
 {
     memset(out, 0, sizeof *out);
     if (!kids || !n || !target_tris)
@@ -564,7 +565,7 @@ static void *level_worker(void *arg)
         if (k >= J->groups)
             return NULL;
         size_t b = k ? J->ends[k - 1] : 0;
-        J->res[k] = hlod_city_group(J->items + b, J->ends[k] - b, J->target, J->lg, &J->out[k]);
+        J->res[k] = city_group(J->items + b, J->ends[k] - b, J->target, J->lg, &J->out[k]);
     }
 }
 

@@ -55,8 +55,4 @@ typedef struct hlod_city_levels_desc {
 hlod_result hlod_city_levels(hlod_city_item *items, size_t n, const hlod_city_levels_desc *d,
                              uint32_t *levels);
 
-/* One group node from its children (exposed for tests). */
-hlod_result hlod_city_group(const hlod_city_item *const *kids, size_t n, size_t target_tris,
-                            const hlod_logger *lg, hlod_city_item *out);
-
 #endif
