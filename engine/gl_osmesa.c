@@ -9,6 +9,7 @@
  * depends on which GL symbols libOSMesa happens to export.
  */
 #include <assert.h>
+#include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 
@@ -21,6 +22,7 @@ typedef void (GLAPIENTRY *gl_pixel_store_fn)(GLenum pname, GLint param);
 typedef void (GLAPIENTRY *gl_read_pixels_fn)(GLint x, GLint y, GLsizei w, GLsizei h, GLenum format,
                                   GLenum type, void *pixels);
 typedef GLenum (GLAPIENTRY *gl_get_error_fn)(void);
+typedef const GLubyte *(GLAPIENTRY *gl_get_string_fn)(GLenum name);
 
 struct hlod_osmesa {
     OSMesaContext ctx;
@@ -31,6 +33,7 @@ struct hlod_osmesa {
     gl_pixel_store_fn pixel_store;
     gl_read_pixels_fn read_pixels;
     gl_get_error_fn get_error;
+    char renderer_name[256];    /* GL_RENDERER */
 };
 
 /* The hlod_gl_get_proc of OSMesa.  Function and object pointers have the
@@ -103,11 +106,15 @@ hlod_result hlod_osmesa_create(uint32_t width, uint32_t height, const hlod_logge
     LOAD(o->pixel_store, "glPixelStorei");
     LOAD(o->read_pixels, "glReadPixels");
     LOAD(o->get_error, "glGetError");
-    if (!o->finish || !o->pixel_store || !o->read_pixels || !o->get_error) {
+    gl_get_string_fn get_string;
+    LOAD(get_string, "glGetString");
+    if (!o->finish || !o->pixel_store || !o->read_pixels || !o->get_error || !get_string) {
         hlod_logf(&o->lg, HLOD_LOG_ERROR, "osmesa: missing GL functions");
         hlod_osmesa_destroy(o);
         return HLOD_ERR_UNSUPPORTED;
     }
+    const char *name = (const char *)get_string(GL_RENDERER);
+    snprintf(o->renderer_name, sizeof o->renderer_name, "%s (OSMesa)", name ? name : "?");
     *out = o;
     return HLOD_OK;
 }
@@ -122,6 +129,27 @@ void hlod_osmesa_destroy(hlod_osmesa *o)
     OSMesaDestroyContext(o->ctx);
     free(o->buffer);
     free(o);
+}
+
+/* called from the render thread */
+hlod_result hlod_osmesa_make_current(hlod_osmesa *o)
+{
+    if (!o)
+        return HLOD_ERR_INVALID_ARG;
+    if (OSMesaGetCurrentContext() == o->ctx)
+        return HLOD_OK;
+    if (!OSMesaMakeCurrent(o->ctx, o->buffer, GL_UNSIGNED_BYTE, (GLsizei)o->width,
+                           (GLsizei)o->height)) {
+        hlod_logf(&o->lg, HLOD_LOG_ERROR, "osmesa: cannot make the %ux%u context current",
+                  o->width, o->height);
+        return HLOD_ERR_UNSUPPORTED;
+    }
+    return HLOD_OK;
+}
+
+const char *hlod_osmesa_renderer_name(const hlod_osmesa *o)
+{
+    return o ? o->renderer_name : "";
 }
 
 /* called from the thread that rendered, o's context current */

@@ -1,6 +1,6 @@
 /*
  * renderer.h - the OpenGL 3.3 renderer the engine draws with
- * (engine/gl_*.c), and a headless OSMesa context for it.  Render thread
+ * (engine/gl_*.c), and headless OSMesa and EGL contexts for it.  Render thread
  * only, with the renderer's context current.
  */
 #ifndef HLOD_RENDERER_H
@@ -41,6 +41,31 @@ hlod_gl_get_proc hlod_osmesa_get_proc(void);
 /* Copies the current image as 8-bit RGB, top row first, width*height*3
  * bytes (glReadPixels after glFinish). */
 hlod_result hlod_osmesa_read_rgb(hlod_osmesa *o, uint8_t *rgb);
+/* Makes o's context current again (a process with several contexts, e.g.
+ * hlod-bench's measured and reference ones, calls it before each engine
+ * call).  A no-op when it already is. */
+hlod_result hlod_osmesa_make_current(hlod_osmesa *o);
+/* GL_RENDERER of o's context, e.g. "llvmpipe (LLVM 15.0.6, 256 bits)". */
+const char *hlod_osmesa_renderer_name(const hlod_osmesa *o);
+
+/* A headless EGL context (engine/gl_egl.c, library hlod_egl) of the same
+ * shape: desktop GL 3.3 core, current with no surface, drawing into an FBO
+ * it owns (RGBA8 colour, 24-bit depth, width x height) that stays bound.
+ * The display is a hardware EGL device when the driver lists one, else
+ * Mesa's surfaceless platform (llvmpipe without a GPU), else
+ * EGL_DEFAULT_DISPLAY; HLOD_EGL_PLATFORM=device|surfaceless|default forces
+ * one.  Contexts of a process share one display.  Render thread only. */
+typedef struct hlod_egl hlod_egl;
+hlod_result hlod_egl_create(uint32_t width, uint32_t height, const hlod_logger *lg,
+                            hlod_egl **out);   /* and makes it current */
+/* Leaves no context current (make another one current before using it). */
+void hlod_egl_destroy(hlod_egl *g);
+hlod_gl_get_proc hlod_egl_get_proc(void);
+hlod_result hlod_egl_make_current(hlod_egl *g);   /* no-op when it already is */
+/* As hlod_osmesa_read_rgb, from the FBO; g's context current. */
+hlod_result hlod_egl_read_rgb(hlod_egl *g, uint8_t *rgb);
+/* GL_RENDERER and the EGL platform, e.g. "llvmpipe (...) (EGL surfaceless)". */
+const char *hlod_egl_renderer_name(const hlod_egl *g);
 
 /* Copies the framebuffer bound for reading (the back buffer of a window)
  * as 8-bit RGB, top row first, width*height*3 bytes (glReadPixels, which
