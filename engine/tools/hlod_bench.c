@@ -1,7 +1,8 @@
 /*
- * hlod-bench: replays a camera path through the engine, headless (OSMesa),
- * and reports frame time against the target, image error against a
- * full-detail reference, flicker, detail per depth and streaming.
+ * hlod-bench: replays a camera path through the engine, headless (OSMesa,
+ * or EGL with --backend egl), and reports frame time against the target,
+ * image error against a full-detail reference, flicker, detail per depth,
+ * streaming, and the machine's own jitter (one frozen selection replayed).
  *
  *   hlod-bench STORE --path P --target-ms T --out DIR [options]
  *
@@ -12,8 +13,14 @@
  * adds DIR/sweep.csv plus the run-time-vs-error (Pareto) plot.
  *
  * Reference frames (--reference) come from a second engine over the same
- * store with the full-detail policy, drawn after the measured frame has
- * ended, so they are never charged to its time.
+ * store with the full-detail policy, in a second GL context of its own
+ * (2W x 2H, box-filtered down to W x H, with --reference-ss 2, the
+ * default) with its own renderer, drawn after the measured frame has
+ * ended, so they are never charged to its time.  Each engine call is made
+ * with its engine's context current.
+ *
+ * --compare A.png B.png prints the PSNR, SSIM and differing pixels of two
+ * images as one JSON line (tests compare the backends' frames with it).
  *
  * Exit status: 0 success, 1 a run failed (unreadable store or path, GL
  * unavailable, output not writable), 2 bad command line.
@@ -31,6 +38,7 @@
 #include "cli.h"
 #include "view_flags.h"
 #include "hlod/engine.h"
+#include "hlod/image.h"
 #include "hlod/renderer.h"
 #include "hlod/metrics.h"
 #include "hlod/path.h"
@@ -45,9 +53,10 @@ static void usage(FILE *fp)
 {
     fprintf(fp,
         "usage: hlod-bench STORE --path P --target-ms T --out DIR [options]\n"
+        "       hlod-bench --compare A.png B.png\n"
         "\n"
-        "Replays camera path P through the engine headless (OSMesa) and writes\n"
-        "DIR/frames.csv, DIR/summary.json and PNG plots.\n"
+        "Replays camera path P through the engine headless (OSMesa or EGL) and\n"
+        "writes DIR/frames.csv, DIR/summary.json, DIR/jitter.csv and PNG plots.\n"
         "\n"
         "  --path P          a path file (t ex ey ez lx ly lz per line), or a\n"
         "                    built-in name (walk, fly, walk-to-fly, walk-drive,\n"
@@ -68,6 +77,20 @@ static void usage(FILE *fp)
         "  --reference       render a full-detail reference per frame: PSNR, SSIM\n"
         "  --reference-every K  only every K-th frame (default 1); each reference\n"
         "                    is drawn once and reused by every policy and sweep run\n"
+        "  --reference-ss S  1, or 2 (default): the reference drawn at 2W x 2H in\n"
+        "                    a context of its own and box-filtered down to W x H\n"
+        "  --save-frames LIST  comma list of frame numbers: DIR/frame_NNNNN.png of\n"
+        "                    each (the measured image), and frame_NNNNN_ref.png of\n"
+        "                    its reference with --reference; frames past the end\n"
+        "                    are not written (said on stderr)\n"
+        "  --jitter-frames R  after frame N/2 of each run (N frames), its frozen\n"
+        "                    selection is drawn again R times (default 120; 0: off):\n"
+        "                    the machine's own spread, machine_p50_ms/p99 and\n"
+        "                    DIR/jitter.csv\n"
+        "  --backend B       osmesa (default), or egl: a hardware EGL device, else\n"
+        "                    Mesa's surfaceless platform (llvmpipe without a GPU)\n"
+        "  --compare A B     print the PSNR, SSIM and differing pixels of images\n"
+        "                    A and B (same size) as JSON, then exit\n"
         "  --set KEY=VALUE   an engine setting (repeatable; below)\n"
         "  --sweep KEY=V1,V2 run once per value of KEY (any --set key)\n"
         "  --deterministic   fixed v_time and fixed_ms (calibrated in a short\n"
@@ -84,7 +107,9 @@ static void usage(FILE *fp)
         "toggles_up, toggles_down, toggles_per_frame, oscillations, psnr_mean,\n"
         "psnr_min, ssim_mean, image_flicker, tris_mean, loads, evictions, bytes_read,\n"
         "peak_resident_bytes, memory_budget_bytes, missing_wanted_frames,\n"
-        "render_waits, traversal_ms_mean, traversal_ms_max, policy, path.\n"
+        "render_waits, traversal_ms_mean, traversal_ms_max, deadline_met,\n"
+        "machine_p50_ms, machine_p99_ms, machine_p99_over_p50, estimate_err_p50,\n"
+        "estimate_err_p95, occlusion_culled_mean, toggles_after_60, policy, path.\n"
         "\n"
         "Exit status: 0 success, 1 a run failed, 2 bad command line.\n"
         "\n"
@@ -99,6 +124,9 @@ static void usage(FILE *fp)
 
 #define MAX_SETS 32
 #define MAX_SWEEP 64
+#define MAX_SAVE 256
+
+enum { BACKEND_OSMESA, BACKEND_EGL };
 
 typedef struct setting {
     const char *key;
@@ -110,7 +138,11 @@ typedef struct options {
     double target_ms, fov, near_plane, dt, io_mbps, memory_mb;
     uint32_t width, height;
     long frames;
-    int up_y, reference, reference_every, deterministic, plots, json;
+    int up_y, reference, reference_every, reference_ss, deterministic, plots, json;
+    int backend, jitter_frames;
+    uint64_t save[MAX_SAVE];    /* --save-frames */
+    int nsave;
+    const char *compare[2];     /* --compare A B */
     hlod_policy policies[HLOD_POLICY_COUNT];
     int npolicies;
     setting sets[MAX_SETS];
@@ -221,6 +253,48 @@ static int parse_sweep(const char *text, options *o)
     return 1;
 }
 
+static int parse_save_frames(const char *text, options *o)
+{
+    const char *p = text;
+    if (!*p) {
+        hlod_cli_usage_error(PROG, "--save-frames: empty list%s", "");
+        return 0;
+    }
+    while (*p) {
+        const char *c = strchr(p, ',');
+        size_t n = c ? (size_t)(c - p) : strlen(p), f;
+        char buf[32];
+        if (n == 0 || n >= sizeof buf) {
+            hlod_cli_usage_error(PROG, "--save-frames: bad list '%s' (frame numbers, e.g. 0,100)",
+                                 text);
+            return 0;
+        }
+        if (o->nsave >= MAX_SAVE) {
+            hlod_cli_usage_error(PROG, "--save-frames: more than %s frames", "256");
+            return 0;
+        }
+        memcpy(buf, p, n);
+        buf[n] = 0;
+        if (!hlod_cli_parse_size(PROG, "--save-frames", buf, 0, SIZE_MAX, &f))
+            return 0;
+        o->save[o->nsave++] = f;
+        p += n + (c ? 1 : 0);
+        if (c && !*p) {
+            hlod_cli_usage_error(PROG, "--save-frames: trailing comma in '%s'", text);
+            return 0;
+        }
+    }
+    return 1;
+}
+
+static int save_frame(const options *o, uint64_t f)
+{
+    for (int i = 0; i < o->nsave; i++)
+        if (o->save[i] == f)
+            return 1;
+    return 0;
+}
+
 static int parse_policies(const char *text, options *o)
 {
     char buf[128];
@@ -263,6 +337,8 @@ static int parse_args(int argc, char **argv, options *o)
     o->io_mbps = 100;
     o->frames = -1;
     o->reference_every = 1;
+    o->reference_ss = 2;
+    o->jitter_frames = 120;
     o->plots = 1;
     o->policies[0] = HLOD_POLICY_LAKHIA;
     o->npolicies = 1;
@@ -309,6 +385,33 @@ static int parse_args(int argc, char **argv, options *o)
             if (!hlod_cli_parse_size(PROG, "--reference-every", v, 1, 1000000, &n))
                 return 2;
             o->reference_every = (int)n;
+        } else if (FLAG("--reference-ss")) {
+            NEED("--reference-ss");
+            if (!hlod_cli_parse_size(PROG, "--reference-ss", v, 1, 2, &n))
+                return 2;
+            o->reference_ss = (int)n;
+        } else if (FLAG("--save-frames")) {
+            NEED("--save-frames");
+            if (!parse_save_frames(v, o))
+                return 2;
+        } else if (FLAG("--jitter-frames")) {
+            NEED("--jitter-frames");
+            if (!hlod_cli_parse_size(PROG, "--jitter-frames", v, 0, 1000000, &n))
+                return 2;
+            o->jitter_frames = (int)n;
+        } else if (FLAG("--backend")) {
+            NEED("--backend");
+            if (!strcmp(v, "osmesa"))
+                o->backend = BACKEND_OSMESA;
+            else if (!strcmp(v, "egl"))
+                o->backend = BACKEND_EGL;
+            else
+                return hlod_cli_usage_error(PROG, "--backend: '%s' is not osmesa or egl", v);
+        } else if (!strcmp(a, "--compare")) {
+            if (i + 2 >= argc)
+                return hlod_cli_usage_error(PROG, "--compare needs two images%s", "");
+            o->compare[0] = argv[++i];
+            o->compare[1] = argv[++i];
         } else if (FLAG("--set")) {
             NEED("--set");
             if (o->nsets >= MAX_SETS)
@@ -343,6 +446,9 @@ static int parse_args(int argc, char **argv, options *o)
 #undef FLAG
 #undef NEED
     }
+    if (o->compare[0])
+        return o->store ? hlod_cli_usage_error(PROG, "--compare takes no store ('%s')", o->store)
+                        : -1;
     if (!o->store)
         return hlod_cli_usage_error(PROG, "no store given%s", "");
     if (!o->path)
@@ -372,7 +478,57 @@ typedef struct summary {
     double tris_mean, traversal_mean, traversal_max;
     uint64_t loads, evictions, bytes_read, peak_resident, budget, missing_frames, waits;
     double v_time, fixed_ms;
+    double deadline_met;                    /* fraction with measured <= target */
+    double machine_p50, machine_p99;        /* the frozen replay; NAN without one */
+    double est_err_p50, est_err_p95;        /* |estimated - measured| / measured */
+    double occlusion_culled_mean;
+    uint64_t toggles_after_60;              /* up + down over frames 60.. */
+    uint64_t jitter_frame;                  /* the replayed frame */
+    int jitter_count;
+    const char *gl_renderer;
 } summary;
+
+/* Frames from this one on count in toggles_after_60 (the issue's still
+ * camera settles in 2 s). */
+#define SETTLED_FRAME 60
+
+/* Quantiles over the frames' estimate error and the replay times. */
+static void summarise_extra(const frame_rec *r, long n, double target, const double *jit,
+                            int njit, summary *s)
+{
+    double *err = malloc((size_t)(n ? n : 1) * sizeof *err);
+    size_t nerr = 0;
+    for (long i = 0; i < n; i++) {
+        const hlod_frame_stats *st = &r[i].st;
+        s->deadline_met += st->measured_ms <= target;
+        s->occlusion_culled_mean += st->occlusion_culled;
+        if (i >= SETTLED_FRAME)
+            s->toggles_after_60 += (uint64_t)st->toggles_up + st->toggles_down;
+        if (err && st->measured_ms > 0)
+            err[nerr++] = fabs(st->estimated_ms - st->measured_ms) / st->measured_ms;
+    }
+    if (n) {
+        s->deadline_met /= (double)n;
+        s->occlusion_culled_mean /= (double)n;
+    }
+    s->est_err_p50 = s->est_err_p95 = NAN;
+    if (err && nerr) {
+        hlod_stats_sort(err, nerr);
+        s->est_err_p50 = hlod_stats_percentile_sorted(err, nerr, 50);
+        s->est_err_p95 = hlod_stats_percentile_sorted(err, nerr, 95);
+    }
+    free(err);
+    s->machine_p50 = s->machine_p99 = NAN;
+    s->jitter_count = njit;
+    double *m = njit ? malloc((size_t)njit * sizeof *m) : NULL;
+    if (m) {
+        memcpy(m, jit, (size_t)njit * sizeof *m);
+        hlod_stats_sort(m, (size_t)njit);
+        s->machine_p50 = hlod_stats_percentile_sorted(m, (size_t)njit, 50);
+        s->machine_p99 = hlod_stats_percentile_sorted(m, (size_t)njit, 99);
+    }
+    free(m);
+}
 
 static void summarise(const frame_rec *r, long n, double target, summary *s)
 {
@@ -474,7 +630,9 @@ static hlod_result write_frames_csv(const char *dir, const frame_rec *r, long n,
     fprintf(fp, ",tris_drawn,cost_drawn,toggles_up,toggles_down,oscillations,nodes_visited,"
                 "wanted_missing,resident_nodes,resident_bytes,resident_cost,memory_budget_bytes,"
                 "loads,evictions,bytes_read,load_failures,bad_nodes,queued,render_waits,psnr,"
-                "ssim,luma_change,ref_luma_change,toggles_up_ma35,toggles_down_ma35\n");
+                "ssim,luma_change,ref_luma_change,toggles_up_ma35,toggles_down_ma35,"
+                "pixels_drawn,margin,occlusion_hidden,occlusion_tested,occlusion_culled,"
+                "occlusion_ms\n");
     for (long i = 0; i < n; i++) {
         const hlod_frame_stats *s = &r[i].st;
         fprintf(fp, "%llu,%.6f,%.4f,%.4f,%.9g,%.4f,%.4f,%.4f,%.4f,%.4f,%.4f,%u",
@@ -502,7 +660,9 @@ static hlod_result write_frames_csv(const char *dir, const frame_rec *r, long n,
             fprintf(fp, ",");
         else
             fprintf(fp, ",%.5f", r[i].ref_luma);
-        fprintf(fp, ",%.4f,%.4f\n", r[i].up_ma, r[i].down_ma);
+        fprintf(fp, ",%.4f,%.4f,%.0f,%.4f,%u,%u,%u,%.4f\n", r[i].up_ma, r[i].down_ma,
+                s->pixels_drawn, s->margin, s->occlusion_hidden, s->occlusion_tested,
+                s->occlusion_culled, s->occlusion_ms);
     }
     return hlod_atomic_commit(&af, lg);
 }
@@ -539,12 +699,25 @@ static void json_summary(hlod_json *j, const summary *s, const char *policy, con
     hlod_json_double(j, "traversal_ms_max", s->traversal_max);
     hlod_json_double(j, "v_time_final", s->v_time);
     hlod_json_double(j, "fixed_ms_final", s->fixed_ms);
+    hlod_json_double(j, "deadline_met", s->deadline_met);
+    hlod_json_double(j, "machine_p50_ms", s->machine_p50);
+    hlod_json_double(j, "machine_p99_ms", s->machine_p99);
+    hlod_json_double(j, "machine_p99_over_p50", s->machine_p99 / s->machine_p50);
+    hlod_json_int(j, "machine_frame", s->jitter_count ? (long long)s->jitter_frame : -1);
+    hlod_json_int(j, "machine_replays", s->jitter_count);
+    hlod_json_double(j, "estimate_err_p50", s->est_err_p50);
+    hlod_json_double(j, "estimate_err_p95", s->est_err_p95);
+    hlod_json_double(j, "occlusion_culled_mean", s->occlusion_culled_mean);
+    hlod_json_int(j, "toggles_after_60", (long long)s->toggles_after_60);
     hlod_json_string(j, "policy", policy);
     hlod_json_string(j, "path", path);
     hlod_json_int(j, "width", o->width);
     hlod_json_int(j, "height", o->height);
     hlod_json_bool(j, "deterministic", o->deterministic);
     hlod_json_bool(j, "reference", o->reference);
+    hlod_json_int(j, "reference_ss", o->reference_ss);
+    hlod_json_string(j, "backend", o->backend == BACKEND_EGL ? "egl" : "osmesa");
+    hlod_json_string(j, "gl_renderer", s->gl_renderer);
 }
 
 static hlod_result write_summary(const char *dir, const summary *s, const char *policy,
@@ -623,6 +796,116 @@ static int plot_run(const char *dir, uint32_t depths, int have_psnr, double targ
     return run_gnuplot(dir, "plots", s);
 }
 
+/* ---- GL contexts ---- */
+
+/* A headless context of one backend with its own renderer. */
+typedef struct gl_target {
+    hlod_osmesa *osmesa;
+#ifdef HLOD_HAVE_EGL
+    hlod_egl *egl;
+#endif
+    hlod_renderer *renderer;
+    uint32_t width, height;
+} gl_target;
+
+static hlod_result target_create(int backend, uint32_t w, uint32_t h, const hlod_logger *lg,
+                                 gl_target *t)
+{
+    memset(t, 0, sizeof *t);
+    t->width = w;
+    t->height = h;
+    hlod_result r;
+    hlod_gl_get_proc get_proc;
+    if (backend == BACKEND_EGL) {
+#ifdef HLOD_HAVE_EGL
+        r = hlod_egl_create(w, h, lg, &t->egl);
+        get_proc = hlod_egl_get_proc();
+#else
+        hlod_logf(lg, HLOD_LOG_ERROR, "--backend egl: this hlod-bench was built without EGL "
+                  "(libegl-dev was missing when cmake ran)");
+        return HLOD_ERR_UNSUPPORTED;
+#endif
+    } else {
+        r = hlod_osmesa_create(w, h, lg, &t->osmesa);
+        get_proc = hlod_osmesa_get_proc();
+    }
+    if (r == HLOD_OK)
+        r = hlod_renderer_create(get_proc, lg, &t->renderer);
+    return r;
+}
+
+static hlod_result target_current(gl_target *t)
+{
+#ifdef HLOD_HAVE_EGL
+    if (t->egl)
+        return hlod_egl_make_current(t->egl);
+#endif
+    return hlod_osmesa_make_current(t->osmesa);
+}
+
+/* The current image, top row first; t current. */
+static hlod_result target_read(gl_target *t, uint8_t *rgb)
+{
+#ifdef HLOD_HAVE_EGL
+    if (t->egl)
+        return hlod_egl_read_rgb(t->egl, rgb);
+#endif
+    return hlod_osmesa_read_rgb(t->osmesa, rgb);
+}
+
+static const char *target_name(const gl_target *t)
+{
+#ifdef HLOD_HAVE_EGL
+    if (t->egl)
+        return hlod_egl_renderer_name(t->egl);
+#endif
+    return t->osmesa ? hlod_osmesa_renderer_name(t->osmesa) : "";
+}
+
+static void target_destroy(gl_target *t)
+{
+    int have = t->osmesa != NULL;
+#ifdef HLOD_HAVE_EGL
+    have |= t->egl != NULL;
+#endif
+    if (have && target_current(t) == HLOD_OK)
+        hlod_renderer_destroy(t->renderer);
+#ifdef HLOD_HAVE_EGL
+    hlod_egl_destroy(t->egl);
+#endif
+    hlod_osmesa_destroy(t->osmesa);
+    memset(t, 0, sizeof *t);
+}
+
+/* dst (w x h RGB) = src (2w x 2h RGB) averaged over 2 x 2 blocks. */
+static void downsample_2x2(const uint8_t *src, uint32_t w, uint32_t h, uint8_t *dst)
+{
+    size_t row = (size_t)w * 2 * 3;
+    for (uint32_t y = 0; y < h; y++) {
+        const uint8_t *a = src + (size_t)y * 2 * row, *b = a + row;
+        uint8_t *d = dst + (size_t)y * w * 3;
+        for (uint32_t x = 0; x < w; x++)
+            for (int k = 0; k < 3; k++) {
+                size_t i = (size_t)x * 6 + (size_t)k;
+                d[(size_t)x * 3 + (size_t)k] = (uint8_t)((a[i] + a[i + 3] + b[i] + b[i + 3] + 2) / 4);
+            }
+    }
+}
+
+/* Writes a w x h RGB image as DIR/frame_NNNNN<suffix>.png; 0 on success. */
+static int write_frame_png(const char *dir, uint64_t f, const char *suffix, const uint8_t *rgb,
+                           uint32_t w, uint32_t h, const hlod_logger *lg)
+{
+    char path[4200];
+    snprintf(path, sizeof path, "%s/frame_%05llu%s.png", dir, (unsigned long long)f, suffix);
+    hlod_image img = {(int)w, (int)h, 3, (uint8_t *)rgb}; /* only read */
+    if (hlod_image_write(path, &img, lg) != HLOD_OK) {
+        hlod_cli_error(PROG, "%s: cannot write the frame image", path);
+        return 1;
+    }
+    return 0;
+}
+
 /* ---- one run ---- */
 
 typedef struct context {
@@ -630,10 +913,11 @@ typedef struct context {
     hlod_store *store;
     hlod_path path;
     const char *path_name;
-    hlod_osmesa *gl;
-    hlod_renderer *renderer;
+    gl_target gl;               /* the measured engine's context */
+    gl_target ref_gl;           /* the reference's, ss * W x ss * H */
     hlod_logger lg;
     uint8_t *img, *prev_img, *ref, *prev_ref;
+    uint8_t *ref_big;           /* the reference's read-back at ss * W x ss * H */
     /* Reference frames depend on the camera alone, not on the policy or a
      * swept constant, so one invocation renders each frame's reference
      * once and keeps it (up to REF_CACHE_BYTES): a policy comparison or a
@@ -647,7 +931,10 @@ typedef struct context {
 
 #define REF_CACHE_BYTES ((size_t)3 << 30)
 
-static void path_camera(const context *c, uint64_t f, hlod_camera *cam, double *t_out)
+/* The camera of frame f for a w x h viewport (the measured one, or the
+ * supersampled reference's: the same view, more pixels). */
+static void path_camera_size(const context *c, uint64_t f, uint32_t width, uint32_t height,
+                             hlod_camera *cam, double *t_out)
 {
     const options *o = c->o;
     double t = hlod_path_frame_time(&c->path, o->dt, f), eye[3], at[3];
@@ -664,14 +951,27 @@ static void path_camera(const context *c, uint64_t f, hlod_camera *cam, double *
         far_plane += m;
     }
     double up[3] = {0, o->up_y ? 1 : 0, o->up_y ? 0 : 1};
-    if (hlod_camera_look_at(cam, eye, at, up, o->fov, o->near_plane, far_plane, o->width,
-                            o->height) != HLOD_OK) {
+    if (hlod_camera_look_at(cam, eye, at, up, o->fov, o->near_plane, far_plane, width,
+                            height) != HLOD_OK) {
         /* looking straight along the up axis: tilt the up vector */
         double up2[3] = {0, o->up_y ? 0 : 1, o->up_y ? 1 : 0};
-        hlod_camera_look_at(cam, eye, at, up2, o->fov, o->near_plane, far_plane, o->width,
-                            o->height);
+        hlod_camera_look_at(cam, eye, at, up2, o->fov, o->near_plane, far_plane, width, height);
     }
     *t_out = t;
+}
+
+static void path_camera(const context *c, uint64_t f, hlod_camera *cam, double *t_out)
+{
+    path_camera_size(c, f, c->o->width, c->o->height, cam, t_out);
+}
+
+/* Frames a run replays: the path's, or --frames when fewer. */
+static uint64_t run_frames(const context *c)
+{
+    uint64_t total = hlod_path_frame_count(&c->path, c->o->dt);
+    if (c->o->frames > 0 && (uint64_t)c->o->frames < total)
+        total = (uint64_t)c->o->frames;
+    return total;
 }
 
 /* Calibrates v_time and fixed_ms for --deterministic from a short warm-up
@@ -701,19 +1001,24 @@ static hlod_result calibrate(context *c, const hlod_engine_desc *base, double *v
     return r;
 }
 
-/* The full-detail image of frame f: from the cache, or drawn by the
- * reference engine (created on first use, kept for the whole invocation
- * so its loaded leaves serve every run).  The result stays valid until
- * the next call at least.  NULL on failure. */
-static const uint8_t *reference_image(context *c, uint64_t f, const hlod_camera *cam)
+/* The full-detail image of frame f (W x H): from the cache, or drawn by
+ * the reference engine (created on first use, kept for the whole
+ * invocation so its loaded leaves serve every run) in its own context at
+ * ss * W x ss * H and box-filtered down.  The measured engine's context is
+ * current again on return.  The result stays valid until the next call at
+ * least.  NULL on failure. */
+static const uint8_t *reference_image(context *c, uint64_t f)
 {
     const options *o = c->o;
     if (f < c->ref_cache_frames && c->ref_cache[f])
         return c->ref_cache[f];
+    if (target_current(&c->ref_gl) != HLOD_OK)
+        return NULL;
+    const uint8_t *result = NULL;
     if (!c->ref_engine) {
         hlod_engine_desc rd = {0};
         rd.policy = HLOD_POLICY_FULL;
-        rd.renderer = c->renderer;
+        rd.renderer = c->ref_gl.renderer;
         rd.logger = c->lg;
         rd.deterministic = 1; /* no loader thread: load_all_leaves loads */
         rd.memory_budget_bytes = UINT64_MAX / 4;
@@ -722,13 +1027,16 @@ static const uint8_t *reference_image(context *c, uint64_t f, const hlod_camera 
             hlod_cli_error(PROG, "%s: cannot start the reference engine: %s", o->store,
                            hlod_result_str(r));
             c->ref_engine = NULL;
-            return NULL;
+            goto out;
         }
     }
+    hlod_camera cam;
+    double t;
+    path_camera_size(c, f, c->ref_gl.width, c->ref_gl.height, &cam, &t);
     hlod_frame_stats rs;
-    if (hlod_engine_load_all_leaves(c->ref_engine, cam) != HLOD_OK ||
-        hlod_engine_frame(c->ref_engine, cam, o->dt, &rs) != HLOD_OK)
-        return NULL;
+    if (hlod_engine_load_all_leaves(c->ref_engine, &cam) != HLOD_OK ||
+        hlod_engine_frame(c->ref_engine, &cam, o->dt, &rs) != HLOD_OK)
+        goto out;
     size_t npix = (size_t)o->width * o->height * 3;
     uint8_t *dst = NULL;
     if (f < c->ref_cache_frames && c->ref_cache_bytes + npix <= REF_CACHE_BYTES) {
@@ -742,8 +1050,37 @@ static const uint8_t *reference_image(context *c, uint64_t f, const hlod_camera 
         dst = c->ref_flip ? c->prev_ref : c->ref;
         c->ref_flip ^= 1;
     }
-    hlod_osmesa_read_rgb(c->gl, dst);
-    return dst;
+    if (target_read(&c->ref_gl, o->reference_ss == 1 ? dst : c->ref_big) != HLOD_OK) {
+        if (f < c->ref_cache_frames && c->ref_cache[f] == dst) {
+            free(dst);
+            c->ref_cache[f] = NULL;
+            c->ref_cache_bytes -= npix;
+        }
+        goto out;
+    }
+    if (o->reference_ss == 2)
+        downsample_2x2(c->ref_big, o->width, o->height, dst);
+    result = dst;
+out:
+    if (target_current(&c->gl) != HLOD_OK)
+        return NULL;
+    return result;
+}
+
+/* DIR/jitter.csv: one row per replay of the frozen selection. */
+static hlod_result write_jitter_csv(const char *dir, const double *ms, int n,
+                                    const hlod_logger *lg)
+{
+    char path[4200];
+    snprintf(path, sizeof path, "%s/jitter.csv", dir);
+    hlod_atomic_file af;
+    hlod_result res = hlod_atomic_open(&af, path, lg);
+    if (res != HLOD_OK)
+        return res;
+    fprintf(af.fp, "i,ms\n");
+    for (int i = 0; i < n; i++)
+        fprintf(af.fp, "%d,%.4f\n", i, ms[i]);
+    return hlod_atomic_commit(&af, lg);
 }
 
 static int run(context *c, hlod_policy policy, const char *dir, const setting *extra,
@@ -753,7 +1090,7 @@ static int run(context *c, hlod_policy policy, const char *dir, const setting *e
     hlod_engine_desc d = {0};
     d.target_ms = o->target_ms;
     d.policy = policy;
-    d.renderer = c->renderer;
+    d.renderer = c->gl.renderer;
     d.logger = c->lg;
     const hlod_store_header *h = hlod_store_get_header(c->store);
     d.memory_budget_bytes = o->memory_mb > 0 ? (uint64_t)(o->memory_mb * 1048576.0)
@@ -791,12 +1128,16 @@ static int run(context *c, hlod_policy policy, const char *dir, const setting *e
         hlod_cli_error(PROG, "%s: cannot start the engine: %s", o->store, hlod_result_str(r));
         return 1;
     }
-    uint64_t total = hlod_path_frame_count(&c->path, o->dt);
-    if (o->frames > 0 && (uint64_t)o->frames < total)
-        total = (uint64_t)o->frames;
+    uint64_t total = run_frames(c);
     frame_rec *rec = calloc(total ? total : 1, sizeof *rec);
-    if (!rec) {
+    /* the machine's jitter: frame total / 2's selection, replayed */
+    uint64_t jitter_frame = total / 2;
+    int njit = total ? o->jitter_frames : 0;
+    double *jit = njit ? calloc((size_t)njit, sizeof *jit) : NULL;
+    if (!rec || (njit && !jit)) {
         hlod_cli_error(PROG, "out of memory for %llu frames", (unsigned long long)total);
+        free(rec);
+        free(jit);
         hlod_engine_destroy(e);
         return 1;
     }
@@ -811,7 +1152,9 @@ static int run(context *c, hlod_policy policy, const char *dir, const setting *e
         frame_rec *fr = &rec[f];
         path_camera(c, f, &cam, &fr->t);
         fr->psnr = fr->ssim = fr->luma = fr->ref_luma = NAN;
-        r = hlod_engine_frame(e, &cam, o->dt, &fr->st);
+        r = target_current(&c->gl);
+        if (r == HLOD_OK)
+            r = hlod_engine_frame(e, &cam, o->dt, &fr->st);
         if (r != HLOD_OK) {
             hlod_cli_progress_clear(&bar);
             hlod_cli_error(PROG, "%s: frame %llu failed: %s", o->store, (unsigned long long)f,
@@ -819,17 +1162,47 @@ static int run(context *c, hlod_policy policy, const char *dir, const setting *e
             status = 1;
             break;
         }
+        int save = save_frame(o, f);
+        const uint8_t *image = NULL; /* this frame's, when read */
+        if (need_images || save) {
+            r = target_read(&c->gl, c->img);
+            if (r != HLOD_OK) {
+                hlod_cli_progress_clear(&bar);
+                hlod_cli_error(PROG, "frame %llu: cannot read the image back: %s",
+                               (unsigned long long)f, hlod_result_str(r));
+                status = 1;
+                break;
+            }
+            image = c->img;
+        }
         if (need_images) {
-            hlod_osmesa_read_rgb(c->gl, c->img);
             if (have_prev)
                 hlod_luma_change_rgb8(c->prev_img, c->img, o->width, o->height, &fr->luma);
             uint8_t *t = c->prev_img;
             c->prev_img = c->img;
             c->img = t;
+            image = c->prev_img;
             have_prev = 1;
         }
-        if (o->reference && f % (uint64_t)o->reference_every == 0) {
-            const uint8_t *ref = reference_image(c, f, &cam);
+        if (save && write_frame_png(dir, f, "", image, o->width, o->height, &c->lg) != 0) {
+            status = 1;
+            break;
+        }
+        if (njit && f == jitter_frame) {
+            /* after the frame, before its reference: same loaded state */
+            for (int k = 0; k < njit && r == HLOD_OK; k++)
+                r = hlod_engine_replay(e, &cam, 1, &jit[k]);
+            if (r != HLOD_OK) {
+                hlod_cli_progress_clear(&bar);
+                hlod_cli_error(PROG, "%s: replaying frame %llu failed: %s", o->store,
+                               (unsigned long long)f, hlod_result_str(r));
+                status = 1;
+                break;
+            }
+        }
+        int scored = f % (uint64_t)o->reference_every == 0;
+        if (o->reference && (scored || save)) {
+            const uint8_t *ref = reference_image(c, f);
             if (!ref) {
                 hlod_cli_progress_clear(&bar);
                 hlod_cli_error(PROG, "%s: reference frame %llu failed", o->store,
@@ -837,34 +1210,48 @@ static int run(context *c, hlod_policy policy, const char *dir, const setting *e
                 status = 1;
                 break;
             }
-            hlod_psnr_rgb8(c->prev_img, ref, o->width, o->height, &fr->psnr);
-            hlod_ssim_rgb8(c->prev_img, ref, o->width, o->height, &fr->ssim);
-            if (prev_ref && o->reference_every == 1)
-                hlod_luma_change_rgb8(prev_ref, ref, o->width, o->height, &fr->ref_luma);
-            prev_ref = ref;
+            if (save && write_frame_png(dir, f, "_ref", ref, o->width, o->height, &c->lg) != 0) {
+                status = 1;
+                break;
+            }
+            if (scored) {
+                hlod_psnr_rgb8(c->prev_img, ref, o->width, o->height, &fr->psnr);
+                hlod_ssim_rgb8(c->prev_img, ref, o->width, o->height, &fr->ssim);
+                if (prev_ref && o->reference_every == 1)
+                    hlod_luma_change_rgb8(prev_ref, ref, o->width, o->height, &fr->ref_luma);
+                prev_ref = ref;
+            }
         }
         hlod_cli_progress_fn(&bar, (double)(f + 1), (double)total);
     }
     hlod_cli_progress_clear(&bar);
-    hlod_engine_destroy(e);
+    hlod_engine_destroy(e); /* c->gl current */
     if (status) {
         free(rec);
+        free(jit);
         return status;
     }
 
     summarise(rec, (long)total, d.target_ms, out);
+    summarise_extra(rec, (long)total, d.target_ms, jit, njit, out);
+    out->jitter_frame = jitter_frame;
+    out->gl_renderer = target_name(&c->gl);
     moving_averages(rec, (long)total);
     uint32_t depths = h->depth_count < HLOD_STATS_MAX_DEPTH ? h->depth_count : HLOD_STATS_MAX_DEPTH;
     if (write_frames_csv(dir, rec, (long)total, depths, &c->lg) != HLOD_OK ||
-        write_summary(dir, out, hlod_policy_name(policy), c->path_name, o, &c->lg) != HLOD_OK)
+        write_summary(dir, out, hlod_policy_name(policy), c->path_name, o, &c->lg) != HLOD_OK ||
+        (njit && write_jitter_csv(dir, jit, njit, &c->lg) != HLOD_OK))
         status = 1;
     free(rec);
+    free(jit);
     if (!status && o->plots)
         status = plot_run(dir, depths, o->reference, d.target_ms);
     fprintf(stderr, "%s: %s: %ld frames, mean %.2f ms (p95 %.2f, p99 %.2f) for %.1f target, "
-            "%.0f%% within 10%%, %.3f toggles/frame, psnr %.2f dB -> %s\n", PROG,
+            "%.0f%% within 10%%, %.0f%% within the target, machine p50 %.2f p99 %.2f ms, "
+            "%.3f toggles/frame, psnr %.2f dB -> %s\n", PROG,
             hlod_policy_name(policy), out->frames, out->mean, out->p95, out->p99, d.target_ms,
-            100 * out->within, out->toggles_per_frame, out->psnr_mean, dir);
+            100 * out->within, 100 * out->deadline_met, out->machine_p50, out->machine_p99,
+            out->toggles_per_frame, out->psnr_mean, dir);
     return status;
 }
 
@@ -915,6 +1302,65 @@ static int plot_sweep(const options *o)
     return run_gnuplot(o->out, "sweep", s);
 }
 
+/* An image as RGB (the first three channels; grey repeated); NULL on error. */
+static uint8_t *image_rgb(const hlod_image *img)
+{
+    size_t n = (size_t)img->width * (size_t)img->height;
+    uint8_t *rgb = malloc(n * 3 + 1);
+    if (!rgb)
+        return NULL;
+    for (size_t i = 0; i < n; i++)
+        for (int k = 0; k < 3; k++)
+            rgb[i * 3 + (size_t)k] =
+                img->pixels[i * (size_t)img->channels + (size_t)(img->channels >= 3 ? k : 0)];
+    return rgb;
+}
+
+/* --compare A B: one JSON line with psnr, ssim (null under 11 pixels a
+ * side), differing_pixels, width, height.  0, or 1 when an image cannot be
+ * read or the sizes differ. */
+static int compare_images(const char *a, const char *b, const hlod_logger *lg)
+{
+    hlod_image ia = {0}, ib = {0};
+    int rc = 1;
+    uint8_t *ra = NULL, *rb = NULL;
+    if (hlod_image_read(a, &ia, lg) != HLOD_OK || hlod_image_read(b, &ib, lg) != HLOD_OK)
+        goto out;
+    if (ia.width != ib.width || ia.height != ib.height) {
+        hlod_cli_error(PROG, "%s is %dx%d but %s is %dx%d: cannot compare", a, ia.width,
+                       ia.height, b, ib.width, ib.height);
+        goto out;
+    }
+    ra = image_rgb(&ia);
+    rb = image_rgb(&ib);
+    if (!ra || !rb) {
+        hlod_cli_error(PROG, "out of memory comparing %s and %s", a, b);
+        goto out;
+    }
+    uint32_t w = (uint32_t)ia.width, h = (uint32_t)ia.height;
+    double psnr = NAN, ssim = NAN;
+    long long differ = 0;
+    hlod_psnr_rgb8(ra, rb, w, h, &psnr);
+    if (w >= HLOD_SSIM_WINDOW && h >= HLOD_SSIM_WINDOW)
+        hlod_ssim_rgb8(ra, rb, w, h, &ssim);
+    for (size_t i = 0; i < (size_t)w * h; i++)
+        differ += memcmp(ra + 3 * i, rb + 3 * i, 3) != 0;
+    hlod_json j;
+    hlod_json_begin(&j, stdout);
+    hlod_json_double(&j, "psnr", psnr);
+    hlod_json_double(&j, "ssim", ssim);
+    hlod_json_int(&j, "differing_pixels", differ);
+    hlod_json_int(&j, "width", w);
+    hlod_json_int(&j, "height", h);
+    rc = hlod_json_end(&j) == 0 ? 0 : 1;
+out:
+    free(ra);
+    free(rb);
+    hlod_image_free(&ia);
+    hlod_image_free(&ib);
+    return rc;
+}
+
 int main(int argc, char **argv)
 {
     options o;
@@ -923,6 +1369,10 @@ int main(int argc, char **argv)
         return rc;
 
     hlod_cli_log log_state = {PROG, HLOD_LOG_WARN, NULL};
+    if (o.compare[0]) {
+        hlod_logger lg = hlod_cli_logger(&log_state);
+        return compare_images(o.compare[0], o.compare[1], &lg);
+    }
     context c;
     memset(&c, 0, sizeof c);
     c.o = &o;
@@ -947,27 +1397,42 @@ int main(int argc, char **argv)
         hlod_path_free(&c.path);
         return 1;
     }
-    hlod_result r = hlod_osmesa_create(o.width, o.height, &c.lg, &c.gl);
-    if (r == HLOD_OK)
-        r = hlod_renderer_create(hlod_osmesa_get_proc(), &c.lg, &c.renderer);
+    const char *backend = o.backend == BACKEND_EGL ? "EGL" : "OSMesa";
+    uint32_t ss = (uint32_t)o.reference_ss;
+    hlod_result r = HLOD_OK;
+    if (o.reference) { /* its own context first: the measured one stays current */
+        r = target_create(o.backend, o.width * ss, o.height * ss, &c.lg, &c.ref_gl);
+        if (r != HLOD_OK) {
+            hlod_cli_error(PROG, "cannot set up the reference's headless OpenGL (%s, GL 3.3, "
+                           "%ux%u): %s", backend, o.width * ss, o.height * ss, hlod_result_str(r));
+            rc = 1;
+            goto done;
+        }
+    }
+    r = target_create(o.backend, o.width, o.height, &c.lg, &c.gl);
     size_t npix = (size_t)o.width * o.height * 3;
     c.img = malloc(npix);
     c.prev_img = malloc(npix);
     c.ref = malloc(npix);
     c.prev_ref = malloc(npix);
-    if (r != HLOD_OK || !c.img || !c.prev_img || !c.ref || !c.prev_ref) {
-        hlod_cli_error(PROG, "cannot set up headless OpenGL (OSMesa, GL 3.3): %s",
+    c.ref_big = o.reference && ss > 1 ? malloc(npix * ss * ss) : NULL;
+    if (r != HLOD_OK || !c.img || !c.prev_img || !c.ref || !c.prev_ref ||
+        (o.reference && ss > 1 && !c.ref_big)) {
+        hlod_cli_error(PROG, "cannot set up headless OpenGL (%s, GL 3.3): %s", backend,
                        hlod_result_str(r != HLOD_OK ? r : HLOD_ERR_NOMEM));
         rc = 1;
         goto done;
     }
 
+    uint64_t nframes = run_frames(&c);
+    for (int i = 0; i < o.nsave; i++)
+        if (o.save[i] >= nframes)
+            fprintf(stderr, "%s: --save-frames: frame %llu is past the last frame (%llu): not "
+                    "written\n", PROG, (unsigned long long)o.save[i],
+                    (unsigned long long)(nframes ? nframes - 1 : 0));
     if (o.reference) {
-        uint64_t n = hlod_path_frame_count(&c.path, o.dt);
-        if (o.frames > 0 && (uint64_t)o.frames < n)
-            n = (uint64_t)o.frames;
-        c.ref_cache = calloc(n ? n : 1, sizeof *c.ref_cache);
-        c.ref_cache_frames = c.ref_cache ? n : 0; /* no cache: draw each time */
+        c.ref_cache = calloc(nframes ? nframes : 1, sizeof *c.ref_cache);
+        c.ref_cache_frames = c.ref_cache ? nframes : 0; /* no cache: draw each time */
     }
     int multi = o.npolicies > 1 || o.sweep_key;
     FILE *sweep_fp = NULL;
@@ -983,7 +1448,9 @@ int main(int argc, char **argv)
         fprintf(sweep_fp, "policy,key,value,frames,target_ms,frame_ms_mean,frame_ms_p95,"
                           "frame_ms_p99,within_10pct,over_target_frac,toggles_per_frame,"
                           "oscillations,psnr_mean,psnr_min,ssim_mean,tris_mean,loads,evictions,"
-                          "peak_resident_bytes,run_dir\n");
+                          "peak_resident_bytes,run_dir,deadline_met,machine_p50_ms,"
+                          "machine_p99_ms,machine_p99_over_p50,estimate_err_p50,estimate_err_p95,"
+                          "occlusion_culled_mean,toggles_after_60\n");
     }
     rc = 0;
     summary last;
@@ -1007,13 +1474,17 @@ int main(int argc, char **argv)
             rc = run(&c, o.policies[pi], dir, o.sweep_key ? &extra : NULL, &last);
             if (rc == 0 && sweep_fp)
                 fprintf(sweep_fp, "%s,%s,%g,%ld,%g,%.4f,%.4f,%.4f,%.4f,%.4f,%.5f,%llu,%.4f,%.4f,"
-                        "%.5f,%.1f,%llu,%llu,%llu,%s\n", pname, o.sweep_key ? o.sweep_key : "",
+                        "%.5f,%.1f,%llu,%llu,%llu,%s,%.4f,%.4f,%.4f,%.4f,%.5f,%.5f,%.3f,%llu\n",
+                        pname, o.sweep_key ? o.sweep_key : "",
                         o.sweep_key ? o.sweep[vi] : 0, last.frames, last.target_ms, last.mean,
                         last.p95, last.p99, last.within, last.over, last.toggles_per_frame,
                         (unsigned long long)last.osc, last.psnr_mean, last.psnr_min,
                         last.ssim_mean, last.tris_mean, (unsigned long long)last.loads,
                         (unsigned long long)last.evictions,
-                        (unsigned long long)last.peak_resident, dir);
+                        (unsigned long long)last.peak_resident, dir, last.deadline_met,
+                        last.machine_p50, last.machine_p99, last.machine_p99 / last.machine_p50,
+                        last.est_err_p50, last.est_err_p95, last.occlusion_culled_mean,
+                        (unsigned long long)last.toggles_after_60);
         }
     if (sweep_fp) {
         if (rc == 0) {
@@ -1035,7 +1506,8 @@ int main(int argc, char **argv)
     }
 
 done:
-    hlod_engine_destroy(c.ref_engine);
+    if (c.ref_engine && target_current(&c.ref_gl) == HLOD_OK)
+        hlod_engine_destroy(c.ref_engine);
     for (uint64_t f = 0; f < c.ref_cache_frames; f++)
         free(c.ref_cache[f]);
     free(c.ref_cache);
@@ -1043,8 +1515,9 @@ done:
     free(c.prev_img);
     free(c.ref);
     free(c.prev_ref);
-    hlod_renderer_destroy(c.renderer);
-    hlod_osmesa_destroy(c.gl);
+    free(c.ref_big);
+    target_destroy(&c.ref_gl);
+    target_destroy(&c.gl);
     hlod_store_close(c.store);
     hlod_path_free(&c.path);
     return rc;
