@@ -6,7 +6,14 @@
 # output; a run writes frames.csv (one row per frame), summary.json with
 # every key scripts rely on, and the plots; --deterministic gives identical
 # selection columns twice; a policy x target sweep writes sweep.csv (one
-# row per run) and pareto.png; --reference fills psnr/ssim.
+# row per run) and pareto.png; --reference fills psnr/ssim; the keys of
+# issue 17 (deadline_met, the machine's jitter from the frozen-selection
+# replay, estimate error, occlusion, toggles after frame 60) exist and are
+# sane, and the replay changes no selection; frames.csv's new columns come
+# last; --save-frames writes the frames (and the reference's) as PNG; the
+# 2x2 supersampled reference differs from the plain one; and the EGL
+# backend draws the frame OSMesa draws (PSNR >= 40 dB; both images are kept
+# in a folder the failure names).
 set -u
 BIN=${HLOD_BIN_DIR:-build/bin}
 SRC=${HLOD_SOURCE_DIR:-.}
@@ -68,6 +75,46 @@ perl -MJSON::PP -e 'local $/; my $j = JSON::PP->new->decode(<STDIN>);
     exit !($j->{frames} == 40 && $j->{psnr_mean} > 10 && $j->{ssim_mean} > 0.3 &&
            $j->{peak_resident_bytes} <= $j->{memory_budget_bytes})' <"$T/run/summary.json"
 ok $? "summary values: 40 frames, PSNR and SSIM filled, resident within budget"
+missing=""
+for k in deadline_met machine_p50_ms machine_p99_ms machine_p99_over_p50 estimate_err_p50 \
+    estimate_err_p95 occlusion_culled_mean toggles_after_60; do
+    grep -q "\"$k\":" "$T/run/summary.json" || missing="$missing $k"
+done
+[ -z "$missing" ]
+ok $? "summary.json keys of issue 17${missing:+ (missing:$missing)}"
+perl -MJSON::PP -e 'local $/; my $j = JSON::PP->new->decode(<STDIN>);
+    my $bad = "";
+    my $num = sub { defined $_[0] && !ref $_[0] && $_[0] =~ /^-?[\d.]+(e[-+]?\d+)?$/i };
+    $bad .= " deadline_met" unless $num->($j->{deadline_met}) && $j->{deadline_met} >= 0 &&
+        $j->{deadline_met} <= 1;
+    $bad .= " machine_p50_ms" unless $num->($j->{machine_p50_ms}) && $j->{machine_p50_ms} > 0;
+    $bad .= " machine_p99_ms" unless $num->($j->{machine_p99_ms}) &&
+        $j->{machine_p99_ms} >= $j->{machine_p50_ms};
+    $bad .= " machine_p99_over_p50" unless $num->($j->{machine_p99_over_p50}) &&
+        abs($j->{machine_p99_over_p50} - $j->{machine_p99_ms} / $j->{machine_p50_ms}) < 1e-9;
+    $bad .= " estimate_err" unless $num->($j->{estimate_err_p50}) && $j->{estimate_err_p50} >= 0 &&
+        $num->($j->{estimate_err_p95}) && $j->{estimate_err_p95} >= $j->{estimate_err_p50};
+    $bad .= " occlusion_culled_mean" unless $num->($j->{occlusion_culled_mean}) &&
+        $j->{occlusion_culled_mean} >= 0;
+    $bad .= " toggles_after_60" unless defined $j->{toggles_after_60} &&
+        $j->{toggles_after_60} =~ /^\d+$/;
+    $bad .= " machine_frame" unless $j->{machine_frame} == 20 && $j->{machine_replays} == 120;
+    print STDERR "bad:$bad\n" if $bad; exit($bad ne "")' <"$T/run/summary.json"
+ok $? "issue 17 keys sane (deadline_met in [0,1], machine p99 >= p50 > 0, errors >= 0, ...)"
+# deadline_met and toggles_after_60 recomputed from frames.csv
+awk -F, -v t=33 'NR == 1 { for (i = 1; i <= NF; i++) at[$i] = i; next }
+    { n++; met += $at["measured_ms"] <= t; if ($1 >= 60) late += $at["toggles_up"] + $at["toggles_down"] }
+    END { printf "%.6f %d\n", met / n, late }' "$T/run/frames.csv" >"$T/csv_keys"
+perl -MJSON::PP -e 'local $/; my $j = JSON::PP->new->decode(<STDIN>);
+    my ($met, $late) = split " ", $ARGV[0];
+    exit !(abs($j->{deadline_met} - $met) < 1e-5 && $j->{toggles_after_60} == $late)' \
+    "$(cat "$T/csv_keys")" <"$T/run/summary.json"
+ok $? "deadline_met and toggles_after_60 agree with frames.csv"
+[ "$(($(wc -l <"$T/run/jitter.csv") - 1))" -eq 120 ] && head -1 "$T/run/jitter.csv" | grep -qx "i,ms"
+ok $? "jitter.csv: one row per replay (120)"
+head -1 "$T/run/frames.csv" |
+    grep -q ",toggles_up_ma35,toggles_down_ma35,pixels_drawn,margin,occlusion_hidden,occlusion_tested,occlusion_culled,occlusion_ms$"
+ok $? "frames.csv: the new columns come last, in order"
 for png in frame_time nodes_per_depth toggles memory psnr; do
     head -c 8 "$T/run/$png.png" 2>/dev/null | od -An -tx1 | grep -q "89 50 4e 47" || missing="$missing $png"
 done
@@ -96,12 +143,20 @@ sel() {
 [ -s "$T/det1/frames.csv" ] && sel "$T/det1" >"$T/sel1" && sel "$T/det2" >"$T/sel2" &&
     [ "$(wc -l <"$T/sel1")" -gt 1 ] && cmp -s "$T/sel1" "$T/sel2"
 ok $? "--deterministic: identical selection columns in two runs"
+# the replay (at frame 20 of 40) changes nothing: without it, the same selection
+"$BIN/hlod-bench" "$T/city.hlod" --path "$P" --out "$T/det0" --target-ms 33 "${COMMON[@]}" \
+    --deterministic --set v_time=0.002 --set fixed_ms=5 --io-mbps 20 --no-plots \
+    --jitter-frames 0 2>/dev/null && sel "$T/det0" >"$T/sel0" && cmp -s "$T/sel0" "$T/sel1" &&
+    [ ! -e "$T/det0/jitter.csv" ] && grep -q '"machine_p50_ms": null' "$T/det0/summary.json"
+ok $? "--jitter-frames 0: no replay, same selection as with it, machine_p50_ms null"
 
 "$BIN/hlod-bench" "$T/city.hlod" --path "$P" --out "$T/sweep" "${COMMON[@]}" --reference \
     --reference-every 10 --policy lakhia,nohyst,sse --sweep target_ms=10,30 2>/dev/null
 [ $? -eq 0 ] && [ "$(($(wc -l <"$T/sweep/sweep.csv") - 1))" -eq 6 ] && [ -s "$T/sweep/pareto.png" ] &&
     [ -s "$T/sweep/nohyst-target_ms=30/summary.json" ]
 ok $? "sweep: 3 policies x 2 targets in sweep.csv, pareto.png"
+head -1 "$T/sweep/sweep.csv" | grep -q ",run_dir,deadline_met,machine_p50_ms,machine_p99_ms,machine_p99_over_p50,estimate_err_p50,estimate_err_p95,occlusion_culled_mean,toggles_after_60$"
+ok $? "sweep.csv: the issue 17 keys as trailing columns"
 
 # Reference frames are rendered once per invocation and reused by later
 # runs: a deterministic nohyst run after a lakhia run must score exactly as
@@ -119,6 +174,82 @@ col() { awk -F, -v k="$2" 'NR == 1 { for (i = 1; i <= NF; i++) if ($i == k) c = 
     [ "$(col "$T/refpair/nohyst" psnr)" = "$(col "$T/refone" psnr)" ] &&
     [ "$(col "$T/refpair/nohyst" ssim)" = "$(col "$T/refone" ssim)" ]
 ok $? "cached reference frames score a later run exactly as a run of its own"
+
+# --save-frames: PNGs of the frames, with the reference's; frames past the
+# end are not written and said; a list that is not frame numbers is a
+# usage error
+is_png() { head -c 8 "$1" 2>/dev/null | od -An -tx1 | grep -q "89 50 4e 47"; }
+"$BIN/hlod-bench" "$T/city.hlod" --path "$P" --out "$T/save" --target-ms 33 "${COMMON[@]}" \
+    --no-plots --reference --reference-every 10 --save-frames 0,7,39,500 2>"$T/err"
+rc=$?
+missing=""
+for f in 00000 00007 00039; do
+    is_png "$T/save/frame_$f.png" || missing="$missing frame_$f.png"
+    is_png "$T/save/frame_${f}_ref.png" || missing="$missing frame_${f}_ref.png"
+done
+[ $rc -eq 0 ] && [ -z "$missing" ] && [ ! -e "$T/save/frame_00500.png" ] && grep -q "500" "$T/err" &&
+    [ "$(ls "$T/save" | grep -c '^frame_.*png$')" -eq 6 ]
+ok $? "--save-frames writes frame and reference PNGs${missing:+ (missing:$missing)}, says 500 is past the end"
+# frame 7 is not a scored reference frame (every 10): saving it adds no PSNR
+[ "$(col "$T/save" psnr | wc -l)" -eq 4 ]
+ok $? "--save-frames: a saved frame's reference does not add a PSNR sample"
+"$BIN/hlod-bench" "$T/city.hlod" --path "$P" --out "$T/x" --save-frames 1,x 2>"$T/err"
+[ $? -eq 2 ] && grep -q -- "--save-frames" "$T/err"
+ok $? "--save-frames 1,x exits 2 naming the flag"
+"$BIN/hlod-bench" "$T/city.hlod" --path "$P" --out "$T/x" --save-frames 1,,2 2>/dev/null
+[ $? -eq 2 ]
+ok $? "--save-frames 1,,2 exits 2"
+for bad in "--reference-ss 3" "--backend vulkan" "--jitter-frames -1"; do
+    # shellcheck disable=SC2086
+    "$BIN/hlod-bench" "$T/city.hlod" --path "$P" --out "$T/x" $bad 2>"$T/err"
+    [ $? -eq 2 ] && grep -q -- "${bad%% *}" "$T/err"
+    ok $? "$bad exits 2 naming the flag"
+done
+
+# --reference-ss: the supersampled reference is not the plain one, and
+# scores close to it
+"$BIN/hlod-bench" "$T/city.hlod" --path "$P" --out "$T/ss1" --target-ms 33 "${COMMON[@]}" \
+    --no-plots --reference --reference-every 10 --reference-ss 1 --save-frames 30 2>/dev/null &&
+    "$BIN/hlod-bench" "$T/city.hlod" --path "$P" --out "$T/ss2" --target-ms 33 "${COMMON[@]}" \
+        --no-plots --reference --reference-every 10 --reference-ss 2 --save-frames 30 2>/dev/null &&
+    "$BIN/hlod-bench" --compare "$T/ss1/frame_00030_ref.png" "$T/ss2/frame_00030_ref.png" >"$T/cmp"
+rc=$?
+[ $rc -eq 0 ] && perl -MJSON::PP -e 'local $/; my $j = JSON::PP->new->decode(<STDIN>);
+    exit !($j->{differing_pixels} > 0 && $j->{psnr} > 20)' <"$T/cmp" &&
+    grep -q '"reference_ss": 2' "$T/ss2/summary.json" && grep -q '"reference_ss": 1' "$T/ss1/summary.json"
+ok $? "--reference-ss 2 draws a different (antialiased) reference than 1 ($(cat "$T/cmp" 2>/dev/null))"
+"$BIN/hlod-bench" --compare "$T/ss1/frame_00030.png" "$T/ss1/frame_00030.png" | grep -q '"psnr": 99'
+ok $? "--compare: an image against itself is 99 dB"
+"$BIN/hlod-bench" --compare "$T/ss1/frame_00030.png" "$T/none.png" 2>"$T/err"
+[ $? -eq 1 ] && grep -q "none.png" "$T/err"
+ok $? "--compare: a missing image exits 1 naming it"
+
+# --backend egl (Mesa's surfaceless platform: llvmpipe here) draws what
+# OSMesa draws: the same frames, compared; both kept on failure
+FRAMES=0,20,39
+"$BIN/hlod-bench" "$T/city.hlod" --path "$P" --out "$T/osm" --target-ms 33 "${COMMON[@]}" \
+    --no-plots --deterministic --set v_time=0.002 --set fixed_ms=5 --io-mbps 20 \
+    --save-frames "$FRAMES" 2>"$T/err_osm" &&
+    "$BIN/hlod-bench" "$T/city.hlod" --path "$P" --out "$T/egl" --target-ms 33 "${COMMON[@]}" \
+        --no-plots --deterministic --set v_time=0.002 --set fixed_ms=5 --io-mbps 20 \
+        --save-frames "$FRAMES" --backend egl 2>"$T/err_egl"
+rc=$?
+[ $rc -eq 0 ] && grep -q '"backend": "egl"' "$T/egl/summary.json"
+ok $? "--backend egl runs ($(grep -o '"gl_renderer": "[^"]*"' "$T/egl/summary.json" 2>/dev/null || cat "$T/err_egl"))"
+worst=""
+for f in 00000 00020 00039; do
+    "$BIN/hlod-bench" --compare "$T/osm/frame_$f.png" "$T/egl/frame_$f.png" >"$T/cmp" 2>&1 &&
+        perl -MJSON::PP -e 'local $/; exit !(JSON::PP->new->decode(<STDIN>)->{psnr} >= 40)' \
+            <"$T/cmp" || worst="$worst frame_$f.png: $(cat "$T/cmp")"
+done
+if [ -n "$worst" ]; then
+    KEEP=$(mktemp -d /tmp/hlod-test-bench-egl-XXXXXX)
+    cp -r "$T/osm" "$KEEP/osmesa"
+    cp -r "$T/egl" "$KEEP/egl"
+    echo "EGL vs OSMesa:$worst; both runs kept in $KEEP"
+fi
+[ $rc -eq 0 ] && [ -z "$worst" ] && cmp -s <(sel "$T/osm") <(sel "$T/egl")
+ok $? "--backend egl: the same frames as OSMesa within 40 dB PSNR, the same selection"
 
 echo "$pass passed, $fail failed"
 [ "$fail" -eq 0 ]
