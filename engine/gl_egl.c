@@ -6,8 +6,8 @@
  *
  * The display, in this order:
  * 1. a hardware EGL device (EGL_EXT_platform_device), when the driver lists
- *    one: the GPU's own driver (NVIDIA's EGL offers only this platform for
- *    headless use, and there Mesa's surfaceless platform would be
+ *    one: the GPU's own driver (first, because on a GPU without a Mesa
+ *    driver, e.g. NVIDIA's, Mesa's surfaceless platform can answer with
  *    llvmpipe);
  * 2. Mesa's surfaceless platform (EGL_PLATFORM_SURFACELESS_MESA): a render
  *    node's Mesa driver, or llvmpipe on a machine without a GPU;
