@@ -11,7 +11,8 @@
 # replay, estimate error, occlusion, toggles after frame 60) exist and are
 # sane, and the replay changes no selection; frames.csv's new columns come
 # last; --save-frames writes the frames (and the reference's) as PNG; the
-# 2x2 supersampled reference differs from the plain one; and the EGL
+# 2x2 supersampled reference differs from the plain one; --occlusion-check
+# fills its columns and keys and changes no selection; and the EGL
 # backend draws the frame OSMesa draws (PSNR >= 40 dB; both images are kept
 # in a folder the failure names).
 set -u
@@ -30,6 +31,10 @@ ok() {
         echo "FAIL $2"
     fi
 }
+
+# the non-empty values of column K (by name) of DIR/frames.csv
+col() { awk -F, -v k="$2" 'NR == 1 { for (i = 1; i <= NF; i++) if ($i == k) c = i; next }
+    c && $c != "" && $c != "nan" { print $c }' "$1/frames.csv"; }
 
 "$BIN/hlod-gen-city" --preset tiny -o "$T/city.obj" --quiet &&
     "$BIN/hlod-build" "$T/city.obj" -o "$T/city.hlod" --desired-tris 300 --quiet
@@ -113,7 +118,7 @@ ok $? "deadline_met and toggles_after_60 agree with frames.csv"
 [ "$(($(wc -l <"$T/run/jitter.csv") - 1))" -eq 120 ] && head -1 "$T/run/jitter.csv" | grep -qx "i,ms"
 ok $? "jitter.csv: one row per replay (120)"
 head -1 "$T/run/frames.csv" |
-    grep -q ",toggles_up_ma35,toggles_down_ma35,pixels_drawn,margin,occlusion_hidden,occlusion_tested,occlusion_culled,occlusion_ms$"
+    grep -q ",toggles_up_ma35,toggles_down_ma35,pixels_drawn,margin,occlusion_hidden,occlusion_tested,occlusion_culled,occlusion_ms,occlusion_check_psnr,occlusion_check_differing$"
 ok $? "frames.csv: the new columns come last, in order"
 for png in frame_time nodes_per_depth toggles memory psnr; do
     head -c 8 "$T/run/$png.png" 2>/dev/null | od -An -tx1 | grep -q "89 50 4e 47" || missing="$missing $png"
@@ -149,6 +154,18 @@ ok $? "--deterministic: identical selection columns in two runs"
     --jitter-frames 0 2>/dev/null && sel "$T/det0" >"$T/sel0" && cmp -s "$T/sel0" "$T/sel1" &&
     [ ! -e "$T/det0/jitter.csv" ] && grep -q '"machine_p50_ms": null' "$T/det0/summary.json"
 ok $? "--jitter-frames 0: no replay, same selection as with it, machine_p50_ms null"
+# --occlusion-check replays each frame without occlusion culling and
+# compares: the columns are filled, the keys set, the selection unchanged
+"$BIN/hlod-bench" "$T/city.hlod" --path "$P" --out "$T/detocc" --target-ms 33 "${COMMON[@]}" \
+    --deterministic --set v_time=0.002 --set fixed_ms=5 --io-mbps 20 --no-plots \
+    --occlusion-check 2>/dev/null && sel "$T/detocc" >"$T/selocc" && cmp -s "$T/selocc" "$T/sel1" &&
+    [ "$(col "$T/detocc" occlusion_check_differing | wc -l)" -eq 40 ] &&
+    perl -MJSON::PP -e 'local $/; my $j = JSON::PP->new->decode(<STDIN>);
+        exit !(defined $j->{occlusion_check_psnr_min} && $j->{occlusion_check_psnr_min} > 0 &&
+               defined $j->{occlusion_check_bad_frames} && $j->{occlusion_check_bad_frames} >= 0 &&
+               $j->{overhead_ms_mean} >= 0 && $j->{overhead_ms_max} >= $j->{overhead_ms_mean})' \
+        <"$T/detocc/summary.json" && grep -q '"occlusion_check_psnr_min": null' "$T/det1/summary.json"
+ok $? "--occlusion-check: a PSNR and differing pixels per frame, summary keys, same selection"
 
 "$BIN/hlod-bench" "$T/city.hlod" --path "$P" --out "$T/sweep" "${COMMON[@]}" --reference \
     --reference-every 10 --policy lakhia,nohyst,sse --sweep target_ms=10,30 2>/dev/null
@@ -168,8 +185,6 @@ DET=(--deterministic --set v_time=0.002 --set fixed_ms=5 --io-mbps 20 --no-plots
     "$BIN/hlod-bench" "$T/city.hlod" --path "$P" --out "$T/refone" --target-ms 33 "${COMMON[@]}" \
         "${DET[@]}" --policy nohyst 2>/dev/null
 rc=$?
-col() { awk -F, -v k="$2" 'NR == 1 { for (i = 1; i <= NF; i++) if ($i == k) c = i; next }
-    c && $c != "" && $c != "nan" { print $c }' "$1/frames.csv"; }
 [ $rc -eq 0 ] && [ "$(col "$T/refpair/nohyst" psnr | wc -l)" -ge 5 ] &&
     [ "$(col "$T/refpair/nohyst" psnr)" = "$(col "$T/refone" psnr)" ] &&
     [ "$(col "$T/refpair/nohyst" ssim)" = "$(col "$T/refone" ssim)" ]

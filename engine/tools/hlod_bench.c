@@ -87,6 +87,10 @@ static void usage(FILE *fp)
         "                    selection is drawn again R times (default 120; 0: off):\n"
         "                    the machine's own spread, machine_p50_ms/p99 and\n"
         "                    DIR/jitter.csv\n"
+        "  --occlusion-check after each frame, draw its selection again without\n"
+        "                    occlusion culling and compare with the frame's image\n"
+        "                    (frames.csv occlusion_check_psnr/_differing, summary\n"
+        "                    occlusion_check_*); not charged to the frame\n"
         "  --backend B       osmesa (default), or egl: a hardware EGL device, else\n"
         "                    Mesa's surfaceless platform (llvmpipe without a GPU)\n"
         "  --compare A B     print the PSNR, SSIM and differing pixels of images\n"
@@ -109,7 +113,9 @@ static void usage(FILE *fp)
         "peak_resident_bytes, memory_budget_bytes, missing_wanted_frames,\n"
         "render_waits, traversal_ms_mean, traversal_ms_max, deadline_met,\n"
         "machine_p50_ms, machine_p99_ms, machine_p99_over_p50, estimate_err_p50,\n"
-        "estimate_err_p95, occlusion_culled_mean, toggles_after_60, policy, path.\n"
+        "estimate_err_p95, occlusion_culled_mean, toggles_after_60, occlusion_ms_mean,\n"
+        "overhead_ms_mean, overhead_ms_max, occlusion_check_psnr_min,\n"
+        "occlusion_check_differing_max, occlusion_check_bad_frames, policy, path.\n"
         "\n"
         "Exit status: 0 success, 1 a run failed, 2 bad command line.\n"
         "\n"
@@ -139,7 +145,7 @@ typedef struct options {
     uint32_t width, height;
     long frames;
     int up_y, reference, reference_every, reference_ss, deterministic, plots, json;
-    int backend, jitter_frames;
+    int backend, jitter_frames, occlusion_check;
     uint64_t save[MAX_SAVE];    /* --save-frames */
     int nsave;
     const char *compare[2];     /* --compare A B */
@@ -399,6 +405,8 @@ static int parse_args(int argc, char **argv, options *o)
             if (!hlod_cli_parse_size(PROG, "--jitter-frames", v, 0, 1000000, &n))
                 return 2;
             o->jitter_frames = (int)n;
+        } else if (!strcmp(a, "--occlusion-check")) {
+            o->occlusion_check = 1;
         } else if (FLAG("--backend")) {
             NEED("--backend");
             if (!strcmp(v, "osmesa"))
@@ -466,6 +474,8 @@ typedef struct frame_rec {
     double psnr, ssim;          /* NAN when no reference this frame */
     double luma, ref_luma;      /* change from the previous frame; NAN when unknown */
     double up_ma, down_ma;      /* toggles, 35-frame moving average */
+    double occ_psnr;            /* --occlusion-check: against occlusion off; NAN without */
+    long long occ_differing;    /* its differing pixels; -1 without */
 } frame_rec;
 
 typedef struct summary {
@@ -483,6 +493,10 @@ typedef struct summary {
     double est_err_p50, est_err_p95;        /* |estimated - measured| / measured */
     double occlusion_culled_mean;
     uint64_t toggles_after_60;              /* up + down over frames 60.. */
+    double occlusion_ms_mean;
+    double overhead_mean, overhead_max;     /* traversal + occlusion ms per frame */
+    double occ_psnr_min;                    /* --occlusion-check; NAN without */
+    long long occ_differing_max, occ_bad;   /* -1 without */
     uint64_t jitter_frame;                  /* the replayed frame */
     int jitter_count;
     const char *gl_renderer;
@@ -498,8 +512,26 @@ static void summarise_extra(const frame_rec *r, long n, double target, const dou
 {
     double *err = malloc((size_t)(n ? n : 1) * sizeof *err);
     size_t nerr = 0;
+    s->occ_psnr_min = NAN;
+    s->occ_differing_max = s->occ_bad = -1;
     for (long i = 0; i < n; i++) {
         const hlod_frame_stats *st = &r[i].st;
+        double overhead = st->traversal_ms + st->occlusion_ms;
+        s->occlusion_ms_mean += st->occlusion_ms;
+        s->overhead_mean += overhead;
+        if (overhead > s->overhead_max)
+            s->overhead_max = overhead;
+        if (r[i].occ_differing >= 0) {
+            if (s->occ_differing_max < 0)
+                s->occ_differing_max = s->occ_bad = 0;
+            if (r[i].occ_differing > s->occ_differing_max)
+                s->occ_differing_max = r[i].occ_differing;
+            if (isnan(s->occ_psnr_min) || r[i].occ_psnr < s->occ_psnr_min)
+                s->occ_psnr_min = r[i].occ_psnr;
+            /* the issue's rule: no differing pixel, or >= 60 dB where the
+             * rasteriser's order differs */
+            s->occ_bad += r[i].occ_differing > 0 && r[i].occ_psnr < 60;
+        }
         s->deadline_met += st->measured_ms <= target;
         s->occlusion_culled_mean += st->occlusion_culled;
         if (i >= SETTLED_FRAME)
@@ -508,6 +540,8 @@ static void summarise_extra(const frame_rec *r, long n, double target, const dou
             err[nerr++] = fabs(st->estimated_ms - st->measured_ms) / st->measured_ms;
     }
     if (n) {
+        s->occlusion_ms_mean /= (double)n;
+        s->overhead_mean /= (double)n;
         s->deadline_met /= (double)n;
         s->occlusion_culled_mean /= (double)n;
     }
@@ -632,7 +666,7 @@ static hlod_result write_frames_csv(const char *dir, const frame_rec *r, long n,
                 "loads,evictions,bytes_read,load_failures,bad_nodes,queued,render_waits,psnr,"
                 "ssim,luma_change,ref_luma_change,toggles_up_ma35,toggles_down_ma35,"
                 "pixels_drawn,margin,occlusion_hidden,occlusion_tested,occlusion_culled,"
-                "occlusion_ms\n");
+                "occlusion_ms,occlusion_check_psnr,occlusion_check_differing\n");
     for (long i = 0; i < n; i++) {
         const hlod_frame_stats *s = &r[i].st;
         fprintf(fp, "%llu,%.6f,%.4f,%.4f,%.9g,%.4f,%.4f,%.4f,%.4f,%.4f,%.4f,%u",
@@ -660,9 +694,13 @@ static hlod_result write_frames_csv(const char *dir, const frame_rec *r, long n,
             fprintf(fp, ",");
         else
             fprintf(fp, ",%.5f", r[i].ref_luma);
-        fprintf(fp, ",%.4f,%.4f,%.0f,%.4f,%u,%u,%u,%.4f\n", r[i].up_ma, r[i].down_ma,
+        fprintf(fp, ",%.4f,%.4f,%.0f,%.4f,%u,%u,%u,%.4f", r[i].up_ma, r[i].down_ma,
                 s->pixels_drawn, s->margin, s->occlusion_hidden, s->occlusion_tested,
                 s->occlusion_culled, s->occlusion_ms);
+        if (r[i].occ_differing < 0)
+            fprintf(fp, ",,\n");
+        else
+            fprintf(fp, ",%.4f,%lld\n", r[i].occ_psnr, r[i].occ_differing);
     }
     return hlod_atomic_commit(&af, lg);
 }
@@ -709,6 +747,17 @@ static void json_summary(hlod_json *j, const summary *s, const char *policy, con
     hlod_json_double(j, "estimate_err_p95", s->est_err_p95);
     hlod_json_double(j, "occlusion_culled_mean", s->occlusion_culled_mean);
     hlod_json_int(j, "toggles_after_60", (long long)s->toggles_after_60);
+    hlod_json_double(j, "occlusion_ms_mean", s->occlusion_ms_mean);
+    hlod_json_double(j, "overhead_ms_mean", s->overhead_mean);
+    hlod_json_double(j, "overhead_ms_max", s->overhead_max);
+    hlod_json_double(j, "occlusion_check_psnr_min", s->occ_psnr_min);
+    if (s->occ_differing_max < 0) {
+        hlod_json_string(j, "occlusion_check_differing_max", NULL);
+        hlod_json_string(j, "occlusion_check_bad_frames", NULL);
+    } else {
+        hlod_json_int(j, "occlusion_check_differing_max", s->occ_differing_max);
+        hlod_json_int(j, "occlusion_check_bad_frames", s->occ_bad);
+    }
     hlod_json_string(j, "policy", policy);
     hlod_json_string(j, "path", path);
     hlod_json_int(j, "width", o->width);
@@ -918,6 +967,7 @@ typedef struct context {
     hlod_logger lg;
     uint8_t *img, *prev_img, *ref, *prev_ref;
     uint8_t *ref_big;           /* the reference's read-back at ss * W x ss * H */
+    uint8_t *occ_img;           /* --occlusion-check: the frame drawn without occlusion */
     /* Reference frames depend on the camera alone, not on the policy or a
      * swept constant, so one invocation renders each frame's reference
      * once and keeps it (up to REF_CACHE_BYTES): a policy comparison or a
@@ -1151,7 +1201,8 @@ static int run(context *c, hlod_policy policy, const char *dir, const setting *e
         hlod_camera cam;
         frame_rec *fr = &rec[f];
         path_camera(c, f, &cam, &fr->t);
-        fr->psnr = fr->ssim = fr->luma = fr->ref_luma = NAN;
+        fr->psnr = fr->ssim = fr->luma = fr->ref_luma = fr->occ_psnr = NAN;
+        fr->occ_differing = -1;
         r = target_current(&c->gl);
         if (r == HLOD_OK)
             r = hlod_engine_frame(e, &cam, o->dt, &fr->st);
@@ -1164,7 +1215,7 @@ static int run(context *c, hlod_policy policy, const char *dir, const setting *e
         }
         int save = save_frame(o, f);
         const uint8_t *image = NULL; /* this frame's, when read */
-        if (need_images || save) {
+        if (need_images || save || o->occlusion_check) {
             r = target_read(&c->gl, c->img);
             if (r != HLOD_OK) {
                 hlod_cli_progress_clear(&bar);
@@ -1187,6 +1238,26 @@ static int run(context *c, hlod_policy policy, const char *dir, const setting *e
         if (save && write_frame_png(dir, f, "", image, o->width, o->height, &c->lg) != 0) {
             status = 1;
             break;
+        }
+        if (o->occlusion_check) {
+            /* the same selection without occlusion culling: the same image */
+            double ms;
+            r = hlod_engine_replay(e, &cam, 0, &ms);
+            if (r == HLOD_OK)
+                r = target_read(&c->gl, c->occ_img);
+            if (r != HLOD_OK) {
+                hlod_cli_progress_clear(&bar);
+                hlod_cli_error(PROG, "%s: frame %llu: the occlusion check's replay failed: %s",
+                               o->store, (unsigned long long)f, hlod_result_str(r));
+                status = 1;
+                break;
+            }
+            size_t npix = (size_t)o->width * o->height;
+            long long differ = 0;
+            for (size_t k = 0; k < npix; k++)
+                differ += memcmp(image + 3 * k, c->occ_img + 3 * k, 3) != 0;
+            fr->occ_differing = differ;
+            hlod_psnr_rgb8(image, c->occ_img, o->width, o->height, &fr->occ_psnr);
         }
         if (njit && f == jitter_frame) {
             /* after the frame, before its reference: same loaded state */
@@ -1416,7 +1487,9 @@ int main(int argc, char **argv)
     c.ref = malloc(npix);
     c.prev_ref = malloc(npix);
     c.ref_big = o.reference && ss > 1 ? malloc(npix * ss * ss) : NULL;
+    c.occ_img = o.occlusion_check ? malloc(npix) : NULL;
     if (r != HLOD_OK || !c.img || !c.prev_img || !c.ref || !c.prev_ref ||
+        (o.occlusion_check && !c.occ_img) ||
         (o.reference && ss > 1 && !c.ref_big)) {
         hlod_cli_error(PROG, "cannot set up headless OpenGL (%s, GL 3.3): %s", backend,
                        hlod_result_str(r != HLOD_OK ? r : HLOD_ERR_NOMEM));
@@ -1516,6 +1589,7 @@ done:
     free(c.ref);
     free(c.prev_ref);
     free(c.ref_big);
+    free(c.occ_img);
     target_destroy(&c.ref_gl);
     target_destroy(&c.gl);
     hlod_store_close(c.store);
