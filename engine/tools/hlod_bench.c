@@ -6,9 +6,11 @@
  *
  *   hlod-bench STORE --path P --target-ms T --out DIR [options]
  *
- * One run writes DIR/frames.csv (one row per frame, every stats field),
- * DIR/summary.json (keys scripts rely on: keep them stable) and PNG plots
- * drawn by gnuplot.  --policy with several names, or --sweep KEY=V1,V2,..,
+ * One run writes DIR/frames.csv (one row per frame, every stats field;
+ * new columns go at the end), DIR/summary.json (keys scripts rely on: keep
+ * them stable), DIR/jitter.csv (the frozen selection of frame N/2 replayed
+ * --jitter-frames times: the machine's own spread), DIR/frame_NNNNN.png
+ * (and _ref.png) for --save-frames, and PNG plots drawn by gnuplot.  --policy with several names, or --sweep KEY=V1,V2,..,
  * runs the path once per (policy, value) into DIR/<policy>[-KEY=V]/ and
  * adds DIR/sweep.csv plus the run-time-vs-error (Pareto) plot.
  *
