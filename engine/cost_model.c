@@ -1,28 +1,99 @@
 /*
- * cost_model.c - the frame cost model and the gains fitted to it
- * (cost_model.h; README, "The runtime").
+ * cost_model.c - the frame cost model, its deadline margin and the gains
+ * fitted to it (cost_model.h; README, "Cost model and deadline").
  *
- * A frame costs a fixed part (clear, fill, swap, traversal) plus a part
- * proportional to the drawn cost; feeding back only v_time would make it
- * swallow the fixed part and misprice every node.  We fit
- *   measured_ms = fixed_ms + v_time * drawn_cost
- * by exponentially weighted least squares (forgetting factor 0.93: about
- * 14 frames of memory, so it follows a change within a few frames without
- * chasing one noisy frame), with a small ridge holding v_time when the
- * drawn cost does not vary.  Both outputs are clamped to sane ranges.
+ * Why it is built this way.  A two-term fit updated every frame wandered
+ * with the machine's noise: a still camera gives the regressors no spread,
+ * so noise alone moved the fixed part and v_time, the budget followed, and
+ * the hysteresis counters followed the budget (2.4 toggles a frame on a
+ * still view).  Here the published model changes for three reasons only,
+ * each gated by what the noise can explain:
+ *
+ *   scale  the median log residual of the last SCALE_K frames is beyond
+ *          both 5 % and three standard errors of a median of the measured
+ *          noise: every term is multiplied by its exponential (the machine
+ *          got faster or slower).  A persistent error passes within
+ *          SCALE_K / 2 + 1 frames; a burst of slow frames shorter than that
+ *          cannot move a median.
+ *   shape  a ridge-regularised least-squares fit over about 33 frames
+ *          (forgetting 0.97; the ridge pulls toward the published values,
+ *          so a regressor without spread keeps its coefficient) predicts
+ *          the last SHAPE_W frames clearly better (30 % less robust loss)
+ *          than the published model.  Without spread in the regressors it
+ *          cannot do clearly better, so it never publishes then.
+ *   margin the deadline margin exp(median + z * sigma) of the last
+ *          HLOD_COST_WINDOW residuals moved by more than 5 % (see below:
+ *          once the window is full it grows only on actual misses).
+ *
+ * sigma is 1.4826 x the median absolute deviation: a few outliers do not
+ * move it.  All coefficients are kept non-negative, the fixed part under
+ * 80 % of the target.
  */
 #include "cost_model.h"
 
 #include <math.h>
+#include <stdlib.h>
+#include <string.h>
 
-#define FORGET 0.93
+#define FORGET 0.97
 #define RIDGE 0.05
+#define SCALE_K 7
+#define SHAPE_W 32
+#define PRIOR_SIGMA 0.15 /* assumed spread until MARGIN_MIN frames are seen */
+#define MARGIN_MIN 20
+#define MARGIN_STEP 0.05 /* published margin moves by more than this (log) */
+#define MARGIN_SETTLE 45 /* frames after which the margin moves only on evidence */
+#define SCALE_SE 4       /* standard errors of the median that a scale change must pass */
+
+/* z with P(N(0,1) <= z) = q, by bisection on erfc (q in (0.5, 1)). */
+static double normal_quantile(double q)
+{
+    double lo = 0, hi = 10;
+    for (int i = 0; i < 80; i++) {
+        double mid = 0.5 * (lo + hi);
+        if (1 - 0.5 * erfc(mid / sqrt(2.0)) < q)
+            lo = mid;
+        else
+            hi = mid;
+    }
+    return 0.5 * (lo + hi);
+}
+
+/* The margin for a quantile: the larger of the Gaussian one from the
+ * median and sigma and, given residuals sorted ascending, their empirical
+ * quantile (the machine's tail is heavier than a Gaussian's). */
+static double aim_margin(const hlod_engine_desc *d, double median, double sigma,
+                         const double *sorted, uint32_t n)
+{
+    if (d->deterministic || d->aim_mean > 0)
+        return 1;
+    /* until the window holds MARGIN_SETTLE frames the tail is barely
+     * seen: aim at a quantile ten times as far out, so that a settled
+     * view rarely needs to grow its margin later */
+    double q = d->deadline_quantile;
+    double qz = n < MARGIN_SETTLE ? 1 - 0.1 * (1 - q) : q;
+    double l = median + normal_quantile(qz) * sigma;
+    if (n) {
+        uint32_t k = (uint32_t)ceil(q * n);
+        double emp = sorted[k ? (k <= n ? k - 1 : n - 1) : 0];
+        l = emp > l ? emp : l;
+    }
+    double m = exp(l);
+    return m < 0.5 ? 0.5 : m > 4 ? 4 : m;
+}
 
 void hlod_cost_model_init(hlod_cost_model *m, const hlod_engine_desc *d)
 {
-    *m = (hlod_cost_model){0};
-    m->v_time = m->fit_v = d->deterministic ? d->fixed_v_time : 1e-4;
-    m->fixed_ms = m->fit_fixed = d->deterministic ? d->fixed_frame_ms : 0.2 * d->target_ms;
+    memset(m, 0, sizeof *m);
+    if (d->deterministic) {
+        m->theta[0] = d->fixed_frame_ms;
+        m->theta[2] = d->fixed_v_time;
+    } else {
+        m->theta[0] = 0.2 * d->target_ms;
+        m->theta[2] = 1e-4;
+    }
+    m->sigma = PRIOR_SIGMA;
+    m->margin = aim_margin(d, 0, PRIOR_SIGMA, NULL, 0);
     m->sse_pixels = d->sse_pixels;
     m->share_gain = 1;
 }
@@ -33,63 +104,271 @@ void hlod_cost_model_set(hlod_cost_model *m, const hlod_engine_desc *old,
     if (d->sse_pixels != old->sse_pixels)
         m->sse_pixels = d->sse_pixels;
     if (d->deterministic) {
-        m->v_time = d->fixed_v_time;
-        m->fixed_ms = d->fixed_frame_ms;
+        m->theta[0] = d->fixed_frame_ms;
+        m->theta[2] = d->fixed_v_time;
     }
+    if (d->aim_mean != old->aim_mean || d->deadline_quantile != old->deadline_quantile)
+        m->margin = aim_margin(d, 0, m->sigma, NULL, 0);
 }
 
-void hlod_cost_model_fit(hlod_cost_model *m, double target, double x, double y)
+static double dot(const double *t, const double *x)
 {
-    if (!(isfinite(x) && isfinite(y)) || x < 0 || y < 0)
+    double s = 0;
+    for (int k = 0; k < HLOD_COST_TERMS; k++)
+        s += t[k] * x[k];
+    return s;
+}
+
+double hlod_cost_model_predict(const hlod_cost_model *m, double draws, double cost,
+                               double pixels)
+{
+    const double x[HLOD_COST_TERMS] = {1, draws, cost, pixels};
+    return dot(m->theta, x);
+}
+
+/* ln(measured / predicted), both floored at 10 us. */
+static double log_residual(const double *theta, const hlod_cost_sample *s)
+{
+    double p = dot(theta, s->x);
+    return log((s->y > 0.01 ? s->y : 0.01) / (p > 0.01 ? p : 0.01));
+}
+
+static int cmp_double(const void *pa, const void *pb)
+{
+    double a = *(const double *)pa, b = *(const double *)pb;
+    return (a > b) - (a < b);
+}
+
+static double median(double *v, uint32_t n)
+{
+    qsort(v, n, sizeof *v, cmp_double);
+    return n % 2 ? v[n / 2] : 0.5 * (v[n / 2 - 1] + v[n / 2]);
+}
+
+/* The residuals of the newest n samples (newest first) under theta. */
+static uint32_t residuals(const hlod_cost_model *m, const double *theta, uint32_t n, double *out)
+{
+    if (n > m->ring_n)
+        n = m->ring_n;
+    for (uint32_t k = 0; k < n; k++) {
+        uint32_t i = (m->ring_head + HLOD_COST_WINDOW - 1 - k) % HLOD_COST_WINDOW;
+        out[k] = log_residual(theta, &m->ring[i]);
+    }
+    return n;
+}
+
+/* median and 1.4826 x MAD of the newest n residuals under the published
+ * model; sorted (if not NULL) gets the residuals in ascending order */
+static uint32_t spread(const hlod_cost_model *m, uint32_t n, double *med, double *sigma,
+                       double *sorted)
+{
+    double e[HLOD_COST_WINDOW];
+    n = residuals(m, m->theta, n, e);
+    *med = median(e, n);
+    if (sorted)
+        memcpy(sorted, e, n * sizeof *e);
+    for (uint32_t k = 0; k < n; k++)
+        e[k] = fabs(e[k] - *med);
+    *sigma = 1.4826 * median(e, n);
+    return n;
+}
+
+/* Robust loss of theta over the newest SHAPE_W samples: squared log
+ * residuals, each capped at 0.25 (a 65 % miss), so one stalled frame
+ * cannot decide. */
+static double shape_loss(const hlod_cost_model *m, const double *theta)
+{
+    double e[SHAPE_W], l = 0;
+    uint32_t n = residuals(m, theta, SHAPE_W, e);
+    for (uint32_t k = 0; k < n; k++)
+        l += e[k] * e[k] < 0.25 ? e[k] * e[k] : 0.25;
+    return l;
+}
+
+/* Solves the ridge system (A + L) t = b + L prior with t >= 0 (terms that
+ * come out negative are held at 0 and the rest solved again).  Returns 0
+ * when the system is singular. */
+static int ridge_solve(const hlod_cost_model *m, const double *prior, double ridge, double *t)
+{
+    double lam[HLOD_COST_TERMS];
+    for (int j = 0; j < HLOD_COST_TERMS; j++) {
+        double mean = m->a[0][j] / m->s0; /* a[0][j] = sum of x_j (x_0 = 1) */
+        lam[j] = ridge * m->s0 * (j == 0 ? 1 : mean * mean);
+        if (!(lam[j] > 0))
+            lam[j] = 1e-12;
+    }
+    int active[HLOD_COST_TERMS] = {1, 1, 1, 1};
+    for (int round = 0; round < HLOD_COST_TERMS; round++) {
+        double g[HLOD_COST_TERMS][HLOD_COST_TERMS + 1];
+        int idx[HLOD_COST_TERMS], n = 0;
+        for (int j = 0; j < HLOD_COST_TERMS; j++)
+            if (active[j])
+                idx[n++] = j;
+        for (int r = 0; r < n; r++) {
+            int i = idx[r];
+            for (int c = 0; c < n; c++)
+                g[r][c] = m->a[i][idx[c]] + (r == c ? lam[i] : 0);
+            g[r][n] = m->b[i] + lam[i] * prior[i];
+        }
+        /* Gaussian elimination with partial pivoting */
+        for (int c = 0; c < n; c++) {
+            int piv = c;
+            for (int r = c + 1; r < n; r++)
+                if (fabs(g[r][c]) > fabs(g[piv][c]))
+                    piv = r;
+            if (!(fabs(g[piv][c]) > 1e-300))
+                return 0;
+            for (int k = 0; k <= n; k++) {
+                double tmp = g[c][k];
+                g[c][k] = g[piv][k];
+                g[piv][k] = tmp;
+            }
+            for (int r = 0; r < n; r++) {
+                if (r == c)
+                    continue;
+                double f = g[r][c] / g[c][c];
+                for (int k = c; k <= n; k++)
+                    g[r][k] -= f * g[c][k];
+            }
+        }
+        int negative = 0;
+        for (int j = 0; j < HLOD_COST_TERMS; j++)
+            t[j] = 0;
+        for (int r = 0; r < n; r++) {
+            t[idx[r]] = g[r][n] / g[r][r];
+            if (!isfinite(t[idx[r]]))
+                return 0;
+            if (t[idx[r]] < 0) {
+                active[idx[r]] = 0;
+                negative = 1;
+            }
+        }
+        if (!negative)
+            return 1;
+    }
+    return 0;
+}
+
+static void scale_theta(hlod_cost_model *m, double f)
+{
+    for (int k = 0; k < HLOD_COST_TERMS; k++)
+        m->theta[k] *= f;
+}
+
+void hlod_cost_model_fit(hlod_cost_model *m, const hlod_engine_desc *d, double draws,
+                         double cost, double pixels, double y)
+{
+    if (!(isfinite(draws) && isfinite(cost) && isfinite(pixels) && isfinite(y)) || draws < 0 ||
+        cost < 0 || pixels < 0 || y < 0)
         return;
+    const double target = d->target_ms;
+    hlod_cost_sample s = {{1, draws, cost, pixels}, y};
+    /* Settled: the same front as the last frame (a still camera whose
+     * selection has settled).  Then only missed deadlines move anything. */
+    const hlod_cost_sample *last =
+        m->ring_n ? &m->ring[(m->ring_head + HLOD_COST_WINDOW - 1) % HLOD_COST_WINDOW] : NULL;
+    int settled =
+        m->ring_n >= MARGIN_SETTLE && last && memcmp(last->x, s.x, sizeof s.x) == 0;
+    m->ring[m->ring_head] = s;
+    m->ring_head = (m->ring_head + 1) % HLOD_COST_WINDOW;
+    if (m->ring_n < HLOD_COST_WINDOW)
+        m->ring_n++;
     m->s0 = FORGET * m->s0 + 1;
-    m->sx = FORGET * m->sx + x;
-    m->sy = FORGET * m->sy + y;
-    m->sxx = FORGET * m->sxx + x * x;
-    m->sxy = FORGET * m->sxy + x * y;
-    /* Weighted least squares with a ridge pulling v_time toward its last
-     * value, scaled by mean(x)^2 so it is unit-free:
-     *   [s0, sx; sx, sxx + k] [a; b] = [sy; sxy + k * b_prev],
-     *   k = RIDGE * s0 * mean(x)^2.
-     * With no spread in x the data fix only a + b * mean(x): the ridge then
-     * keeps v_time and lets the fixed part take the change.  A wrong v_time
-     * moves the budget, which moves x, which gives the spread that corrects
-     * it: the fit explores by itself. */
-    double mean_x = m->sx / m->s0;
-    double b_prev = m->fit_v;
-    double k = RIDGE * m->s0 * mean_x * mean_x;
-    double m00 = m->s0, m01 = m->sx, m11 = m->sxx + k;
-    double r0 = m->sy, r1 = m->sxy + k * b_prev;
-    double det = m00 * m11 - m01 * m01;
-    double a = m->fit_fixed, b = b_prev;
-    if (det > 1e-12 * m00 * m11 && m11 > 0) {
-        a = (r0 * m11 - m01 * r1) / det;
-        b = (m00 * r1 - m01 * r0) / det;
-    } else if (m->s0 > 0) {
-        a = m->sy / m->s0; /* nothing drawn yet: all of it is fixed */
+    for (int i = 0; i < HLOD_COST_TERMS; i++) {
+        m->b[i] = FORGET * m->b[i] + s.x[i] * y;
+        for (int j = 0; j < HLOD_COST_TERMS; j++)
+            m->a[i][j] = FORGET * m->a[i][j] + s.x[i] * s.x[j];
     }
-    if (!(b > 1e-9) || !isfinite(b))
-        b = 1e-9;
-    if (!(b < 1e6))
-        b = 1e6;
-    /* keep a inside [0, 0.8 target] and re-fit b to the mean if clamped */
-    double hi_a = 0.8 * target;
-    if (!(a >= 0) || !(a <= hi_a)) {
-        a = !(a >= 0) ? 0 : hi_a;
-        double mean_y = m->sy / m->s0;
-        if (mean_x > 0 && mean_y > a)
-            b = (mean_y - a) / mean_x;
+
+    /* the noise as measured so far */
+    double med, sigma = PRIOR_SIGMA;
+    if (m->ring_n >= 8)
+        spread(m, m->ring_n, &med, &sigma, NULL);
+
+    /* scale: a persistent error of the whole model */
+    if (m->ring_n >= SCALE_K / 2 + 1 && !settled) {
+        double e[SCALE_K];
+        uint32_t n = residuals(m, m->theta, SCALE_K, e);
+        double mk = median(e, n);
+        double se = 1.2533 * sigma / sqrt((double)n); /* standard error of a median */
+        if (fabs(mk) > 0.05 && fabs(mk) > SCALE_SE * se) {
+            /* The machine changed: the frames seen before the last
+             * SCALE_K are rescaled with the model, so the fit and the
+             * margin do not see two machines (nor pull the model back to
+             * the old one).  The last SCALE_K are left as measured: the
+             * next median then sees the new machine at residual 0, not
+             * the same change again. */
+            double f = exp(mk);
+            scale_theta(m, f);
+            if (m->ring_n >= MARGIN_SETTLE) {
+                /* (while the window fills it is the model that was wrong,
+                 * not the machine that changed: the frames stay as measured) */
+                for (uint32_t k = SCALE_K; k < m->ring_n; k++)
+                    m->ring[(m->ring_head + HLOD_COST_WINDOW - 1 - k) % HLOD_COST_WINDOW].y *= f;
+                for (int i = 0; i < HLOD_COST_TERMS; i++)
+                    m->b[i] *= f;
+            }
+            m->scale_updates++;
+        }
     }
-    m->fit_fixed = a;
-    m->fit_v = b;
-    /* Publish only changes the noise of one frame cannot explain (3% of
-     * v_time, 3% of the target for the fixed part): with a still camera the
-     * selection then sees constant inputs and its hysteresis settles, while
-     * a real change still passes within a frame or two. */
-    if (fabs(b - m->v_time) > 0.03 * m->v_time || fabs(a - m->fixed_ms) > 0.03 * target) {
-        m->v_time = b;
-        m->fixed_ms = a;
+
+    /* shape: the fit explains recent frames clearly better */
+    double t[HLOD_COST_TERMS];
+    /* While the window fills the prior is only the start guess (or a
+     * scale of it): it is held weakly, so the first frames' spread (a cold
+     * start loads and refines) fixes the terms. */
+    int warm = m->ring_n < MARGIN_SETTLE;
+    if (m->ring_n >= 6 && !settled && ridge_solve(m, m->theta, warm ? 0.1 * RIDGE : RIDGE, t)) {
+        if (t[0] > 0.8 * target)
+            t[0] = 0.8 * target;
+        if (t[2] < 1e-9)
+            t[2] = 1e-9; /* v_time stays positive: the traversal divides by needs */
+        /* while the window fills, any improvement is taken: the start
+         * values are guesses, and a scale change alone would keep their
+         * split between the terms */
+        double lp = shape_loss(m, m->theta), lf = shape_loss(m, t);
+        double need = warm ? 1.0 : 0.7;
+        if (lf < need * lp && lp > SHAPE_W * 0.02 * 0.02) {
+            memcpy(m->theta, t, sizeof t);
+            m->shape_updates++;
+        }
     }
+
+    /* The deadline margin, from the residuals under the model now
+     * published.  While the window fills it follows the measured spread.
+     * Then it grows only when frames actually miss it more often than the
+     * quantile allows (miss_limit of the window, each a frame's time over
+     * prediction x margin), and shrinks only when the spread has fallen by
+     * twice the step and the front is not settled: an estimate that
+     * wanders with the noise must not move the budget of a still camera. */
+    if (m->ring_n >= MARGIN_MIN) {
+        double sorted[HLOD_COST_WINDOW];
+        uint32_t n = spread(m, m->ring_n, &med, &sigma, sorted);
+        qsort(sorted, n, sizeof *sorted, cmp_double);
+        m->sigma = sigma;
+        double want = aim_margin(d, med, sigma, sorted, n);
+        double step = log(want / m->margin);
+        int change;
+        if (m->ring_n < MARGIN_SETTLE) {
+            change = fabs(step) > 0.02;
+        } else {
+            uint32_t misses = 0;
+            for (uint32_t k = 0; k < n; k++)
+                misses += sorted[k] > log(m->margin);
+            double allowed = (1 - d->deadline_quantile) * n;
+            /* four standard deviations of a binomial count over what the
+             * quantile allows: an adequate margin almost never passes it */
+            int too_many = misses >= ceil(allowed + 4 * sqrt(allowed) + 2);
+            change = (step > MARGIN_STEP && too_many) || (step < -2 * MARGIN_STEP && !settled);
+        }
+        if (change || d->aim_mean > 0) {
+            if (want != m->margin)
+                m->margin_updates++;
+            m->margin = want;
+        }
+    }
+    if (m->theta[0] > 0.8 * target)
+        m->theta[0] = 0.8 * target;
 }
 
 /* Eq. 4 hands each node a fixed share of its parent's slice, and time a

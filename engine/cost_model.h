@@ -1,32 +1,58 @@
 /*
- * cost_model.h - what a frame costs, and the two gains fitted to it
- * (README, "The runtime": cost model, share gain, SSE threshold).
+ * cost_model.h - what a frame costs, how sure the engine is of it, and the
+ * gains fitted to it (README, "Cost model and deadline").
  *
- *   measured_ms = fixed_ms + v_time * drawn_cost
+ *   measured_ms = fixed_ms + draw_ms * draws + v_time * cost + pixel_ms * pixels
  *
- * fitted by exponentially weighted least squares with a ridge on v_time.
- * The selection reads only the published values (v_time, fixed_ms,
- * share_gain, sse_pixels); the fit keeps its own and publishes a change
- * only when one frame's noise cannot explain it.  Render thread only.
+ * draws: nodes drawn; cost: the sum of eq. 1 over them (the paper's
+ * triangle term); pixels: the screen pixels their projected boxes cover,
+ * clipped to the screen (the fill term of Funkhouser and Sequin's
+ * max(per-primitive, per-pixel) model, summed instead of maxed so one
+ * linear fit holds both).  The frame time is taken without uploads.
+ *
+ * The selection reads only the published values.  The fit keeps its own
+ * and publishes a change only when the data call for it (see the .c file):
+ * with a still camera the inputs of the selection then stay constant
+ * whatever the machine's noise does, and its hysteresis settles.
+ *
+ * The deadline margin: the engine aims at a quantile of the frame time
+ * (deadline_quantile, 99 % by default) by dividing what the front may take
+ * by margin = exp(median + z * sigma) of the model's log residuals over the
+ * last HLOD_COST_WINDOW frames.  aim_mean (the paper) holds margin at 1.
+ * Render thread only.
  */
 #ifndef HLOD_ENGINE_COST_MODEL_H
 #define HLOD_ENGINE_COST_MODEL_H
 
 #include "hlod/engine.h"
 
+#define HLOD_COST_TERMS 4    /* fixed, per draw, per unit of cost, per pixel */
+#define HLOD_COST_WINDOW 512 /* frames of residuals for the margin (17 s at 30 Hz) */
+
+typedef struct hlod_cost_sample {
+    double x[HLOD_COST_TERMS]; /* 1, draws, cost, pixels */
+    double y;                  /* measured ms without uploads */
+} hlod_cost_sample;
+
 typedef struct hlod_cost_model {
     /* published: what the selection uses */
-    double v_time;          /* ms per unit of cost (eq. 1) */
-    double fixed_ms;        /* the frame's fixed part */
-    double share_gain;      /* roots' shareTime = gain * budget, in [1, 64] */
-    double sse_pixels;      /* the SSE policy's adaptive threshold */
+    double theta[HLOD_COST_TERMS]; /* fixed_ms, draw_ms, v_time, pixel_ms */
+    double margin;                 /* >= 1; 1 when aiming at the mean */
+    double share_gain;             /* roots' shareTime = gain * budget, in [1, 64] */
+    double sse_pixels;             /* the SSE policy's adaptive threshold */
     /* the fit's own state */
-    double fit_v, fit_fixed;
-    double s0, sx, sy, sxx, sxy; /* exponentially weighted sums */
+    double a[HLOD_COST_TERMS][HLOD_COST_TERMS]; /* exponentially weighted x x^T */
+    double b[HLOD_COST_TERMS];                  /* exponentially weighted x y */
+    double s0;                                  /* weight of the sums */
+    hlod_cost_sample ring[HLOD_COST_WINDOW];
+    uint32_t ring_n, ring_head;
+    uint32_t scale_updates, shape_updates, margin_updates; /* counts, for tests */
+    double sigma;                  /* robust spread of the log residuals (last update) */
 } hlod_cost_model;
 
-/* Starts from the descriptor: fixed values when deterministic, else
- * v_time 1e-4 and a fixed part of 20% of the target. */
+/* Starts from the descriptor: the fixed values when deterministic (no
+ * draw or pixel terms, margin 1), else v_time 1e-4, a fixed part of 20 %
+ * of the target, and the margin a 15 % spread would need. */
 void hlod_cost_model_init(hlod_cost_model *m, const hlod_engine_desc *d);
 
 /* Settings changed between frames (hlod_engine_set): old is the engine's
@@ -34,9 +60,14 @@ void hlod_cost_model_init(hlod_cost_model *m, const hlod_engine_desc *d);
 void hlod_cost_model_set(hlod_cost_model *m, const hlod_engine_desc *old,
                          const hlod_engine_desc *d);
 
-/* One measured frame: x the drawn cost, y its time (ms) without uploads.
+/* The model's prediction (ms, no uploads) for a front of these totals. */
+double hlod_cost_model_predict(const hlod_cost_model *m, double draws, double cost,
+                               double pixels);
+
+/* One measured frame: the drawn totals and its time without uploads (ms).
  * Non-finite or negative samples are ignored. */
-void hlod_cost_model_fit(hlod_cost_model *m, double target_ms, double x, double y);
+void hlod_cost_model_fit(hlod_cost_model *m, const hlod_engine_desc *d, double draws,
+                         double cost, double pixels, double y);
 
 /* The roots' share gain after a frame whose estimate was est against
  * budget (both ms); cap_hits and slice_denied are the selection's counts

@@ -47,9 +47,13 @@ int hlod_policy_parse(const char *name, hlod_policy *out)
 
 void hlod_engine_desc_defaults(hlod_engine_desc *d)
 {
+#define DEF_D(def) (def)
+#define DEF_U32(def) (def)
+#define DEF_U64(def) (def)
+#define DEF_B(def) ((def) ? 1 : -1)
 #define DEF(key, field, kind, def, lo, lo_open, hi, live, help) \
     if (d->field == 0)                                          \
-        d->field = (HLOD_SETTING_KIND_##kind)(def);
+        d->field = (HLOD_SETTING_KIND_##kind)DEF_##kind(def);
     HLOD_ENGINE_SETTINGS(DEF)
 #undef DEF
 }
@@ -90,6 +94,14 @@ static int store_U64(uint64_t *field, double v)
     return 1;
 }
 
+static int store_B(int *field, double v)
+{
+    if (v != 0 && v != 1)
+        return 0;
+    *field = v == 1 ? 1 : -1;
+    return 1;
+}
+
 hlod_result hlod_engine_desc_set(hlod_engine_desc *d, const char *key, double v)
 {
     if (!d || !key || !isfinite(v))
@@ -114,11 +126,16 @@ static hlod_result out_of_range(const hlod_logger *lg, const char *key, double v
     return HLOD_ERR_INVALID_ARG;
 }
 
+#define VALUE_D(f) (f)
+#define VALUE_U32(f) ((double)(f))
+#define VALUE_U64(f) ((double)(f))
+#define VALUE_B(f) ((f) > 0 ? 1.0 : (f) < 0 ? 0.0 : NAN)
+
 static hlod_result check_desc(const hlod_engine_desc *d, const hlod_logger *lg)
 {
 #define RANGE(key, field, kind, def, lo, lo_open, hi, live, help)                      \
     {                                                                                 \
-        double v_ = (double)d->field;                                                 \
+        double v_ = VALUE_##kind(d->field);                                           \
         if (!isfinite(v_) || v_ < (lo) || ((lo_open) && v_ == (lo)) || v_ > (hi))    \
             return out_of_range(lg, #key, v_, lo, lo_open, hi);                       \
     }
@@ -195,6 +212,9 @@ void hlod_engine_destroy(hlod_engine *e)
     hlod_residency_destroy(&e->res); /* joins the loader thread first */
     hlod_selection_free(&e->sel);
     hlod_mem_free(&e->d.allocator, e->draw_keys);
+    hlod_occlusion_free(&e->occ, &e->d.allocator);
+    hlod_mem_free(&e->d.allocator, e->drawn.v);
+    hlod_mem_free(&e->d.allocator, e->later.v);
     hlod_allocator a = e->d.allocator;
     hlod_mem_free(&a, e);
 }
@@ -302,18 +322,104 @@ static void sort_draws(hlod_engine *e, const hlod_camera *cam)
         e->sel.draw.v[k] = keys[k].node;
 }
 
-static void draw_frame(hlod_engine *e, const hlod_camera *cam)
+static void gpu_draw_node(hlod_engine *e, const hlod_camera *cam, uint32_t i)
+{
+    const hlod_store_node *n = &e->nodes[i];
+    double off[3] = {n->origin[0] - cam->position[0], n->origin[1] - cam->position[1],
+                     n->origin[2] - cam->position[2]};
+    hlod_gpu_draw(e->d.renderer, hlod_residency_gpu(&e->res, i), off, n->depth);
+}
+
+/* A node the occlusion test hid: it is not drawn, so it leaves the drawn
+ * totals (the cost fit and the time model see what was drawn). */
+static void uncount(hlod_engine *e, uint32_t i)
+{
+    const hlod_store_node *n = &e->nodes[i];
+    e->st.nodes_drawn--;
+    e->st.nodes_per_depth[n->depth < HLOD_STATS_MAX_DEPTH ? n->depth : HLOD_STATS_MAX_DEPTH - 1]--;
+    e->st.tris_drawn -= n->tri_count;
+    e->st.cost_drawn -= n->cost;
+    e->st.pixels_drawn -= e->sel.fr[i].pix;
+    e->st.occlusion_culled++;
+}
+
+/* Occlusion culling in two passes (README, "Occlusion culling"):
+ *   1. draw the nodes that were visible in the last frame (or whose parent
+ *      was, and that were not themselves hidden): they are the occluders;
+ *   2. read the depth, build the pyramid, and test every node of the
+ *      selection against it; the result is what the next frame's selection
+ *      calls hidden;
+ *   3. draw the nodes not drawn in 1 that the test did not hide.
+ * Pass 1's depth is real geometry seen from this camera, so a node hidden
+ * behind it is hidden in the final image too: culling never makes a hole.
+ * The price is a GPU wait between the passes. */
+static void draw_occluded(hlod_engine *e, const hlod_camera *cam, const hlod_view *view)
+{
+    const uint32_t f = e->frame;
+    hlod_node_frame *fr = e->sel.fr;
+    e->later.n = 0;
+    for (size_t k = 0; k < e->sel.draw.n; k++) {
+        uint32_t i = e->sel.draw.v[k], par = e->nodes[i].parent;
+        int was_seen = fr[i].seen + 1 == f ||
+                       (fr[i].hidden + 1 != f && par != HLOD_STORE_NO_PARENT && fr[par].seen + 1 == f);
+        if (was_seen) {
+            gpu_draw_node(e, cam, i);
+            (void)hlod_u32_push(&e->d.allocator, &e->drawn, i); /* only replay reads it */
+        } else if (!hlod_u32_push(&e->d.allocator, &e->later, i)) {
+            gpu_draw_node(e, cam, i); /* no memory to defer: draw it */
+        }
+    }
+    double t0 = hlod_now_ms();
+    uint32_t w = cam->width, h = cam->height;
+    uint32_t *depth = hlod_occlusion_buffer(&e->occ, &e->d.allocator, w, h);
+    int ok = depth && hlod_gpu_read_depth(e->d.renderer, w, h, depth) == HLOD_OK &&
+             hlod_occlusion_build(&e->occ, &e->d.allocator);
+    double t1 = hlod_now_ms();
+    if (ok)
+        for (size_t k = 0; k < e->sel.draw.n; k++) {
+            uint32_t i = e->sel.draw.v[k];
+            double rect[4], z;
+            const hlod_store_node *n = &e->nodes[i];
+            int vis = !hlod_view_project(view, n->bbox_min, n->bbox_max, rect, &z) ||
+                      hlod_occlusion_visible(&e->occ, rect, z);
+            e->st.occlusion_tested++;
+            if (vis)
+                fr[i].seen = f;
+            else
+                fr[i].hidden = f;
+        }
+    double t2 = hlod_now_ms();
+    for (size_t k = 0; k < e->later.n; k++) {
+        uint32_t i = e->later.v[k];
+        if (ok && fr[i].hidden == f) {
+            uncount(e, i);
+            continue;
+        }
+        gpu_draw_node(e, cam, i);
+        (void)hlod_u32_push(&e->d.allocator, &e->drawn, i);
+    }
+    /* the read-back waits for pass 1 to finish drawing: on a software
+     * rasteriser that wait cannot be told apart, so it is counted */
+    e->st.occlusion_ms = t2 - t0;
+    (void)t1;
+}
+
+static void draw_frame(hlod_engine *e, const hlod_camera *cam, const hlod_view *view)
 {
     hlod_renderer *r = e->d.renderer;
     sort_draws(e, cam);
     hlod_gpu_begin(r, cam);
-    for (size_t k = 0; k < e->sel.draw.n; k++) {
-        uint32_t i = e->sel.draw.v[k];
-        const hlod_store_node *n = &e->nodes[i];
-        double off[3] = {n->origin[0] - cam->position[0], n->origin[1] - cam->position[1],
-                         n->origin[2] - cam->position[2]};
-        hlod_gpu_draw(r, hlod_residency_gpu(&e->res, i), off, n->depth);
+    e->drawn.n = 0;
+    if (e->d.occlusion > 0 && e->d.policy != HLOD_POLICY_FULL) {
+        draw_occluded(e, cam, view);
+    } else {
+        for (size_t k = 0; k < e->sel.draw.n; k++)
+            gpu_draw_node(e, cam, e->sel.draw.v[k]);
+        e->drawn_valid = 0; /* replay draws the selection */
+        hlod_gpu_end(r, 1);
+        return;
     }
+    e->drawn_valid = 1;
     hlod_gpu_end(r, 1);
 }
 
@@ -350,10 +456,14 @@ static int camera_motion(hlod_engine *e, const hlod_camera *cam, double dt, doub
 static void learn(hlod_engine *e, double measured, double upload, double budget, int moved)
 {
     hlod_cost_model *m = &e->cost;
+    const hlod_frame_stats *st = &e->st;
+    double front = hlod_cost_model_predict(m, st->nodes_drawn, st->cost_drawn, st->pixels_drawn) -
+                   m->theta[0];
     if (!e->d.deterministic)
-        hlod_cost_model_fit(m, e->d.target_ms, e->st.cost_drawn, measured - upload);
-    hlod_cost_model_adapt_share(m, e->d.policy, m->v_time * e->st.cost_drawn, budget, moved,
-                                e->sel.cap_hits, e->sel.slice_denied);
+        hlod_cost_model_fit(m, &e->d, st->nodes_drawn, st->cost_drawn, st->pixels_drawn,
+                            measured - upload);
+    hlod_cost_model_adapt_share(m, e->d.policy, front, budget, moved, e->sel.cap_hits,
+                                e->sel.slice_denied);
     if (e->d.policy == HLOD_POLICY_SSE)
         hlod_cost_model_adapt_sse(
             m, (e->d.deterministic ? e->st.estimated_ms : measured) / e->d.target_ms);
@@ -390,15 +500,25 @@ hlod_result hlod_engine_frame(hlod_engine *e, const hlod_camera *cam, double dt,
      * under a time model: its frame time is the whole frame, uploads
      * included, and a wall-clock upload (a preempted collect) would bias
      * the budget and the fit of a synthetic machine. */
+    /* The budget bounds the front's estimate: with the margin the
+     * measured spread needs, deadline_quantile of frames finish within the
+     * target (margin 1 when aiming at the mean, as the paper does). */
     const hlod_cost_model *m = &e->cost;
     const double target = e->d.target_ms;
     const double upload = e->d.deterministic || e->d.time_model ? 0 : e->st.upload_ms;
-    double budget = target - m->fixed_ms - upload;
+    double budget = (target - upload) / m->margin - m->theta[0];
     if (budget < 0.1 * target)
         budget = 0.1 * target;
     hlod_view view;
     hlod_view_init(&view, cam, vel, e->d.velocity_lookahead_s);
-    hlod_select_in in = {e->frame, m->v_time, m->sse_pixels, budget, budget * m->share_gain};
+    hlod_select_in in = {.frame = e->frame,
+                         .v_time = m->theta[2],
+                         .draw_ms = m->theta[1],
+                         .pixel_ms = m->theta[3],
+                         .occlusion = e->d.occlusion > 0 && e->d.renderer != NULL,
+                         .sse_pixels = m->sse_pixels,
+                         .budget_ms = budget,
+                         .share_ms = budget * m->share_gain};
     t0 = hlod_now_ms();
     hlod_result r = hlod_select(&e->sel, &e->res, &view, &in);
     e->st.traversal_ms = hlod_now_ms() - t0;
@@ -406,19 +526,22 @@ hlod_result hlod_engine_frame(hlod_engine *e, const hlod_camera *cam, double dt,
         return r;
 
     if (e->d.renderer)
-        draw_frame(e, cam);
+        draw_frame(e, cam, &view);
 
     double measured;
     if (e->d.time_model)
-        measured = e->d.time_model(e->d.time_model_user, e->st.cost_drawn, e->st.tris_drawn);
+        measured = e->d.time_model(e->d.time_model_user, &e->st);
     else
         measured = hlod_now_ms() - t_start;
     e->st.measured_ms = measured;
-    e->st.v_time = m->v_time;
-    e->st.fixed_ms = m->fixed_ms;
+    e->st.v_time = m->theta[2];
+    e->st.fixed_ms = m->theta[0];
+    e->st.margin = m->margin;
     e->st.budget_ms = budget;
     e->st.share_gain = m->share_gain;
-    e->st.estimated_ms = m->fixed_ms + m->v_time * e->st.cost_drawn + upload;
+    e->st.estimated_ms =
+        hlod_cost_model_predict(m, e->st.nodes_drawn, e->st.cost_drawn, e->st.pixels_drawn) +
+        upload;
     e->st.sse_pixels = m->sse_pixels;
     learn(e, measured, upload, budget, moved);
 
@@ -429,6 +552,32 @@ hlod_result hlod_engine_frame(hlod_engine *e, const hlod_camera *cam, double dt,
     hlod_residency_end_frame(&e->res);
     if (stats)
         *stats = e->st;
+    return HLOD_OK;
+}
+
+/* ---- replay ---- */
+
+hlod_result hlod_engine_replay(hlod_engine *e, const hlod_camera *cam, int occlusion, double *ms)
+{
+    if (ms)
+        *ms = 0;
+    if (!e || !cam || !camera_ok(cam) || e->frame == 0)
+        return HLOD_ERR_INVALID_ARG;
+    double t0 = hlod_now_ms();
+    hlod_renderer *r = e->d.renderer;
+    if (r) {
+        /* the last frame's nodes, in its draw order: with occlusion, the
+         * ones it drew; without, the whole selection */
+        const hlod_u32_vec *list = occlusion && e->drawn_valid ? &e->drawn : &e->sel.draw;
+        hlod_gpu_begin(r, cam);
+        for (size_t k = 0; k < list->n; k++)
+            gpu_draw_node(e, cam, list->v[k]);
+        hlod_gpu_end(r, 1);
+    }
+    double t = e->d.time_model ? e->d.time_model(e->d.time_model_user, &e->st)
+                               : hlod_now_ms() - t0;
+    if (ms)
+        *ms = t;
     return HLOD_OK;
 }
 

@@ -16,6 +16,7 @@
 
 #include "cost_model.h"
 #include "hlod/engine.h"
+#include "occlusion.h"
 #include "residency.h"
 #include "selection.h"
 
@@ -30,6 +31,10 @@ struct hlod_engine {
 
     struct draw_key *draw_keys; /* draw-order sort scratch (engine.c) */
     size_t draw_keys_cap;
+    hlod_occlusion occ;         /* this frame's depth pyramid (occlusion.h) */
+    hlod_u32_vec drawn;         /* nodes the last frame drew, in draw order */
+    int drawn_valid;            /* drawn holds them (occlusion was on) */
+    hlod_u32_vec later;         /* scratch: nodes tested before they are drawn */
 
     /* camera motion */
     double prev_eye[3];

@@ -632,6 +632,25 @@ void hlod_gpu_end(hlod_renderer *r, int finish)
         r->gl.Flush();
 }
 
+/* called from the render thread between begin and end; waits for the
+ * draws so far (glReadPixels does) */
+hlod_result hlod_gpu_read_depth(hlod_renderer *r, uint32_t width, uint32_t height, uint32_t *out)
+{
+    if (!r || !out || !width || !height)
+        return HLOD_ERR_INVALID_ARG;
+    const gl_table *gl = &r->gl;
+    take_errors(gl);
+    gl->PixelStorei(GL_PACK_ALIGNMENT, 4);
+    gl->ReadPixels(0, 0, (GLsizei)width, (GLsizei)height, GL_DEPTH_COMPONENT, GL_UNSIGNED_INT,
+                   out);
+    if (take_errors(gl) != GL_NO_ERROR) {
+        hlod_logf(&r->lg, HLOD_LOG_ERROR, "renderer: glReadPixels of depth %ux%u failed",
+                  (unsigned)width, (unsigned)height);
+        return HLOD_ERR_UNSUPPORTED;
+    }
+    return HLOD_OK;
+}
+
 /* called from the render thread, context current, after hlod_gpu_end and
  * before the buffer swap (a swap leaves the back buffer undefined) */
 hlod_result hlod_renderer_read_rgb(hlod_renderer *r, uint32_t width, uint32_t height, uint8_t *rgb)

@@ -51,5 +51,11 @@ void hlod_gpu_draw(hlod_renderer *r, const hlod_gpu_node *g, const double offset
                    uint32_t depth);
 void hlod_gpu_end(hlod_renderer *r, int finish);
 
+/* Reads the depth buffer drawn so far (between begin and end; it waits for
+ * the GPU) as window depth scaled to 32-bit integers, bottom row first,
+ * width * height values.  HLOD_ERR_UNSUPPORTED (logged) on a GL error.
+ * For occlusion culling (engine/occlusion.h). */
+hlod_result hlod_gpu_read_depth(hlod_renderer *r, uint32_t width, uint32_t height, uint32_t *out);
+
 
 #endif

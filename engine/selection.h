@@ -33,6 +33,10 @@ typedef struct hlod_node_frame {
     uint32_t refined;       /* frame its children were last drawn in its place */
     uint32_t toggled;       /* frame of the last toggle */
     int8_t toggle_dir;      /* +1 up, -1 down */
+    double pix;             /* screen pixels of its projected box (when priced visible) */
+    double extra;           /* what refining it added to the estimate when last refined */
+    uint32_t seen;          /* frame the occlusion test last found it visible */
+    uint32_t hidden;        /* frame the occlusion test last found it hidden */
 } hlod_node_frame;
 
 /* The camera as the selection sees it, in camera-relative doubles. */
@@ -42,12 +46,17 @@ typedef struct hlod_view {
     double planes[6][4];    /* frustum planes, camera-relative, unit normals pointing in */
     double toward[3];       /* unit vector toward the viewer (image plane normal) */
     double pixels_per_radian; /* height / (2 tan(fovy/2)), for screen-space error */
+    double vp[16];          /* camera-relative view-projection, column-major */
+    double width, height;   /* viewport, pixels */
 } hlod_view;
 
 /* What one frame's selection is given. */
 typedef struct hlod_select_in {
     uint32_t frame;         /* stamp (1-based) */
     double v_time;          /* the cost model's published ms per unit of cost */
+    double draw_ms;         /* ... per node drawn */
+    double pixel_ms;        /* ... per pixel of a node's projected box */
+    int occlusion;          /* nodes hidden in the last frame are not charged or refined */
     double sse_pixels;      /* the SSE policy's threshold */
     double budget_ms;       /* the bound on the front's estimate */
     double share_ms;        /* the roots' shareTime (eq. 4) */
@@ -61,6 +70,7 @@ typedef struct hlod_selection {
     hlod_node_frame *fr;        /* node_count */
     hlod_u32_vec draw;          /* nodes drawn this frame */
     hlod_u32_vec level, next;   /* breadth-first levels */
+    double reserved, reserving; /* extra of the last frame's refinements; of this frame's */
     uint32_t cap_hits;          /* refinements the budget bound refused this frame */
     uint32_t slice_denied;      /* refinements near but refused by time slices */
 } hlod_selection;
@@ -79,6 +89,18 @@ void hlod_view_init(hlod_view *v, const hlod_camera *cam, const double velocity[
  * <= 0 when it meets it.  Conservative (a box near a frustum corner may be
  * reported as meeting it), as usual. */
 double hlod_view_outside(const hlod_view *v, const double lo[3], const double hi[3]);
+
+/* The box [lo, hi] (world) projected: its screen rectangle in pixels
+ * (x0, y0, x1, y1; y up, clipped to the viewport, possibly empty) and the
+ * window depth in [0, 1] of its nearest point.  Returns 0 when part of the
+ * box lies at or behind the eye plane (then it may cover the whole screen
+ * and nothing is filled in). */
+int hlod_view_project(const hlod_view *v, const double lo[3], const double hi[3], double rect[4],
+                      double *zmin);
+
+/* Screen pixels of the box's projected rectangle, clipped to the viewport
+ * (the whole viewport when the box reaches behind the eye). */
+double hlod_view_pixels(const hlod_view *v, const double lo[3], const double hi[3]);
 
 /* Selects this frame's nodes with d->policy: fills s->draw, asks res for
  * the nodes it wants, and fills the selection fields of the stats (drawn,

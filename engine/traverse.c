@@ -50,7 +50,8 @@ typedef struct walk {
     const hlod_store_node *nodes;
     hlod_node_frame *fr;
     uint32_t frame;
-    double v_time, sse_pixels;
+    double v_time, sse_pixels, draw_ms, pixel_ms;
+    int occlusion;
 } walk;
 
 /* ---- life ---- */
@@ -123,6 +124,49 @@ void hlod_view_init(hlod_view *v, const hlod_camera *cam, const double velocity[
     v->toward[2] = cam->view[10];
     double t = tan(0.5 * cam->fov_y_deg * M_PI / 180.0);
     v->pixels_per_radian = t > 0 ? 0.5 * (double)cam->height / t : 1.0;
+    memcpy(v->vp, m, sizeof v->vp);
+    v->width = cam->width;
+    v->height = cam->height;
+}
+
+int hlod_view_project(const hlod_view *v, const double bmin[3], const double bmax[3],
+                      double rect[4], double *zmin)
+{
+    const double *m = v->vp;
+    double x0 = INFINITY, y0 = INFINITY, x1 = -INFINITY, y1 = -INFINITY, z0 = INFINITY;
+    for (int c = 0; c < 8; c++) {
+        double p[3] = {((c & 1) ? bmax[0] : bmin[0]) - v->eye[0],
+                       ((c & 2) ? bmax[1] : bmin[1]) - v->eye[1],
+                       ((c & 4) ? bmax[2] : bmin[2]) - v->eye[2]};
+        double cx = m[0] * p[0] + m[4] * p[1] + m[8] * p[2] + m[12];
+        double cy = m[1] * p[0] + m[5] * p[1] + m[9] * p[2] + m[13];
+        double cz = m[2] * p[0] + m[6] * p[1] + m[10] * p[2] + m[14];
+        double cw = m[3] * p[0] + m[7] * p[1] + m[11] * p[2] + m[15];
+        if (!(cw > 1e-9) || !(cz > -cw))
+            return 0; /* behind the eye or before the near plane */
+        double sx = (cx / cw * 0.5 + 0.5) * v->width, sy = (cy / cw * 0.5 + 0.5) * v->height;
+        double sz = cz / cw * 0.5 + 0.5;
+        x0 = sx < x0 ? sx : x0;
+        x1 = sx > x1 ? sx : x1;
+        y0 = sy < y0 ? sy : y0;
+        y1 = sy > y1 ? sy : y1;
+        z0 = sz < z0 ? sz : z0;
+    }
+    rect[0] = x0 > 0 ? x0 : 0;
+    rect[1] = y0 > 0 ? y0 : 0;
+    rect[2] = x1 < v->width ? x1 : v->width;
+    rect[3] = y1 < v->height ? y1 : v->height;
+    *zmin = z0;
+    return 1;
+}
+
+double hlod_view_pixels(const hlod_view *v, const double lo[3], const double hi[3])
+{
+    double r[4], z;
+    if (!hlod_view_project(v, lo, hi, r, &z))
+        return v->width * v->height;
+    double w = r[2] - r[0], h = r[3] - r[1];
+    return w > 0 && h > 0 ? w * h : 0;
 }
 
 double hlod_view_outside(const hlod_view *v, const double bmin[3], const double bmax[3])
@@ -209,6 +253,56 @@ static double frustum_vis(const walk *w, const hlod_view *v, uint32_t i)
  * must meet with this much to spare (see visit). */
 #define KEEP_MARGIN 0.05
 
+/* A hidden node whose children are still prefetched: one the occlusion
+ * test found visible within this many frames ("just out of sight"). */
+#define PREFETCH_HIDDEN_FRAMES 30
+
+/* Prices node i (priority, and the pixels of its box when visible). */
+static void price(walk *w, const hlod_view *v, uint32_t i, double fv)
+{
+    hlod_node_frame *f = &w->fr[i];
+    f->priority = node_priority(w, v, i, fv);
+    f->priced = w->frame;
+    if (fv >= 1)
+        f->pix = hlod_view_pixels(v, w->nodes[i].bbox_min, w->nodes[i].bbox_max);
+    w->st->nodes_visited++;
+}
+
+/* timeNeeded of a visible node: the cost model's terms for drawing it. */
+static double node_needed(const walk *w, uint32_t i)
+{
+    return w->draw_ms + w->v_time * hlod_node_cost(&w->nodes[i]) + w->pixel_ms * w->fr[i].pix;
+}
+
+/* Hidden: the last frame's occlusion test found it behind nearer geometry.
+ * A hidden node is drawn as it is (the renderer tests it again against
+ * this frame's depth and draws it if it shows), neither charged nor
+ * refined. */
+static int is_hidden(const walk *w, uint32_t i)
+{
+    return w->occlusion && w->fr[i].hidden && w->fr[i].hidden + 1 == w->frame;
+}
+
+/* The children of a hidden node that was visible a moment ago are still
+ * wanted, at the priority of nodes just outside the frustum, so turning a
+ * corner does not stall; a node long hidden costs nothing.  Returns 0 on
+ * allocation failure. */
+static int prefetch_hidden(walk *w, const hlod_view *v, uint32_t p)
+{
+    const hlod_node_frame *pf = &w->fr[p];
+    if (!pf->seen || w->frame - pf->seen > PREFETCH_HIDDEN_FRAMES)
+        return 1;
+    uint32_t c0 = hlod_store_first_child(w->nodes, p), c1 = hlod_store_child_end(w->nodes, p);
+    for (uint32_t c = c0; c < c1; c++) {
+        if (frustum_vis(w, v, c) < 0 || hlod_residency_state(w->res, c) == HLOD_NODE_RESIDENT)
+            continue;
+        price(w, v, c, 0);
+        if (!hlod_residency_want(w->res, c, w->fr[c].priority))
+            return 0;
+    }
+    return 1;
+}
+
 /* ---- bookkeeping ---- */
 
 static void note_toggle(walk *w, uint32_t i, int dir)
@@ -238,8 +332,18 @@ static int draw_node(walk *w, uint32_t i)
     w->st->nodes_per_depth[n->depth < HLOD_STATS_MAX_DEPTH ? n->depth : HLOD_STATS_MAX_DEPTH - 1]++;
     w->st->tris_drawn += n->tri_count;
     w->st->cost_drawn += n->cost;
+    w->st->pixels_drawn += f->pix;
+    if (is_hidden(w, i))
+        w->st->occlusion_hidden++;
     return 1;
 }
+
+/* Outside the dead band a counter moves by at least this much a frame:
+ * a node just past the band would otherwise creep to its switch over a
+ * hundred frames, and a still view would keep refining long after it
+ * stopped (one toggle at frame 130 of a still camera).  With
+ * c_hyst_switch 2 a switch still takes 4 frames of the same sign. */
+#define HYST_MIN_STEP 0.5
 
 static void update_hyst(walk *w, hlod_node_frame *f)
 {
@@ -254,7 +358,7 @@ static void update_hyst(walk *w, hlod_node_frame *f)
      * settle. */
     double urgency = (f->slice - f->needed) / f->needed;
     if (fabs(urgency) > w->d->c_hyst_deadband)
-        f->hyst += urgency;
+        f->hyst += fabs(urgency) >= HYST_MIN_STEP ? urgency : copysign(HYST_MIN_STEP, urgency);
     double lim = w->d->c_hyst_limit;
     if (f->hyst > lim)
         f->hyst = lim;
@@ -268,6 +372,7 @@ static void update_hyst(walk *w, hlod_node_frame *f)
 typedef struct front {
     double est;     /* estimated ms of the front so far (sum of timeNeeded) */
     double budget;
+    double reserved; /* extra of the last frame's refinements not yet visited */
 } front;
 
 /* Decides node p of the front: draw it, or append its visible children to
@@ -279,9 +384,10 @@ static int visit(walk *w, const hlod_view *v, front *fr, uint32_t p)
     uint32_t c0 = hlod_store_first_child(nodes, p), c1 = hlod_store_child_end(nodes, p);
     if (c0 == c1)
         return draw_node(w, p);
+    if (is_hidden(w, p))
+        return prefetch_hidden(w, v, p) && draw_node(w, p);
 
     const hlod_policy pol = w->d->policy;
-    const double vt = w->v_time;
     size_t mark = w->s->next.n;
     double sum_pr = 0;
     for (uint32_t c = c0; c < c1; c++) {
@@ -289,9 +395,7 @@ static int visit(walk *w, const hlod_view *v, front *fr, uint32_t p)
         if (fv < 0)
             continue;
         hlod_node_frame *cf = &w->fr[c];
-        cf->priority = node_priority(w, v, c, fv);
-        cf->priced = w->frame;
-        w->st->nodes_visited++;
+        price(w, v, c, fv);
         if (fv < 1) {
             /* outside but near: prefetch only */
             if (!hlod_residency_want(w->res, c, cf->priority))
@@ -300,7 +404,8 @@ static int visit(walk *w, const hlod_view *v, front *fr, uint32_t p)
         }
         if (!hlod_u32_push(&w->d->allocator, &w->s->next, c))
             return 0;
-        sum_pr += cf->priority;
+        if (!is_hidden(w, c))
+            sum_pr += cf->priority;
     }
     size_t nvis = w->s->next.n - mark;
     if (nvis == 0) {
@@ -318,10 +423,15 @@ static int visit(walk *w, const hlod_view *v, front *fr, uint32_t p)
     for (size_t k = mark; k < w->s->next.n; k++) {
         uint32_t c = w->s->next.v[k];
         hlod_node_frame *cf = &w->fr[c];
-        cf->slice = share * (cf->priority / sum_pr);
-        cf->needed = vt * hlod_node_cost(&nodes[c]);
+        if (is_hidden(w, c)) {
+            /* no share, no need, no vote: it is drawn as it is */
+            cf->slice = cf->needed = 0;
+        } else {
+            cf->slice = share * (cf->priority / sum_pr);
+            cf->needed = node_needed(w, c);
+        }
         sum_needed += cf->needed;
-        if (pol == HLOD_POLICY_LAKHIA) {
+        if (pol == HLOD_POLICY_LAKHIA && cf->needed > 0) {
             update_hyst(w, cf);
             cum += (long)trunc(cf->hyst / w->d->c_hyst_switch);
         }
@@ -360,8 +470,18 @@ static int visit(walk *w, const hlod_view *v, front *fr, uint32_t p)
      * frame-time noise moving the budget by a few percent does not flip a
      * marginal node every frame. */
     int was_refined = pf->refined && pf->refined + 1 == w->frame;
+    if (was_refined) {
+        fr->reserved -= pf->extra;
+        if (fr->reserved < 0)
+            fr->reserved = 0;
+    }
     if (pol == HLOD_POLICY_LAKHIA || pol == HLOD_POLICY_NOHYST) {
-        double bound = was_refined ? fr->budget : fr->budget * (1 - KEEP_MARGIN);
+        /* A new refinement also leaves room for the ones the last frame
+         * made that this walk has not reached yet: else a node whose
+         * counter crossed its switch takes the budget of one refined
+         * further on, which then toggles down (a swap with nothing in the
+         * view changed). */
+        double bound = was_refined ? fr->budget : fr->budget * (1 - KEEP_MARGIN) - fr->reserved;
         if (refine && fr->est - pf->needed + sum_needed > bound) {
             refine = 0;
             w->s->cap_hits++;
@@ -386,6 +506,8 @@ static int visit(walk *w, const hlod_view *v, front *fr, uint32_t p)
         return draw_node(w, p);
     }
     fr->est += sum_needed - pf->needed;
+    pf->extra = sum_needed - pf->needed > 0 ? sum_needed - pf->needed : 0;
+    w->s->reserving += pf->extra;
     if (pf->drawn && pf->drawn + 1 == w->frame)
         note_toggle(w, p, +1);
     pf->refined = w->frame;
@@ -396,12 +518,16 @@ hlod_result hlod_select(hlod_selection *s, struct hlod_residency *res, const hlo
                         const hlod_select_in *in)
 {
     assert(s && res && v && in);
-    walk ctx = {s, res, s->d, s->st, s->nodes, s->fr, in->frame, in->v_time, in->sse_pixels};
+    walk ctx = {s,           res,           s->d,        s->st,
+                s->nodes,    s->fr,         in->frame,   in->v_time,
+                in->sse_pixels, in->draw_ms, in->pixel_ms,
+                in->occlusion && s->d->policy != HLOD_POLICY_FULL};
     walk *w = &ctx;
     const double share_ms = in->share_ms;
     s->draw.n = s->level.n = s->next.n = 0;
     s->cap_hits = s->slice_denied = 0;
-    front fr = {0, in->budget_ms};
+    front fr = {0, in->budget_ms, s->reserving};
+    s->reserving = 0;
 
     /* the visible roots share share_ms (shareTime: c_targetTime less
      * the fixed frame part, times the engine's share gain); they are always
@@ -411,19 +537,21 @@ hlod_result hlod_select(hlod_selection *s, struct hlod_residency *res, const hlo
         double fv = frustum_vis(w, v, r);
         if (fv < 1)
             continue; /* roots are resident: nothing to prefetch */
-        hlod_node_frame *f = &w->fr[r];
-        f->priority = node_priority(w, v, r, fv);
-        f->priced = w->frame;
-        w->st->nodes_visited++;
+        price(w, v, r, fv);
         if (!hlod_u32_push(&w->d->allocator, &w->s->level, r))
             return HLOD_ERR_NOMEM;
-        sum_pr += f->priority;
+        if (!is_hidden(w, r))
+            sum_pr += w->fr[r].priority;
     }
     for (size_t k = 0; k < w->s->level.n; k++) {
         uint32_t r = w->s->level.v[k];
         hlod_node_frame *f = &w->fr[r];
+        if (is_hidden(w, r)) {
+            f->slice = f->needed = 0;
+            continue;
+        }
         f->slice = share_ms * (f->priority / sum_pr);
-        f->needed = w->v_time * hlod_node_cost(&w->nodes[r]);
+        f->needed = node_needed(w, r);
         fr.est += f->needed;
     }
 

@@ -35,10 +35,10 @@ typedef struct fixed_machine {
     double fixed, per_cost;
 } fixed_machine;
 
-static inline double fixed_machine_time(void *user, double cost, uint64_t tris)
+static inline double fixed_machine_time(void *user, const hlod_frame_stats *frame)
 {
+    double cost = frame->cost_drawn;
     const fixed_machine *m = user;
-    (void)tris;
     return m->fixed + m->per_cost * cost;
 }
 

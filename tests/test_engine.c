@@ -15,6 +15,7 @@
 #include "check.h"
 #include "engine_internal.h"
 #include "engine_check.h"
+#include "hlod/metrics.h"
 #include "store_fixture.h"
 
 #include <math.h>
@@ -77,10 +78,10 @@ typedef struct machine {
     uint64_t rng;   /* own noise stream: engines in two threads share nothing */
 } machine;
 
-static double machine_time(void *user, double cost, uint64_t tris)
+static double machine_time(void *user, const hlod_frame_stats *frame)
 {
+    double cost = frame->cost_drawn;
     machine *m = user;
-    (void)tris;
     double t = m->fixed + m->per_cost * cost;
     if (m->noise > 0) {
         if (!m->rng)
@@ -261,20 +262,22 @@ static uint32_t still_window_toggles(hlod_store *s, hlod_policy policy, double n
     hlod_frame_stats st;
     double lim = hlod_engine_get_desc(e)->c_hyst_limit;
     uint32_t toggles = 0, out_of_range = 0, loads = 0;
+    m.noise = noise;
+    m.rng = seed;
+    double lo = INFINITY, hi = 0;
     for (int f = 0; f < 400; f++) {
-        if (f == 200) {
-            m.noise = noise;
-            m.rng = seed;
-        }
         CHECK(hlod_engine_frame(e, &cam, 1.0 / 30, &st) == HLOD_OK);
         loads += st.loads;
-        if (f > 200)
+        if (f >= 60) {
             toggles += st.toggles_up + st.toggles_down;
-        if (getenv("HLOD_TEST_VERBOSE") && (st.toggles_up + st.toggles_down))
+            lo = st.measured_ms < lo ? st.measured_ms : lo;
+            hi = st.measured_ms > hi ? st.measured_ms : hi;
+        }
+        if (getenv("HLOD_TEST_VERBOSE") && (st.toggles_up + st.toggles_down || getenv("HLOD_TEST_ALL")))
             fprintf(stderr, "  %s f %d: up %u down %u gain %.3f est %.3f budget %.3f fixed %.3f "
-                    "v %.5f meas %.2f\n", hlod_policy_name(policy), f, st.toggles_up,
+                    "v %.5f meas %.2f draw %.4f pix %.3g m %.3f n %u c %.0f p %.0f u %u/%u/%u\n", hlod_policy_name(policy), f, st.toggles_up,
                     st.toggles_down, st.share_gain, st.estimated_ms, st.budget_ms, st.fixed_ms,
-                    st.v_time, st.measured_ms);
+                    st.v_time, st.measured_ms, e->cost.theta[1], e->cost.theta[3], st.margin, st.nodes_drawn, st.cost_drawn, st.pixels_drawn, e->cost.scale_updates, e->cost.shape_updates, e->cost.margin_updates);
         for (uint32_t i = 0; i < hlod_store_node_count(s); i++)
             out_of_range += e->sel.fr[i].hyst < -lim || e->sel.fr[i].hyst > lim;
     }
@@ -282,19 +285,21 @@ static uint32_t still_window_toggles(hlod_store *s, hlod_policy policy, double n
            hlod_policy_name(policy), loads);
     CHECKF(out_of_range == 0, "%s: %u node-frames with hyst outside +-%g",
            hlod_policy_name(policy), out_of_range, lim);
-    /* the measured time is held near the target */
+    /* the measured time is held under the target, and the noise is there */
     CHECKF(st.measured_ms < 1.25 * d.target_ms, "%s: %g ms", hlod_policy_name(policy),
            st.measured_ms);
+    CHECKF(hi > (1 + 0.5 * noise) * lo, "%s: frame times %g..%g ms: no noise",
+           hlod_policy_name(policy), lo, hi);
     hlod_engine_destroy(e);
     return toggles;
 }
 
-/* Hysteresis counters stay within +-c_hyst_limit; a still camera settles,
- * and 10% noise on the machine's frame times (8 seeds) then toggles
- * nothing, where nohyst toggles in every seed (39 toggles in all).  At 20%
- * noise lakhia toggles in 3 of these 8 seeds (4 toggles, nohyst 81), and at
- * 30% as often as nohyst (70 and 85): the fitted cost model follows the
- * noise, and the counters follow the budget. */
+/* Hysteresis counters stay within +-c_hyst_limit, and a still camera
+ * settles: with 10 % noise on the machine's frame times from the first
+ * frame, nothing toggles after frame 60, in 8 seeds, with either policy.
+ * Before the guarded cost model (README, "Cost model and deadline") the
+ * fit followed the noise and the counters followed the budget: nohyst
+ * toggled in every seed and lakhia at 20 % noise in 3 of 8. */
 static void test_hysteresis_settles(void)
 {
     fixture_opts o = {0};
@@ -309,15 +314,14 @@ static void test_hysteresis_settles(void)
         if (getenv("HLOD_TEST_VERBOSE"))
             fprintf(stderr, "  seed %llu: lakhia %u, nohyst %u\n", (unsigned long long)seeds[k],
                     tl, tn);
-        CHECKF(tl == 0, "seed %llu: lakhia toggled %u times in 200 still frames",
+        CHECKF(tl == 0, "seed %llu: lakhia toggled %u times in 340 still frames",
                (unsigned long long)seeds[k], tl);
+        CHECKF(tn == 0, "seed %llu: nohyst toggled %u times in 340 still frames",
+               (unsigned long long)seeds[k], tn);
         lakhia += tl;
         nohyst += tn;
     }
-    /* the control: the same noise makes the loop toggle without hysteresis
-     * (else this test could not tell hysteresis from a quiet machine) */
-    CHECKF(nohyst > 0, "nohyst toggled %u times in %d x 200 still frames", nohyst, n);
-    fprintf(stderr, "  still camera, %.0f%% noise, %d seeds x 200 frames: lakhia %u toggles, "
+    fprintf(stderr, "  still camera, %.0f%% noise, %d seeds x 340 frames: lakhia %u toggles, "
             "nohyst %u\n", 100 * noise, n, lakhia, nohyst);
     hlod_store_close(s);
 }
@@ -890,49 +894,60 @@ static void test_degenerate_views(void)
     hlod_store_close(s);
 }
 
-/* The cost model recovers a machine's fixed and per-cost times. */
+/* The cost model through the engine, on a synthetic machine with a
+ * synchronous loader (every node in view is loaded before its frame, so
+ * the run does not depend on when the loader thread finishes): a moving
+ * camera, 5 % noise.  The model predicts each frame within 5 % (median)
+ * and 20 % (95th percentile); aiming at the deadline, at least 98 % of
+ * frames meet the target; aiming at the mean (the paper), the mean sits
+ * within 15 % of it (this small fixture's front moves in steps of 4 % of
+ * the target). */
 static void test_cost_model_fit(void)
 {
     fixture_opts o = {0};
     o.depth = 4;
     hlod_store *s = make_store("fit.hlod", &o, NULL);
-    machine m = {8, 0.004, 0.02, 0};
-    hlod_engine_desc d = {0};
-    d.target_ms = 30;
-    d.time_model = machine_time;
-    d.time_model_user = &m;
-    hlod_engine *e = NULL;
-    CHECK(hlod_engine_create(s, &d, &e) == HLOD_OK);
-    hlod_camera cam;
-    hlod_frame_stats st;
-    double sum_ratio = 0;
-    int n = 0, within = 0;
-    for (int f = 0; f < 600; f++) {
-        double t = f / 600.0;
-        look(&cam, 20 + 400 * t, -40 - 100 * t, 10 + 150 * t, 220, 50, 0);
-        CHECK(hlod_engine_frame(e, &cam, 1.0 / 30, &st) == HLOD_OK);
-        if (getenv("HLOD_TEST_VERBOSE") && f % 20 == 0)
-            fprintf(stderr, "  frame %d: measured %.2f est %.2f fixed %.2f v_time %.5f gain %.2f "
-                    "drawn %u (d0 %u d1 %u d2 %u d3 %u d4 %u) missing %u resident %u\n", f,
-                    st.measured_ms, st.estimated_ms, st.fixed_ms, st.v_time, st.share_gain,
-                    st.nodes_drawn, st.nodes_per_depth[0], st.nodes_per_depth[1],
-                    st.nodes_per_depth[2], st.nodes_per_depth[3], st.nodes_per_depth[4],
-                    st.wanted_missing, st.resident_nodes);
-        sleep_us(200);
-        if (f >= 100) {
-            sum_ratio += st.measured_ms / d.target_ms;
-            within += fabs(st.measured_ms - d.target_ms) <= 0.1 * d.target_ms;
-            n++;
+    for (int aim_mean = 0; aim_mean < 2; aim_mean++) {
+        machine m = {8, 0.004, 0.05, 0x1234567ull};
+        hlod_engine_desc d = {0};
+        d.target_ms = 30;
+        d.time_model = machine_time;
+        d.time_model_user = &m;
+        d.memory_budget_bytes = 1ull << 30;
+        d.aim_mean = aim_mean ? 1 : -1;
+        hlod_engine *e = NULL;
+        CHECK(hlod_engine_create(s, &d, &e) == HLOD_OK);
+        if (!e)
+            break;
+        hlod_camera cam;
+        hlod_frame_stats st;
+        double err[500], sum_ratio = 0;
+        int n = 0, met = 0;
+        for (int f = 0; f < 600; f++) {
+            double t = f / 600.0;
+            look(&cam, 20 + 400 * t, -40 - 100 * t, 10 + 150 * t, 220, 50, 0);
+            CHECK(hlod_engine_load_all_leaves(e, &cam) == HLOD_OK);
+            CHECK(hlod_engine_frame(e, &cam, 1.0 / 30, &st) == HLOD_OK);
+            if (f >= 100) {
+                err[n] = fabs(st.estimated_ms - st.measured_ms) / st.measured_ms;
+                sum_ratio += st.measured_ms / d.target_ms;
+                met += st.measured_ms <= d.target_ms;
+                n++;
+            }
         }
+        hlod_stats_sort(err, (size_t)n);
+        double p50 = hlod_stats_percentile_sorted(err, (size_t)n, 50);
+        double p95 = hlod_stats_percentile_sorted(err, (size_t)n, 95);
+        fprintf(stderr, "  %s: estimate error p50 %.3f p95 %.3f; mean %.3f x target, %d/%d "
+                "within; fixed %.2f v_time %.5f margin %.3f\n", aim_mean ? "aim_mean" : "deadline",
+                p50, p95, sum_ratio / n, met, n, st.fixed_ms, st.v_time, st.margin);
+        CHECKF(p50 <= 0.05 && p95 <= 0.20, "estimate error p50 %.3f, p95 %.3f", p50, p95);
+        if (aim_mean)
+            CHECKF(fabs(sum_ratio / n - 1) <= 0.15, "mean %.3f x target", sum_ratio / n);
+        else
+            CHECKF(met >= 0.98 * n, "%d of %d frames within the target", met, n);
+        hlod_engine_destroy(e);
     }
-    fprintf(stderr, "  fit: fixed %.2f ms (true 8), v_time %.5f (true 0.004), mean measured "
-            "%.3f x target, %d/%d frames within 10%%\n", st.fixed_ms, st.v_time, sum_ratio / n,
-            within, n);
-    CHECK(fabs(st.v_time - m.per_cost) < 0.25 * m.per_cost);
-    CHECK(fabs(st.fixed_ms - m.fixed) < 0.25 * m.fixed);
-    CHECK(sum_ratio / n <= 1.05);
-    CHECKF(within >= 0.8 * n, "%d of %d frames within 10%%", within, n);
-    hlod_engine_destroy(e);
     hlod_store_close(s);
 }
 

@@ -112,7 +112,7 @@ static void defaults_and_names(void)
         hlod_engine_desc g = {0};
         CHECKF(hlod_engine_desc_set(&g, set[i].key, v) == HLOD_OK && memcmp(&e, &g, sizeof e) == 0,
                "%s", set[i].key);
-        int is_count = set[i].kind[0] == 'U';
+        int is_count = set[i].kind[0] == 'U' || set[i].kind[0] == 'B';
         CHECKF((hlod_engine_desc_set(&e, set[i].key, 1.5) == HLOD_OK) == !is_count, "%s 1.5",
                set[i].key);
         CHECKF((hlod_engine_desc_set(&e, set[i].key, -2) == HLOD_OK) == !is_count, "%s -2",
@@ -148,6 +148,21 @@ static void ranges_are_checked(void)
     for (size_t i = 0; i < n && e; i++) {
         const hlod_engine_setting *s = &set[i];
         double bad[2] = {s->lo_open ? s->lo : s->lo - 1, s->hi * 2 + 1};
+        if (s->kind[0] == 'B') {
+            /* a switch takes 0 and 1 and nothing else */
+            hlod_engine_desc d = base;
+            CHECKF(hlod_engine_desc_set(&d, s->key, 2) == HLOD_ERR_INVALID_ARG &&
+                       hlod_engine_desc_set(&d, s->key, -1) == HLOD_ERR_INVALID_ARG &&
+                       hlod_engine_desc_set(&d, s->key, 0.5) == HLOD_ERR_INVALID_ARG,
+                   "%s", s->key);
+            for (int v = 0; v < 2; v++) {
+                CHECK(hlod_engine_desc_set(&d, s->key, v) == HLOD_OK);
+                hlod_engine *x = NULL;
+                CHECKF(hlod_engine_create(st, &d, &x) == HLOD_OK, "%s = %d", s->key, v);
+                hlod_engine_destroy(x);
+            }
+            continue;
+        }
         for (int b = 0; b < 2; b++) {
             if (isinf(bad[b]) || (s->kind[0] == 'U' && bad[b] < 0))
                 continue; /* no such bound, or not representable */

@@ -75,11 +75,13 @@ typedef hlod_result (*hlod_read_hook)(void *user_data, uint32_t node, uint64_t o
                                       size_t bytes);
 
 /* Replaces measured wall time (for tests without GL): the frame time a
- * synthetic machine would take to draw drawn_cost (sum of eq. 1) in
- * drawn_tris triangles.  It is the whole frame, uploads included: with a
- * time model the engine reads no clock for its decisions (uploads take
- * nothing off the budget and stop at upload_budget_bytes only). */
-typedef double (*hlod_time_model)(void *user_data, double drawn_cost, uint64_t drawn_tris);
+ * synthetic machine would take to draw what the frame drew, given as the
+ * frame's stats so far (nodes_drawn, tris_drawn, cost_drawn, pixels_drawn
+ * of the nodes actually drawn).  It is the whole frame, uploads included:
+ * with a time model the engine reads no clock for its decisions (uploads
+ * take nothing off the budget and stop at upload_budget_bytes only). */
+struct hlod_frame_stats;
+typedef double (*hlod_time_model)(void *user_data, const struct hlod_frame_stats *frame);
 
 /* The engine's numeric settings, one row each (README, "Engine
  * settings"; a test keeps that table equal to this one):
@@ -88,7 +90,8 @@ typedef double (*hlod_time_model)(void *user_data, double drawn_cost, uint64_t d
  *
  *   key      the setting's name (hlod-bench --set KEY=VALUE)
  *   field    its member of hlod_engine_desc
- *   kind     D (double), U32 or U64 (unsigned counts)
+ *   kind     D (double), U32 or U64 (unsigned counts), B (a switch: the
+ *            field is 1 on, -1 off, 0 default; --set takes 0 or 1)
  *   default  what a zero field becomes (hlod_engine_desc_defaults); 0 where
  *            zero itself means something, as the help says
  *   lo, hi   the valid range once defaults are filled in (lo excluded when
@@ -134,11 +137,20 @@ typedef double (*hlod_time_model)(void *user_data, double drawn_cost, uint64_t d
     X(fixed_ms, fixed_frame_ms, D, 0, 0, 0, HLOD_UNBOUNDED, 1,                                   \
       "deterministic runs: the frame's fixed part, ms, below target_ms")                         \
     X(deterministic_load_bytes, deterministic_load_bytes, U64, 4ull << 20, 1, 0, HLOD_UNBOUNDED, 1, \
-      "deterministic runs: bytes the synchronous loader reads per frame")
+      "deterministic runs: bytes the synchronous loader reads per frame")                        \
+    X(deadline_quantile, deadline_quantile, D, 0.99, 0.5, 1, 0.9999, 1,                           \
+      "the fraction of frames to finish within target_ms (the margin follows the measured spread)") \
+    X(aim_mean, aim_mean, B, 0, 0, 0, 1, 1,                                                      \
+      "1: the paper's control, the mean frame time on target_ms (no margin); 0: the deadline")    \
+    X(occlusion, occlusion, B, 1, 0, 0, 1, 1,                                                    \
+      "1: nodes hidden behind this frame's depth are not drawn, charged or refined; 0: off")
 
 #define HLOD_SETTING_KIND_D double
 #define HLOD_SETTING_KIND_U32 uint32_t
 #define HLOD_SETTING_KIND_U64 uint64_t
+/* B: a switch.  Its field holds 1 (on), -1 (off) or 0 (the default), so
+ * that zero keeps meaning "default"; hlod_engine_desc_set takes 0 or 1. */
+#define HLOD_SETTING_KIND_B int
 
 /* Engine settings.  Zero means "default" for every numeric field (the
  * table above); defaults are filled in one place
@@ -168,7 +180,7 @@ typedef struct hlod_engine_desc {
 /* One row of HLOD_ENGINE_SETTINGS, for listing and parsing by name. */
 typedef struct hlod_engine_setting {
     const char *key, *help;
-    const char *kind;            /* "D", "U32", "U64" */
+    const char *kind;            /* "D", "U32", "U64", "B" */
     double def, lo, hi;
     int lo_open, live;
 } hlod_engine_setting;
@@ -217,6 +229,14 @@ typedef struct hlod_frame_stats {
     uint32_t bad_nodes;          /* nodes marked bad so far */
     uint32_t queued;             /* requests handed to the loader */
     uint32_t render_waits;       /* render thread blocked on the loader: must be 0 */
+    /* cost model and deadline (README, "Cost model and deadline") */
+    double pixels_drawn;         /* screen pixels of the drawn nodes' projected boxes */
+    double margin;               /* deadline margin: the front may take (target - uploads) / margin */
+    /* occlusion (README, "Occlusion culling") */
+    uint32_t occlusion_hidden;   /* front nodes hidden in the last frame: not charged, not refined */
+    uint32_t occlusion_tested;   /* front nodes tested against this frame's depth pyramid */
+    uint32_t occlusion_culled;   /* front nodes that test hid: not drawn */
+    double occlusion_ms;         /* CPU time of the depth read-back, pyramid and tests */
 } hlod_frame_stats;
 
 /* Creates an engine over an open store: reads every top node (groups and hlod_0)
@@ -245,6 +265,17 @@ hlod_result hlod_engine_frame(hlod_engine *e, const hlod_camera *cam, double dt,
  * renderer, deterministic) are ignored.  HLOD_ERR_INVALID_ARG as for create. */
 hlod_result hlod_engine_set(hlod_engine *e, const hlod_engine_desc *desc);
 const hlod_engine_desc *hlod_engine_get_desc(const hlod_engine *e);
+
+/* Draws the last frame's selection again from cam and returns its time in
+ * *ms, measured like a frame's (glFinish-bounded; the time model's when
+ * one is set).  Changes nothing: no collecting, uploads, learning or
+ * loader requests, and the next frame is as if this call had not been
+ * made.  occlusion 1 culls hidden nodes as a frame does (when the setting
+ * is on), 0 draws every node of the selection.  For the machine's own
+ * jitter (hlod-bench replays one frozen selection) and for checking that
+ * occlusion culling changes no pixel.  HLOD_ERR_INVALID_ARG before the
+ * first frame or for a bad camera. */
+hlod_result hlod_engine_replay(hlod_engine *e, const hlod_camera *cam, int occlusion, double *ms);
 
 /* Loads every node the policy HLOD_POLICY_FULL would draw from cam (all
  * leaves in or near the frustum), synchronously, ignoring the budget.  For

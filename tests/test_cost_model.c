@@ -1,0 +1,292 @@
+/*
+ * test_cost_model.c - the frame cost model and its deadline margin
+ * (engine/cost_model.c), driven directly by synthetic machines with
+ * seeded noise: no threads, no clock, so every run gives the same result.
+ *
+ * A synthetic machine takes
+ *   ms = (fixed + a * draws + b * cost + c * pixels) * exp(noise)
+ * with noise drawn from a seeded generator: Gaussian in log space, and
+ * stalls (a heavier tail): the machine measured in issue 17 (p99/p50 of
+ * one fixed frame 1.39) and a harsher one.
+ */
+#include "check.h"
+#include "cost_model.h"
+
+#include <math.h>
+#include <stdint.h>
+
+typedef struct rng {
+    uint64_t s;
+} rng;
+
+static double uniform(rng *r)
+{
+    r->s ^= r->s << 13;
+    r->s ^= r->s >> 7;
+    r->s ^= r->s << 17;
+    return ((double)(r->s >> 11) + 0.5) / 9007199254740992.0;
+}
+
+static double gauss(rng *r)
+{
+    double u = uniform(r), v = uniform(r);
+    return sqrt(-2 * log(u)) * cos(2 * M_PI * v);
+}
+
+typedef struct machine {
+    double t[4];    /* fixed, per draw, per cost, per pixel */
+    double sigma;   /* log-normal spread */
+    int stalls;     /* 1: 0.5 % of frames 1.2-1.5x slower; 2: 2 % of frames 1.3-1.8x */
+    rng r;
+} machine;
+
+static double machine_ms(machine *m, double draws, double cost, double pixels)
+{
+    double ms = m->t[0] + m->t[1] * draws + m->t[2] * cost + m->t[3] * pixels;
+    ms *= exp(m->sigma * gauss(&m->r));
+    if (m->stalls == 2 && uniform(&m->r) < 0.02)
+        ms *= 1.3 + 0.5 * uniform(&m->r);
+    if (m->stalls == 1 && uniform(&m->r) < 0.005)
+        ms *= 1.2 + 0.3 * uniform(&m->r);
+    return ms;
+}
+
+static hlod_engine_desc desc(double target)
+{
+    hlod_engine_desc d = {0};
+    d.target_ms = target;
+    hlod_engine_desc_defaults(&d);
+    return d;
+}
+
+/* A front that varies as a moving camera's does: draws, cost and pixels
+ * with spread, not proportional to each other. */
+static void moving_front(rng *r, double *draws, double *cost, double *pixels)
+{
+    *draws = 50 + 400 * uniform(r);
+    *cost = 2e4 + 2e5 * uniform(r);
+    *pixels = 2e5 + 1.5e6 * uniform(r);
+}
+
+static double rel_err(const hlod_cost_model *cm, const machine *m, double draws, double cost,
+                      double pixels)
+{
+    double truth = m->t[0] + m->t[1] * draws + m->t[2] * cost + m->t[3] * pixels;
+    return fabs(hlod_cost_model_predict(cm, draws, cost, pixels) - truth) / truth;
+}
+
+/* With spread in the regressors the fit recovers the machine: its
+ * predictions of new fronts are within 5 % (median) of the truth, from a
+ * start 5x off. */
+static void fit_recovers_machine(void)
+{
+    for (uint64_t seed = 1; seed <= 4; seed++) {
+        machine m = {{6, 0.01, 5e-5, 2e-6}, 0.05, 0, {seed * 0x9e3779b97f4a7c15ull}};
+        hlod_engine_desc d = desc(40);
+        hlod_cost_model cm;
+        hlod_cost_model_init(&cm, &d);
+        rng r = {seed};
+        for (int f = 0; f < 400; f++) {
+            double dr, c, p;
+            moving_front(&r, &dr, &c, &p);
+            hlod_cost_model_fit(&cm, &d, dr, c, p, machine_ms(&m, dr, c, p));
+        }
+        double errs[200];
+        for (int k = 0; k < 200; k++) {
+            double dr, c, p;
+            moving_front(&r, &dr, &c, &p);
+            errs[k] = rel_err(&cm, &m, dr, c, p);
+        }
+        int below = 0;
+        for (int k = 0; k < 200; k++)
+            below += errs[k] <= 0.05;
+        fprintf(stderr, "  seed %llu: fixed %.2f draw %.4f cost %.3g pixel %.3g; %d/200 within 5%%\n",
+                (unsigned long long)seed, cm.theta[0], cm.theta[1], cm.theta[2], cm.theta[3],
+                below);
+        CHECKF(below >= 100, "seed %llu: %d of 200 predictions within 5%%",
+               (unsigned long long)seed, below);
+        for (int k = 0; k < 4; k++)
+            CHECK(cm.theta[k] >= 0 && isfinite(cm.theta[k]));
+    }
+}
+
+/* A still camera: the same front every frame.  After a warm-up of 60
+ * frames nothing the selection reads changes with the noise of the
+ * machine measured in issue 17 (p99/p50 1.39: log-normal 12 % and a
+ * stall of 1.2-1.5x in 0.5 % of frames): neither the model nor the
+ * margin, over 2000 frames, in 8 seeds.  On a harsher machine (10 % and
+ * stalls of 1.3-1.8x in 2 % of frames, p99/p50 about 1.6) the margin of
+ * the warm-up can be too small, and then it may grow, once, when frames
+ * miss it significantly more often than 1 %; it never shrinks and the
+ * model never moves.  The control: 16-frame means of the same machine
+ * wander by more than 5 %, which an unguarded fit would publish. */
+static int still_run(uint64_t seed, int harsh, int *grew)
+{
+    machine m = {{8, 0.02, 1e-4, 3e-6}, harsh ? 0.10 : 0.12, harsh ? 2 : 1,
+                 {seed * 0x2545f4914f6cdd1dull}};
+    hlod_engine_desc d = desc(33.3);
+    hlod_cost_model cm;
+    hlod_cost_model_init(&cm, &d);
+    const double dr = 140, c = 64e3, p = 6e5;
+    double theta[4] = {0}, margin = 0;
+    int changes = 0;
+    double lo = INFINITY, hi = -INFINITY;
+    *grew = 0;
+    for (int f = 0; f < 2060; f++) {
+        if (f == 60) {
+            memcpy(theta, cm.theta, sizeof theta);
+            margin = cm.margin;
+        }
+        hlod_cost_model_fit(&cm, &d, dr, c, p, machine_ms(&m, dr, c, p));
+        if (f >= 60) {
+            int model = memcmp(theta, cm.theta, sizeof theta) != 0;
+            if ((model || margin != cm.margin) && getenv("HLOD_TEST_VERBOSE"))
+                fprintf(stderr, "    frame %d: margin %.3f -> %.3f, model %s\n", f, margin,
+                        cm.margin, model ? "changed" : "kept");
+            changes += model || margin != cm.margin;
+            *grew += !model && cm.margin > margin;
+            memcpy(theta, cm.theta, sizeof theta);
+            margin = cm.margin;
+        }
+        if (f >= 60 && f % 16 == 0) {
+            double s = 0;
+            for (int k = 0; k < 16; k++)
+                s += machine_ms(&m, dr, c, p);
+            lo = s / 16 < lo ? s / 16 : lo;
+            hi = s / 16 > hi ? s / 16 : hi;
+        }
+    }
+    fprintf(stderr, "  %s seed %llu: %d changes after frame 60; margin %.3f; 16-frame means "
+            "wander %.1f%%\n", harsh ? "harsh" : "measured", (unsigned long long)seed, changes,
+            cm.margin, 100 * (hi - lo) / lo);
+    CHECK(hi - lo > 0.05 * lo); /* the noise is there to be ignored */
+    return changes;
+}
+
+static void still_front_publishes_nothing(void)
+{
+    for (uint64_t seed = 1; seed <= 8; seed++) {
+        int grew;
+        int changes = still_run(seed, 0, &grew);
+        CHECKF(changes == 0, "seed %llu: the published model changed %d times with a still front",
+               (unsigned long long)seed, changes);
+        changes = still_run(seed, 1, &grew);
+        CHECKF(changes <= 1 && grew == changes,
+               "harsh machine, seed %llu: %d changes, %d of them the margin growing",
+               (unsigned long long)seed, changes, grew);
+    }
+}
+
+/* A persistent change is followed within a few frames: the machine gets
+ * 40 % slower, and within 8 frames the prediction is within 10 % again;
+ * then 40 % faster than that. */
+static void persistent_change_followed(void)
+{
+    machine m = {{8, 0.02, 1e-4, 3e-6}, 0.05, 0, {42}};
+    hlod_engine_desc d = desc(33.3);
+    hlod_cost_model cm;
+    hlod_cost_model_init(&cm, &d);
+    rng r = {7};
+    for (int f = 0; f < 300; f++) {
+        double dr, c, p;
+        moving_front(&r, &dr, &c, &p);
+        hlod_cost_model_fit(&cm, &d, dr, c, p, machine_ms(&m, dr, c, p));
+    }
+    double factors[2] = {1.4, 1 / 1.4};
+    for (int step = 0; step < 2; step++) {
+        for (int k = 0; k < 4; k++)
+            m.t[k] *= factors[step];
+        int followed = -1;
+        for (int f = 0; f < 40; f++) {
+            double dr, c, p;
+            moving_front(&r, &dr, &c, &p);
+            hlod_cost_model_fit(&cm, &d, dr, c, p, machine_ms(&m, dr, c, p));
+            if (followed < 0 && rel_err(&cm, &m, 200, 1e5, 8e5) < 0.10)
+                followed = f + 1;
+        }
+        fprintf(stderr, "  x%.2f: followed after %d frames\n", factors[step], followed);
+        CHECKF(followed > 0 && followed <= 8, "x%.2f: followed after %d frames", factors[step],
+               followed);
+    }
+}
+
+/* The margin keeps 99 % of frames within the target: a front sized so
+ * that prediction x margin = target, on the heavy-tailed machine, meets
+ * the target in at least 98 % of frames, and the mean stays at or above
+ * 65 % of the target (the margin is not wasteful).  aim_mean keeps the
+ * margin at 1, so the mean sits on the target, as in the paper. */
+static void margin_meets_the_deadline(void)
+{
+    for (int mean_mode = 0; mean_mode < 2; mean_mode++) {
+        machine m = {{8, 0.02, 1e-4, 3e-6}, 0.10, 2, {99}};
+        hlod_engine_desc d = desc(33.3);
+        d.aim_mean = mean_mode ? 1 : -1;
+        hlod_cost_model cm;
+        hlod_cost_model_init(&cm, &d);
+        rng r = {5};
+        int met = 0, n = 0;
+        double sum = 0;
+        for (int f = 0; f < 3000; f++) {
+            /* a front with spread, scaled to fill the budget */
+            double dr, c, p;
+            moving_front(&r, &dr, &c, &p);
+            double budget = d.target_ms / cm.margin - cm.theta[0];
+            double per = hlod_cost_model_predict(&cm, dr, c, p) - cm.theta[0];
+            double s = per > 0 ? budget / per : 1;
+            dr *= s;
+            c *= s;
+            p *= s;
+            double ms = machine_ms(&m, dr, c, p);
+            hlod_cost_model_fit(&cm, &d, dr, c, p, ms);
+            if (f >= 200) {
+                met += ms <= d.target_ms;
+                sum += ms;
+                n++;
+            }
+        }
+        double frac = (double)met / n, mean = sum / n / d.target_ms;
+        fprintf(stderr, "  %s: %.3f of frames within target, mean %.3f x target, margin %.3f\n",
+                mean_mode ? "aim_mean" : "deadline", frac, mean, cm.margin);
+        if (mean_mode) {
+            CHECK(cm.margin == 1);
+            CHECKF(mean > 0.93 && mean < 1.07, "mean %.3f x target", mean);
+        } else {
+            CHECKF(frac >= 0.98, "%.3f of frames within target", frac);
+            CHECKF(mean >= 0.65, "mean %.3f x target", mean);
+        }
+    }
+}
+
+/* Garbage in: non-finite and negative samples are ignored, and nothing
+ * published becomes non-finite or negative. */
+static void bad_samples_ignored(void)
+{
+    hlod_engine_desc d = desc(20);
+    hlod_cost_model cm;
+    hlod_cost_model_init(&cm, &d);
+    hlod_cost_model before = cm;
+    hlod_cost_model_fit(&cm, &d, NAN, 1, 1, 5);
+    hlod_cost_model_fit(&cm, &d, 1, INFINITY, 1, 5);
+    hlod_cost_model_fit(&cm, &d, 1, 1, -1, 5);
+    hlod_cost_model_fit(&cm, &d, 1, 1, 1, NAN);
+    CHECK(memcmp(&before, &cm, sizeof cm) == 0);
+    rng r = {3};
+    for (int f = 0; f < 500; f++) {
+        double y = f % 50 == 0 ? 1e9 : f % 7 == 0 ? 0 : 5 + uniform(&r);
+        hlod_cost_model_fit(&cm, &d, f % 3, 1e3 * (f % 5), 0, y);
+        for (int k = 0; k < 4; k++)
+            CHECK(isfinite(cm.theta[k]) && cm.theta[k] >= 0);
+        CHECK(isfinite(cm.margin) && cm.margin >= 0.5 && cm.margin <= 4);
+        CHECK(cm.theta[0] <= 0.8 * d.target_ms);
+    }
+}
+
+int main(void)
+{
+    RUN(fit_recovers_machine);
+    RUN(still_front_publishes_nothing);
+    RUN(persistent_change_followed);
+    RUN(margin_meets_the_deadline);
+    RUN(bad_samples_ignored);
+    return check_done();
+}
