@@ -1135,188 +1135,268 @@ static hlod_result write_jitter_csv(const char *dir, const double *ms, int n,
     return hlod_atomic_commit(&af, lg);
 }
 
+/* The engine description of one run: the options, --set, the swept value,
+ * and for --deterministic the calibrated constants.  0, or 1 when the
+ * calibration fails. */
+static int run_desc(context *c, hlod_policy policy, const setting *extra, hlod_engine_desc *d)
+{
+    const options *o = c->o;
+    memset(d, 0, sizeof *d);
+    d->target_ms = o->target_ms;
+    d->policy = policy;
+    d->renderer = c->gl.renderer;
+    d->logger = c->lg;
+    const hlod_store_header *h = hlod_store_get_header(c->store);
+    d->memory_budget_bytes = o->memory_mb > 0 ? (uint64_t)(o->memory_mb * 1048576.0)
+                                              : (uint64_t)(0.25 * (double)h->file_size);
+    for (int i = 0; i < o->nsets; i++)
+        apply_setting(d, o->sets[i].key, o->sets[i].value);
+    if (extra)
+        apply_setting(d, extra->key, extra->value);
+    if (!o->deterministic)
+        return 0;
+    int have_v = given(o, extra, "v_time"), have_fixed = given(o, extra, "fixed_ms");
+    if (!have_v || !have_fixed) {
+        double v, fixed;
+        if (calibrate(c, d, &v, &fixed) != HLOD_OK) {
+            hlod_cli_error(PROG, "%s: calibration run failed", o->store);
+            return 1;
+        }
+        if (!have_v)
+            d->fixed_v_time = v;
+        if (!have_fixed)
+            d->fixed_frame_ms = fixed < d->target_ms ? fixed : 0.5 * d->target_ms;
+        fprintf(stderr, "%s: calibrated v_time %.6g ms/cost, fixed %.3g ms (pass them "
+                "with --set to repeat this run exactly)\n", PROG, d->fixed_v_time,
+                d->fixed_frame_ms);
+    }
+    d->deterministic = 1;
+    if (!given(o, extra, "deterministic_load_bytes")) /* else --set wins over --io-mbps */
+        d->deterministic_load_bytes = (uint64_t)(o->io_mbps * 1e6 * o->dt);
+    if (!d->deterministic_load_bytes)
+        d->deterministic_load_bytes = 1;
+    return 0;
+}
+
+/* What one run's frames share, and carry from one frame to the next. */
+typedef struct run_state {
+    context *c;
+    hlod_engine *e;
+    const char *dir;
+    frame_rec *rec;
+    uint64_t total;
+    double *jit;                /* the machine's jitter: frame total / 2's selection, replayed */
+    int njit;
+    uint64_t jitter_frame;
+    int have_prev;              /* c->prev_img holds the previous frame */
+    const uint8_t *prev_ref;    /* the last scored reference */
+    hlod_cli_progress bar;
+} run_state;
+
+/* Reads frame f's image back when anything needs it; *image is NULL when
+ * not read.  0, or 1 on failure. */
+static int frame_image(run_state *s, uint64_t f, frame_rec *fr, int save, const uint8_t **image)
+{
+    context *c = s->c;
+    const options *o = c->o;
+    *image = NULL;
+    if (o->reference || save || o->occlusion_check) {
+        hlod_result r = target_read(&c->gl, c->img);
+        if (r != HLOD_OK) {
+            hlod_cli_progress_clear(&s->bar);
+            hlod_cli_error(PROG, "frame %llu: cannot read the image back: %s",
+                           (unsigned long long)f, hlod_result_str(r));
+            return 1;
+        }
+        *image = c->img;
+    }
+    if (o->reference) {
+        if (s->have_prev)
+            hlod_luma_change_rgb8(c->prev_img, c->img, o->width, o->height, &fr->luma);
+        /* the flicker needs the previous frame: keep this one */
+        uint8_t *t = c->prev_img;
+        c->prev_img = c->img;
+        c->img = t;
+        *image = c->prev_img;
+        s->have_prev = 1;
+    }
+    return 0;
+}
+
+/* --occlusion-check: the same selection without occlusion culling must
+ * draw the same image.  0, or 1 on failure. */
+static int check_occlusion(run_state *s, uint64_t f, const hlod_camera *cam,
+                           const uint8_t *image, frame_rec *fr)
+{
+    context *c = s->c;
+    const options *o = c->o;
+    double ms;
+    hlod_result r = hlod_engine_replay(s->e, cam, 0, &ms);
+    if (r == HLOD_OK)
+        r = target_read(&c->gl, c->occ_img);
+    if (r != HLOD_OK) {
+        hlod_cli_progress_clear(&s->bar);
+        hlod_cli_error(PROG, "%s: frame %llu: the occlusion check's replay failed: %s",
+                       o->store, (unsigned long long)f, hlod_result_str(r));
+        return 1;
+    }
+    size_t npix = (size_t)o->width * o->height;
+    long long differ = 0;
+    for (size_t k = 0; k < npix; k++)
+        differ += memcmp(image + 3 * k, c->occ_img + 3 * k, 3) != 0;
+    fr->occ_differing = differ;
+    hlod_psnr_rgb8(image, c->occ_img, o->width, o->height, &fr->occ_psnr);
+    return 0;
+}
+
+/* The frozen selection of frame f drawn njit times: called after the
+ * frame, before its reference, so the loaded state is the frame's own.
+ * 0, or 1 on failure. */
+static int replay_jitter(run_state *s, uint64_t f, const hlod_camera *cam)
+{
+    hlod_result r = HLOD_OK;
+    for (int k = 0; k < s->njit && r == HLOD_OK; k++)
+        r = hlod_engine_replay(s->e, cam, 1, &s->jit[k]);
+    if (r != HLOD_OK) {
+        hlod_cli_progress_clear(&s->bar);
+        hlod_cli_error(PROG, "%s: replaying frame %llu failed: %s", s->c->o->store,
+                       (unsigned long long)f, hlod_result_str(r));
+        return 1;
+    }
+    return 0;
+}
+
+/* --reference: frame f against the full-detail image (every
+ * --reference-every frames), and the reference saved with --save-frames.
+ * 0, or 1 on failure. */
+static int score_reference(run_state *s, uint64_t f, frame_rec *fr, int save)
+{
+    context *c = s->c;
+    const options *o = c->o;
+    int scored = f % (uint64_t)o->reference_every == 0;
+    if (!o->reference || (!scored && !save))
+        return 0;
+    const uint8_t *ref = reference_image(c, f);
+    if (!ref) {
+        hlod_cli_progress_clear(&s->bar);
+        hlod_cli_error(PROG, "%s: reference frame %llu failed", o->store, (unsigned long long)f);
+        return 1;
+    }
+    if (save && write_frame_png(s->dir, f, "_ref", ref, o->width, o->height, &c->lg) != 0)
+        return 1;
+    if (scored) {
+        hlod_psnr_rgb8(c->prev_img, ref, o->width, o->height, &fr->psnr);
+        hlod_ssim_rgb8(c->prev_img, ref, o->width, o->height, &fr->ssim);
+        /* the reference's own flicker only between neighbouring frames */
+        if (s->prev_ref && o->reference_every == 1)
+            hlod_luma_change_rgb8(s->prev_ref, ref, o->width, o->height, &fr->ref_luma);
+        s->prev_ref = ref;
+    }
+    return 0;
+}
+
+/* Frame f of the run: drawn, read back, checked and scored as the options
+ * ask.  0, or 1 on failure. */
+static int run_frame(run_state *s, uint64_t f)
+{
+    context *c = s->c;
+    const options *o = c->o;
+    hlod_camera cam;
+    frame_rec *fr = &s->rec[f];
+    path_camera(c, f, &cam, &fr->t);
+    fr->psnr = fr->ssim = fr->luma = fr->ref_luma = fr->occ_psnr = NAN;
+    fr->occ_differing = -1;
+    hlod_result r = target_current(&c->gl);
+    if (r == HLOD_OK)
+        r = hlod_engine_frame(s->e, &cam, o->dt, &fr->st);
+    if (r != HLOD_OK) {
+        hlod_cli_progress_clear(&s->bar);
+        hlod_cli_error(PROG, "%s: frame %llu failed: %s", o->store, (unsigned long long)f,
+                       hlod_result_str(r));
+        return 1;
+    }
+    int save = save_frame(o, f);
+    const uint8_t *image;
+    if (frame_image(s, f, fr, save, &image) != 0)
+        return 1;
+    if (save && write_frame_png(s->dir, f, "", image, o->width, o->height, &c->lg) != 0)
+        return 1;
+    if (o->occlusion_check && check_occlusion(s, f, &cam, image, fr) != 0)
+        return 1;
+    if (s->njit && f == s->jitter_frame && replay_jitter(s, f, &cam) != 0)
+        return 1;
+    return score_reference(s, f, fr, save);
+}
+
+/* The run's summary into out, and its frames.csv, summary.json and
+ * jitter.csv.  0, or 1 when a file cannot be written. */
+static int write_run(run_state *s, hlod_policy policy, double target_ms, uint32_t depths,
+                     summary *out)
+{
+    context *c = s->c;
+    long n = (long)s->total;
+    summarise(s->rec, n, target_ms, out);
+    summarise_extra(s->rec, n, target_ms, s->jit, s->njit, out);
+    out->jitter_frame = s->jitter_frame;
+    out->gl_renderer = target_name(&c->gl);
+    moving_averages(s->rec, n);
+    if (write_frames_csv(s->dir, s->rec, n, depths, &c->lg) != HLOD_OK ||
+        write_summary(s->dir, out, hlod_policy_name(policy), c->path_name, c->o, &c->lg) !=
+            HLOD_OK ||
+        (s->njit && write_jitter_csv(s->dir, s->jit, s->njit, &c->lg) != HLOD_OK))
+        return 1;
+    return 0;
+}
+
 static int run(context *c, hlod_policy policy, const char *dir, const setting *extra,
                summary *out)
 {
     const options *o = c->o;
-    hlod_engine_desc d = {0};
-    d.target_ms = o->target_ms;
-    d.policy = policy;
-    d.renderer = c->gl.renderer;
-    d.logger = c->lg;
-    const hlod_store_header *h = hlod_store_get_header(c->store);
-    d.memory_budget_bytes = o->memory_mb > 0 ? (uint64_t)(o->memory_mb * 1048576.0)
-                                             : (uint64_t)(0.25 * (double)h->file_size);
-    for (int i = 0; i < o->nsets; i++)
-        apply_setting(&d, o->sets[i].key, o->sets[i].value);
-    if (extra)
-        apply_setting(&d, extra->key, extra->value);
-    if (o->deterministic) {
-        int have_v = given(o, extra, "v_time"), have_fixed = given(o, extra, "fixed_ms");
-        if (!have_v || !have_fixed) {
-            double v, fixed;
-            if (calibrate(c, &d, &v, &fixed) != HLOD_OK) {
-                hlod_cli_error(PROG, "%s: calibration run failed", o->store);
-                return 1;
-            }
-            if (!have_v)
-                d.fixed_v_time = v;
-            if (!have_fixed)
-                d.fixed_frame_ms = fixed < d.target_ms ? fixed : 0.5 * d.target_ms;
-            fprintf(stderr, "%s: calibrated v_time %.6g ms/cost, fixed %.3g ms (pass them "
-                    "with --set to repeat this run exactly)\n", PROG, d.fixed_v_time,
-                    d.fixed_frame_ms);
-        }
-        d.deterministic = 1;
-        if (!given(o, extra, "deterministic_load_bytes")) /* else --set wins over --io-mbps */
-            d.deterministic_load_bytes = (uint64_t)(o->io_mbps * 1e6 * o->dt);
-        if (!d.deterministic_load_bytes)
-            d.deterministic_load_bytes = 1;
-    }
-
-    hlod_engine *e = NULL;
-    hlod_result r = hlod_engine_create(c->store, &d, &e);
+    hlod_engine_desc d;
+    if (run_desc(c, policy, extra, &d) != 0)
+        return 1;
+    run_state s;
+    memset(&s, 0, sizeof s);
+    s.c = c;
+    s.dir = dir;
+    hlod_result r = hlod_engine_create(c->store, &d, &s.e);
     if (r != HLOD_OK) {
         hlod_cli_error(PROG, "%s: cannot start the engine: %s", o->store, hlod_result_str(r));
         return 1;
     }
-    uint64_t total = run_frames(c);
-    frame_rec *rec = calloc(total ? total : 1, sizeof *rec);
-    /* the machine's jitter: frame total / 2's selection, replayed */
-    uint64_t jitter_frame = total / 2;
-    int njit = total ? o->jitter_frames : 0;
-    double *jit = njit ? calloc((size_t)njit, sizeof *jit) : NULL;
-    if (!rec || (njit && !jit)) {
-        hlod_cli_error(PROG, "out of memory for %llu frames", (unsigned long long)total);
-        free(rec);
-        free(jit);
-        hlod_engine_destroy(e);
+    s.total = run_frames(c);
+    s.rec = calloc(s.total ? s.total : 1, sizeof *s.rec);
+    s.jitter_frame = s.total / 2;
+    s.njit = s.total ? o->jitter_frames : 0;
+    s.jit = s.njit ? calloc((size_t)s.njit, sizeof *s.jit) : NULL;
+    if (!s.rec || (s.njit && !s.jit)) {
+        hlod_cli_error(PROG, "out of memory for %llu frames", (unsigned long long)s.total);
+        free(s.rec);
+        free(s.jit);
+        hlod_engine_destroy(s.e);
         return 1;
     }
-    int need_images = o->reference;
-    int have_prev = 0;
-    const uint8_t *prev_ref = NULL;
-    hlod_cli_progress bar;
-    hlod_cli_progress_begin(&bar, "frames", 1);
+    hlod_cli_progress_begin(&s.bar, "frames", 1);
     int status = 0;
-    for (uint64_t f = 0; f < total; f++) {
-        hlod_camera cam;
-        frame_rec *fr = &rec[f];
-        path_camera(c, f, &cam, &fr->t);
-        fr->psnr = fr->ssim = fr->luma = fr->ref_luma = fr->occ_psnr = NAN;
-        fr->occ_differing = -1;
-        r = target_current(&c->gl);
-        if (r == HLOD_OK)
-            r = hlod_engine_frame(e, &cam, o->dt, &fr->st);
-        if (r != HLOD_OK) {
-            hlod_cli_progress_clear(&bar);
-            hlod_cli_error(PROG, "%s: frame %llu failed: %s", o->store, (unsigned long long)f,
-                           hlod_result_str(r));
-            status = 1;
+    for (uint64_t f = 0; f < s.total; f++) {
+        status = run_frame(&s, f);
+        if (status)
             break;
-        }
-        int save = save_frame(o, f);
-        const uint8_t *image = NULL; /* this frame's, when read */
-        if (need_images || save || o->occlusion_check) {
-            r = target_read(&c->gl, c->img);
-            if (r != HLOD_OK) {
-                hlod_cli_progress_clear(&bar);
-                hlod_cli_error(PROG, "frame %llu: cannot read the image back: %s",
-                               (unsigned long long)f, hlod_result_str(r));
-                status = 1;
-                break;
-            }
-            image = c->img;
-        }
-        if (need_images) {
-            if (have_prev)
-                hlod_luma_change_rgb8(c->prev_img, c->img, o->width, o->height, &fr->luma);
-            uint8_t *t = c->prev_img;
-            c->prev_img = c->img;
-            c->img = t;
-            image = c->prev_img;
-            have_prev = 1;
-        }
-        if (save && write_frame_png(dir, f, "", image, o->width, o->height, &c->lg) != 0) {
-            status = 1;
-            break;
-        }
-        if (o->occlusion_check) {
-            /* the same selection without occlusion culling: the same image */
-            double ms;
-            r = hlod_engine_replay(e, &cam, 0, &ms);
-            if (r == HLOD_OK)
-                r = target_read(&c->gl, c->occ_img);
-            if (r != HLOD_OK) {
-                hlod_cli_progress_clear(&bar);
-                hlod_cli_error(PROG, "%s: frame %llu: the occlusion check's replay failed: %s",
-                               o->store, (unsigned long long)f, hlod_result_str(r));
-                status = 1;
-                break;
-            }
-            size_t npix = (size_t)o->width * o->height;
-            long long differ = 0;
-            for (size_t k = 0; k < npix; k++)
-                differ += memcmp(image + 3 * k, c->occ_img + 3 * k, 3) != 0;
-            fr->occ_differing = differ;
-            hlod_psnr_rgb8(image, c->occ_img, o->width, o->height, &fr->occ_psnr);
-        }
-        if (njit && f == jitter_frame) {
-            /* after the frame, before its reference: same loaded state */
-            for (int k = 0; k < njit && r == HLOD_OK; k++)
-                r = hlod_engine_replay(e, &cam, 1, &jit[k]);
-            if (r != HLOD_OK) {
-                hlod_cli_progress_clear(&bar);
-                hlod_cli_error(PROG, "%s: replaying frame %llu failed: %s", o->store,
-                               (unsigned long long)f, hlod_result_str(r));
-                status = 1;
-                break;
-            }
-        }
-        int scored = f % (uint64_t)o->reference_every == 0;
-        if (o->reference && (scored || save)) {
-            const uint8_t *ref = reference_image(c, f);
-            if (!ref) {
-                hlod_cli_progress_clear(&bar);
-                hlod_cli_error(PROG, "%s: reference frame %llu failed", o->store,
-                               (unsigned long long)f);
-                status = 1;
-                break;
-            }
-            if (save && write_frame_png(dir, f, "_ref", ref, o->width, o->height, &c->lg) != 0) {
-                status = 1;
-                break;
-            }
-            if (scored) {
-                hlod_psnr_rgb8(c->prev_img, ref, o->width, o->height, &fr->psnr);
-                hlod_ssim_rgb8(c->prev_img, ref, o->width, o->height, &fr->ssim);
-                if (prev_ref && o->reference_every == 1)
-                    hlod_luma_change_rgb8(prev_ref, ref, o->width, o->height, &fr->ref_luma);
-                prev_ref = ref;
-            }
-        }
-        hlod_cli_progress_fn(&bar, (double)(f + 1), (double)total);
+        hlod_cli_progress_fn(&s.bar, (double)(f + 1), (double)s.total);
     }
-    hlod_cli_progress_clear(&bar);
-    hlod_engine_destroy(e); /* c->gl current */
+    hlod_cli_progress_clear(&s.bar);
+    hlod_engine_destroy(s.e); /* c->gl current */
     if (status) {
-        free(rec);
-        free(jit);
+        free(s.rec);
+        free(s.jit);
         return status;
     }
 
-    summarise(rec, (long)total, d.target_ms, out);
-    summarise_extra(rec, (long)total, d.target_ms, jit, njit, out);
-    out->jitter_frame = jitter_frame;
-    out->gl_renderer = target_name(&c->gl);
-    moving_averages(rec, (long)total);
+    const hlod_store_header *h = hlod_store_get_header(c->store);
     uint32_t depths = h->depth_count < HLOD_STATS_MAX_DEPTH ? h->depth_count : HLOD_STATS_MAX_DEPTH;
-    if (write_frames_csv(dir, rec, (long)total, depths, &c->lg) != HLOD_OK ||
-        write_summary(dir, out, hlod_policy_name(policy), c->path_name, o, &c->lg) != HLOD_OK ||
-        (njit && write_jitter_csv(dir, jit, njit, &c->lg) != HLOD_OK))
-        status = 1;
-    free(rec);
-    free(jit);
+    status = write_run(&s, policy, d.target_ms, depths, out);
+    free(s.rec);
+    free(s.jit);
     if (!status && o->plots)
         status = plot_run(dir, depths, o->reference, d.target_ms);
     fprintf(stderr, "%s: %s: %ld frames, mean %.2f ms (p95 %.2f, p99 %.2f) for %.1f target, "
@@ -1434,6 +1514,201 @@ out:
     return rc;
 }
 
+/* The path (a file, or a built-in name), the store, and the output
+ * folder.  0, or 1 with nothing left open. */
+static int open_inputs(context *c)
+{
+    const options *o = c->o;
+    char path_file[4096];
+    snprintf(path_file, sizeof path_file, "%s", o->path);
+    if (!file_exists(path_file) && !strchr(o->path, '/'))
+        snprintf(path_file, sizeof path_file, "%s/%s.path", o->paths_dir, o->path);
+    c->path_name = o->path;
+    if (hlod_path_load(path_file, &c->lg, &c->path) != HLOD_OK)
+        return 1; /* the loader named the file and line */
+
+    if (hlod_store_open(o->store, &c->lg, &c->store) != HLOD_OK) {
+        hlod_path_free(&c->path);
+        return 1;
+    }
+    if (make_dir(o->out) != 0) {
+        hlod_cli_error(PROG, "%s: cannot create the output folder: %s", o->out, strerror(errno));
+        hlod_store_close(c->store);
+        hlod_path_free(&c->path);
+        return 1;
+    }
+    return 0;
+}
+
+/* The GL contexts (the reference's, then the measured one) and the image
+ * buffers.  0, or 1; teardown() frees what was made either way. */
+static int setup_gl(context *c)
+{
+    const options *o = c->o;
+    const char *backend = o->backend == BACKEND_EGL ? "EGL" : "OSMesa";
+    uint32_t ss = (uint32_t)o->reference_ss;
+    hlod_result r = HLOD_OK;
+    if (o->reference) { /* its own context first: the measured one stays current */
+        r = target_create(o->backend, o->width * ss, o->height * ss, &c->lg, &c->ref_gl);
+        if (r != HLOD_OK) {
+            hlod_cli_error(PROG, "cannot set up the reference's headless OpenGL (%s, GL 3.3, "
+                           "%ux%u): %s", backend, o->width * ss, o->height * ss,
+                           hlod_result_str(r));
+            return 1;
+        }
+    }
+    r = target_create(o->backend, o->width, o->height, &c->lg, &c->gl);
+    size_t npix = (size_t)o->width * o->height * 3;
+    c->img = malloc(npix);
+    c->prev_img = malloc(npix);
+    c->ref = malloc(npix);
+    c->prev_ref = malloc(npix);
+    c->ref_big = o->reference && ss > 1 ? malloc(npix * ss * ss) : NULL;
+    c->occ_img = o->occlusion_check ? malloc(npix) : NULL;
+    if (r != HLOD_OK || !c->img || !c->prev_img || !c->ref || !c->prev_ref ||
+        (o->occlusion_check && !c->occ_img) ||
+        (o->reference && ss > 1 && !c->ref_big)) {
+        hlod_cli_error(PROG, "cannot set up headless OpenGL (%s, GL 3.3): %s", backend,
+                       hlod_result_str(r != HLOD_OK ? r : HLOD_ERR_NOMEM));
+        return 1;
+    }
+    return 0;
+}
+
+/* Warns of --save-frames past the end, and makes the reference cache: one
+ * slot per frame, shared by every run. */
+static void prepare_frames(context *c)
+{
+    const options *o = c->o;
+    uint64_t nframes = run_frames(c);
+    for (int i = 0; i < o->nsave; i++)
+        if (o->save[i] >= nframes)
+            fprintf(stderr, "%s: --save-frames: frame %llu is past the last frame (%llu): not "
+                    "written\n", PROG, (unsigned long long)o->save[i],
+                    (unsigned long long)(nframes ? nframes - 1 : 0));
+    if (o->reference) {
+        c->ref_cache = calloc(nframes ? nframes : 1, sizeof *c->ref_cache);
+        c->ref_cache_frames = c->ref_cache ? nframes : 0; /* no cache: draw each time */
+    }
+}
+
+/* DIR/sweep.csv opened with its header.  0, or 1. */
+static int open_sweep(context *c, hlod_atomic_file *af)
+{
+    char p[4096];
+    snprintf(p, sizeof p, "%s/sweep.csv", c->o->out);
+    if (hlod_atomic_open(af, p, &c->lg) != HLOD_OK)
+        return 1;
+    fprintf(af->fp, "policy,key,value,frames,target_ms,frame_ms_mean,frame_ms_p95,"
+                    "frame_ms_p99,within_10pct,over_target_frac,toggles_per_frame,"
+                    "oscillations,psnr_mean,psnr_min,ssim_mean,tris_mean,loads,evictions,"
+                    "peak_resident_bytes,run_dir,deadline_met,machine_p50_ms,"
+                    "machine_p99_ms,machine_p99_over_p50,estimate_err_p50,estimate_err_p95,"
+                    "occlusion_culled_mean,toggles_after_60\n");
+    return 0;
+}
+
+static void sweep_row(FILE *fp, const options *o, const char *pname, int vi, const summary *s,
+                      const char *dir)
+{
+    fprintf(fp, "%s,%s,%g,%ld,%g,%.4f,%.4f,%.4f,%.4f,%.4f,%.5f,%llu,%.4f,%.4f,"
+            "%.5f,%.1f,%llu,%llu,%llu,%s,%.4f,%.4f,%.4f,%.4f,%.5f,%.5f,%.3f,%llu\n",
+            pname, o->sweep_key ? o->sweep_key : "", o->sweep_key ? o->sweep[vi] : 0,
+            s->frames, s->target_ms, s->mean, s->p95, s->p99, s->within, s->over,
+            s->toggles_per_frame, (unsigned long long)s->osc, s->psnr_mean, s->psnr_min,
+            s->ssim_mean, s->tris_mean, (unsigned long long)s->loads,
+            (unsigned long long)s->evictions, (unsigned long long)s->peak_resident, dir,
+            s->deadline_met, s->machine_p50, s->machine_p99, s->machine_p99 / s->machine_p50,
+            s->est_err_p50, s->est_err_p95, s->occlusion_culled_mean,
+            (unsigned long long)s->toggles_after_60);
+}
+
+/* Policy pi with sweep value vi, into DIR itself for a single run, else
+ * into DIR/<policy>[-KEY=V]/ with a row in sweep.csv (when sweep_fp).
+ * 0, or 1. */
+static int run_one(context *c, int pi, int vi, int multi, FILE *sweep_fp, summary *last)
+{
+    const options *o = c->o;
+    char dir[4096];
+    setting extra = {o->sweep_key, o->sweep_key ? o->sweep[vi] : 0};
+    const char *pname = hlod_policy_name(o->policies[pi]);
+    if (!multi)
+        snprintf(dir, sizeof dir, "%s", o->out);
+    else if (o->sweep_key)
+        snprintf(dir, sizeof dir, "%s/%s-%s=%g", o->out, pname, o->sweep_key, o->sweep[vi]);
+    else
+        snprintf(dir, sizeof dir, "%s/%s", o->out, pname);
+    if (make_dir(dir) != 0) {
+        hlod_cli_error(PROG, "%s: cannot create: %s", dir, strerror(errno));
+        return 1;
+    }
+    int rc = run(c, o->policies[pi], dir, o->sweep_key ? &extra : NULL, last);
+    if (rc == 0 && sweep_fp)
+        sweep_row(sweep_fp, o, pname, vi, last, dir);
+    return rc;
+}
+
+/* Every (policy, sweep value) run, then sweep.csv and its plots, and
+ * --json's summary of the last run.  0, or 1. */
+static int run_all(context *c)
+{
+    const options *o = c->o;
+    int multi = o->npolicies > 1 || o->sweep_key;
+    FILE *sweep_fp = NULL;
+    hlod_atomic_file sweep_af;
+    if (multi) {
+        if (open_sweep(c, &sweep_af) != 0)
+            return 1;
+        sweep_fp = sweep_af.fp;
+    }
+    int rc = 0;
+    summary last;
+    int nvalues = o->sweep_key ? o->nsweep : 1;
+    for (int pi = 0; pi < o->npolicies && rc == 0; pi++)
+        for (int vi = 0; vi < nvalues && rc == 0; vi++)
+            rc = run_one(c, pi, vi, multi, sweep_fp, &last);
+    if (sweep_fp) {
+        if (rc == 0) {
+            if (hlod_atomic_commit(&sweep_af, &c->lg) != HLOD_OK)
+                rc = 1;
+        } else {
+            hlod_atomic_abort(&sweep_af);
+        }
+        if (rc == 0 && o->plots) {
+            rc = plot_sweep(o);
+        }
+    }
+    if (rc == 0 && o->json) {
+        hlod_json j;
+        hlod_json_begin(&j, stdout);
+        json_summary(&j, &last, hlod_policy_name(o->policies[o->npolicies - 1]), o->path, o);
+        if (hlod_json_end(&j) != 0)
+            rc = 1;
+    }
+    return rc;
+}
+
+/* The reference engine is destroyed with its own context current, before
+ * the contexts themselves. */
+static void teardown(context *c)
+{
+    if (c->ref_engine && target_current(&c->ref_gl) == HLOD_OK)
+        hlod_engine_destroy(c->ref_engine);
+    for (uint64_t f = 0; f < c->ref_cache_frames; f++)
+        free(c->ref_cache[f]);
+    free(c->ref_cache);
+    free(c->img);
+    free(c->prev_img);
+    free(c->ref);
+    free(c->prev_ref);
+    free(c->ref_big);
+    free(c->occ_img);
+    target_destroy(&c->ref_gl);
+    target_destroy(&c->gl);
+    hlod_store_close(c->store);
+    hlod_path_free(&c->path);
+}
+
 int main(int argc, char **argv)
 {
     options o;
@@ -1450,151 +1725,13 @@ int main(int argc, char **argv)
     memset(&c, 0, sizeof c);
     c.o = &o;
     c.lg = hlod_cli_logger(&log_state);
-
-    /* the path: a file, or a built-in name */
-    char path_file[4096];
-    snprintf(path_file, sizeof path_file, "%s", o.path);
-    if (!file_exists(path_file) && !strchr(o.path, '/'))
-        snprintf(path_file, sizeof path_file, "%s/%s.path", o.paths_dir, o.path);
-    c.path_name = o.path;
-    if (hlod_path_load(path_file, &c.lg, &c.path) != HLOD_OK)
-        return 1; /* the loader named the file and line */
-
-    if (hlod_store_open(o.store, &c.lg, &c.store) != HLOD_OK) {
-        hlod_path_free(&c.path);
+    if (open_inputs(&c) != 0)
         return 1;
+    rc = setup_gl(&c);
+    if (rc == 0) {
+        prepare_frames(&c);
+        rc = run_all(&c);
     }
-    if (make_dir(o.out) != 0) {
-        hlod_cli_error(PROG, "%s: cannot create the output folder: %s", o.out, strerror(errno));
-        hlod_store_close(c.store);
-        hlod_path_free(&c.path);
-        return 1;
-    }
-    const char *backend = o.backend == BACKEND_EGL ? "EGL" : "OSMesa";
-    uint32_t ss = (uint32_t)o.reference_ss;
-    hlod_result r = HLOD_OK;
-    if (o.reference) { /* its own context first: the measured one stays current */
-        r = target_create(o.backend, o.width * ss, o.height * ss, &c.lg, &c.ref_gl);
-        if (r != HLOD_OK) {
-            hlod_cli_error(PROG, "cannot set up the reference's headless OpenGL (%s, GL 3.3, "
-                           "%ux%u): %s", backend, o.width * ss, o.height * ss, hlod_result_str(r));
-            rc = 1;
-            goto done;
-        }
-    }
-    r = target_create(o.backend, o.width, o.height, &c.lg, &c.gl);
-    size_t npix = (size_t)o.width * o.height * 3;
-    c.img = malloc(npix);
-    c.prev_img = malloc(npix);
-    c.ref = malloc(npix);
-    c.prev_ref = malloc(npix);
-    c.ref_big = o.reference && ss > 1 ? malloc(npix * ss * ss) : NULL;
-    c.occ_img = o.occlusion_check ? malloc(npix) : NULL;
-    if (r != HLOD_OK || !c.img || !c.prev_img || !c.ref || !c.prev_ref ||
-        (o.occlusion_check && !c.occ_img) ||
-        (o.reference && ss > 1 && !c.ref_big)) {
-        hlod_cli_error(PROG, "cannot set up headless OpenGL (%s, GL 3.3): %s", backend,
-                       hlod_result_str(r != HLOD_OK ? r : HLOD_ERR_NOMEM));
-        rc = 1;
-        goto done;
-    }
-
-    uint64_t nframes = run_frames(&c);
-    for (int i = 0; i < o.nsave; i++)
-        if (o.save[i] >= nframes)
-            fprintf(stderr, "%s: --save-frames: frame %llu is past the last frame (%llu): not "
-                    "written\n", PROG, (unsigned long long)o.save[i],
-                    (unsigned long long)(nframes ? nframes - 1 : 0));
-    if (o.reference) {
-        c.ref_cache = calloc(nframes ? nframes : 1, sizeof *c.ref_cache);
-        c.ref_cache_frames = c.ref_cache ? nframes : 0; /* no cache: draw each time */
-    }
-    int multi = o.npolicies > 1 || o.sweep_key;
-    FILE *sweep_fp = NULL;
-    hlod_atomic_file sweep_af;
-    if (multi) {
-        char p[4096];
-        snprintf(p, sizeof p, "%s/sweep.csv", o.out);
-        if (hlod_atomic_open(&sweep_af, p, &c.lg) != HLOD_OK) {
-            rc = 1;
-            goto done;
-        }
-        sweep_fp = sweep_af.fp;
-        fprintf(sweep_fp, "policy,key,value,frames,target_ms,frame_ms_mean,frame_ms_p95,"
-                          "frame_ms_p99,within_10pct,over_target_frac,toggles_per_frame,"
-                          "oscillations,psnr_mean,psnr_min,ssim_mean,tris_mean,loads,evictions,"
-                          "peak_resident_bytes,run_dir,deadline_met,machine_p50_ms,"
-                          "machine_p99_ms,machine_p99_over_p50,estimate_err_p50,estimate_err_p95,"
-                          "occlusion_culled_mean,toggles_after_60\n");
-    }
-    rc = 0;
-    summary last;
-    int nvalues = o.sweep_key ? o.nsweep : 1;
-    for (int pi = 0; pi < o.npolicies && rc == 0; pi++)
-        for (int vi = 0; vi < nvalues && rc == 0; vi++) {
-            char dir[4096];
-            setting extra = {o.sweep_key, o.sweep_key ? o.sweep[vi] : 0};
-            const char *pname = hlod_policy_name(o.policies[pi]);
-            if (!multi)
-                snprintf(dir, sizeof dir, "%s", o.out);
-            else if (o.sweep_key)
-                snprintf(dir, sizeof dir, "%s/%s-%s=%g", o.out, pname, o.sweep_key, o.sweep[vi]);
-            else
-                snprintf(dir, sizeof dir, "%s/%s", o.out, pname);
-            if (make_dir(dir) != 0) {
-                hlod_cli_error(PROG, "%s: cannot create: %s", dir, strerror(errno));
-                rc = 1;
-                break;
-            }
-            rc = run(&c, o.policies[pi], dir, o.sweep_key ? &extra : NULL, &last);
-            if (rc == 0 && sweep_fp)
-                fprintf(sweep_fp, "%s,%s,%g,%ld,%g,%.4f,%.4f,%.4f,%.4f,%.4f,%.5f,%llu,%.4f,%.4f,"
-                        "%.5f,%.1f,%llu,%llu,%llu,%s,%.4f,%.4f,%.4f,%.4f,%.5f,%.5f,%.3f,%llu\n",
-                        pname, o.sweep_key ? o.sweep_key : "",
-                        o.sweep_key ? o.sweep[vi] : 0, last.frames, last.target_ms, last.mean,
-                        last.p95, last.p99, last.within, last.over, last.toggles_per_frame,
-                        (unsigned long long)last.osc, last.psnr_mean, last.psnr_min,
-                        last.ssim_mean, last.tris_mean, (unsigned long long)last.loads,
-                        (unsigned long long)last.evictions,
-                        (unsigned long long)last.peak_resident, dir, last.deadline_met,
-                        last.machine_p50, last.machine_p99, last.machine_p99 / last.machine_p50,
-                        last.est_err_p50, last.est_err_p95, last.occlusion_culled_mean,
-                        (unsigned long long)last.toggles_after_60);
-        }
-    if (sweep_fp) {
-        if (rc == 0) {
-            if (hlod_atomic_commit(&sweep_af, &c.lg) != HLOD_OK)
-                rc = 1;
-        } else {
-            hlod_atomic_abort(&sweep_af);
-        }
-        if (rc == 0 && o.plots) {
-            rc = plot_sweep(&o);
-        }
-    }
-    if (rc == 0 && o.json) {
-        hlod_json j;
-        hlod_json_begin(&j, stdout);
-        json_summary(&j, &last, hlod_policy_name(o.policies[o.npolicies - 1]), o.path, &o);
-        if (hlod_json_end(&j) != 0)
-            rc = 1;
-    }
-
-done:
-    if (c.ref_engine && target_current(&c.ref_gl) == HLOD_OK)
-        hlod_engine_destroy(c.ref_engine);
-    for (uint64_t f = 0; f < c.ref_cache_frames; f++)
-        free(c.ref_cache[f]);
-    free(c.ref_cache);
-    free(c.img);
-    free(c.prev_img);
-    free(c.ref);
-    free(c.prev_ref);
-    free(c.ref_big);
-    free(c.occ_img);
-    target_destroy(&c.ref_gl);
-    target_destroy(&c.gl);
-    hlod_store_close(c.store);
-    hlod_path_free(&c.path);
+    teardown(&c);
     return rc;
 }
