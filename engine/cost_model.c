@@ -43,6 +43,7 @@
 #define MARGIN_MIN 20
 #define MARGIN_STEP 0.05 /* published margin moves by more than this (log) */
 #define MARGIN_SETTLE 45 /* frames after which the margin moves only on evidence */
+#define MISS_W 128       /* recent frames whose misses can grow the margin */
 #define SCALE_SE 4       /* standard errors of the median that a scale change must pass */
 
 /* z with P(N(0,1) <= z) = q, by bisection on erfc (q in (0.5, 1)). */
@@ -73,7 +74,9 @@ static double aim_margin(const hlod_engine_desc *d, double median, double sigma,
     double q = d->deadline_quantile;
     double qz = n < MARGIN_SETTLE ? 1 - 0.1 * (1 - q) : q;
     double l = median + normal_quantile(qz) * sigma;
-    if (n) {
+    /* (nor is the empirical tail of so few frames the machine's: the
+     * first frames load, upload and warm caches) */
+    if (n >= MARGIN_SETTLE) {
         uint32_t k = (uint32_t)ceil(q * n);
         double emp = sorted[k ? (k <= n ? k - 1 : n - 1) : 0];
         l = emp > l ? emp : l;
@@ -352,13 +355,23 @@ void hlod_cost_model_fit(hlod_cost_model *m, const hlod_engine_desc *d, double d
         if (m->ring_n < MARGIN_SETTLE) {
             change = fabs(step) > 0.02;
         } else {
-            uint32_t misses = 0;
-            for (uint32_t k = 0; k < n; k++)
-                misses += sorted[k] > log(m->margin);
-            double allowed = (1 - d->deadline_quantile) * n;
+            /* misses over the last MISS_W frames: the regime now, not the
+             * loading start that the long window still holds */
+            double recent[MISS_W], rmed, rsig;
+            uint32_t nr = spread(m, MISS_W, &rmed, &rsig, recent), misses = 0;
+            for (uint32_t k = 0; k < nr; k++)
+                misses += recent[k] > log(m->margin);
+            double allowed = (1 - d->deadline_quantile) * nr;
             /* four standard deviations of a binomial count over what the
              * quantile allows: an adequate margin almost never passes it */
             int too_many = misses >= ceil(allowed + 4 * sqrt(allowed) + 2);
+            if (too_many) {
+                /* grow to what the recent frames need, no further */
+                qsort(recent, nr, sizeof *recent, cmp_double);
+                double grow = aim_margin(d, rmed, rsig, recent, nr);
+                want = grow > m->margin ? grow : m->margin;
+                step = log(want / m->margin);
+            }
             change = (step > MARGIN_STEP && too_many) || (step < -2 * MARGIN_STEP && !settled);
         }
         if (change || d->aim_mean > 0) {

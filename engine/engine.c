@@ -369,6 +369,9 @@ static void draw_occluded(hlod_engine *e, const hlod_camera *cam, const hlod_vie
             gpu_draw_node(e, cam, i); /* no memory to defer: draw it */
         }
     }
+    /* pass 1's drawing is the GPU's work, not occlusion's: wait for it
+     * first, so occlusion_ms is the read-back, the pyramid and the tests */
+    hlod_gpu_wait(e->d.renderer);
     double t0 = hlod_now_ms();
     uint32_t w = cam->width, h = cam->height;
     uint32_t *depth = hlod_occlusion_buffer(&e->occ, &e->d.allocator, w, h);
@@ -398,8 +401,6 @@ static void draw_occluded(hlod_engine *e, const hlod_camera *cam, const hlod_vie
         gpu_draw_node(e, cam, i);
         (void)hlod_u32_push(&e->d.allocator, &e->drawn, i);
     }
-    /* the read-back waits for pass 1 to finish drawing: on a software
-     * rasteriser that wait cannot be told apart, so it is counted */
     e->st.occlusion_ms = t2 - t0;
     (void)t1;
 }
@@ -450,6 +451,16 @@ static int camera_motion(hlod_engine *e, const hlod_camera *cam, double dt, doub
     memcpy(e->prev_eye, cam->position, sizeof e->prev_eye);
     e->have_prev = 1;
     return moved;
+}
+
+/* What the budget keeps for uploads: their cap (upload_budget_ms; uploads
+ * predicted to run a quarter past it wait, see residency.c).  Reserved
+ * whether this frame uploads less or more, so that the budget a still
+ * camera's selection sees does not move with the loader; an overrun is
+ * left to the deadline margin. */
+static double upload_reserve(const hlod_engine *e)
+{
+    return e->d.upload_budget_ms > 0 ? e->d.upload_budget_ms : 0.1 * e->d.target_ms;
 }
 
 /* After the frame is drawn and measured: the cost model learns from it. */
@@ -503,10 +514,16 @@ hlod_result hlod_engine_frame(hlod_engine *e, const hlod_camera *cam, double dt,
     /* The budget bounds the front's estimate: with the margin the
      * measured spread needs, deadline_quantile of frames finish within the
      * target (margin 1 when aiming at the mean, as the paper does). */
+    /* The uploads' share is their cap (upload_budget_ms), not this
+     * frame's: with a still camera whose loader keeps prefetching, the
+     * frames that upload and those that do not would otherwise hand the
+     * selection two budgets in turn, and marginal nodes would toggle with
+     * them. */
     const hlod_cost_model *m = &e->cost;
     const double target = e->d.target_ms;
     const double upload = e->d.deterministic || e->d.time_model ? 0 : e->st.upload_ms;
-    double budget = (target - upload) / m->margin - m->theta[0];
+    const double reserve = e->d.deterministic || e->d.time_model ? 0 : upload_reserve(e);
+    double budget = (target - reserve) / m->margin - m->theta[0];
     if (budget < 0.1 * target)
         budget = 0.1 * target;
     hlod_view view;

@@ -632,6 +632,13 @@ void hlod_gpu_end(hlod_renderer *r, int finish)
         r->gl.Flush();
 }
 
+/* called from the render thread between begin and end */
+void hlod_gpu_wait(hlod_renderer *r)
+{
+    assert(r);
+    r->gl.Finish();
+}
+
 /* called from the render thread between begin and end; waits for the
  * draws so far (glReadPixels does) */
 hlod_result hlod_gpu_read_depth(hlod_renderer *r, uint32_t width, uint32_t height, uint32_t *out)

@@ -51,6 +51,10 @@ void hlod_gpu_draw(hlod_renderer *r, const hlod_gpu_node *g, const double offset
                    uint32_t depth);
 void hlod_gpu_end(hlod_renderer *r, int finish);
 
+/* Waits for the draws so far (glFinish), between begin and end: what
+ * follows is timed without the GPU's work. */
+void hlod_gpu_wait(hlod_renderer *r);
+
 /* Reads the depth buffer drawn so far (between begin and end; it waits for
  * the GPU) as window depth scaled to 32-bit integers, bottom row first,
  * width * height values.  HLOD_ERR_UNSUPPORTED (logged) on a GL error.

@@ -168,6 +168,10 @@ static void load_failed(hlod_residency *rs, uint32_t node, hlod_result why)
               "drawn instead", hlod_store_path(rs->store), node, hlod_result_str(why));
 }
 
+/* Frames an upload predicted to overrun the time budget may wait before
+ * it is made anyway (it may be the one node the view needs). */
+#define UPLOAD_STARVE 8
+
 void hlod_residency_collect(hlod_residency *rs)
 {
     /* Drain the loader into our pending list (bounded by max_inflight per
@@ -208,20 +212,37 @@ void hlod_residency_collect(hlod_residency *rs)
             load_failed(rs, lr->node, lr->result);
             continue;
         }
-        if (uploaded && (uploaded + lr->payload.bytes > rs->d->upload_budget_bytes ||
-                         hlod_now_ms() - t_up >= up_ms)) {
+        /* An upload that the measured cost per byte says would run a
+         * quarter past the time budget waits too (a big texture takes tens of ms on a
+         * software GL, and the frame's deadline counts them), unless
+         * uploads have waited for UPLOAD_STARVE frames: then one goes. */
+        double elapsed = hlod_now_ms() - t_up;
+        double predicted = elapsed + rs->upload_ms_per_byte * (double)lr->payload.bytes;
+        int starved = rs->upload_starved >= UPLOAD_STARVE;
+        if ((uploaded && (uploaded + lr->payload.bytes > rs->d->upload_budget_bytes ||
+                          elapsed >= up_ms || predicted > 1.25 * up_ms)) ||
+            (!uploaded && !starved && predicted > 1.25 * up_ms)) {
             rs->pending[keep++] = *lr; /* next frame */
             continue;
         }
         uploaded += lr->payload.bytes;
         uint32_t node = lr->node;
         unqueue(rs, node);
+        double t_one = hlod_now_ms();
+        size_t bytes = lr->payload.bytes;
         hlod_result res = make_resident(rs, node, &lr->payload);
+        if (res == HLOD_OK && bytes > 0 && isfinite(up_ms)) {
+            /* per-byte cost, a running mean over about five uploads */
+            double per = (hlod_now_ms() - t_one) / (double)bytes;
+            double old = rs->upload_ms_per_byte;
+            rs->upload_ms_per_byte = old == 0 ? per : 0.8 * old + 0.2 * per;
+        }
         if (res == HLOD_OK)
             rs->st->loads++;
         else
             load_failed(rs, node, res == HLOD_ERR_NOMEM ? HLOD_ERR_IO : res);
     }
+    rs->upload_starved = uploaded || !keep ? 0 : rs->upload_starved + 1;
     rs->pending_n = keep;
 }
 

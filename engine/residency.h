@@ -48,6 +48,8 @@ typedef struct hlod_residency {
     hlod_req_vec post;          /* what was handed to the loader */
     uint64_t bytes_read_prev;   /* the loader's counter at the last frame's end */
     uint32_t bad_total;
+    double upload_ms_per_byte;  /* measured cost of an upload (0: none measured yet) */
+    uint32_t upload_starved;    /* frames in a row that deferred every upload */
 } hlod_residency;
 
 /* Which resident nodes may go, and in what order: key() returns 0 for a

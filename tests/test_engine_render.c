@@ -10,7 +10,8 @@
  *   - with a generous target, lakhia refines to full detail and its image
  *     converges to the reference;
  *   - a frame's pixels are not blank;
- *   - culling the back faces of solid blocks changes no visible pixel.
+ *   - culling the back faces of solid blocks changes no visible pixel;
+ *   - occlusion culling changes no pixel either.
  * Failing images are written next to the store for a human to look at.
  */
 #include "check.h"
@@ -358,6 +359,89 @@ static void generous_target_converges(void)
     hlod_engine_destroy(e);
 }
 
+/* Occlusion culling never makes a hole: along a street-level walk through
+ * the city (much of it hidden behind the nearest buildings), a jump to a
+ * view from above and a jump back (the last frame's visibility is then
+ * wrong), each frame drawn with occlusion culling is the same image as
+ * its selection drawn again without it (hlod_engine_replay): 0 differing
+ * pixels, or PSNR >= 60 dB where depth ties land in another order.  It
+ * must cull something (else it could not fail), and with the setting off
+ * it culls nothing and hides nothing. */
+static void occlusion_makes_no_hole(void)
+{
+    static uint8_t a[W * H * 3], b[W * H * 3];
+    const hlod_store_node *root = hlod_store_nodes(g_near);
+    double lo[3], hi[3];
+    memcpy(lo, root->bbox_min, sizeof lo);
+    memcpy(hi, root->bbox_max, sizeof hi);
+    for (uint32_t r = 1; r < hlod_store_root_count(g_near); r++)
+        for (int k = 0; k < 3; k++) {
+            lo[k] = root[r].bbox_min[k] < lo[k] ? root[r].bbox_min[k] : lo[k];
+            hi[k] = root[r].bbox_max[k] > hi[k] ? root[r].bbox_max[k] : hi[k];
+        }
+    for (int on = 1; on >= 0; on--) {
+        hlod_engine_desc d = {0};
+        d.renderer = g_r;
+        d.target_ms = 1000; /* detail everywhere the selection can see */
+        d.occlusion = on ? 1 : -1;
+        hlod_engine *e = NULL;
+        CHECK(hlod_engine_create(g_near, &d, &e) == HLOD_OK);
+        if (!e)
+            return;
+        uint32_t culled = 0, hidden = 0, worst_differ = 0;
+        double worst = INFINITY;
+        int worst_frame = -1;
+        for (int f = 0; f < 90; f++) {
+            double t = (f % 30) / 29.0, y = lo[1] + 0.3 * (hi[1] - lo[1]);
+            double eye[3] = {lo[0] + (0.05 + 0.9 * t) * (hi[0] - lo[0]), y, lo[2] + 1.7};
+            double at[3] = {eye[0] + 10, y + 3, lo[2] + 1.7};
+            if (f >= 30 && f < 60) { /* from above, looking down at the centre */
+                eye[0] = 0.5 * (lo[0] + hi[0]) - 0.3 * (hi[0] - lo[0]);
+                eye[1] = lo[1] - 0.2 * (hi[1] - lo[1]);
+                eye[2] = hi[2] + 0.3 * (hi[0] - lo[0]);
+                at[0] = 0.5 * (lo[0] + hi[0]);
+                at[1] = 0.5 * (lo[1] + hi[1]);
+                at[2] = lo[2];
+            }
+            double up[3] = {0, 0, 1};
+            hlod_camera cam;
+            CHECK(hlod_camera_look_at(&cam, eye, at, up, 60, 0.25, 5000, W, H) == HLOD_OK);
+            hlod_frame_stats st;
+            CHECK(hlod_engine_load_all_leaves(e, &cam) == HLOD_OK);
+            CHECK(hlod_engine_frame(e, &cam, 1.0 / 30, &st) == HLOD_OK);
+            CHECK(hlod_osmesa_read_rgb(g_gl, a) == HLOD_OK);
+            culled += st.occlusion_culled;
+            hidden += st.occlusion_hidden;
+            double ms;
+            CHECK(hlod_engine_replay(e, &cam, 0, &ms) == HLOD_OK);
+            CHECK(hlod_osmesa_read_rgb(g_gl, b) == HLOD_OK);
+            uint32_t differ = 0;
+            for (size_t i = 0; i < sizeof a; i += 3)
+                differ += a[i] != b[i] || a[i + 1] != b[i + 1] || a[i + 2] != b[i + 2];
+            double p = differ ? psnr(a, b) : INFINITY;
+            if (differ > worst_differ || (differ && p < worst)) {
+                worst_differ = differ > worst_differ ? differ : worst_differ;
+                worst = p < worst ? p : worst;
+                worst_frame = f;
+                if (p < 60) {
+                    save(on ? "occlusion_on" : "occlusion_off_a", a);
+                    save(on ? "occlusion_replay" : "occlusion_off_b", b);
+                }
+            }
+        }
+        fprintf(stderr, "  occlusion %s: %u nodes culled, %u hidden in 90 frames; worst frame %d: "
+                "%u pixels differ, PSNR %.1f dB\n", on ? "on" : "off", culled, hidden,
+                worst_frame, worst_differ, worst);
+        CHECKF(worst_differ == 0 || worst >= 60, "frame %d: %u pixels differ, PSNR %.2f dB",
+               worst_frame, worst_differ, worst);
+        if (on)
+            CHECKF(culled > 0 && hidden > 0, "culled %u, hidden %u", culled, hidden);
+        else
+            CHECK(culled == 0 && hidden == 0);
+        hlod_engine_destroy(e);
+    }
+}
+
 int main(void)
 {
     const char *b = getenv("HLOD_BIN_DIR");
@@ -386,6 +470,7 @@ int main(void)
         RUN(far_origin_same_image);
         RUN(generous_target_converges);
         RUN(solid_blocks_cull_invisibly);
+        RUN(occlusion_makes_no_hole);
     }
     hlod_renderer_destroy(g_r);
     hlod_osmesa_destroy(g_gl);
