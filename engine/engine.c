@@ -373,11 +373,16 @@ static void draw_occluded(hlod_engine *e, const hlod_camera *cam, const hlod_vie
      * first, so occlusion_ms is the read-back, the pyramid and the tests */
     hlod_gpu_wait(e->d.renderer);
     double t0 = hlod_now_ms();
-    uint32_t w = cam->width, h = cam->height;
-    uint32_t *depth = hlod_occlusion_buffer(&e->occ, &e->d.allocator, w, h);
-    int ok = depth && hlod_gpu_read_depth(e->d.renderer, w, h, depth) == HLOD_OK &&
+    uint32_t w = cam->width, h = cam->height, stride = 0, mask = 0;
+    const uint32_t *view_depth = hlod_gpu_depth_view(e->d.renderer, &stride, &mask);
+    int ok;
+    if (view_depth) {
+        ok = hlod_occlusion_build_from(&e->occ, &e->d.allocator, view_depth, w, h, stride, mask);
+    } else {
+        uint32_t *depth = hlod_occlusion_buffer(&e->occ, &e->d.allocator, w, h);
+        ok = depth && hlod_gpu_read_depth(e->d.renderer, w, h, depth) == HLOD_OK &&
              hlod_occlusion_build(&e->occ, &e->d.allocator);
-    double t1 = hlod_now_ms();
+    }
     if (ok)
         for (size_t k = 0; k < e->sel.draw.n; k++) {
             uint32_t i = e->sel.draw.v[k];
@@ -402,7 +407,6 @@ static void draw_occluded(hlod_engine *e, const hlod_camera *cam, const hlod_vie
         (void)hlod_u32_push(&e->d.allocator, &e->drawn, i);
     }
     e->st.occlusion_ms = t2 - t0;
-    (void)t1;
 }
 
 static void draw_frame(hlod_engine *e, const hlod_camera *cam, const hlod_view *view)

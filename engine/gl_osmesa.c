@@ -22,6 +22,8 @@ typedef void (GLAPIENTRY *gl_pixel_store_fn)(GLenum pname, GLint param);
 typedef void (GLAPIENTRY *gl_read_pixels_fn)(GLint x, GLint y, GLsizei w, GLsizei h, GLenum format,
                                   GLenum type, void *pixels);
 typedef GLenum (GLAPIENTRY *gl_get_error_fn)(void);
+typedef void (GLAPIENTRY *gl_clear_depth_fn)(GLdouble depth);
+typedef void (GLAPIENTRY *gl_clear_fn)(GLbitfield mask);
 typedef const GLubyte *(GLAPIENTRY *gl_get_string_fn)(GLenum name);
 
 struct hlod_osmesa {
@@ -33,6 +35,9 @@ struct hlod_osmesa {
     gl_pixel_store_fn pixel_store;
     gl_read_pixels_fn read_pixels;
     gl_get_error_fn get_error;
+    gl_clear_depth_fn clear_depth;
+    gl_clear_fn clear;
+    uint32_t depth_mask;        /* the depth's bits in the buffer; 0: not lent */
     char renderer_name[256];    /* GL_RENDERER */
 };
 
@@ -106,9 +111,12 @@ hlod_result hlod_osmesa_create(uint32_t width, uint32_t height, const hlod_logge
     LOAD(o->pixel_store, "glPixelStorei");
     LOAD(o->read_pixels, "glReadPixels");
     LOAD(o->get_error, "glGetError");
+    LOAD(o->clear_depth, "glClearDepth");
+    LOAD(o->clear, "glClear");
     gl_get_string_fn get_string;
     LOAD(get_string, "glGetString");
-    if (!o->finish || !o->pixel_store || !o->read_pixels || !o->get_error || !get_string) {
+    if (!o->finish || !o->pixel_store || !o->read_pixels || !o->get_error || !get_string ||
+        !o->clear_depth || !o->clear) {
         hlod_logf(&o->lg, HLOD_LOG_ERROR, "osmesa: missing GL functions");
         hlod_osmesa_destroy(o);
         return HLOD_ERR_UNSUPPORTED;
@@ -150,6 +158,49 @@ hlod_result hlod_osmesa_make_current(hlod_osmesa *o)
 const char *hlod_osmesa_renderer_name(const hlod_osmesa *o)
 {
     return o ? o->renderer_name : "";
+}
+
+/* The depth buffer in place (hlod_depth_view): OSMesa lends it.  Its
+ * layout is the driver's (24 depth bits in the low or the high bits of
+ * each 32-bit value); share_depth found which by clearing. */
+static const uint32_t *osmesa_depth(void *user, uint32_t *stride, uint32_t *mask)
+{
+    hlod_osmesa *o = user;
+    GLint w = 0, h = 0, bytes = 0;
+    void *buf = NULL;
+    if (!o->depth_mask || OSMesaGetCurrentContext() != o->ctx ||
+        !OSMesaGetDepthBuffer(o->ctx, &w, &h, &bytes, &buf) || bytes != 4 || !buf ||
+        (uint32_t)w != o->width || (uint32_t)h != o->height)
+        return NULL;
+    *stride = (uint32_t)w;
+    *mask = o->depth_mask;
+    return buf;
+}
+
+/* called from the thread that renders, o's context current */
+void hlod_osmesa_share_depth(hlod_osmesa *o, hlod_renderer *r)
+{
+    if (!o || !r || OSMesaGetCurrentContext() != o->ctx)
+        return;
+    /* which bits hold the depth: those that differ between a clear to 0
+     * and a clear to 1; window depth 1 must fill them exactly */
+    uint32_t v[2] = {0, 0};
+    for (int k = 0; k < 2; k++) {
+        o->clear_depth(k ? 1.0 : 0.0);
+        o->clear(GL_DEPTH_BUFFER_BIT);
+        o->finish();
+        GLint w = 0, h = 0, bytes = 0;
+        void *buf = NULL;
+        if (!OSMesaGetDepthBuffer(o->ctx, &w, &h, &bytes, &buf) || bytes != 4 || !buf)
+            return; /* the renderer copies with glReadPixels */
+        v[k] = ((const uint32_t *)buf)[0];
+    }
+    o->clear_depth(1.0);
+    uint32_t mask = v[0] ^ v[1];
+    if ((v[1] & mask) != mask || !(mask == 0xffffffu || mask == 0xffffff00u || mask == ~0u))
+        return;
+    o->depth_mask = mask;
+    hlod_renderer_set_depth_view(r, osmesa_depth, o);
 }
 
 /* called from the thread that rendered, o's context current */

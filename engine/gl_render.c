@@ -120,6 +120,8 @@ struct hlod_renderer {
     GLint max_texture;          /* GL_MAX_TEXTURE_SIZE */
     int depth_colors, wireframe;
     float clear[3];
+    hlod_depth_view depth_view; /* reads depth in place; NULL: glReadPixels */
+    void *depth_view_user;
 };
 
 /* The shaders come in variants chosen per draw (compiled once): NORMALS
@@ -630,6 +632,19 @@ void hlod_gpu_end(hlod_renderer *r, int finish)
         r->gl.Finish();
     else
         r->gl.Flush();
+}
+
+void hlod_renderer_set_depth_view(hlod_renderer *r, hlod_depth_view view, void *user)
+{
+    if (!r)
+        return;
+    r->depth_view = view;
+    r->depth_view_user = user;
+}
+
+const uint32_t *hlod_gpu_depth_view(hlod_renderer *r, uint32_t *stride, uint32_t *mask)
+{
+    return r && r->depth_view ? r->depth_view(r->depth_view_user, stride, mask) : NULL;
 }
 
 /* called from the render thread between begin and end */

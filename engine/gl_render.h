@@ -55,6 +55,10 @@ void hlod_gpu_end(hlod_renderer *r, int finish);
  * follows is timed without the GPU's work. */
 void hlod_gpu_wait(hlod_renderer *r);
 
+/* The depth buffer read in place, when the context lends it
+ * (hlod_renderer_set_depth_view); NULL otherwise.  After hlod_gpu_wait. */
+const uint32_t *hlod_gpu_depth_view(hlod_renderer *r, uint32_t *stride, uint32_t *mask);
+
 /* Reads the depth buffer drawn so far (between begin and end; it waits for
  * the GPU) as window depth scaled to 32-bit integers, bottom row first,
  * width * height values.  HLOD_ERR_UNSUPPORTED (logged) on a GL error.

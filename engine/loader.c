@@ -37,10 +37,14 @@
  * takes a list it reserves queue room for the results still queued plus n:
  * queueing a result never allocates and never fails.
  */
+#define _GNU_SOURCE /* syscall(SYS_gettid): the loader thread's own nice value */
 #include "loader.h"
 
 #include <assert.h>
 #include <pthread.h>
+#include <sys/resource.h>
+#include <sys/syscall.h>
+#include <unistd.h>
 #include <stdatomic.h>
 #include <stdlib.h>
 #include <string.h>
@@ -375,9 +379,15 @@ static int work(hlod_loader *l, uint64_t budget, uint64_t *bytes)
 }
 
 /* loader thread */
+#define LOADER_NICE 10 /* the loader thread's nice value, relative to the process */
+
 static void *loader_main(void *arg)
 {
     hlod_loader *l = arg;
+    /* Below the render thread: on a machine with few cores the loader's
+     * reads, hashing and parsing would otherwise take a core from the
+     * rasteriser mid-frame, and frame times would follow the loader. */
+    (void)setpriority(PRIO_PROCESS, (id_t)syscall(SYS_gettid), LOADER_NICE);
     while (!atomic_load(&l->stop)) {
         uint64_t bytes = 0;
         if (work(l, UINT64_MAX, &bytes))

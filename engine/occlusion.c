@@ -30,6 +30,17 @@ static uint32_t max4(uint32_t a, uint32_t b, uint32_t c, uint32_t d)
 
 int hlod_occlusion_build(hlod_occlusion *o, const hlod_allocator *a)
 {
+    return hlod_occlusion_build_from(o, a, o->depth, o->width, o->height, o->width, 0xffffffffu);
+}
+
+int hlod_occlusion_build_from(hlod_occlusion *o, const hlod_allocator *a, const uint32_t *depth,
+                              uint32_t width, uint32_t height, uint32_t stride, uint32_t mask)
+{
+    o->src = depth;
+    o->width = width;
+    o->height = height;
+    o->stride = stride;
+    o->mask = mask;
     const uint32_t T = HLOD_OCC_TILE;
     uint32_t w = (o->width + T - 1) / T, h = (o->height + T - 1) / T;
     size_t need = 0;
@@ -50,6 +61,13 @@ int hlod_occlusion_build(hlod_occlusion *o, const hlod_allocator *a)
         o->texels = p;
         o->cap = need;
     }
+    if (o->band_cap < o->width) {
+        uint32_t *p = hlod_mem_realloc(a, o->band, o->width * sizeof *p);
+        if (!p)
+            return 0;
+        o->band = p;
+        o->band_cap = o->width;
+    }
     o->levels = levels;
     size_t at = 0;
     for (uint32_t l = 0, lw = w, lh = h; l < levels; l++) {
@@ -60,18 +78,27 @@ int hlod_occlusion_build(hlod_occlusion *o, const hlod_allocator *a)
         lw = (lw + 1) / 2;
         lh = (lh + 1) / 2;
     }
-    /* level 0: the farthest depth per tile, row by row so the inner loop
-     * runs over contiguous pixels */
-    uint32_t *l0 = o->level[0];
-    memset(l0, 0, (size_t)w * h * sizeof *l0);
-    for (uint32_t y = 0; y < o->height; y++) {
-        const uint32_t *row = o->depth + (size_t)y * o->width;
-        uint32_t *trow = l0 + (size_t)(y / T) * w;
+    /* level 0: the farthest depth per tile.  The TILE rows of a band are
+     * first folded into one row, element by element (a loop compilers
+     * vectorise), then each tile's TILE values of that row are folded. */
+    uint32_t *l0 = o->level[0], *acc = o->band;
+    for (uint32_t ty = 0; ty < h; ty++) {
+        uint32_t y0 = ty * T, y1 = y0 + T < o->height ? y0 + T : o->height;
+        const uint32_t *first = o->src + (size_t)y0 * o->stride;
+        for (uint32_t x = 0; x < o->width; x++)
+            acc[x] = first[x] & mask;
+        for (uint32_t y = y0 + 1; y < y1; y++) {
+            const uint32_t *row = o->src + (size_t)y * o->stride;
+            for (uint32_t x = 0; x < o->width; x++) {
+                uint32_t v = row[x] & mask;
+                acc[x] = v > acc[x] ? v : acc[x];
+            }
+        }
         for (uint32_t tx = 0; tx < w; tx++) {
-            uint32_t x0 = tx * T, x1 = x0 + T < o->width ? x0 + T : o->width, m = trow[tx];
+            uint32_t x0 = tx * T, x1 = x0 + T < o->width ? x0 + T : o->width, m = 0;
             for (uint32_t x = x0; x < x1; x++)
-                m = row[x] > m ? row[x] : m;
-            trow[tx] = m;
+                m = acc[x] > m ? acc[x] : m;
+            l0[(size_t)ty * w + tx] = m;
         }
     }
     for (uint32_t l = 1; l < levels; l++) {
@@ -115,14 +142,15 @@ int hlod_occlusion_visible(const hlod_occlusion *o, const double rect[4], double
             uint32_t d = o->level[l][(size_t)y * o->lw[l] + x];
             far = d > far ? d : far;
         }
-    /* 24-bit depth read back as 32-bit: allow a few of its steps */
-    double zq = zmin * 4294967295.0;
-    return !(zq > (double)far + 4096.0);
+    /* allow a few steps of a 24-bit buffer (2^-20 of the range) */
+    double zq = zmin * (double)o->mask;
+    return !(zq > (double)far + (double)o->mask * (1.0 / 1048576.0));
 }
 
 void hlod_occlusion_free(hlod_occlusion *o, const hlod_allocator *a)
 {
     hlod_mem_free(a, o->depth);
     hlod_mem_free(a, o->texels);
+    hlod_mem_free(a, o->band);
     memset(o, 0, sizeof *o);
 }

@@ -2,9 +2,9 @@
  * occlusion.h - a depth pyramid for occlusion culling (README, "Occlusion
  * culling").  Render thread only.
  *
- * Built from a frame's depth buffer (window depth scaled to 32-bit
- * integers, as glReadPixels(GL_DEPTH_COMPONENT, GL_UNSIGNED_INT) gives
- * it): level 0 holds the farthest depth of each TILE x TILE block of
+ * Built from a frame's depth buffer (window depth scaled to integers:
+ * 32-bit ones as glReadPixels(GL_DEPTH_COMPONENT, GL_UNSIGNED_INT) gives
+ * them, or a context's own buffer read in place, e.g. 24 bits of 32): level 0 holds the farthest depth of each TILE x TILE block of
  * pixels, each further level the farthest of 2 x 2 texels below.  A box
  * whose nearest point lies behind the farthest depth over every pixel its
  * projection may touch is hidden: each of its fragments would fail the
@@ -30,6 +30,10 @@ typedef struct hlod_occlusion {
     uint32_t width, height;         /* of the depth buffer */
     size_t cap;                     /* texels allocated for all levels */
     uint32_t *texels;
+    uint32_t *band;                 /* scratch: one row, the fold of a band of TILE rows */
+    const uint32_t *src;            /* the values the pyramid is built from */
+    uint32_t stride, mask;          /* their row stride and depth bits */
+    size_t band_cap;
 } hlod_occlusion;
 
 /* The buffer to read width x height depth values into (bottom row
@@ -39,6 +43,13 @@ uint32_t *hlod_occlusion_buffer(hlod_occlusion *o, const hlod_allocator *a, uint
 
 /* Builds the pyramid from the buffer.  0 when out of memory. */
 int hlod_occlusion_build(hlod_occlusion *o, const hlod_allocator *a);
+
+/* Builds it from someone else's depth values (a context's own depth
+ * buffer, read in place): width x height values, bottom row first, rows
+ * stride values apart, the depth in the bits of mask (window depth 1 is
+ * all of mask).  0 when out of memory. */
+int hlod_occlusion_build_from(hlod_occlusion *o, const hlod_allocator *a, const uint32_t *depth,
+                              uint32_t width, uint32_t height, uint32_t stride, uint32_t mask);
 
 /* 1 when a box whose projection covers rect (pixels, x0 y0 x1 y1 with y
  * up, clipped to the viewport) with nearest window depth zmin in [0, 1]

@@ -882,6 +882,8 @@ static hlod_result target_create(int backend, uint32_t w, uint32_t h, const hlod
     }
     if (r == HLOD_OK)
         r = hlod_renderer_create(get_proc, lg, &t->renderer);
+    if (r == HLOD_OK && t->osmesa)
+        hlod_osmesa_share_depth(t->osmesa, t->renderer); /* occlusion reads depth in place */
     return r;
 }
 

@@ -8,6 +8,8 @@
 
 #include "hlod/hlod.h"
 
+#include <stdint.h>
+
 #ifdef __cplusplus
 extern "C" {
 #endif
@@ -32,12 +34,24 @@ void hlod_renderer_set_wireframe(hlod_renderer *r, int on);
 void hlod_renderer_set_backface_culling(hlod_renderer *r, int on);
 void hlod_renderer_set_clear_color(hlod_renderer *r, float red, float green, float blue);
 
+/* A way for the renderer to read the depth buffer in place instead of
+ * copying it (occlusion culling reads it every frame): returns the depth
+ * values of the current framebuffer, bottom row first, rows *stride values
+ * apart, the depth in the bits of *mask; NULL when it cannot.  Called
+ * between draws, after the GPU has finished them. */
+typedef const uint32_t *(*hlod_depth_view)(void *user, uint32_t *stride, uint32_t *mask);
+void hlod_renderer_set_depth_view(hlod_renderer *r, hlod_depth_view view, void *user);
+
 /* A headless OSMesa context with its own colour and depth buffer. */
 typedef struct hlod_osmesa hlod_osmesa;
 hlod_result hlod_osmesa_create(uint32_t width, uint32_t height, const hlod_logger *lg,
                                hlod_osmesa **out);   /* and makes it current */
 void hlod_osmesa_destroy(hlod_osmesa *o);
 hlod_gl_get_proc hlod_osmesa_get_proc(void);
+/* Lets r read o's depth buffer in place (hlod_renderer_set_depth_view);
+ * o's context current.  Without it the renderer copies the depth with
+ * glReadPixels. */
+void hlod_osmesa_share_depth(hlod_osmesa *o, hlod_renderer *r);
 /* Copies the current image as 8-bit RGB, top row first, width*height*3
  * bytes (glReadPixels after glFinish). */
 hlod_result hlod_osmesa_read_rgb(hlod_osmesa *o, uint8_t *rgb);
