@@ -39,6 +39,7 @@
 #define RIDGE 0.05
 #define SCALE_K 7
 #define SHAPE_W 32
+#define SHAPE_HOLD 64 /* frames between two shape changes once the window is full */
 #define PRIOR_SIGMA 0.15 /* assumed spread until MARGIN_MIN frames are seen */
 #define MARGIN_MIN 20
 #define MARGIN_STEP 0.05 /* published margin moves by more than this (log) */
@@ -272,6 +273,7 @@ void hlod_cost_model_fit(hlod_cost_model *m, const hlod_engine_desc *d, double d
         m->ring_n ? &m->ring[(m->ring_head + HLOD_COST_WINDOW - 1) % HLOD_COST_WINDOW] : NULL;
     int settled =
         m->ring_n >= MARGIN_SETTLE && last && memcmp(last->x, s.x, sizeof s.x) == 0;
+    m->frames++;
     m->ring[m->ring_head] = s;
     m->ring_head = (m->ring_head + 1) % HLOD_COST_WINDOW;
     if (m->ring_n < HLOD_COST_WINDOW)
@@ -331,9 +333,15 @@ void hlod_cost_model_fit(hlod_cost_model *m, const hlod_engine_desc *d, double d
          * split between the terms */
         double lp = shape_loss(m, m->theta), lf = shape_loss(m, t);
         double need = warm ? 1.0 : 0.7;
-        if (lf < need * lp && lp > SHAPE_W * 0.02 * 0.02) {
+        /* and after the window has filled, one shape change per SHAPE_HOLD
+         * frames: two shapes that each fit the last frames a little better
+         * in turn would otherwise swap back and forth, and the front with
+         * them */
+        int held = !warm && m->frames - m->shape_at < SHAPE_HOLD && m->shape_updates;
+        if (lf < need * lp && lp > SHAPE_W * 0.02 * 0.02 && !held) {
             memcpy(m->theta, t, sizeof t);
             m->shape_updates++;
+            m->shape_at = m->frames;
         }
     }
 

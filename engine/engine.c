@@ -537,6 +537,7 @@ hlod_result hlod_engine_frame(hlod_engine *e, const hlod_camera *cam, double dt,
                          .draw_ms = m->theta[1],
                          .pixel_ms = m->theta[3],
                          .occlusion = e->d.occlusion > 0 && e->d.renderer != NULL,
+                         .still = !moved,
                          .sse_pixels = m->sse_pixels,
                          .budget_ms = budget,
                          .share_ms = budget * m->share_gain};

@@ -1049,7 +1049,11 @@ static hlod_result calibrate(context *c, const hlod_engine_desc *base, double *v
         if (r != HLOD_OK)
             break;
     }
-    *v_time = st.v_time;
+    /* The deterministic engine prices by cost alone: the fitted model's
+     * other terms (per draw, per pixel) are folded into ms per cost at
+     * the last warm-up frame. */
+    double front = st.estimated_ms - st.upload_ms - st.fixed_ms;
+    *v_time = st.cost_drawn > 0 && front > 0 ? front / st.cost_drawn : st.v_time;
     *fixed_ms = st.fixed_ms;
     hlod_engine_destroy(e);
     return r;
