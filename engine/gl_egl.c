@@ -389,15 +389,6 @@ hlod_result hlod_egl_read_rgb(hlod_egl *g, uint8_t *rgb)
         hlod_logf(&g->lg, HLOD_LOG_ERROR, "egl: glReadPixels failed");
         return HLOD_ERR_UNSUPPORTED;
     }
-    /* GL rows are bottom first; swap in place to top first */
-    size_t row = (size_t)g->width * 3;
-    for (uint32_t y = 0; y < g->height / 2; y++) {
-        uint8_t *a = rgb + y * row, *b = rgb + (g->height - 1 - y) * row;
-        for (size_t i = 0; i < row; i++) {
-            uint8_t t = a[i];
-            a[i] = b[i];
-            b[i] = t;
-        }
-    }
+    hlod_rgb_flip_rows(rgb, g->width, g->height); /* GL rows are bottom first */
     return HLOD_OK;
 }

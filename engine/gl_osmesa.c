@@ -222,15 +222,6 @@ hlod_result hlod_osmesa_read_rgb(hlod_osmesa *o, uint8_t *rgb)
         hlod_logf(&o->lg, HLOD_LOG_ERROR, "osmesa: glReadPixels failed");
         return HLOD_ERR_UNSUPPORTED;
     }
-    /* GL rows are bottom first; swap in place to top first */
-    size_t row = (size_t)o->width * 3;
-    for (uint32_t y = 0; y < o->height / 2; y++) {
-        uint8_t *a = rgb + y * row, *b = rgb + (o->height - 1 - y) * row;
-        for (size_t i = 0; i < row; i++) {
-            uint8_t t = a[i];
-            a[i] = b[i];
-            b[i] = t;
-        }
-    }
+    hlod_rgb_flip_rows(rgb, o->width, o->height); /* GL rows are bottom first */
     return HLOD_OK;
 }

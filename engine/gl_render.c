@@ -689,7 +689,12 @@ hlod_result hlod_renderer_read_rgb(hlod_renderer *r, uint32_t width, uint32_t he
                   (unsigned)width, (unsigned)height);
         return HLOD_ERR_UNSUPPORTED;
     }
-    /* GL rows are bottom first; swap in place to top first */
+    hlod_rgb_flip_rows(rgb, width, height); /* GL rows are bottom first */
+    return HLOD_OK;
+}
+
+void hlod_rgb_flip_rows(uint8_t *rgb, uint32_t width, uint32_t height)
+{
     size_t row = (size_t)width * 3;
     for (uint32_t y = 0; y < height / 2; y++) {
         uint8_t *a = rgb + y * row, *b = rgb + (height - 1 - y) * row;
@@ -699,5 +704,4 @@ hlod_result hlod_renderer_read_rgb(hlod_renderer *r, uint32_t width, uint32_t he
             b[i] = t;
         }
     }
-    return HLOD_OK;
 }

@@ -89,6 +89,10 @@ const char *hlod_egl_renderer_name(const hlod_egl *g);
 hlod_result hlod_renderer_read_rgb(hlod_renderer *r, uint32_t width, uint32_t height,
                                    uint8_t *rgb);
 
+/* Turns an 8-bit RGB image bottom row first (as GL reads it) into top row
+ * first, in place. */
+void hlod_rgb_flip_rows(uint8_t *rgb, uint32_t width, uint32_t height);
+
 #ifdef __cplusplus
 }
 #endif
