@@ -10,7 +10,7 @@ set -euo pipefail
 PACKAGES=(
     build-essential cmake pkg-config
     libassimp-dev libopenimageio-dev libmetis-dev
-    libosmesa6-dev libegl-dev libegl-mesa0 libglfw3-dev libmeshoptimizer-dev
+    libosmesa6-dev libegl-dev libegl-mesa0 libglfw3-dev libmeshoptimizer-dev libturbojpeg0-dev
     gnuplot-nox libxxhash-dev libfast-float-dev
     clang libclang-rt-14-dev
     xvfb xauth

@@ -531,6 +531,9 @@ void hlod_build_desc_defaults(hlod_build_desc *d)
     d->c_tex = 0.5;
     d->seed = 1;
     d->city_levels = 1;
+    d->compress = 1;
+    d->quant_bits = 24;
+    d->jpeg_quality = 90;
 }
 
 /* The descriptor's values, each in the range hlod-build's flags allow. */
@@ -549,10 +552,40 @@ static hlod_result check_desc(const hlod_build_desc *d, const hlod_logger *lg)
         bad = "c_tex is not in [0, 1]";
     else if (d->threads > 256)
         bad = "threads is over 256";
+    else if (d->compress && (d->quant_bits < 8 || d->quant_bits > 30))
+        bad = "quant_bits is not in [8, 30]";
+    else if (d->jpeg_quality > 100)
+        bad = "jpeg_quality is over 100";
     if (!bad)
         return HLOD_OK;
     hlod_logf(lg, HLOD_LOG_ERROR, "build: %s", bad);
     return HLOD_ERR_INVALID_ARG;
+}
+
+/* The packed store's position grid (README, "Store format"): its origin the
+ * input's box corner, its step the largest power of two at most the box's
+ * diagonal / 2^bits.  Both depend only on the input, so a city moved by a
+ * whole number of steps quantizes exactly as before. */
+static void position_grid(const blocks *bs, unsigned bits, hlod_store_writer_desc *wd)
+{
+    double lo[3] = {INFINITY, INFINITY, INFINITY}, hi[3] = {-INFINITY, -INFINITY, -INFINITY};
+    for (size_t b = 0; b < bs->n; b++) {
+        const hlod_mesh *m = &bs->b[b].mesh;
+        for (size_t i = 0; i < m->vertex_count; i++)
+            for (int k = 0; k < 3; k++) {
+                lo[k] = fmin(lo[k], m->positions[3 * i + k]);
+                hi[k] = fmax(hi[k], m->positions[3 * i + k]);
+            }
+    }
+    double diag = 0;
+    for (int k = 0; k < 3; k++)
+        diag += (hi[k] - lo[k]) * (hi[k] - lo[k]);
+    diag = sqrt(diag);
+    int e = 0;
+    (void)frexp(diag > 0 ? ldexp(diag, -(int)bits) : 1.0, &e);   /* x = f * 2^e, f in [0.5, 1) */
+    wd->quant_step = ldexp(1.0, e - 1);
+    for (int k = 0; k < 3; k++)
+        wd->quant_origin[k] = isfinite(lo[k]) ? lo[k] : 0;
 }
 
 /* The output folder must exist before hours of work. */
@@ -586,6 +619,14 @@ static hlod_result read_blocks(const hlod_build_desc *d, const char *const *inpu
             return r;
         }
         *tris_in += meshes[i].tri_count;
+        for (size_t v = 0; v < meshes[i].vertex_count; v++)
+            for (int k = 0; k < 3; k++)
+                if (!(fabs(meshes[i].positions[3 * v + k]) <= HLOD_BUILD_MAX_COORD)) {
+                    hlod_logf(lg, HLOD_LOG_ERROR, "%s: vertex %zu: coordinate %c = %g is beyond "
+                              "+-%g, which a store cannot hold", inputs[i], v, "xyz"[k],
+                              meshes[i].positions[3 * v + k], HLOD_BUILD_MAX_COORD);
+                    return HLOD_ERR_NAN;
+                }
         const char *base = strrchr(inputs[i], '/');
         r = make_blocks(&meshes[i], base ? base + 1 : inputs[i], d->grid, bs);
         if (r != HLOD_OK) {
@@ -825,6 +866,11 @@ hlod_result hlod_build_store(const hlod_build_desc *d, const char *const *inputs
         wd.build.node_tris = metis ? d->node_tris : 0;
         wd.build.c_tex = d->c_tex;
         wd.logger = lg;
+        if (d->compress) {
+            position_grid(&bs, d->quant_bits, &wd);
+            wd.jpeg_quality = d->jpeg_quality;
+            wd.payload_align = HLOD_STORE_MIN_ALIGN;    /* packed payloads are small */
+        }
         r = hlod_store_writer_open(out_path, &wd, &w);
         if (r != HLOD_OK)
             hlod_logf(lg, HLOD_LOG_ERROR, "%s: cannot create: %s", out_path, hlod_result_str(r));

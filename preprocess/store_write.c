@@ -13,14 +13,24 @@
  * breadth-first (the reader's tree rule), writes the table after the last
  * payload and the header at offset 0, validates with the reader's own
  * hlod_store_validate, and only then commits (fsync + rename).
+ *
+ * Packed stores (desc.quant_step > 0; README "Store format"): add snaps the
+ * node's origin to the store's position grid, puts every vertex on the grid,
+ * orders each triangle range for the vertex cache and the vertices by first
+ * use (meshoptimizer; what its codecs expect), derives the node's fields from
+ * the quantized positions (so boxes hold what is drawn) and packs the
+ * payload (payload_codec.c).  finish adds the grid's half cell diagonal to
+ * every node's error: the stored surface lies that far from the exact one.
  */
 #include "hlod/store_write.h"
 
 #include "atomic_file.h"
+#include "payload_codec.h"
 
 #include <assert.h>
 #include <errno.h>
 #include <math.h>
+#include <meshoptimizer.h>
 #include <pthread.h>
 #include <stdlib.h>
 #include <string.h>
@@ -47,6 +57,7 @@ struct hlod_store_writer {
     payload_record *records;
     size_t record_count, record_cap;
     int failed;
+    double quant_error;         /* half a grid cell's diagonal; 0 when raw */
 };
 
 static uint64_t align_up(uint64_t v, uint64_t a)
@@ -93,6 +104,18 @@ hlod_result hlod_store_writer_open(const char *path, const hlod_store_writer_des
                   "factor %g)", path, b->method, b->c_tex, b->level_factor);
         return HLOD_ERR_INVALID_ARG;
     }
+    if (desc->quant_step != 0) {
+        int ex = 0;
+        if (!(desc->quant_step > 0) || !isfinite(desc->quant_step) ||
+            frexp(desc->quant_step, &ex) != 0.5 || !isfinite(desc->quant_origin[0]) ||
+            !isfinite(desc->quant_origin[1]) || !isfinite(desc->quant_origin[2]) ||
+            desc->jpeg_quality > 100) {
+            hlod_logf(lg, HLOD_LOG_ERROR, "%s: position grid step %g is not a positive power of "
+                      "two, its origin is not finite, or JPEG quality %u is over 100", path,
+                      desc->quant_step, desc->jpeg_quality);
+            return HLOD_ERR_INVALID_ARG;
+        }
+    }
     hlod_store_writer *w = calloc(1, sizeof *w);
     if (!w)
         return HLOD_ERR_NOMEM;
@@ -111,6 +134,7 @@ hlod_result hlod_store_writer_open(const char *path, const hlod_store_writer_des
     w->desc.payload_align = align;
     w->lg = lg;
     w->next = align_up(sizeof(hlod_store_header), align);
+    w->quant_error = 0.5 * sqrt(3.0) * desc->quant_step;
     *out = w;
     return HLOD_OK;
 }
@@ -227,19 +251,10 @@ static void write_section(uint8_t **dst, const void *src, size_t bytes)
     *dst += bytes;
 }
 
-/* called from any thread */
-hlod_result hlod_store_writer_add(hlod_store_writer *w, const hlod_store_payload_desc *p,
-                                  hlod_store_node *node)
+/* The raw layout of p (node->flags set) into a new buffer. */
+static hlod_result serialize_raw(const hlod_store_payload_desc *p, const hlod_store_node *node,
+                                 uint8_t **out, uint64_t *out_size)
 {
-    if (!w || !p || !node)
-        return HLOD_ERR_INVALID_ARG;
-    const char *name = w->file.final_path;
-    hlod_result r = check_desc(p, name, w->lg);
-    if (r != HLOD_OK)
-        return r;
-    memset(node, 0, sizeof *node);
-    node->flags = (p->normals ? HLOD_NODE_NORMALS : 0) | (p->uvs ? HLOD_NODE_UVS : 0) |
-                  (p->colors ? HLOD_NODE_COLORS : 0) | (p->pixels ? HLOD_NODE_TEXTURE : 0);
     uint64_t size = hlod_store_payload_size(node->flags, p->vertex_count, 3 * p->tri_count,
                                             p->tex_width, p->tex_height, p->tex_channels);
     assert(size > 0);
@@ -277,8 +292,125 @@ hlod_result hlod_store_writer_add(hlod_store_writer *w, const hlod_store_payload
         write_section(&dst, p->pixels,
                       (size_t)p->tex_width * p->tex_height * p->tex_channels);
     assert((uint64_t)(dst - buf) == size);
+    *out = buf;
+    *out_size = size;
+    return HLOD_OK;
+}
+
+/* Vertex i of p moves to remap[i]: each triangle range in vertex-cache
+ * order (meshopt_optimizeVertexCache), vertices in first-use order
+ * (meshopt_optimizeVertexFetchRemap), unused vertices last in their order.
+ * idx receives the triangles in the new vertex numbering. */
+static void cache_order(const hlod_store_payload_desc *p, uint32_t *idx, uint32_t *remap)
+{
+    size_t v = p->vertex_count, ic = 3 * (size_t)p->tri_count, tc = 3 * (size_t)p->tex_tri_count;
+    if (tc)
+        meshopt_optimizeVertexCache(idx, p->indices, tc, v);
+    if (ic > tc)
+        meshopt_optimizeVertexCache(idx + tc, p->indices + tc, ic - tc, v);
+    size_t used = meshopt_optimizeVertexFetchRemap(remap, idx, ic, v);
+    for (size_t i = 0; i < v; i++)
+        if (remap[i] == ~0u)
+            remap[i] = (uint32_t)used++;
+    meshopt_remapIndexBuffer(idx, idx, ic, remap);
+}
+
+/* The packed layout of p into a new buffer; fills node's derived fields from
+ * the quantized positions and the snapped origin (node->flags set). */
+static hlod_result serialize_packed(const hlod_store_writer *w, const hlod_store_payload_desc *p,
+                                    hlod_store_node *node, uint8_t **out, uint64_t *out_size)
+{
+    const char *name = w->file.final_path;
+    const double q = w->desc.quant_step, *g0 = w->desc.quant_origin;
+    const size_t v = p->vertex_count, ic = 3 * (size_t)p->tri_count;
+    hlod_result r = HLOD_ERR_NOMEM;
+    uint32_t *idx = malloc(ic * sizeof *idx), *remap = malloc(v * sizeof *remap);
+    int64_t *grid = malloc(3 * v * sizeof *grid);
+    double *pos = malloc(3 * v * sizeof *pos);
+    float *nrm = p->normals ? malloc(12 * v) : NULL, *uvs = p->uvs ? malloc(8 * v) : NULL;
+    uint8_t *col = p->colors ? malloc(4 * v) : NULL;
+    if (!idx || !remap || !grid || !pos || (p->normals && !nrm) || (p->uvs && !uvs) ||
+        (p->colors && !col))
+        goto done;
+    hlod_store_payload_desc d = *p;
+    for (int k = 0; k < 3; k++) {
+        double t = rint((p->origin[k] - g0[k]) / q);
+        d.origin[k] = g0[k] + t * q;
+    }
+    cache_order(p, idx, remap);
+    r = HLOD_ERR_INVALID_ARG;
+    for (size_t i = 0; i < v; i++) {
+        size_t j = remap[i];
+        for (int k = 0; k < 3; k++) {
+            double t = rint((p->positions[3 * i + k] - d.origin[k]) / q);
+            if (!(fabs(t) < 2147483647.0)) {
+                hlod_logf(w->lg, HLOD_LOG_ERROR, "%s: a vertex lies %g from its node's origin "
+                          "on axis %d, past the 2^31 steps of %g that the store's grid holds",
+                          name, p->positions[3 * i + k] - d.origin[k], k, q);
+                goto done;
+            }
+            grid[3 * j + k] = (int64_t)t;
+            pos[3 * j + k] = d.origin[k] + t * q;
+        }
+        if (nrm)
+            memcpy(nrm + 3 * j, p->normals + 3 * i, 12);
+        if (uvs)
+            memcpy(uvs + 2 * j, p->uvs + 2 * i, 8);
+        if (col)
+            memcpy(col + 4 * j, p->colors + 4 * i, 4);
+    }
+    d.positions = pos;
+    d.indices = idx;
+    d.normals = nrm;
+    d.uvs = uvs;
+    d.colors = col;
+    derive_node(&d, w->desc.build.c_tex, node);
+    hlod_packed_input in = {
+        .flags = node->flags, .vertex_count = p->vertex_count, .tri_count = p->tri_count,
+        .tex_tri_count = p->tex_tri_count, .grid = grid, .normals = nrm, .uvs = uvs,
+        .colors = col, .indices = idx, .tex_width = p->tex_width, .tex_height = p->tex_height,
+        .tex_channels = p->tex_channels, .pixels = p->pixels,
+        .jpeg_quality = (int)w->desc.jpeg_quality,
+    };
+    size_t size = 0;
+    r = hlod_payload_pack(&in, out, &size, name, w->lg);
+    *out_size = size;
+done:
+    free(idx);
+    free(remap);
+    free(grid);
+    free(pos);
+    free(nrm);
+    free(uvs);
+    free(col);
+    return r;
+}
+
+/* called from any thread */
+hlod_result hlod_store_writer_add(hlod_store_writer *w, const hlod_store_payload_desc *p,
+                                  hlod_store_node *node)
+{
+    if (!w || !p || !node)
+        return HLOD_ERR_INVALID_ARG;
+    const char *name = w->file.final_path;
+    hlod_result r = check_desc(p, name, w->lg);
+    if (r != HLOD_OK)
+        return r;
+    memset(node, 0, sizeof *node);
+    node->flags = (p->normals ? HLOD_NODE_NORMALS : 0) | (p->uvs ? HLOD_NODE_UVS : 0) |
+                  (p->colors ? HLOD_NODE_COLORS : 0) | (p->pixels ? HLOD_NODE_TEXTURE : 0);
+    uint8_t *buf = NULL;
+    uint64_t size = 0;
+    if (w->desc.quant_step > 0) {
+        r = serialize_packed(w, p, node, &buf, &size);
+    } else {
+        r = serialize_raw(p, node, &buf, &size);
+        if (r == HLOD_OK)
+            derive_node(p, w->desc.build.c_tex, node);
+    }
+    if (r != HLOD_OK)
+        return r;
     uint64_t hash = hlod_store_hash(buf, (size_t)size);
-    derive_node(p, w->desc.build.c_tex, node);
 
     /* Reserve the offset and the record; write outside the lock. */
     pthread_mutex_lock(&w->lock);
@@ -308,7 +440,7 @@ hlod_result hlod_store_writer_add(hlod_store_writer *w, const hlod_store_payload
     rec->offset = offset;
     rec->size = size;
     rec->hash = hash;
-    memcpy(rec->origin, p->origin, sizeof rec->origin);
+    memcpy(rec->origin, node->origin, sizeof rec->origin);
     rec->flags = node->flags;
     rec->vertex_count = node->vertex_count;
     rec->tri_count = node->tri_count;
@@ -463,6 +595,7 @@ static hlod_result fill_table(hlod_store_writer *w, const hlod_store_node *nodes
         uint32_t k = order[pos];
         hlod_store_node *t = &table[pos];
         *t = nodes[k];
+        t->error += w->quant_error;
         t->first_child = next_child;
         next_child += child_count[k];
         int group = nodes[k].block == HLOD_STORE_NO_BLOCK;
@@ -579,6 +712,11 @@ hlod_result hlod_store_writer_finish(hlod_store_writer *w, const hlod_store_node
     h.top_count = top;
     h.payload_align = w->desc.payload_align;
     h.build = w->desc.build;
+    if (w->desc.quant_step > 0) {
+        h.payload_codec = HLOD_STORE_CODEC_PACKED;
+        h.quant_step = w->desc.quant_step;
+        memcpy(h.quant_origin, w->desc.quant_origin, sizeof h.quant_origin);
+    }
     for (int k = 0; k < 3; k++) {
         h.bbox_min[k] = INFINITY;
         h.bbox_max[k] = -INFINITY;

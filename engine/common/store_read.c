@@ -21,6 +21,8 @@
 
 #include "hlod/store.h"
 
+#include "payload_codec.h"
+
 #include <assert.h>
 #include <errno.h>
 #include <fcntl.h>
@@ -93,6 +95,12 @@ uint64_t hlod_store_payload_size(uint32_t flags, uint32_t vertex_count, uint32_t
     return size;
 }
 
+uint64_t hlod_store_node_memory(const hlod_store_node *n)
+{
+    return hlod_store_payload_size(n->flags, n->vertex_count, 3 * n->tri_count, n->tex_width,
+                                   n->tex_height, n->tex_channels);
+}
+
 static int finite3d(const double *v)
 {
     return isfinite(v[0]) && isfinite(v[1]) && isfinite(v[2]);
@@ -149,9 +157,13 @@ static hlod_result check_node_fields(const hlod_store_header *h, const hlod_stor
     if (want == 0)
         BAD(HLOD_ERR_FORMAT, "%s: node %u: impossible flags %#x or texture %ux%ux%u", name, i,
             n->flags, n->tex_width, n->tex_height, n->tex_channels);
-    if (n->payload_size != want)
+    if (h->payload_codec == HLOD_STORE_CODEC_RAW && n->payload_size != want)
         BAD(HLOD_ERR_FORMAT, "%s: node %u: payload is %llu bytes, its counts need %llu", name,
             i, (unsigned long long)n->payload_size, (unsigned long long)want);
+    if (h->payload_codec == HLOD_STORE_CODEC_PACKED &&
+        n->payload_size < sizeof(hlod_store_packed_header))
+        BAD(HLOD_ERR_FORMAT, "%s: node %u: packed payload of %llu bytes is shorter than its "
+            "header", name, i, (unsigned long long)n->payload_size);
     if (n->payload_offset % h->payload_align)
         BAD(HLOD_ERR_FORMAT, "%s: node %u: payload offset %llu is not a multiple of %u", name,
             i, (unsigned long long)n->payload_offset, h->payload_align);
@@ -344,9 +356,10 @@ static hlod_result check_header(const hlod_store_header *h, uint64_t file_size, 
             BAD(HLOD_ERR_UNSUPPORTED, "%s: store has the other byte order", name);
         BAD(HLOD_ERR_FORMAT, "%s: bad byte-order marker %#x", name, h->endian);
     }
-    if (h->version != HLOD_STORE_VERSION)
-        BAD(HLOD_ERR_VERSION, "%s: store format version %u, this program reads version %u",
-            name, h->version, HLOD_STORE_VERSION);
+    if (h->version < HLOD_STORE_VERSION_MIN || h->version > HLOD_STORE_VERSION)
+        BAD(HLOD_ERR_VERSION, "%s: store format version %u, this program reads versions %u to "
+            "%u; rebuild the store from its input with this hlod-build", name, h->version,
+            HLOD_STORE_VERSION_MIN, HLOD_STORE_VERSION);
     if (h->header_size != sizeof(hlod_store_header) || h->node_size != sizeof(hlod_store_node))
         BAD(HLOD_ERR_FORMAT, "%s: header/node record sizes %u/%u, expected %zu/%zu", name,
             h->header_size, h->node_size, sizeof(hlod_store_header), sizeof(hlod_store_node));
@@ -355,8 +368,22 @@ static hlod_result check_header(const hlod_store_header *h, uint64_t file_size, 
     if (h->file_size != file_size)
         BAD(HLOD_ERR_FORMAT, "%s: file is %llu bytes, its header says %llu (truncated?)", name,
             (unsigned long long)file_size, (unsigned long long)h->file_size);
-    if (h->build.reserved || !is_zero(h->reserved, sizeof h->reserved))
+    if (h->build.reserved || h->reserved2 || !is_zero(h->reserved, sizeof h->reserved))
         BAD(HLOD_ERR_FORMAT, "%s: reserved header fields are not zero", name);
+    if (h->payload_codec > HLOD_STORE_CODEC_PACKED ||
+        (h->version < 3 && h->payload_codec != HLOD_STORE_CODEC_RAW))
+        BAD(HLOD_ERR_FORMAT, "%s: unknown payload codec %u", name, h->payload_codec);
+    if (h->payload_codec == HLOD_STORE_CODEC_RAW) {
+        if (h->quant_step != 0 || h->quant_origin[0] != 0 || h->quant_origin[1] != 0 ||
+            h->quant_origin[2] != 0)
+            BAD(HLOD_ERR_FORMAT, "%s: a raw store with a position grid", name);
+    } else {
+        int e2 = 0;
+        if (!(h->quant_step > 0) || !isfinite(h->quant_step) ||
+            frexp(h->quant_step, &e2) != 0.5 || !finite3d(h->quant_origin))
+            BAD(HLOD_ERR_FORMAT, "%s: position grid step %g is not a positive power of two, or "
+                "its origin is not finite", name, h->quant_step);
+    }
     if (h->node_count == 0 || h->node_count == UINT32_MAX)
         BAD(HLOD_ERR_FORMAT, "%s: %u nodes", name, h->node_count);
     uint64_t table = ((uint64_t)h->node_count + 1) * sizeof(hlod_store_node);
@@ -673,6 +700,16 @@ hlod_result hlod_store_read_finish(hlod_store_read *rd, hlod_store_payload *out)
         hlod_logf(&s->logger, HLOD_LOG_ERROR, "%s: node %u: payload checksum mismatch",
                   s->path, rd->node);
         r = HLOD_ERR_CHECKSUM;
+    } else if (s->header.payload_codec == HLOD_STORE_CODEC_PACKED) {
+        uint8_t *raw = NULL;
+        const hlod_store_node *n = &s->nodes[rd->node];
+        r = hlod_payload_unpack(rd->buf, (size_t)rd->size, n, rd->node, s->header.quant_step,
+                                &raw, s->path, &s->logger);
+        if (r == HLOD_OK) {
+            r = parse_payload(s, rd->node, raw, hlod_store_node_memory(n), out);
+            if (r != HLOD_OK)
+                free(raw);
+        }
     } else {
         r = parse_payload(s, rd->node, rd->buf, rd->size, out);
         if (r == HLOD_OK)

@@ -32,6 +32,10 @@ typedef enum hlod_build_method {
     HLOD_BUILD_METIS = 1        /* Okamoto 4.1 */
 } hlod_build_method;
 
+/* Input coordinates beyond this magnitude are refused (naming the file and
+ * the vertex): past it a double no longer holds a tenth of a millimetre. */
+#define HLOD_BUILD_MAX_COORD 1e12
+
 typedef struct hlod_build_desc {
     hlod_build_method method;   /* default cutplane */
     double grid;                /* 0 (default): each input object is a block;
@@ -47,6 +51,13 @@ typedef struct hlod_build_desc {
                                    blocks up to one root (README, "City
                                    levels"); 0: every block is a root */
     size_t threads;             /* 0 (default): every core */
+    int compress;               /* non-zero (default): packed payloads (README,
+                                   "Store format"); 0: raw payloads */
+    unsigned quant_bits;        /* packed: the position grid's step is the
+                                   largest power of two <= the input's
+                                   diagonal / 2^quant_bits; 8..30, default 24 */
+    unsigned jpeg_quality;      /* packed: JPEG quality of textures, 1..100,
+                                   default 90; 0 stores textures raw */
     /* Called from the calling thread about every 100 ms while blocks
      * build; NULL for none. */
     void (*progress)(void *user, size_t blocks_done, size_t blocks);

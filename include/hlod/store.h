@@ -38,7 +38,13 @@
  * leaf.  The top_count nodes at depth <= block_depth are the top of the
  * tree, which the runtime keeps resident.
  *
- * Payload layout (offsets from the payload's first byte):
+ * Payload codec (header.payload_codec): HLOD_STORE_CODEC_RAW payloads are
+ * the raw layout below, read in place; HLOD_STORE_CODEC_PACKED payloads are
+ * the packed layout after it, decoded by the reader (on the loader thread)
+ * into the raw layout, so what a reader hands out is the same either way.
+ * Version 2 stores (no codec field) are raw.
+ *
+ * Raw payload layout (offsets from the payload's first byte):
  *   hlod_store_payload_header (64 bytes)
  *   float    positions[3 * vertex_count]   relative to the node's origin
  *   float    normals[3 * vertex_count]     if HLOD_NODE_NORMALS
@@ -53,7 +59,27 @@
  * Every section starts 4-byte aligned, so a payload read into malloc'ed
  * memory is used in place (zero copy).  payload_size is exactly the sum of
  * these sections; the padding after it belongs to no checksum and carries
- * nothing.
+ * nothing.  hlod_store_payload_size() gives it from the counts, and it is
+ * also what any payload takes in memory once read (hlod_store_node_memory).
+ *
+ * Packed payload layout (README, "Store format"):
+ *   hlod_store_packed_header (128 bytes), then its sections back to back,
+ *   section_bytes[k] bytes each, in this order:
+ *   positions  meshopt vertex codec over 12-byte vertices: 3 x uint32 grid
+ *              steps k, position = node.origin + (k + pos_shift) * quant_step
+ *              (header.quant_step; node.origin lies on the store's grid
+ *              header.quant_origin + integer * quant_step, so a point two
+ *              nodes share quantizes to the same grid point in both)
+ *   normals    meshopt vertex codec over 4-byte vertices: octahedral
+ *              2 x int16 (snorm), if HLOD_NODE_NORMALS
+ *   uvs        meshopt vertex codec over 4-byte vertices: 2 x uint16,
+ *              uv = uv_min + q * uv_scale, if HLOD_NODE_UVS
+ *   colors     meshopt vertex codec over the 4-byte RGBA colours, if
+ *              HLOD_NODE_COLORS
+ *   indices    meshopt index codec (triangle list)
+ *   texture    tex_codec HLOD_TEX_JPEG: a baseline JPEG (1 or 3 channels);
+ *              HLOD_TEX_RAW: the raw pixels; if HLOD_NODE_TEXTURE
+ * payload_size = 128 + the sum of section_bytes.
  *
  * Checksums: XXH3-64 (seed 0, libxxhash) over the header's first 248 bytes,
  * over the whole node table (sentinel included) and over each payload.
@@ -82,7 +108,8 @@ extern "C" {
 /* ---- format ---- */
 
 #define HLOD_STORE_MAGIC "HLODSTOR"     /* 8 bytes, no terminator on disk */
-#define HLOD_STORE_VERSION 2u       /* 2: city levels (block_depth, top_count) */
+#define HLOD_STORE_VERSION 3u       /* 3: payload codec; 2: city levels (block_depth, top_count) */
+#define HLOD_STORE_VERSION_MIN 2u   /* the oldest version this reader reads */
 #define HLOD_STORE_ENDIAN 0x01020304u   /* read back as 0x04030201: wrong byte order */
 #define HLOD_STORE_DEFAULT_ALIGN 4096u
 #define HLOD_STORE_MIN_ALIGN 64u
@@ -90,6 +117,10 @@ extern "C" {
 #define HLOD_STORE_NO_PARENT 0xffffffffu
 #define HLOD_STORE_NO_BLOCK 0xffffffffu /* node.block of a group node */
 #define HLOD_STORE_MAX_TEXTURE 65536u   /* width and height limit */
+
+/* header.payload_codec */
+#define HLOD_STORE_CODEC_RAW 0u         /* payloads in the raw layout */
+#define HLOD_STORE_CODEC_PACKED 1u      /* payloads in the packed layout */
 
 /* header.flags */
 #define HLOD_STORE_TEXTURED 1u          /* some node has a texture */
@@ -134,7 +165,12 @@ typedef struct hlod_store_header {
     hlod_store_build_info build; /* 136 */
     uint32_t block_count;       /* 192 blocks, >= 1 */
     uint32_t top_count;         /* 196 nodes at depth <= block_depth */
-    uint8_t reserved[48];       /* 200 zero */
+    uint32_t payload_codec;     /* 200 HLOD_STORE_CODEC_* (0 in version 2) */
+    uint32_t reserved2;         /* 204 zero */
+    double quant_step;          /* 208 packed: the position grid's step (a
+                                   power of two), model units; raw: 0 */
+    double quant_origin[3];     /* 216 packed: a point of the grid; raw: 0 */
+    uint8_t reserved[8];        /* 240 zero */
     uint64_t header_hash;       /* 248 XXH3-64 of bytes [0, 248) */
 } hlod_store_header;
 
@@ -197,6 +233,40 @@ typedef struct hlod_store_payload_header {
     uint32_t reserved[8];       /* 32 zero */
 } hlod_store_payload_header;
 
+#define HLOD_PACKED_MAGIC "HLPK"
+
+/* packed.tex_codec */
+#define HLOD_TEX_RAW 0u
+#define HLOD_TEX_JPEG 1u
+
+/* Sections of a packed payload, in order. */
+enum {
+    HLOD_SEC_POSITIONS,
+    HLOD_SEC_NORMALS,
+    HLOD_SEC_UVS,
+    HLOD_SEC_COLORS,
+    HLOD_SEC_INDICES,
+    HLOD_SEC_TEXTURE,
+    HLOD_SEC_COUNT
+};
+
+typedef struct hlod_store_packed_header {
+    char magic[4];              /*   0 HLOD_PACKED_MAGIC */
+    uint32_t flags;             /*   4 = node.flags */
+    uint32_t vertex_count;      /*   8 = node.vertex_count */
+    uint32_t index_count;       /*  12 = 3 * node.tri_count */
+    uint32_t tex_tri_count;     /*  16 = node.tex_tri_count */
+    uint32_t tex_width;         /*  20 = node.tex_width ... */
+    uint32_t tex_height;        /*  24 */
+    uint32_t tex_channels;      /*  28 */
+    int32_t pos_shift[3];       /*  32 grid steps added to every vertex's */
+    uint32_t tex_codec;         /*  44 HLOD_TEX_*; 0 without a texture */
+    float uv_min[2];            /*  48 */
+    float uv_scale[2];          /*  56 >= 0, finite */
+    uint32_t section_bytes[HLOD_SEC_COUNT]; /* 64; 0 for an absent section */
+    uint32_t reserved[10];      /*  88 zero */
+} hlod_store_packed_header;
+
 /* Children of node i: [hlod_store_first_child(n, i), hlod_store_child_end(n, i)). */
 static inline uint32_t hlod_store_first_child(const hlod_store_node *nodes, uint32_t i)
 {
@@ -212,6 +282,11 @@ static inline uint32_t hlod_store_child_end(const hlod_store_node *nodes, uint32
  * inconsistent). */
 uint64_t hlod_store_payload_size(uint32_t flags, uint32_t vertex_count, uint32_t index_count,
                                  uint32_t tex_width, uint32_t tex_height, uint32_t tex_channels);
+
+/* Bytes a node's payload takes in memory once read (decoded, for a packed
+ * store): its raw layout's size.  Residency charges this against the
+ * memory budget; payload_size is what is read. */
+uint64_t hlod_store_node_memory(const hlod_store_node *n);
 
 /* The store's checksum: XXH3-64, seed 0.  Reentrant. */
 uint64_t hlod_store_hash(const void *data, size_t size);

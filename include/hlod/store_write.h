@@ -44,6 +44,14 @@ typedef struct hlod_store_writer_desc {
     hlod_store_build_info build;    /* recorded in the header; build.c_tex
                                        prices every node (eq. 1) */
     uint32_t payload_align;         /* 0: HLOD_STORE_DEFAULT_ALIGN (4096) */
+    /* Packed payloads (store.h, README "Store format") when quant_step > 0:
+     * positions on the grid quant_origin + integer * quant_step (a power of
+     * two, model units), meshoptimizer-coded geometry, JPEG textures at
+     * jpeg_quality (1..100; 0 keeps textures raw).  quant_step 0: the raw
+     * layout (no quantization, quant_origin and jpeg_quality unused). */
+    double quant_step;
+    double quant_origin[3];
+    uint32_t jpeg_quality;
     const hlod_logger *logger;      /* may be NULL; must outlive the writer
                                        and be thread safe if add is called
                                        from several threads */
@@ -76,7 +84,8 @@ hlod_result hlod_store_writer_open(const char *path, const hlod_store_writer_des
 /* called from any thread.  Validates p (HLOD_ERR_INVALID_ARG, HLOD_ERR_NAN,
  * HLOD_ERR_INDEX_RANGE), writes it (HLOD_ERR_IO, HLOD_ERR_NOMEM) and fills
  * *node (zeroed first) with everything the payload determines: flags, counts,
- * texture size, origin, bbox (of the double positions), cost (eq. 1),
+ * texture size, origin, bbox (of the double positions; of the quantized ones
+ * in a packed store, whose origin is also snapped to the grid), cost (eq. 1),
  * static_benefit (eq. 2), avg_normal (eq. 3, area-weighted, in double) and
  * payload_offset/size/hash.  parent and error are left 0, block 0 and depth
  * 0: the caller sets parent, block (roots) and error before finish.  After

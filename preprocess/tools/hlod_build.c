@@ -5,6 +5,7 @@
  *              [--blocks objects|grid:SIZE] [--desired-tris N]
  *              [--level-factor F] [--voxel-tris N] [--leaf-tris N]
  *              [--node-tris N] [--c-tex C] [--city-levels on|off] [--threads T]
+ *              [--compress on|off] [--quant-bits B] [--jpeg-quality Q]
  *              [--json] [--quiet]
  *
  * The pipeline is the library's (hlod/build_store.h, preprocess/build_store.c);
@@ -56,6 +57,14 @@ static void usage(FILE *fp)
             "                         F^2 neighbours each, up to one root; off: every\n"
             "                         block's hlod_0 is a root (the paper's layout)\n"
             "  --threads T            build threads (default: every core)\n"
+            "  --compress C           on (default): packed payloads (positions on a\n"
+            "                         grid, meshoptimizer codecs, JPEG textures); off:\n"
+            "                         raw floats and pixels\n"
+            "  --quant-bits B         packed: the position grid step is the input's\n"
+            "                         diagonal / 2^B rounded down to a power of two\n"
+            "                         (8..30, default 24)\n"
+            "  --jpeg-quality Q       packed: JPEG quality of textures (1..100, default\n"
+            "                         90); 0 keeps textures lossless\n"
             "  --json                 print one JSON object on stdout: blocks, nodes,\n"
             "                         levels, groups, block_depth, tris_in,\n"
             "                         tris_leaf, tris_total, bytes, seconds,\n"
@@ -164,6 +173,26 @@ static int parse(int argc, char **argv, options *o)
                 hlod_cli_error(PROG, "--city-levels: '%s' is not on or off", val);
                 return 0;
             }
+        } else if (!strcmp(a, "--compress")) {
+            NEED_VAL();
+            if (!strcmp(val, "on") || !strcmp(val, "off")) {
+                o->bd.compress = !strcmp(val, "on");
+            } else {
+                hlod_cli_error(PROG, "--compress: '%s' is not on or off", val);
+                return 0;
+            }
+        } else if (!strcmp(a, "--quant-bits")) {
+            NEED_VAL();
+            size_t b;
+            if (!hlod_cli_parse_size(PROG, a, val, 8, 30, &b))
+                return 0;
+            o->bd.quant_bits = (unsigned)b;
+        } else if (!strcmp(a, "--jpeg-quality")) {
+            NEED_VAL();
+            size_t q;
+            if (!hlod_cli_parse_size(PROG, a, val, 0, 100, &q))
+                return 0;
+            o->bd.jpeg_quality = (unsigned)q;
         } else if (!strcmp(a, "--json")) {
             o->json = 1;
         } else if (!strcmp(a, "--quiet")) {
