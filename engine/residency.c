@@ -23,6 +23,10 @@
  * (logged once by the loader, never retried; its parent keeps being drawn).
  * A transient error (HLOD_ERR_IO) is retried after a backoff that doubles
  * with each failure (16, 32, 64 frames), and the node turns bad after 4.
+ * Top nodes too: one that cannot be read at start does not stop the engine
+ * (load_top); a missing one is asked for every frame once its backoff has
+ * passed, admitted whatever the budget, and meanwhile, or for good when it
+ * is bad, the traversal draws its children in its place (traverse.c).
  */
 #include "residency.h"
 
@@ -66,6 +70,8 @@ static hlod_result make_resident(hlod_residency *rs, uint32_t node, hlod_store_p
     nr->state = HLOD_NODE_RESIDENT;
     nr->slot = (uint32_t)(rs->resident.n - 1);
     nr->failures = 0;
+    if (node < rs->top_count)
+        rs->top_missing--; /* top nodes are never evicted */
     rs->resident_bytes += rs->nodes[node].payload_size;
     rs->resident_cost += rs->nodes[node].cost;
     return HLOD_OK;
@@ -133,15 +139,42 @@ hlod_result hlod_residency_load_now(hlod_residency *rs, uint32_t node)
     return res;
 }
 
+/* A top node (group or hlod_0) that cannot be read at start does not stop
+ * the engine: a permanent failure (checksum, format) marks it bad, a
+ * transient one (I/O) leaves it absent, retried through the loader after
+ * the usual backoff (hlod_residency_schedule asks for it).  Either way the
+ * traversal draws its readable children in its place.  Only running out
+ * of memory fails. */
+static void top_failed(hlod_residency *rs, uint32_t node, hlod_result why)
+{
+    hlod_node_res *nr = &rs->res[node];
+    rs->start_failures++;
+    if (why == HLOD_ERR_IO) {
+        nr->failures = 1;
+        nr->state = HLOD_NODE_ABSENT;
+        nr->retry_frame = 8u << nr->failures;
+        hlod_logf(&rs->d->logger, HLOD_LOG_WARN,
+                  "%s: top node %u (a group or hlod_0) cannot be loaded yet (%s); retried later, "
+                  "its readable children are drawn in its place",
+                  hlod_store_path(rs->store), node, hlod_result_str(why));
+        return;
+    }
+    nr->state = HLOD_NODE_BAD;
+    rs->bad_total++;
+    rs->top_missing--;
+    hlod_logf(&rs->d->logger, HLOD_LOG_ERROR,
+              "%s: top node %u (a group or hlod_0) is unreadable (%s); its readable children are "
+              "drawn in its place", hlod_store_path(rs->store), node, hlod_result_str(why));
+}
+
 static hlod_result load_top(hlod_residency *rs)
 {
     for (uint32_t i = 0; i < rs->top_count; i++) {
         hlod_result r = hlod_residency_load_now(rs, i);
-        if (r != HLOD_OK) {
-            hlod_logf(&rs->d->logger, HLOD_LOG_ERROR, "%s: top node %u (a group or hlod_0) cannot be loaded: %s",
-                      hlod_store_path(rs->store), i, hlod_result_str(r));
+        if (r == HLOD_ERR_NOMEM)
             return r;
-        }
+        if (r != HLOD_OK)
+            top_failed(rs, i, r);
     }
     if (rs->resident_bytes > rs->d->memory_budget_bytes)
         hlod_logf(&rs->d->logger, HLOD_LOG_WARN,
@@ -164,6 +197,13 @@ static void load_failed(hlod_residency *rs, uint32_t node, hlod_result why)
     }
     nr->state = HLOD_NODE_BAD;
     rs->bad_total++;
+    if (node < rs->top_count) {
+        rs->top_missing--;
+        hlod_logf(&rs->d->logger, HLOD_LOG_WARN, "%s: top node %u (a group or hlod_0) is "
+                  "unreadable (%s); its readable children are drawn in its place",
+                  hlod_store_path(rs->store), node, hlod_result_str(why));
+        return;
+    }
     hlod_logf(&rs->d->logger, HLOD_LOG_WARN, "%s: node %u is unreadable (%s); its parent is "
               "drawn instead", hlod_store_path(rs->store), node, hlod_result_str(why));
 }
@@ -326,7 +366,8 @@ void hlod_residency_schedule(hlod_residency *rs, const hlod_evict_order *order)
         if (nr->state != HLOD_NODE_ABSENT)
             continue;
         const hlod_store_node *n = &rs->nodes[node];
-        for (;;) {
+        const int top = node < rs->top_count; /* admitted whatever the budget, as at start */
+        while (!top) {
             uint64_t used = rs->resident_bytes + rs->reserved_bytes;
             double used_c = mem_cost(rs, rs->resident_cost + rs->reserved_cost);
             if (used + n->payload_size <= budget && used_c + mem_cost(rs, n->cost) <= (double)budget)
@@ -343,7 +384,8 @@ void hlod_residency_schedule(hlod_residency *rs, const hlod_evict_order *order)
         }
         uint64_t used = rs->resident_bytes + rs->reserved_bytes;
         double used_c = mem_cost(rs, rs->resident_cost + rs->reserved_cost);
-        if (used + n->payload_size > budget || used_c + mem_cost(rs, n->cost) > (double)budget)
+        if (!top &&
+            (used + n->payload_size > budget || used_c + mem_cost(rs, n->cost) > (double)budget))
             continue; /* does not fit; a smaller one further down may */
         if (!hlod_req_push(&rs->d->allocator, post, node, pr))
             break;
@@ -396,6 +438,7 @@ hlod_result hlod_residency_init(hlod_residency *rs, const hlod_store *store,
     if (!rs->res)
         return HLOD_ERR_NOMEM;
     memset(rs->res, 0, (size_t)rs->node_count * sizeof *rs->res);
+    rs->top_missing = rs->top_count;
     hlod_result r = load_top(rs);
     if (r == HLOD_OK) {
         hlod_loader_desc ld = {0};
@@ -436,10 +479,20 @@ void hlod_residency_destroy(hlod_residency *rs)
     rs->want.v = rs->post.v = NULL;
 }
 
+/* Above any priority the traversal gives (those are doubles below 1e300,
+ * stored as floats: at most FLT_MAX). */
+#define TOP_PRIORITY INFINITY
+
 void hlod_residency_begin_frame(hlod_residency *rs, uint32_t frame)
 {
     rs->frame = frame;
     rs->want.n = 0;
+    /* Top nodes that could not be read yet (a transient failure) are asked
+     * for first, visible or not, once their backoff has passed; while
+     * missing, the traversal draws their children in their place. */
+    for (uint32_t i = 0; rs->top_missing && i < rs->top_count; i++)
+        if (rs->res[i].state == HLOD_NODE_ABSENT || rs->res[i].state == HLOD_NODE_QUEUED)
+            (void)hlod_residency_want(rs, i, TOP_PRIORITY);
 }
 
 void hlod_residency_end_frame(hlod_residency *rs)
@@ -453,4 +506,6 @@ void hlod_residency_end_frame(hlod_residency *rs)
     rs->st->resident_cost = rs->d->c_memory * rs->resident_cost;
     rs->st->memory_budget_bytes = rs->d->memory_budget_bytes;
     rs->st->bad_nodes = rs->bad_total;
+    rs->st->load_failures += rs->start_failures; /* the first frame reports those at start */
+    rs->start_failures = 0;
 }

@@ -48,6 +48,10 @@ typedef struct hlod_residency {
     hlod_req_vec post;          /* what was handed to the loader */
     uint64_t bytes_read_prev;   /* the loader's counter at the last frame's end */
     uint32_t bad_total;
+    uint32_t top_missing;       /* top nodes neither resident nor bad (a transient
+                                   failure, being retried) */
+    uint32_t start_failures;    /* failed reads of top nodes at start, not yet in a
+                                   frame's stats */
     double upload_ms_per_byte;  /* measured cost of an upload (0: none measured yet) */
     uint32_t upload_starved;    /* frames in a row that deferred every upload */
 } hlod_residency;
@@ -61,14 +65,17 @@ typedef struct hlod_evict_order {
 } hlod_evict_order;
 
 /* Reads and uploads every top node (groups and hlod_0 nodes), then starts the loader (threaded
- * unless deterministic).  d and st must outlive r.  On failure everything
- * is released. */
+ * unless deterministic).  A top node that cannot be read does not fail it:
+ * it turns bad (checksum, format) or stays absent and is retried (I/O), and
+ * the traversal draws its children in its place.  d and st must outlive r.
+ * On failure (memory, the loader) everything is released. */
 hlod_result hlod_residency_init(hlod_residency *r, const hlod_store *store,
                                 const hlod_engine_desc *d, hlod_frame_stats *st);
 /* Stops the loader, frees every resident node and pending load. */
 void hlod_residency_destroy(hlod_residency *r);
 
-/* A new frame: stamps it and empties the wanted list. */
+/* A new frame: stamps it and empties the wanted list, then asks for the
+ * top nodes still missing after a transient failure (first of all). */
 void hlod_residency_begin_frame(hlod_residency *r, uint32_t frame);
 
 /* The selection would like node resident: queues it for admission unless

@@ -22,7 +22,9 @@
  * Whatever the policy: a visible child that is not resident forces the
  * parent (Lakhia III-C), and for the time-based policies the frame estimate
  * never exceeds the budget: a refinement that would push the running
- * estimate of the whole front over it draws the parent instead.
+ * estimate of the whole front over it draws the parent instead.  A top
+ * node that cannot be drawn (bad, or not read yet) is the exception: its
+ * readable children stand in for it (stand_in).
  *
  * Visibility: a node whose box meets the frustum is visible (frustumVis = 1).
  * Outside, frustumVis falls linearly to 0 over c_vis_falloff node radii;
@@ -383,6 +385,63 @@ typedef struct front {
     double reserved; /* extra of the last frame's refinements not yet visited */
 } front;
 
+/* A node that cannot be drawn, its children standing in for it: one marked
+ * bad, or a top node (group or hlod_0) not read yet after a transient
+ * failure.  Any other node the walk reaches is resident (a parent is drawn
+ * while a visible child is not). */
+static int stands_down(const walk *w, uint32_t i)
+{
+    hlod_node_state st = hlod_residency_state(w->res, i);
+    return st == HLOD_NODE_BAD || (i < w->res->top_count && st != HLOD_NODE_RESIDENT);
+}
+
+/* Node p stands down: its visible children take its place, whatever the
+ * policy or the budget (there is nothing else to draw there).  Those that
+ * stand down too are visited in turn (their children stand in, and so on);
+ * those being read are asked for and leave nothing drawn in their place
+ * this frame.  p is neither drawn nor charged: the estimate trades its
+ * timeNeeded for the children's.  Returns 0 on allocation failure. */
+static int stand_in(walk *w, const hlod_view *v, front *fr, uint32_t p)
+{
+    hlod_node_frame *pf = &w->fr[p];
+    uint32_t c0 = hlod_store_first_child(w->nodes, p), c1 = hlod_store_child_end(w->nodes, p);
+    size_t mark = w->s->next.n;
+    double sum_pr = 0, sum_needed = 0;
+    for (uint32_t c = c0; c < c1; c++) {
+        double fv = frustum_vis(w, v, c);
+        if (fv < 0)
+            continue;
+        price(w, v, c, fv);
+        if (fv < 1 || (!stands_down(w, c) &&
+                       hlod_residency_state(w->res, c) != HLOD_NODE_RESIDENT)) {
+            if (!hlod_residency_want(w->res, c, w->fr[c].priority))
+                return 0;
+            w->st->wanted_missing += fv >= 1;
+            continue;
+        }
+        if (!hlod_u32_push(&w->d->allocator, &w->s->next, c))
+            return 0;
+        if (!is_hidden(w, c))
+            sum_pr += w->fr[c].priority;
+    }
+    for (size_t k = mark; k < w->s->next.n; k++) {
+        hlod_node_frame *cf = &w->fr[w->s->next.v[k]];
+        if (is_hidden(w, w->s->next.v[k])) {
+            cf->slice = cf->needed = 0;
+            continue;
+        }
+        cf->slice = pf->slice * (cf->priority / sum_pr);
+        cf->needed = node_needed(w, w->s->next.v[k]);
+        sum_needed += cf->needed;
+        if (w->d->policy == HLOD_POLICY_LAKHIA)
+            update_hyst(w, cf);
+    }
+    fr->est += sum_needed - pf->needed;
+    pf->extra = 0; /* no choice: nothing to reserve for */
+    pf->refined = w->frame;
+    return 1;
+}
+
 /* Decides node p of the front: draw it, or append its visible children to
  * w->s->next.  Returns 0 on allocation failure. */
 static int visit(walk *w, const hlod_view *v, front *fr, uint32_t p)
@@ -390,6 +449,8 @@ static int visit(walk *w, const hlod_view *v, front *fr, uint32_t p)
     const hlod_store_node *nodes = w->nodes;
     hlod_node_frame *pf = &w->fr[p];
     uint32_t c0 = hlod_store_first_child(nodes, p), c1 = hlod_store_child_end(nodes, p);
+    if (stands_down(w, p))
+        return stand_in(w, v, fr, p);
     if (c0 == c1)
         return draw_node(w, p);
     if (is_hidden(w, p))
@@ -544,7 +605,7 @@ hlod_result hlod_select(hlod_selection *s, struct hlod_residency *res, const hlo
     for (uint32_t r = 0; r < w->s->root_count; r++) {
         double fv = frustum_vis(w, v, r);
         if (fv < 1)
-            continue; /* roots are resident: nothing to prefetch */
+            continue; /* roots are resident, or asked for by residency */
         price(w, v, r, fv);
         if (!hlod_u32_push(&w->d->allocator, &w->s->level, r))
             return HLOD_ERR_NOMEM;

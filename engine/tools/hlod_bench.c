@@ -113,11 +113,12 @@ static void usage(FILE *fp)
         "toggles_up, toggles_down, toggles_per_frame, oscillations, psnr_mean,\n"
         "psnr_min, ssim_mean, image_flicker, tris_mean, loads, evictions, bytes_read,\n"
         "peak_resident_bytes, memory_budget_bytes, missing_wanted_frames,\n"
-        "render_waits, traversal_ms_mean, traversal_ms_max, deadline_met,\n"
-        "machine_p50_ms, machine_p99_ms, machine_p99_over_p50, estimate_err_p50,\n"
-        "estimate_err_p95, occlusion_culled_mean, toggles_after_60, occlusion_ms_mean,\n"
-        "overhead_ms_mean, overhead_ms_max, occlusion_check_psnr_min,\n"
-        "occlusion_check_differing_max, occlusion_check_bad_frames, policy, path.\n"
+        "render_waits, bad_nodes, load_failures, traversal_ms_mean, traversal_ms_max,\n"
+        "deadline_met, machine_p50_ms, machine_p99_ms, machine_p99_over_p50,\n"
+        "estimate_err_p50, estimate_err_p95, occlusion_culled_mean, toggles_after_60,\n"
+        "occlusion_ms_mean, overhead_ms_mean, overhead_ms_max,\n"
+        "occlusion_check_psnr_min, occlusion_check_differing_max,\n"
+        "occlusion_check_bad_frames, policy, path.\n"
         "\n"
         "Exit status: 0 success, 1 a run failed, 2 bad command line.\n"
         "\n"
@@ -489,6 +490,8 @@ typedef struct summary {
     double psnr_mean, psnr_min, ssim_mean, image_flicker;
     double tris_mean, traversal_mean, traversal_max;
     uint64_t loads, evictions, bytes_read, peak_resident, budget, missing_frames, waits;
+    uint64_t load_failures;                 /* failed reads (top nodes at start included) */
+    uint32_t bad_nodes;                     /* nodes marked bad by the run's end */
     double v_time, fixed_ms;
     double deadline_met;                    /* fraction with measured <= target */
     double machine_p50, machine_p99;        /* the frozen replay; NAN without one */
@@ -595,6 +598,8 @@ static void summarise(const frame_rec *r, long n, double target, summary *s)
         s->budget = st->memory_budget_bytes;
         s->missing_frames += st->wanted_missing > 0;
         s->waits += st->render_waits;
+        s->load_failures += st->load_failures;
+        s->bad_nodes = st->bad_nodes; /* a running total */
         if (!isnan(r[i].psnr)) {
             psnr_sum += r[i].psnr;
             ssim_sum += r[i].ssim;
@@ -735,6 +740,8 @@ static void json_summary(hlod_json *j, const summary *s, const char *policy, con
     hlod_json_int(j, "memory_budget_bytes", (long long)s->budget);
     hlod_json_int(j, "missing_wanted_frames", (long long)s->missing_frames);
     hlod_json_int(j, "render_waits", (long long)s->waits);
+    hlod_json_int(j, "bad_nodes", (long long)s->bad_nodes);
+    hlod_json_int(j, "load_failures", (long long)s->load_failures);
     hlod_json_double(j, "traversal_ms_mean", s->traversal_mean);
     hlod_json_double(j, "traversal_ms_max", s->traversal_max);
     hlod_json_double(j, "v_time_final", s->v_time);
