@@ -190,8 +190,7 @@ hlod_result hlod_engine_create(const hlod_store *store, const hlod_engine_desc *
         double total = 0;
         for (uint32_t i = 0; i < e->node_count; i++)
             total += e->nodes[i].cost;
-        const hlod_store_header *h = hlod_store_get_header(store);
-        e->d.c_memory = total > 0 ? (double)h->payload_bytes / total : 1.0;
+        e->d.c_memory = total > 0 ? (double)hlod_store_memory_bytes(store) / total : 1.0;
     }
     hlod_cost_model_init(&e->cost, &e->d);
     r = hlod_selection_init(&e->sel, store, &e->d, &e->st);

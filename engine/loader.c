@@ -48,6 +48,7 @@
 #include <stdatomic.h>
 #include <stdlib.h>
 #include <string.h>
+#include <time.h>
 
 #define LOADER_MAX_SUSPENDED 8
 #define LOADER_SLOTS (LOADER_MAX_SUSPENDED + 1) /* the current read and the suspended */
@@ -107,6 +108,7 @@ struct hlod_loader {
     atomic_uint_fast64_t version; /* lists posted so far */
     atomic_int stop;
     atomic_uint_fast64_t bytes_read, reads_done, reads_failed, switches;
+    atomic_uint_fast64_t finish_ns, busy_ns;
 };
 
 /* ---- the loader's side (loader thread, or the pump caller) ---- */
@@ -303,6 +305,15 @@ static hlod_store_read *find_read(hlod_loader *l, uint32_t node)
     return NULL;
 }
 
+/* CPU time of the calling thread, ns (what the loader spends, whatever the
+ * scheduler does to its wall time at nice 10) */
+static uint64_t thread_cpu_ns(void)
+{
+    struct timespec ts;
+    clock_gettime(CLOCK_THREAD_CPUTIME_ID, &ts);
+    return (uint64_t)ts.tv_sec * 1000000000u + (uint64_t)ts.tv_nsec;
+}
+
 /* loader thread (or the pump caller): one increment of the most urgent
  * request not done (hook, one hlod_store_read_step of at most chunk_bytes
  * and budget bytes, and the finish when that completes it), or one failure.
@@ -367,7 +378,9 @@ static int work(hlod_loader *l, uint64_t budget, uint64_t *bytes)
     if (complete) {
         hlod_store_payload p;
         l->cur = NULL;
+        uint64_t t0 = thread_cpu_ns();
         r = hlod_store_read_finish(rd, &p);     /* verifies the checksum; zeroes rd */
+        atomic_fetch_add_explicit(&l->finish_ns, thread_cpu_ns() - t0, memory_order_relaxed);
         if (r != HLOD_OK) {
             fail_node(l, node, r);
         } else {
@@ -390,7 +403,10 @@ static void *loader_main(void *arg)
     (void)setpriority(PRIO_PROCESS, (id_t)syscall(SYS_gettid), LOADER_NICE);
     while (!atomic_load(&l->stop)) {
         uint64_t bytes = 0;
-        if (work(l, UINT64_MAX, &bytes))
+        uint64_t t0 = thread_cpu_ns();
+        int worked = work(l, UINT64_MAX, &bytes);
+        atomic_fetch_add_explicit(&l->busy_ns, thread_cpu_ns() - t0, memory_order_relaxed);
+        if (worked)
             continue;
         /* post bumps the version under mu, so a post between the work and
          * this check is seen here, and one after it signals the wait */
@@ -428,6 +444,8 @@ hlod_result hlod_loader_create(const hlod_store *s, const hlod_loader_desc *d,
     atomic_init(&l->reads_done, 0);
     atomic_init(&l->reads_failed, 0);
     atomic_init(&l->switches, 0);
+    atomic_init(&l->finish_ns, 0);
+    atomic_init(&l->busy_ns, 0);
     if (!l->nodes) {
         free(l);
         return HLOD_ERR_NOMEM;
@@ -552,8 +570,10 @@ uint64_t hlod_loader_pump(hlod_loader *l, uint64_t max_bytes)
     if (!l || l->has_thread)
         return 0;
     uint64_t bytes = 0;
+    uint64_t t0 = thread_cpu_ns();
     while (bytes < max_bytes && work(l, max_bytes - bytes, &bytes))
         ;
+    atomic_fetch_add_explicit(&l->busy_ns, thread_cpu_ns() - t0, memory_order_relaxed);
     return bytes;
 }
 
@@ -569,4 +589,6 @@ void hlod_loader_get_counters(const hlod_loader *l, hlod_loader_counters *out)
     out->reads_done = atomic_load_explicit(&l->reads_done, memory_order_relaxed);
     out->reads_failed = atomic_load_explicit(&l->reads_failed, memory_order_relaxed);
     out->switches = atomic_load_explicit(&l->switches, memory_order_relaxed);
+    out->finish_ns = atomic_load_explicit(&l->finish_ns, memory_order_relaxed);
+    out->busy_ns = atomic_load_explicit(&l->busy_ns, memory_order_relaxed);
 }

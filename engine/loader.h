@@ -51,6 +51,9 @@ typedef struct hlod_loader_counters {
     uint64_t reads_done;        /* payloads finished OK */
     uint64_t reads_failed;
     uint64_t switches;          /* times a read was suspended for a more urgent one */
+    uint64_t finish_ns;         /* thread CPU time in hlod_store_read_finish: checksum,
+                                   decoding (packed stores) and validation */
+    uint64_t busy_ns;           /* thread CPU time of all the loader's work */
 } hlod_loader_counters;
 
 hlod_result hlod_loader_create(const hlod_store *s, const hlod_loader_desc *d,

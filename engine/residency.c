@@ -72,7 +72,7 @@ static hlod_result make_resident(hlod_residency *rs, uint32_t node, hlod_store_p
     nr->failures = 0;
     if (node < rs->top_count)
         rs->top_missing--; /* top nodes are never evicted */
-    rs->resident_bytes += rs->nodes[node].payload_size;
+    rs->resident_bytes += hlod_store_node_memory(&rs->nodes[node]);
     rs->resident_cost += rs->nodes[node].cost;
     return HLOD_OK;
 }
@@ -88,7 +88,7 @@ static void evict(hlod_residency *rs, uint32_t node)
     rs->res[last].slot = nr->slot;
     rs->resident.n--;
     nr->state = HLOD_NODE_ABSENT;
-    rs->resident_bytes -= rs->nodes[node].payload_size;
+    rs->resident_bytes -= hlod_store_node_memory(&rs->nodes[node]);
     rs->resident_cost -= rs->nodes[node].cost;
     if (rs->resident_cost < 0)
         rs->resident_cost = 0;
@@ -98,10 +98,10 @@ static void evict(hlod_residency *rs, uint32_t node)
 static void reserve(hlod_residency *rs, uint32_t node, int sign)
 {
     if (sign > 0) {
-        rs->reserved_bytes += rs->nodes[node].payload_size;
+        rs->reserved_bytes += hlod_store_node_memory(&rs->nodes[node]);
         rs->reserved_cost += rs->nodes[node].cost;
     } else {
-        rs->reserved_bytes -= rs->nodes[node].payload_size;
+        rs->reserved_bytes -= hlod_store_node_memory(&rs->nodes[node]);
         rs->reserved_cost -= rs->nodes[node].cost;
         if (rs->reserved_cost < 0 || rs->reserved_bytes == 0)
             rs->reserved_cost = 0;
@@ -370,7 +370,7 @@ void hlod_residency_schedule(hlod_residency *rs, const hlod_evict_order *order)
         while (!top) {
             uint64_t used = rs->resident_bytes + rs->reserved_bytes;
             double used_c = mem_cost(rs, rs->resident_cost + rs->reserved_cost);
-            if (used + n->payload_size <= budget && used_c + mem_cost(rs, n->cost) <= (double)budget)
+            if (used + hlod_store_node_memory(n) <= budget && used_c + mem_cost(rs, n->cost) <= (double)budget)
                 break;
             if (!vic_built) {
                 vic = victims(rs, order, &nvic);
@@ -385,7 +385,7 @@ void hlod_residency_schedule(hlod_residency *rs, const hlod_evict_order *order)
         uint64_t used = rs->resident_bytes + rs->reserved_bytes;
         double used_c = mem_cost(rs, rs->resident_cost + rs->reserved_cost);
         if (!top &&
-            (used + n->payload_size > budget || used_c + mem_cost(rs, n->cost) > (double)budget))
+            (used + hlod_store_node_memory(n) > budget || used_c + mem_cost(rs, n->cost) > (double)budget))
             continue; /* does not fit; a smaller one further down may */
         if (!hlod_req_push(&rs->d->allocator, post, node, pr))
             break;
@@ -501,6 +501,10 @@ void hlod_residency_end_frame(hlod_residency *rs)
     hlod_loader_get_counters(rs->loader, &lc);
     rs->st->bytes_read += lc.bytes_read - rs->bytes_read_prev;
     rs->bytes_read_prev = lc.bytes_read;
+    rs->st->loader_finish_ms = (double)(lc.finish_ns - rs->finish_ns_prev) * 1e-6;
+    rs->st->loader_busy_ms = (double)(lc.busy_ns - rs->busy_ns_prev) * 1e-6;
+    rs->finish_ns_prev = lc.finish_ns;
+    rs->busy_ns_prev = lc.busy_ns;
     rs->st->resident_nodes = (uint32_t)rs->resident.n;
     rs->st->resident_bytes = rs->resident_bytes;
     rs->st->resident_cost = rs->d->c_memory * rs->resident_cost;

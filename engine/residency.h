@@ -47,6 +47,7 @@ typedef struct hlod_residency {
     hlod_req_vec want;          /* asked for this frame (hlod_residency_want) */
     hlod_req_vec post;          /* what was handed to the loader */
     uint64_t bytes_read_prev;   /* the loader's counter at the last frame's end */
+    uint64_t finish_ns_prev, busy_ns_prev;  /* the loader's CPU-time counters then */
     uint32_t bad_total;
     uint32_t top_missing;       /* top nodes neither resident nor bad (a transient
                                    failure, being retried) */

@@ -87,7 +87,7 @@ static hlod_result pack_texture(const hlod_packed_input *in, uint8_t **jpeg, uns
         return HLOD_ERR_NOMEM;
     int gray = in->tex_channels == 1;
     if (tjCompress2(tj, in->pixels, (int)in->tex_width, 0, (int)in->tex_height,
-                    gray ? TJPF_GRAY : TJPF_RGB, jpeg, bytes, gray ? TJSAMP_GRAY : TJSAMP_420,
+                    gray ? TJPF_GRAY : TJPF_RGB, jpeg, bytes, gray ? TJSAMP_GRAY : TJSAMP_444,
                     in->jpeg_quality, TJFLAG_ACCURATEDCT) != 0)
         BAD(HLOD_ERR_FORMAT, "%s: cannot encode a %ux%u texture as JPEG: %s", name,
             in->tex_width, in->tex_height, tjGetErrorStr2(tj));

@@ -506,6 +506,14 @@ uint32_t hlod_store_first_block(const hlod_store *s)
 }
 const char *hlod_store_path(const hlod_store *s) { return s->path; }
 
+uint64_t hlod_store_memory_bytes(const hlod_store *s)
+{
+    uint64_t sum = 0;
+    for (uint32_t i = 0; i < s->header.node_count; i++)
+        sum += hlod_store_node_memory(&s->nodes[i]);
+    return sum;
+}
+
 /* ---- payload reads ---- */
 
 void hlod_store_payload_free(hlod_store_payload *p)

@@ -75,7 +75,8 @@ static void usage(FILE *fp)
         "  --dt S            simulated time per frame (default 1/30 s)\n"
         "  --frames N        stop after N frames (default: the whole path)\n"
         "  --policy LIST     lakhia, nohyst, sse (comma list; default lakhia)\n"
-        "  --memory-mb M     memory budget in MiB (default: 25%% of the store)\n"
+        "  --memory-mb M     memory budget in MiB (default: 25%% of the store's\n"
+        "                    payloads in memory, decoded)\n"
         "  --reference       render a full-detail reference per frame: PSNR, SSIM\n"
         "  --reference-every K  only every K-th frame (default 1); each reference\n"
         "                    is drawn once and reused by every policy and sweep run\n"
@@ -112,6 +113,7 @@ static void usage(FILE *fp)
         "frame_ms_p95, frame_ms_p99, frame_ms_max, within_10pct, over_target_frac,\n"
         "toggles_up, toggles_down, toggles_per_frame, oscillations, psnr_mean,\n"
         "psnr_min, ssim_mean, image_flicker, tris_mean, loads, evictions, bytes_read,\n"
+        "loader_finish_ms, loader_busy_ms, loader_finish_share,\n"
         "peak_resident_bytes, memory_budget_bytes, missing_wanted_frames,\n"
         "render_waits, bad_nodes, load_failures, traversal_ms_mean, traversal_ms_max,\n"
         "deadline_met, machine_p50_ms, machine_p99_ms, machine_p99_over_p50,\n"
@@ -490,6 +492,7 @@ typedef struct summary {
     double psnr_mean, psnr_min, ssim_mean, image_flicker;
     double tris_mean, traversal_mean, traversal_max;
     uint64_t loads, evictions, bytes_read, peak_resident, budget, missing_frames, waits;
+    double loader_finish_ms, loader_busy_ms;    /* loader thread CPU time, whole run */
     uint64_t load_failures;                 /* failed reads (top nodes at start included) */
     uint32_t bad_nodes;                     /* nodes marked bad by the run's end */
     double v_time, fixed_ms;
@@ -593,6 +596,8 @@ static void summarise(const frame_rec *r, long n, double target, summary *s)
         s->loads += st->loads;
         s->evictions += st->evictions;
         s->bytes_read += st->bytes_read;
+        s->loader_finish_ms += st->loader_finish_ms;
+        s->loader_busy_ms += st->loader_busy_ms;
         if (st->resident_bytes > s->peak_resident)
             s->peak_resident = st->resident_bytes;
         s->budget = st->memory_budget_bytes;
@@ -736,6 +741,10 @@ static void json_summary(hlod_json *j, const summary *s, const char *policy, con
     hlod_json_int(j, "loads", (long long)s->loads);
     hlod_json_int(j, "evictions", (long long)s->evictions);
     hlod_json_int(j, "bytes_read", (long long)s->bytes_read);
+    hlod_json_double(j, "loader_finish_ms", s->loader_finish_ms);
+    hlod_json_double(j, "loader_busy_ms", s->loader_busy_ms);
+    hlod_json_double(j, "loader_finish_share",
+                     s->loader_busy_ms > 0 ? s->loader_finish_ms / s->loader_busy_ms : 0);
     hlod_json_int(j, "peak_resident_bytes", (long long)s->peak_resident);
     hlod_json_int(j, "memory_budget_bytes", (long long)s->budget);
     hlod_json_int(j, "missing_wanted_frames", (long long)s->missing_frames);
@@ -1159,9 +1168,8 @@ static int run_desc(context *c, hlod_policy policy, const setting *extra, hlod_e
     d->policy = policy;
     d->renderer = c->gl.renderer;
     d->logger = c->lg;
-    const hlod_store_header *h = hlod_store_get_header(c->store);
     d->memory_budget_bytes = o->memory_mb > 0 ? (uint64_t)(o->memory_mb * 1048576.0)
-                                              : (uint64_t)(0.25 * (double)h->file_size);
+                                              : (uint64_t)(0.25 * (double)hlod_store_memory_bytes(c->store));
     for (int i = 0; i < o->nsets; i++)
         apply_setting(d, o->sets[i].key, o->sets[i].value);
     if (extra)

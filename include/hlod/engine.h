@@ -115,7 +115,7 @@ typedef double (*hlod_time_model)(void *user_data, const struct hlod_frame_stats
     X(c_hyst_switch, c_hyst_switch, D, 2.0, 1, 0, 1e6, 1,                                        \
       "cumHyst sums trunc(hyst / c_hyst_switch); at most c_hyst_limit")                          \
     X(c_memory, c_memory, D, 0, 0, 0, HLOD_UNBOUNDED, 1,                                         \
-      "bytes per unit of cost; 0: the store's payload bytes / total cost")                       \
+      "bytes per unit of cost; 0: the store's decoded payload bytes / total cost")               \
     X(c_safety_slack, c_safety_slack, D, 0.10, 0, 0, 10, 1,                                      \
       "children's timeNeeded over their share by this much draws the parent")                    \
     X(c_hyst_deadband, c_hyst_deadband, D, 0.10, -HLOD_UNBOUNDED, 0, 1, 1,                       \
@@ -237,6 +237,9 @@ typedef struct hlod_frame_stats {
     uint32_t occlusion_tested;   /* front nodes tested against this frame's depth pyramid */
     uint32_t occlusion_culled;   /* front nodes that test hid: not drawn */
     double occlusion_ms;         /* CPU time of the depth read-back, pyramid and tests */
+    /* loader thread CPU time this frame (README, "Store format") */
+    double loader_finish_ms;     /* checksums, decoding and validation of payloads */
+    double loader_busy_ms;       /* all its work: reads, hashing, finishing */
 } hlod_frame_stats;
 
 /* Creates an engine over an open store: reads every top node (groups and hlod_0)

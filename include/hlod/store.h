@@ -334,6 +334,11 @@ uint32_t hlod_store_top_count(const hlod_store *s);
 uint32_t hlod_store_first_block(const hlod_store *s);
 const char *hlod_store_path(const hlod_store *s);
 
+/* The sum of hlod_store_node_memory over the store's nodes: what the whole
+ * store takes in memory (header.payload_bytes is what it takes on disk). */
+uint64_t hlod_store_memory_bytes(const hlod_store *s);
+
+
 /* A node's payload in memory, ready to upload: one allocation (memory, bytes)
  * holding the payload as stored; the pointers point into it.  Owned by
  * whoever received it; free with hlod_store_payload_free() from any thread. */
