@@ -304,6 +304,19 @@ static void bad_input_leaves_nothing(void)
     CHECK(check_sh("'%s/hlod-build' '%s/c.obj' -o '%s' --level-factor 1 2> /dev/null", bin, tmp, out) == 2);
     CHECK(check_sh("'%s/hlod-build' '%s/c.obj' 2> /dev/null", bin, tmp) == 2);
     CHECK(file_size(out) < 0);
+    /* a coordinate no store can hold: refused naming the input and vertex */
+    char off[2048], err[2048];
+    snprintf(off, sizeof off, "%s/in.off", tmp);
+    snprintf(err, sizeof err, "%s/in.err", tmp);
+    FILE *fp = fopen(off, "w");
+    CHECK(fp != NULL);
+    if (fp) {
+        fprintf(fp, "OFF\n4 2 0\n0 0 0\n1 0 0\n1e39 1 0\n0 1 0\n3 0 1 2\n3 0 2 3\n");
+        fclose(fp);
+    }
+    CHECK(check_sh("'%s/hlod-build' '%s' -o '%s' --quiet 2> '%s'", bin, off, out, err) == 1);
+    CHECK(file_size(out) < 0);
+    CHECK(check_sh("grep -q \"in.off: vertex 2: coordinate x = 1e+39\" '%s'", err) == 0);
     /* an existing store survives a failed build */
     char good[2048];
     snprintf(good, sizeof good, "%s/cut.hlod", tmp);

@@ -170,6 +170,10 @@ static int print_json(FILE *fp, const char *file, const hlod_store *s, const sta
             ",\"texture_bytes\":%llu", (unsigned long long)h->file_size,
             (unsigned long long)st->payload_bytes, (unsigned long long)st->leaf_payload_bytes,
             (unsigned long long)st->texture_bytes);
+    fprintf(fp, ",\"codec\":\"%s\",\"memory_bytes\":%llu,\"quant_step\":",
+            h->payload_codec == HLOD_STORE_CODEC_PACKED ? "packed" : "raw",
+            (unsigned long long)hlod_store_memory_bytes(s));
+    json_double(fp, h->quant_step);
     fputs(",\"error_min\":", fp);
     json_double(fp, st->error_min);
     fputs(",\"error_max\":", fp);
@@ -217,6 +221,12 @@ static void print_table(FILE *fp, const char *file, const hlod_store *s, const s
     fprintf(fp, "payload %llu bytes (leaves %llu), texture %llu bytes, error %.6g .. %.6g\n",
             (unsigned long long)st->payload_bytes, (unsigned long long)st->leaf_payload_bytes,
             (unsigned long long)st->texture_bytes, st->error_min, st->error_max);
+    if (h->payload_codec == HLOD_STORE_CODEC_PACKED)
+        fprintf(fp, "payloads packed: %llu bytes decoded (%.3fx on disk), position grid %.17g\n",
+                (unsigned long long)hlod_store_memory_bytes(s),
+                (double)st->payload_bytes / (double)hlod_store_memory_bytes(s), h->quant_step);
+    else
+        fprintf(fp, "payloads raw\n");
     fprintf(fp, "%5s %9s %12s %12s %14s %14s %12s %12s\n", "depth", "nodes", "tris",
             "tex_tris", "payload_bytes", "texture_bytes", "error_min", "error_max");
     for (uint32_t d = 0; d < h->depth_count; d++) {

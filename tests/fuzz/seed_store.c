@@ -8,7 +8,10 @@
  * so each seed is a few hundred bytes to a few KB and every mutation lands
  * on a header, a node record or a payload section.  They cover every
  * payload section: normals, UVs, colours, a texture, and the tree rule with
- * several roots and two levels.
+ * several roots and two levels.  The packed-* seeds are format 3's packed
+ * payloads (README, "Store format"): every codec stream, a JPEG texture.
+ * The committed one-node, textured-tree and two-roots seeds are format 2's
+ * (the reader still reads version 2); --seeds rewrites them as version 3.
  */
 #include "hlod/store_write.h"
 
@@ -49,7 +52,7 @@ static hlod_result add_quad(hlod_store_writer *w, double x0, double y0, double s
 
 /* roots blocks side by side, each a quad with `children` child quads. */
 static int write_store(const char *dir, const char *name, uint32_t roots, uint32_t children,
-                       int textured)
+                       int textured, int packed)
 {
     char path[4096];
     snprintf(path, sizeof path, "%s/%s", dir, name);
@@ -60,6 +63,10 @@ static int write_store(const char *dir, const char *name, uint32_t roots, uint32
     wd.build.level_factor = 2;
     wd.build.c_tex = 0.5;
     wd.payload_align = 64;
+    if (packed) {
+        wd.quant_step = 1.0 / 64;
+        wd.jpeg_quality = 90;
+    }
     hlod_store_writer *w;
     if (hlod_store_writer_open(path, &wd, &w) != HLOD_OK)
         return 1;
@@ -96,8 +103,10 @@ int main(int argc, char **argv)
         return 2;
     }
     int bad = 0;
-    bad |= write_store(argv[1], "one-node.hlod", 1, 0, 0);
-    bad |= write_store(argv[1], "textured-tree.hlod", 1, 2, 1);
-    bad |= write_store(argv[1], "two-roots.hlod", 2, 1, 0);
+    bad |= write_store(argv[1], "one-node.hlod", 1, 0, 0, 0);
+    bad |= write_store(argv[1], "textured-tree.hlod", 1, 2, 1, 0);
+    bad |= write_store(argv[1], "two-roots.hlod", 2, 1, 0, 0);
+    bad |= write_store(argv[1], "packed-textured-tree.hlod", 1, 2, 1, 1);
+    bad |= write_store(argv[1], "packed-two-roots.hlod", 2, 1, 0, 1);
     return bad;
 }
