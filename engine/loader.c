@@ -41,7 +41,9 @@
 #include "loader.h"
 
 #include <assert.h>
+#include <errno.h>
 #include <pthread.h>
+#include <sys/eventfd.h>
 #include <sys/resource.h>
 #include <sys/syscall.h>
 #include <unistd.h>
@@ -53,6 +55,13 @@
 #define LOADER_MAX_SUSPENDED 8
 #define LOADER_SLOTS (LOADER_MAX_SUSPENDED + 1) /* the current read and the suspended */
 #define LOADER_DEFAULT_CHUNK 65536u
+/* A store read over HTTP: parallel transfers, each a range request of at
+ * most LOADER_HTTP_RANGE bytes (each request costs a round trip). */
+#define LOADER_HTTP_TRANSFERS 6u    /* env HLOD_HTTP_TRANSFERS overrides, 1..16 */
+#define LOADER_HTTP_MAX_TRANSFERS 16u
+#define LOADER_HTTP_RANGE (1u << 20)
+#define LOADER_SLOTS_MAX (LOADER_HTTP_MAX_TRANSFERS + LOADER_SLOTS)
+#define LOADER_HTTP_POLL_MS 100     /* the longest a poll waits (a post wakes it) */
 
 /* Loader's per-node stamps. */
 typedef struct loader_node {
@@ -99,7 +108,13 @@ struct hlod_loader {
     uint64_t list_version;      /* version of the list taken */
     uint32_t gen;
     loader_node *nodes;         /* node_count */
-    hlod_store_read reads[LOADER_SLOTS]; /* open when .store != NULL */
+    hlod_store_read reads[LOADER_SLOTS_MAX]; /* open when .store != NULL */
+    int nslots;                 /* reads used: LOADER_SLOTS, + transfers over HTTP */
+    hlod_store_fetch *fetch;    /* a store read over HTTP: its transfers; else NULL */
+    unsigned transfers;
+    int wake_fd;                /* eventfd post writes to wake a poll (HTTP, threaded); -1 */
+    struct http_plan *plan;     /* HTTP pump: the ranges of one pump, in list order */
+    size_t plan_cap;
     hlod_store_read *cur;       /* the read stepped last, if still open */
     loader_sent *sent;          /* queued results the render thread may not have seen */
     size_t sent_n, sent_cap;
@@ -171,6 +186,7 @@ static void close_read(hlod_loader *l, hlod_store_read *rd)
 {
     if (l->cur == rd)
         l->cur = NULL;
+    hlod_store_fetch_stop(l->fetch, rd);    /* no-op without a transfer */
     hlod_store_read_cancel(rd);
 }
 
@@ -227,7 +243,7 @@ static void take_list(hlod_loader *l)
         if (l->sent[i].node < l->node_count)
             l->nodes[l->sent[i].node].done_gen = l->gen;
 
-    for (int i = 0; i < LOADER_SLOTS; i++) {
+    for (int i = 0; i < l->nslots; i++) {
         hlod_store_read *rd = &l->reads[i];
         if (rd->store && (l->nodes[rd->node].list_gen != l->gen ||
                           l->nodes[rd->node].done_gen == l->gen))
@@ -284,7 +300,7 @@ static void fail_node(hlod_loader *l, uint32_t node, hlod_result r)
 static hlod_store_read *free_slot(hlod_loader *l)
 {
     hlod_store_read *worst = NULL;
-    for (int i = 0; i < LOADER_SLOTS; i++) {
+    for (int i = 0; i < l->nslots; i++) {
         hlod_store_read *rd = &l->reads[i];
         if (!rd->store)
             return rd;
@@ -299,7 +315,7 @@ static hlod_store_read *free_slot(hlod_loader *l)
 /* loader thread: the open read of node, or NULL */
 static hlod_store_read *find_read(hlod_loader *l, uint32_t node)
 {
-    for (int i = 0; i < LOADER_SLOTS; i++)
+    for (int i = 0; i < l->nslots; i++)
         if (l->reads[i].store && l->reads[i].node == node)
             return &l->reads[i];
     return NULL;
@@ -312,6 +328,31 @@ static uint64_t thread_cpu_ns(void)
     struct timespec ts;
     clock_gettime(CLOCK_THREAD_CPUTIME_ID, &ts);
     return (uint64_t)ts.tv_sec * 1000000000u + (uint64_t)ts.tv_nsec;
+}
+
+/* loader thread: checksum, decoding and validation of a complete read,
+ * then its result (rd ends zeroed). */
+static hlod_result finish_payload(hlod_loader *l, hlod_store_read *rd, hlod_store_payload *p)
+{
+    if (l->cur == rd)
+        l->cur = NULL;
+    uint64_t t0 = thread_cpu_ns();
+    hlod_result r = hlod_store_read_finish(rd, p);  /* verifies the checksum; zeroes rd */
+    atomic_fetch_add_explicit(&l->finish_ns, thread_cpu_ns() - t0, memory_order_relaxed);
+    return r;
+}
+
+static void finish_read(hlod_loader *l, hlod_store_read *rd)
+{
+    uint32_t node = rd->node;
+    hlod_store_payload p;
+    hlod_result r = finish_payload(l, rd, &p);
+    if (r != HLOD_OK) {
+        fail_node(l, node, r);
+    } else {
+        atomic_fetch_add_explicit(&l->reads_done, 1, memory_order_relaxed);
+        push_result(l, node, HLOD_OK, &p);
+    }
 }
 
 /* loader thread (or the pump caller): one increment of the most urgent
@@ -375,20 +416,248 @@ static int work(hlod_loader *l, uint64_t budget, uint64_t *bytes)
         fail_node(l, node, r);
         return 1;
     }
-    if (complete) {
-        hlod_store_payload p;
-        l->cur = NULL;
-        uint64_t t0 = thread_cpu_ns();
-        r = hlod_store_read_finish(rd, &p);     /* verifies the checksum; zeroes rd */
-        atomic_fetch_add_explicit(&l->finish_ns, thread_cpu_ns() - t0, memory_order_relaxed);
-        if (r != HLOD_OK) {
-            fail_node(l, node, r);
-        } else {
-            atomic_fetch_add_explicit(&l->reads_done, 1, memory_order_relaxed);
-            push_result(l, node, HLOD_OK, &p);
+    if (complete)
+        finish_read(l, rd);
+    return 1;
+}
+
+/* ---- a store read over HTTP: parallel transfers ---- */
+
+/* loader thread: the index of the first request from *i on that is not
+ * done (an invalid node is failed on the way), or list_n. */
+static size_t next_undone(hlod_loader *l, size_t i)
+{
+    for (; i < l->list_n; i++) {
+        uint32_t node = l->list[i].node;
+        if (node >= l->node_count) {
+            if (i == l->cursor) {
+                l->cursor++;
+                fail_node(l, node, HLOD_ERR_INVALID_ARG);
+            }
+            continue;
         }
+        if (l->nodes[node].done_gen != l->gen)
+            return i;
+        if (i == l->cursor)
+            l->cursor++;
+    }
+    return i;
+}
+
+/* loader thread: the open read of node, opened when there is none (NULL
+ * after failing the node). */
+static hlod_store_read *open_read(hlod_loader *l, uint32_t node)
+{
+    hlod_store_read *rd = find_read(l, node);
+    if (rd)
+        return rd;
+    rd = free_slot(l);
+    hlod_result r = hlod_store_read_begin(l->store, node, rd);
+    if (r != HLOD_OK) {
+        fail_node(l, node, r);
+        return NULL;
+    }
+    return rd;
+}
+
+/* loader thread: a transfer of at most max bytes for rd (the hook first);
+ * the node failed when 0 is returned. */
+static int start_range(hlod_loader *l, hlod_store_read *rd, uint64_t max)
+{
+    uint64_t left = rd->size - rd->done;
+    uint64_t want = left < max ? left : max;
+    hlod_result r = HLOD_OK;
+    if (l->d.hook)
+        r = l->d.hook(l->d.hook_user, rd->node, rd->done, (size_t)want);
+    if (r == HLOD_OK)
+        r = hlod_store_fetch_start(l->fetch, rd, want);
+    if (r != HLOD_OK) {
+        uint32_t node = rd->node;
+        close_read(l, rd);
+        fail_node(l, node, r);
+        return 0;
     }
     return 1;
+}
+
+/* loader thread: the first `transfers` requests not done get a transfer
+ * each, most urgent first; a transfer of any other read stops (preempted:
+ * its bytes stay in the read, which resumes from there with a new range
+ * when its node comes up again). */
+static void http_assign(hlod_loader *l)
+{
+    uint32_t want[LOADER_HTTP_MAX_TRANSFERS];
+    unsigned nw = 0;
+    for (size_t i = next_undone(l, l->cursor); i < l->list_n && nw < l->transfers;
+         i = next_undone(l, i + 1))
+        want[nw++] = l->list[i].node;
+    for (int s = 0; s < l->nslots; s++) {
+        hlod_store_read *rd = &l->reads[s];
+        if (!rd->store || !hlod_store_fetch_has(l->fetch, rd))
+            continue;
+        unsigned k = 0;
+        while (k < nw && want[k] != rd->node)
+            k++;
+        if (k == nw) {
+            hlod_store_fetch_stop(l->fetch, rd);
+            atomic_fetch_add_explicit(&l->switches, 1, memory_order_relaxed);
+        }
+    }
+    for (unsigned k = 0; k < nw; k++) {
+        hlod_store_read *rd = open_read(l, want[k]);
+        if (!rd || hlod_store_fetch_has(l->fetch, rd))
+            continue;
+        if (rd->done == rd->size)
+            finish_read(l, rd); /* not reached: a complete read is finished at once */
+        else
+            start_range(l, rd, LOADER_HTTP_RANGE);
+    }
+}
+
+/* loader thread: runs the transfers up to timeout_ms; finishes the reads
+ * whose last byte came, fails those whose transfer failed (after the HTTP
+ * layer's retries: residency retries a transient failure later). */
+static void http_collect(hlod_loader *l, int timeout_ms)
+{
+    hlod_store_fetch_end ends[LOADER_HTTP_MAX_TRANSFERS];
+    uint64_t bytes = 0;
+    size_t n = hlod_store_fetch_poll(l->fetch, timeout_ms, l->wake_fd, ends, l->transfers, &bytes);
+    if (l->wake_fd >= 0) {
+        uint64_t v;
+        while (read(l->wake_fd, &v, sizeof v) < 0 && errno == EINTR)
+            ;
+    }
+    atomic_fetch_add_explicit(&l->bytes_read, bytes, memory_order_relaxed);
+    for (size_t i = 0; i < n; i++) {
+        hlod_store_read *rd = ends[i].rd;
+        uint32_t node = rd->node;
+        if (ends[i].result != HLOD_OK) {
+            close_read(l, rd);
+            fail_node(l, node, ends[i].result);
+        } else if (rd->done == rd->size) {
+            finish_read(l, rd);
+        }
+    }
+}
+
+/* The HTTP pump's ranges, in list order: each node's result is queued in
+ * that order once every transfer of the pump has ended, as the file's
+ * pump, reading one node after the other, would queue them. */
+typedef struct http_plan {
+    uint32_t node;
+    hlod_store_read *rd;        /* while its transfer runs */
+    hlod_result result;
+    int has_result;             /* else the read stays open (budget reached) */
+    hlod_store_payload payload;
+} http_plan;
+
+/* pump caller: the next range of the plan (from request *i on, within
+ * *budget), or 0 when none.  *i only grows: no node is planned twice. */
+static int plan_next(hlod_loader *l, size_t *i, uint64_t *budget, size_t *np)
+{
+    for (; *i < l->list_n && *budget > 0; (*i)++) {
+        uint32_t node = l->list[*i].node;
+        if (node >= l->node_count || l->nodes[node].done_gen == l->gen)
+            continue;   /* an invalid node fails when the cursor reaches it */
+        hlod_store_read *rd = open_read(l, node);
+        if (!rd || !start_range(l, rd, *budget))
+            continue;   /* failed and queued */
+        *budget -= rd->size - rd->done < *budget ? rd->size - rd->done : *budget;
+        http_plan *e = &l->plan[(*np)++];
+        memset(e, 0, sizeof *e);
+        e->node = node;
+        e->rd = rd;
+        (*i)++;
+        return 1;
+    }
+    return 0;
+}
+
+/* pump caller: an ended transfer of the plan. */
+static void plan_end(hlod_loader *l, size_t np, const hlod_store_fetch_end *end)
+{
+    http_plan *e = NULL;
+    for (size_t k = 0; k < np && !e; k++)
+        if (l->plan[k].rd == end->rd)
+            e = &l->plan[k];
+    if (!e)
+        return;
+    hlod_store_read *rd = end->rd;
+    e->rd = NULL;
+    if (end->result != HLOD_OK) {
+        close_read(l, rd);
+        e->result = end->result;
+        e->has_result = 1;
+    } else if (rd->done == rd->size) {
+        e->result = finish_payload(l, rd, &e->payload);
+        e->has_result = 1;
+    }
+}
+
+/* Synchronous mode over HTTP: the budget's bytes in list order, as the
+ * file's pump reads them, fetched in parallel; returns the bytes read. */
+static uint64_t http_pump(hlod_loader *l, uint64_t max_bytes)
+{
+    if (atomic_load(&l->version) != l->list_version)
+        take_list(l);
+    if (l->plan_cap < l->list_n) {
+        http_plan *a = realloc(l->plan, l->list_n * sizeof *a);
+        if (!a)
+            return 0;
+        l->plan = a;
+        l->plan_cap = l->list_n;
+    }
+    uint64_t budget = max_bytes, bytes = 0;
+    size_t i = next_undone(l, l->cursor), np = 0;
+    int more = 1;
+    for (;;) {
+        while (more && hlod_store_fetch_active(l->fetch) < l->transfers)
+            more = plan_next(l, &i, &budget, &np);
+        if (!hlod_store_fetch_active(l->fetch))
+            break;
+        hlod_store_fetch_end ends[LOADER_HTTP_MAX_TRANSFERS];
+        uint64_t got = 0;
+        size_t n = hlod_store_fetch_poll(l->fetch, LOADER_HTTP_POLL_MS, -1, ends, l->transfers,
+                                         &got);
+        bytes += got;
+        atomic_fetch_add_explicit(&l->bytes_read, got, memory_order_relaxed);
+        for (size_t k = 0; k < n; k++)
+            plan_end(l, np, &ends[k]);
+    }
+    for (size_t k = 0; k < np; k++) {
+        http_plan *e = &l->plan[k];
+        if (!e->has_result)
+            continue;
+        if (e->result != HLOD_OK) {
+            fail_node(l, e->node, e->result);
+        } else {
+            atomic_fetch_add_explicit(&l->reads_done, 1, memory_order_relaxed);
+            push_result(l, e->node, HLOD_OK, &e->payload);
+        }
+    }
+    return bytes;
+}
+
+/* loader thread over HTTP: assign transfers, run them; waits for a post
+ * when the list is done. */
+static void http_main(hlod_loader *l)
+{
+    while (!atomic_load(&l->stop)) {
+        uint64_t t0 = thread_cpu_ns();
+        if (atomic_load(&l->version) != l->list_version)
+            take_list(l);
+        http_assign(l);
+        int active = hlod_store_fetch_active(l->fetch) > 0;
+        if (active)
+            http_collect(l, LOADER_HTTP_POLL_MS);
+        atomic_fetch_add_explicit(&l->busy_ns, thread_cpu_ns() - t0, memory_order_relaxed);
+        if (active)
+            continue;
+        pthread_mutex_lock(&l->mu);
+        while (!atomic_load(&l->stop) && atomic_load(&l->version) == l->list_version)
+            pthread_cond_wait(&l->wake, &l->mu);
+        pthread_mutex_unlock(&l->mu);
+    }
 }
 
 /* loader thread */
@@ -401,6 +670,10 @@ static void *loader_main(void *arg)
      * reads, hashing and parsing would otherwise take a core from the
      * rasteriser mid-frame, and frame times would follow the loader. */
     (void)setpriority(PRIO_PROCESS, (id_t)syscall(SYS_gettid), LOADER_NICE);
+    if (l->fetch) {
+        http_main(l);
+        return NULL;
+    }
     while (!atomic_load(&l->stop)) {
         uint64_t bytes = 0;
         uint64_t t0 = thread_cpu_ns();
@@ -438,6 +711,8 @@ hlod_result hlod_loader_create(const hlod_store *s, const hlod_loader_desc *d,
     if (!l->d.chunk_bytes)
         l->d.chunk_bytes = LOADER_DEFAULT_CHUNK;
     l->nodes = calloc(l->node_count ? l->node_count : 1, sizeof *l->nodes);
+    l->nslots = LOADER_SLOTS;
+    l->wake_fd = -1;
     atomic_init(&l->version, 0);
     atomic_init(&l->stop, 0);
     atomic_init(&l->bytes_read, 0);
@@ -460,6 +735,21 @@ hlod_result hlod_loader_create(const hlod_store *s, const hlod_loader_desc *d,
         free(l->nodes);
         free(l);
         return HLOD_ERR_NOMEM;
+    }
+    if (hlod_store_is_remote(s)) {
+        const char *env = getenv("HLOD_HTTP_TRANSFERS");
+        long t = env ? strtol(env, NULL, 10) : LOADER_HTTP_TRANSFERS;
+        l->transfers = t >= 1 && t <= (long)LOADER_HTTP_MAX_TRANSFERS ? (unsigned)t
+                                                                      : LOADER_HTTP_TRANSFERS;
+        l->nslots = LOADER_SLOTS + (int)l->transfers;
+        hlod_result r = hlod_store_fetch_create(s, l->transfers, &l->fetch);
+        if (r == HLOD_OK && d->threaded &&
+            (l->wake_fd = eventfd(0, EFD_NONBLOCK | EFD_CLOEXEC)) < 0)
+            r = HLOD_ERR_NOMEM;
+        if (r != HLOD_OK) {
+            hlod_loader_destroy(l);
+            return r;
+        }
     }
     if (d->threaded) {
         if (pthread_create(&l->thread, NULL, loader_main, l) != 0) {
@@ -487,8 +777,13 @@ void hlod_loader_destroy(hlod_loader *l)
         pthread_cond_broadcast(&l->wake);
         pthread_join(l->thread, NULL);
     }
-    for (int i = 0; i < LOADER_SLOTS; i++)
+    hlod_store_fetch_destroy(l->fetch); /* stops the transfers into the reads */
+    l->fetch = NULL;
+    if (l->wake_fd >= 0)
+        close(l->wake_fd);
+    for (size_t i = 0; i < LOADER_SLOTS_MAX; i++)
         hlod_store_read_cancel(&l->reads[i]);
+    free(l->plan);
     for (size_t i = l->res_head; i < l->res_n; i++)
         hlod_store_payload_free(&l->res[i].payload);
     free(l->res);
@@ -541,6 +836,12 @@ int hlod_loader_post(hlod_loader *l, const hlod_load_request *reqs, size_t n)
     atomic_fetch_add(&l->version, 1);
     pthread_mutex_unlock(&l->mu);
     pthread_cond_signal(&l->wake);
+    if (l->wake_fd >= 0) {
+        /* an HTTP loader may be in a poll: an eventfd write never blocks */
+        uint64_t one = 1;
+        ssize_t w = write(l->wake_fd, &one, sizeof one);
+        (void)w;
+    }
     return 1;
 }
 
@@ -571,7 +872,9 @@ uint64_t hlod_loader_pump(hlod_loader *l, uint64_t max_bytes)
         return 0;
     uint64_t bytes = 0;
     uint64_t t0 = thread_cpu_ns();
-    while (bytes < max_bytes && work(l, max_bytes - bytes, &bytes))
+    if (l->fetch)
+        bytes = http_pump(l, max_bytes);
+    while (!l->fetch && bytes < max_bytes && work(l, max_bytes - bytes, &bytes))
         ;
     atomic_fetch_add_explicit(&l->busy_ns, thread_cpu_ns() - t0, memory_order_relaxed);
     return bytes;

@@ -167,9 +167,39 @@ static void top_failed(hlod_residency *rs, uint32_t node, hlod_result why)
               "drawn in its place", hlod_store_path(rs->store), node, hlod_result_str(why));
 }
 
+/* The top nodes [first, first + n) of a store read over HTTP, read with
+ * parallel requests (hlod_store_read_nodes), made resident. */
+#define TOP_BATCH 32u
+static hlod_result load_top_batch(hlod_residency *rs, uint32_t first, uint32_t n)
+{
+    hlod_store_payload p[TOP_BATCH];
+    hlod_result res[TOP_BATCH];
+    hlod_result r = hlod_store_read_nodes(rs->store, first, n, rs->d->read_chunk_bytes, p, res);
+    for (uint32_t k = 0; k < n && r == HLOD_OK; k++) {
+        uint32_t node = first + k;
+        if (res[k] == HLOD_OK && (res[k] = make_resident(rs, node, &p[k])) == HLOD_OK) {
+            rs->st->loads++;
+            rs->st->bytes_read += rs->nodes[node].payload_size;
+        }
+        if (res[k] == HLOD_ERR_NOMEM)
+            r = HLOD_ERR_NOMEM;
+        else if (res[k] != HLOD_OK)
+            top_failed(rs, node, res[k]);
+    }
+    for (uint32_t k = 0; k < n; k++)
+        hlod_store_payload_free(&p[k]); /* those not made resident */
+    return r;
+}
+
 static hlod_result load_top(hlod_residency *rs)
 {
-    for (uint32_t i = 0; i < rs->top_count; i++) {
+    for (uint32_t i = 0; hlod_store_is_remote(rs->store) && i < rs->top_count; i += TOP_BATCH) {
+        uint32_t n = rs->top_count - i < TOP_BATCH ? rs->top_count - i : TOP_BATCH;
+        hlod_result r = load_top_batch(rs, i, n);
+        if (r != HLOD_OK)
+            return r;
+    }
+    for (uint32_t i = 0; !hlod_store_is_remote(rs->store) && i < rs->top_count; i++) {
         hlod_result r = hlod_residency_load_now(rs, i);
         if (r == HLOD_ERR_NOMEM)
             return r;

@@ -15,6 +15,13 @@
  * The store is immutable after open and payload reads use pread on its file
  * descriptor, so any thread may read any node at any time; each read keeps
  * its own progress in its hlod_store_read.
+ *
+ * Sources: a path is a local file (pread); an http:// or https:// URL is
+ * read with range requests (store_http.c): the header and the node table
+ * once at open, validated exactly as a file's (the file size is
+ * Content-Range's total), then each payload step one range request, or,
+ * for the loader, parallel transfers (hlod_store_fetch_*) that append to
+ * the same hlod_store_read as a step does.
  */
 #define XXH_INLINE_ALL
 #include <xxhash.h>
@@ -22,6 +29,7 @@
 #include "hlod/store.h"
 
 #include "payload_codec.h"
+#include "store_http.h"
 
 #include <assert.h>
 #include <errno.h>
@@ -46,7 +54,8 @@ _Static_assert(sizeof(hlod_store_payload_header) == 64, "payload header layout")
 _Static_assert(sizeof(float) == 4 && sizeof(double) == 8, "IEEE 754 sizes");
 
 struct hlod_store {
-    int fd;
+    int fd;                     /* the source: a local file (fd >= 0) ... */
+    hlod_http *http;            /* ... or an http(s) URL */
     char *path;
     hlod_logger logger;         /* copy; func may be NULL */
     hlod_store_header header;
@@ -403,6 +412,61 @@ static hlod_result check_header(const hlod_store_header *h, uint64_t file_size, 
     return HLOD_OK;
 }
 
+/* Reads exactly n bytes at off from the store's source; logs what failed
+ * (`what`) naming the store. */
+static hlod_result source_read(hlod_store *s, void *buf, size_t n, uint64_t off, const char *what)
+{
+    if (s->http) {
+        hlod_result r = hlod_http_read(s->http, off, buf, n);
+        if (r != HLOD_OK)
+            hlod_logf(&s->logger, HLOD_LOG_ERROR, "%s: cannot read %s: %s", s->path, what,
+                      hlod_result_str(r));
+        return r;
+    }
+    int e = pread_all(s->fd, buf, n, off);
+    if (e) {
+        hlod_logf(&s->logger, HLOD_LOG_ERROR, "%s: cannot read %s: %s", s->path, what,
+                  e > 0 ? strerror(e) : "unexpected end of file");
+        return HLOD_ERR_IO;
+    }
+    return HLOD_OK;
+}
+
+/* Opens the source and reads the header into s->header: a URL with one
+ * range request, a file with fstat and pread.  *file_size: the source's. */
+static hlod_result source_open(hlod_store *s, uint64_t *file_size)
+{
+    const hlod_logger *lg = &s->logger;
+    const char *path = s->path;
+    size_t got = 0;
+    if (hlod_http_is_url(path)) {
+        hlod_result r = hlod_http_open(path, lg, &s->header, sizeof s->header, &got, file_size,
+                                       &s->http);
+        if (r != HLOD_OK)
+            return r;
+    } else {
+        struct stat st;
+        s->fd = open(path, O_RDONLY | O_CLOEXEC);
+        if (s->fd < 0 || fstat(s->fd, &st) != 0) {
+            hlod_logf(lg, HLOD_LOG_ERROR, "%s: cannot open: %s", path, strerror(errno));
+            return HLOD_ERR_IO;
+        }
+        if (!S_ISREG(st.st_mode)) {
+            hlod_logf(lg, HLOD_LOG_ERROR, "%s: not a regular file", path);
+            return HLOD_ERR_IO;
+        }
+        *file_size = (uint64_t)st.st_size;
+    }
+    if (*file_size < sizeof(hlod_store_header)) {
+        hlod_logf(lg, HLOD_LOG_ERROR, "%s: %llu bytes is shorter than a store header (%zu)",
+                  path, (unsigned long long)*file_size, sizeof(hlod_store_header));
+        return HLOD_ERR_FORMAT;
+    }
+    if (s->http)
+        return got == sizeof s->header ? HLOD_OK : HLOD_ERR_FORMAT;
+    return source_read(s, &s->header, sizeof s->header, 0, "the header");
+}
+
 hlod_result hlod_store_open(const char *path, const hlod_logger *lg_in, hlod_store **out)
 {
     if (!out)
@@ -424,32 +488,10 @@ hlod_result hlod_store_open(const char *path, const hlod_logger *lg_in, hlod_sto
         goto fail;
     memcpy(s->path, path, plen + 1);
 
-    s->fd = open(path, O_RDONLY | O_CLOEXEC);
-    struct stat st;
-    if (s->fd < 0 || fstat(s->fd, &st) != 0) {
-        hlod_logf(lg, HLOD_LOG_ERROR, "%s: cannot open: %s", path, strerror(errno));
-        r = HLOD_ERR_IO;
+    uint64_t file_size = 0;
+    r = source_open(s, &file_size);
+    if (r != HLOD_OK)
         goto fail;
-    }
-    if (!S_ISREG(st.st_mode)) {
-        hlod_logf(lg, HLOD_LOG_ERROR, "%s: not a regular file", path);
-        r = HLOD_ERR_IO;
-        goto fail;
-    }
-    uint64_t file_size = (uint64_t)st.st_size;
-    if (file_size < sizeof(hlod_store_header)) {
-        hlod_logf(lg, HLOD_LOG_ERROR, "%s: %llu bytes is shorter than a store header (%zu)",
-                  path, (unsigned long long)file_size, sizeof(hlod_store_header));
-        r = HLOD_ERR_FORMAT;
-        goto fail;
-    }
-    int e = pread_all(s->fd, &s->header, sizeof s->header, 0);
-    if (e) {
-        hlod_logf(lg, HLOD_LOG_ERROR, "%s: cannot read the header: %s", path,
-                  e > 0 ? strerror(e) : "unexpected end of file");
-        r = HLOD_ERR_IO;
-        goto fail;
-    }
     r = check_header(&s->header, file_size, path, lg);
     if (r != HLOD_OK)
         goto fail;
@@ -461,13 +503,9 @@ hlod_result hlod_store_open(const char *path, const hlod_logger *lg_in, hlod_sto
         r = HLOD_ERR_NOMEM;
         goto fail;
     }
-    e = pread_all(s->fd, s->nodes, table, s->header.node_table_offset);
-    if (e) {
-        hlod_logf(lg, HLOD_LOG_ERROR, "%s: cannot read the node table: %s", path,
-                  e > 0 ? strerror(e) : "unexpected end of file");
-        r = HLOD_ERR_IO;
+    r = source_read(s, s->nodes, table, s->header.node_table_offset, "the node table");
+    if (r != HLOD_OK)
         goto fail;
-    }
     if (hlod_store_hash(s->nodes, table) != s->header.node_table_hash) {
         hlod_logf(lg, HLOD_LOG_ERROR, "%s: node table checksum mismatch", path);
         r = HLOD_ERR_CHECKSUM;
@@ -489,6 +527,7 @@ void hlod_store_close(hlod_store *s)
         return;
     if (s->fd >= 0)
         close(s->fd);
+    hlod_http_close(s->http);
     free(s->nodes);
     free(s->path);
     free(s);
@@ -505,6 +544,7 @@ uint32_t hlod_store_first_block(const hlod_store *s)
     return s->header.top_count - s->header.block_count;
 }
 const char *hlod_store_path(const hlod_store *s) { return s->path; }
+int hlod_store_is_remote(const hlod_store *s) { return s && s->http != NULL; }
 
 uint64_t hlod_store_memory_bytes(const hlod_store *s)
 {
@@ -570,6 +610,17 @@ hlod_result hlod_store_read_step(hlod_store_read *rd, size_t max_bytes, int *com
         uint8_t *dst = rd->buf + rd->done;
         uint64_t off = s->nodes[rd->node].payload_offset + rd->done;
         size_t got = 0;
+        if (s->http) {
+            /* one range request (retried inside); the bytes of a failed
+             * step are not kept, the read is cancelled after an error */
+            hlod_result r = hlod_http_read(s->http, off, dst, want);
+            if (r != HLOD_OK) {
+                hlod_logf(lg, HLOD_LOG_ERROR, "%s: node %u: cannot read payload at offset %llu: %s",
+                          s->path, rd->node, (unsigned long long)off, hlod_result_str(r));
+                return r;
+            }
+            got = want;
+        }
         while (got < want) {
             ssize_t k;
             errno = 0;
@@ -736,11 +787,171 @@ hlod_result hlod_store_read_node(const hlod_store *s, uint32_t node, size_t max_
     hlod_store_read rd;
     hlod_result r = hlod_store_read_begin(s, node, &rd);
     int complete = 0;
+    if (!max_bytes)
+        max_bytes = 65536;
+    if (s && s->http)
+        max_bytes = SIZE_MAX; /* one range request: each costs a round trip */
     while (r == HLOD_OK && !complete)
-        r = hlod_store_read_step(&rd, max_bytes ? max_bytes : 65536, &complete);
+        r = hlod_store_read_step(&rd, max_bytes, &complete);
     if (r != HLOD_OK) {
         hlod_store_read_cancel(&rd);
         return r;
     }
     return hlod_store_read_finish(&rd, out);
+}
+
+hlod_result hlod_store_read_nodes(const hlod_store *s, uint32_t first, uint32_t count,
+                                  size_t max_bytes, hlod_store_payload *out,
+                                  hlod_result *results)
+{
+    if (!s || !out || !results || (uint64_t)first + count > s->header.node_count)
+        return HLOD_ERR_INVALID_ARG;
+    memset(out, 0, count * sizeof *out);
+    hlod_store_fetch *f = NULL;
+    if (!s->http || count < 2 || hlod_store_fetch_create(s, 8, &f) != HLOD_OK) {
+        for (uint32_t i = 0; i < count; i++)
+            results[i] = hlod_store_read_node(s, first + i, max_bytes, &out[i]);
+        return HLOD_OK;
+    }
+    hlod_store_read *rd = calloc(count, sizeof *rd);
+    if (!rd) {
+        hlod_store_fetch_destroy(f);
+        return HLOD_ERR_NOMEM;
+    }
+    uint32_t next = 0, left = count;
+    hlod_store_fetch_end ends[8];
+    while (left) {
+        while (next < count && hlod_store_fetch_active(f) < 8) {
+            uint32_t i = next++;
+            results[i] = hlod_store_read_begin(s, first + i, &rd[i]);
+            if (results[i] == HLOD_OK)
+                results[i] = hlod_store_fetch_start(f, &rd[i], UINT64_MAX);
+            if (results[i] != HLOD_OK) {
+                hlod_store_read_cancel(&rd[i]);
+                left--;
+            }
+        }
+        size_t k = hlod_store_fetch_poll(f, 100, -1, ends, 8, NULL);
+        for (size_t e = 0; e < k; e++) {
+            uint32_t i = (uint32_t)(ends[e].rd - rd);
+            results[i] = ends[e].result;
+            if (results[i] == HLOD_OK && rd[i].done == rd[i].size)
+                results[i] = hlod_store_read_finish(&rd[i], &out[i]);
+            else if (results[i] == HLOD_OK)
+                results[i] = hlod_store_fetch_start(f, &rd[i], UINT64_MAX);
+            if (results[i] != HLOD_OK || !rd[i].buf) {
+                hlod_store_read_cancel(&rd[i]);
+                left--;
+            }
+        }
+    }
+    free(rd);
+    hlod_store_fetch_destroy(f);
+    return HLOD_OK;
+}
+
+/* ---- parallel reads of an HTTP store ---- */
+
+struct hlod_store_fetch {
+    const hlod_store *store;
+    hlod_http_multi *multi;
+    hlod_http_end *ends;
+    unsigned transfers;
+};
+
+/* the transfers' sink: appends to the read as a step does */
+static int fetch_sink(void *user, const void *data, size_t n)
+{
+    hlod_store_read *rd = user;
+    if (n > rd->size - rd->done)
+        return -1;
+    memcpy(rd->buf + rd->done, data, n);
+    if (XXH3_64bits_update(rd->hash_state, data, n) != XXH_OK)
+        return -1;
+    rd->done += n;
+    return 0;
+}
+
+hlod_result hlod_store_fetch_create(const hlod_store *s, unsigned transfers,
+                                    hlod_store_fetch **out)
+{
+    if (!out)
+        return HLOD_ERR_INVALID_ARG;
+    *out = NULL;
+    if (!s || !transfers)
+        return HLOD_ERR_INVALID_ARG;
+    if (!s->http)
+        return HLOD_ERR_UNSUPPORTED;
+    hlod_store_fetch *f = calloc(1, sizeof *f);
+    if (!f)
+        return HLOD_ERR_NOMEM;
+    f->store = s;
+    f->transfers = transfers;
+    f->ends = calloc(transfers, sizeof *f->ends);
+    hlod_result r = f->ends ? hlod_http_multi_create(s->http, transfers, &f->multi)
+                            : HLOD_ERR_NOMEM;
+    if (r != HLOD_OK) {
+        hlod_store_fetch_destroy(f);
+        return r;
+    }
+    *out = f;
+    return HLOD_OK;
+}
+
+void hlod_store_fetch_destroy(hlod_store_fetch *f)
+{
+    if (!f)
+        return;
+    hlod_http_multi_destroy(f->multi);
+    free(f->ends);
+    free(f);
+}
+
+hlod_result hlod_store_fetch_start(hlod_store_fetch *f, hlod_store_read *rd, uint64_t max_bytes)
+{
+    if (!f || !rd || rd->store != f->store || !rd->buf || rd->done >= rd->size || !max_bytes)
+        return HLOD_ERR_INVALID_ARG;
+    uint64_t left = rd->size - rd->done;
+    uint64_t off = f->store->nodes[rd->node].payload_offset + rd->done;
+    return hlod_http_multi_start(f->multi, off, left < max_bytes ? left : max_bytes, fetch_sink,
+                                 rd);
+}
+
+void hlod_store_fetch_stop(hlod_store_fetch *f, hlod_store_read *rd)
+{
+    if (f)
+        hlod_http_multi_stop(f->multi, rd);
+}
+
+int hlod_store_fetch_has(const hlod_store_fetch *f, const hlod_store_read *rd)
+{
+    return f && hlod_http_multi_has(f->multi, (void *)rd);
+}
+
+unsigned hlod_store_fetch_active(const hlod_store_fetch *f)
+{
+    return f ? hlod_http_multi_active(f->multi) : 0;
+}
+
+size_t hlod_store_fetch_poll(hlod_store_fetch *f, int timeout_ms, int wake_fd,
+                             hlod_store_fetch_end *out, size_t max, uint64_t *bytes)
+{
+    if (bytes)
+        *bytes = 0;
+    if (!f || !out || !max)
+        return 0;
+    if (max > f->transfers)
+        max = f->transfers;
+    size_t n = hlod_http_multi_poll(f->multi, timeout_ms, wake_fd, f->ends, max, bytes);
+    for (size_t i = 0; i < n; i++) {
+        out[i].rd = f->ends[i].user;
+        out[i].result = f->ends[i].result; /* the HTTP layer logged why */
+    }
+    return n;
+}
+
+void hlod_store_set_http_latency(hlod_store *s, double ms)
+{
+    if (s)
+        hlod_http_set_latency(s->http, ms);
 }

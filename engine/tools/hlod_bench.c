@@ -38,6 +38,7 @@
 
 #include "atomic_file.h"
 #include "cli.h"
+#include "hlod_clock.h"
 #include "view_flags.h"
 #include "hlod/engine.h"
 #include "hlod/image.h"
@@ -105,6 +106,9 @@ static void usage(FILE *fp)
         "                    reads synchronously at --io-mbps: the selection is\n"
         "                    the same on any machine\n"
         "  --io-mbps R       simulated disk in MB/s for --deterministic (default 100)\n"
+        "  --realtime        start frame N no earlier than N x --dt of wall time after\n"
+        "                    the first, as a viewer would (loads over a network\n"
+        "                    then take as many frames as they would there)\n"
         "  --no-plots        skip gnuplot\n"
         "  --json            also print summary.json on stdout (last run)\n"
         "  -h, --help        show this help\n"
@@ -150,7 +154,7 @@ typedef struct options {
     uint32_t width, height;
     long frames;
     int up_y, reference, reference_every, reference_ss, deterministic, plots, json;
-    int backend, jitter_frames, occlusion_check;
+    int backend, jitter_frames, occlusion_check, realtime;
     uint64_t save[MAX_SAVE];    /* --save-frames */
     int nsave;
     const char *compare[2];     /* --compare A B */
@@ -445,6 +449,8 @@ static int parse_args(int argc, char **argv, options *o)
             if (!hlod_cli_parse_double(PROG, "--io-mbps", v, 0, 1e6, HLOD_CLI_MIN_OPEN,
                                        &o->io_mbps))
                 return 2;
+        } else if (!strcmp(a, "--realtime")) {
+            o->realtime = 1;
         } else if (!strcmp(a, "--no-plots")) {
             o->plots = 0;
         } else if (!strcmp(a, "--json")) {
@@ -1212,6 +1218,7 @@ typedef struct run_state {
     int have_prev;              /* c->prev_img holds the previous frame */
     const uint8_t *prev_ref;    /* the last scored reference */
     hlod_cli_progress bar;
+    double wall0;               /* --realtime: frame 0's start, ms */
 } run_state;
 
 /* Reads frame f's image back when anything needs it; *image is NULL when
@@ -1327,6 +1334,17 @@ static int run_frame(run_state *s, uint64_t f)
     path_camera(c, f, &cam, &fr->t);
     fr->psnr = fr->ssim = fr->luma = fr->ref_luma = fr->occ_psnr = NAN;
     fr->occ_differing = -1;
+    if (o->realtime) {
+        /* a viewer's pace: frame f starts f x dt after frame 0 */
+        double now = hlod_now_ms();
+        if (f == 0)
+            s->wall0 = now;
+        double wait = s->wall0 + (double)f * o->dt * 1e3 - now;
+        if (wait > 0) {
+            struct timespec ts = {(time_t)(wait / 1e3), (long)(fmod(wait, 1e3) * 1e6)};
+            nanosleep(&ts, NULL);
+        }
+    }
     hlod_result r = target_current(&c->gl);
     if (r == HLOD_OK)
         r = hlod_engine_frame(s->e, &cam, o->dt, &fr->st);

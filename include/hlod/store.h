@@ -309,7 +309,16 @@ hlod_result hlod_store_validate(const hlod_store_header *h, const hlod_store_nod
 
 typedef struct hlod_store hlod_store;
 
-/* Opens and validates a store: header (magic, endianness, version, sizes,
+/* Opens and validates a store: path is a file, or an http:// or https://
+ * URL read with range requests (README, "Serving a store over HTTP"): the
+ * header and the node table are fetched once, validated exactly as a
+ * file's, and every later request carries If-Range with the validator
+ * (ETag, else Last-Modified) of the first, so a store replaced on the
+ * server fails its reads (HLOD_ERR_VERSION, logged once) instead of mixing
+ * two versions; a server that ignores ranges is refused at open
+ * (HLOD_ERR_UNSUPPORTED), as is any HTTP error status (HLOD_ERR_IO, the
+ * URL and status logged).  Transient failures are retried with backoff.
+ * Either way it checks the header (magic, endianness, version, sizes,
  * checksum, file size), then the node table (checksum and
  * hlod_store_validate).  Payloads are checked when read.  lg is copied and
  * used for this call and for later payload reads from any thread (so its
@@ -333,6 +342,8 @@ uint32_t hlod_store_top_count(const hlod_store *s);
 /* The first block's hlod_0 node: top_count - block_count. */
 uint32_t hlod_store_first_block(const hlod_store *s);
 const char *hlod_store_path(const hlod_store *s);
+/* 1 when s was opened from an http:// or https:// URL. */
+int hlod_store_is_remote(const hlod_store *s);
 
 /* The sum of hlod_store_node_memory over the store's nodes: what the whole
  * store takes in memory (header.payload_bytes is what it takes on disk). */
@@ -407,7 +418,55 @@ void hlod_store_read_cancel(hlod_store_read *rd);
 hlod_result hlod_store_read_node(const hlod_store *s, uint32_t node, size_t max_bytes,
                                  hlod_store_payload *out);
 
+/* Reads nodes [first, first + count) into out[i] with result results[i]
+ * (as hlod_store_read_node each); a URL's with 8 parallel transfers.
+ * HLOD_ERR_INVALID_ARG for a bad range, HLOD_ERR_NOMEM. */
+hlod_result hlod_store_read_nodes(const hlod_store *s, uint32_t first, uint32_t count,
+                                  size_t max_bytes, hlod_store_payload *out,
+                                  hlod_result *results);
+
+/* ---- parallel reads of a store opened from a URL ---- */
+
+/* Up to `transfers` range requests in flight at once (curl multi, one
+ * persistent connection each), owned by one thread (the loader).  A
+ * transfer appends to an hlod_store_read exactly as hlod_store_read_step
+ * does (bytes in stay read, hashed in order), so a read may be stopped
+ * (a more urgent node preempts it) and started again later from `done`
+ * with a new range, or stepped, once no transfer holds it.  While one
+ * does, the read must not move, be stepped, finished or cancelled. */
+typedef struct hlod_store_fetch hlod_store_fetch;
+
+typedef struct hlod_store_fetch_end {
+    hlod_store_read *rd;
+    hlod_result result;     /* HLOD_OK: its range is in (rd->done moved on);
+                               else after retries: HLOD_ERR_IO (transient),
+                               HLOD_ERR_VERSION (the store changed), ... */
+} hlod_store_fetch_end;
+
+/* HLOD_ERR_UNSUPPORTED for a store read from a file. */
+hlod_result hlod_store_fetch_create(const hlod_store *s, unsigned transfers,
+                                    hlod_store_fetch **out);
+void hlod_store_fetch_destroy(hlod_store_fetch *f);     /* stops every transfer */
+/* Starts a transfer of rd's next min(max_bytes, size - done) bytes;
+ * HLOD_ERR_INVALID_ARG when rd is complete or held, or all are busy.  The
+ * test latency applies before it is sent. */
+hlod_result hlod_store_fetch_start(hlod_store_fetch *f, hlod_store_read *rd, uint64_t max_bytes);
+/* Stops rd's transfer, if any: what came stays in rd. */
+void hlod_store_fetch_stop(hlod_store_fetch *f, hlod_store_read *rd);
+int hlod_store_fetch_has(const hlod_store_fetch *f, const hlod_store_read *rd);
+unsigned hlod_store_fetch_active(const hlod_store_fetch *f);
+/* Runs the transfers up to timeout_ms, back earlier when one ends or
+ * wake_fd (-1: none) turns readable; writes up to max ended transfers to
+ * out, returns how many; *bytes (may be NULL): bytes that came meanwhile. */
+size_t hlod_store_fetch_poll(hlod_store_fetch *f, int timeout_ms, int wake_fd,
+                             hlod_store_fetch_end *out, size_t max, uint64_t *bytes);
+
 /* ---- test hook (fault injection; not for production use) ---- */
+
+/* A latency added before every HTTP request of s (ms; the environment's
+ * HLOD_HTTP_LATENCY_MS sets it at open).  No effect on a file. */
+void hlod_store_set_http_latency(hlod_store *s, double ms);
+
 
 /* The function payload reads call instead of pread(2): same contract (bytes
  * read, 0 at end of file, -1 with errno set on error).  Tests use it to

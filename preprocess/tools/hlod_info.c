@@ -102,17 +102,26 @@ static uint32_t verify(const hlod_store *s, hlod_cli_progress *bar, int *oom)
     const hlod_store_header *h = hlod_store_get_header(s);
     uint32_t bad = 0;
     double done = 0;
-    for (uint32_t i = 0; i < h->node_count; i++) {
-        hlod_store_payload p;
-        hlod_result r = hlod_store_read_node(s, i, 65536, &p);
-        if (r == HLOD_ERR_NOMEM) {
+    /* batches: a store read from a URL reads each with parallel requests */
+    enum { BATCH = 32 };
+    hlod_store_payload p[BATCH];
+    hlod_result res[BATCH];
+    for (uint32_t i = 0; i < h->node_count; i += BATCH) {
+        uint32_t n = h->node_count - i < BATCH ? h->node_count - i : BATCH;
+        if (hlod_store_read_nodes(s, i, n, 65536, p, res) != HLOD_OK) {
             *oom = 1;
             return bad + 1;
         }
-        if (r != HLOD_OK)
-            bad++;
-        hlod_store_payload_free(&p);
-        done += (double)hlod_store_nodes(s)[i].payload_size;
+        for (uint32_t k = 0; k < n; k++) {
+            if (res[k] == HLOD_ERR_NOMEM)
+                *oom = 1;
+            if (res[k] != HLOD_OK)
+                bad++;
+            hlod_store_payload_free(&p[k]);
+            done += (double)hlod_store_nodes(s)[i + k].payload_size;
+        }
+        if (*oom)
+            return bad;
         hlod_cli_progress_fn(bar, done, (double)h->payload_bytes);
     }
     hlod_cli_progress_clear(bar);

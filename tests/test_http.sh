@@ -1,0 +1,279 @@
+#!/usr/bin/env bash
+# test_http.sh - a store streamed from Debian's nginx over HTTP (issue 18,
+# items 2 and 3).
+#
+# Builds the small city's store (hlod-gen-city --preset small, hlod-build
+# --desired-tris 450) and starts nginx on loopback with a config written
+# here (pid, logs and temp paths in the test's folder, daemon off, in the
+# background).  The link: nginx limit_rate 12500k (100 Mbit/s) per
+# connection, and, when the test can make a network namespace (unshare -n,
+# as root), a tc tbf of 100 Mbit/s on its loopback for all connections
+# together; without one, limit_rate is 12.5 MB/s divided by the loader's
+# transfers, so the sum stays at 100 Mbit/s either way.  40 ms of latency
+# per request through the reader's hook (HLOD_HTTP_LATENCY_MS; the kernel
+# has no netem).  Checks:
+#   - hlod-info --verify URL passes, its JSON equal to the file's (but "file");
+#   - hlod-bench URL on walk-drive and fly (--realtime: frames at the
+#     viewer's pace of --dt, 320x180, a budget holding the store, so runs
+#     compare by loading, not by eviction churn): exit 0, render_waits 0,
+#     missing_wanted_frames <= 1.5 x the file's + 10 (the slack: a run from
+#     the file misses frames too, while uploads wait their budget, and two
+#     runs of one file differ by about that much), bytes_read <= 1.1 x the
+#     file's; a pair that misses is run once more (wall-clock noise), a
+#     render wait too (as test_damaged.sh);
+#   - --deterministic over HTTP: the same selection columns as from the file;
+#   - faults, each 0 crashes, 0 render waits, every frame run: a wrong URL
+#     (404: exit 1 naming the URL and the status), a server that ignores
+#     ranges (max_ranges 0: exit 1, "ignores range requests"), the server
+#     killed (SIGKILL, mid-transfer: truncated bodies and reset connections)
+#     and restarted 1 s later (loads go on after the restart, no node turns
+#     bad), the store replaced on the server mid-run ("the store changed on
+#     the server (ETag", no checksum mismatch: no bytes of two versions
+#     mixed), a slow trickle (limit_rate 16k).
+# HLOD_HTTP_QUICK=1 (the sanitizer build) runs walk-drive only, shorter.
+set -u
+BIN=${HLOD_BIN_DIR:-build/bin}
+SRC=${HLOD_SOURCE_DIR:-.}
+QUICK=${HLOD_HTTP_QUICK:-0}
+TRANSFERS=6
+export HLOD_HTTP_TRANSFERS=$TRANSFERS
+
+# Into a network namespace of our own when we can: a loopback no one else
+# uses and a link limit for all connections together.
+if [ -z "${HLOD_HTTP_IN_NETNS:-}" ] && command -v unshare >/dev/null &&
+    unshare -n true 2>/dev/null; then
+    export HLOD_HTTP_IN_NETNS=1
+    exec unshare -n bash "$0" "$@"
+fi
+LINK="nginx limit_rate only"
+RATE=$((12500 / TRANSFERS))k
+if [ -n "${HLOD_HTTP_IN_NETNS:-}" ]; then
+    ip link set lo up && ip link set lo mtu 1500 &&
+        tc qdisc add dev lo root tbf rate 100mbit burst 64kb latency 100ms &&
+        { LINK="tc tbf 100mbit + nginx limit_rate 12500k"; RATE=12500k; }
+fi
+
+T=$(mktemp -d /tmp/hlod-test-http-XXXXXX)
+chmod 755 "$T"
+NGINX_PID=""
+stop_nginx() {
+    [ -n "$NGINX_PID" ] || return 0
+    local workers
+    workers=$(ps -o pid= --ppid "$NGINX_PID" 2>/dev/null)
+    kill "-${1:-TERM}" "$NGINX_PID" $workers 2>/dev/null
+    wait "$NGINX_PID" 2>/dev/null
+    NGINX_PID=""
+}
+trap 'stop_nginx KILL; rm -rf "$T"' EXIT
+pass=0
+fail=0
+ok() {
+    if [ "$1" -eq 0 ]; then
+        pass=$((pass + 1))
+        echo "ok   $2"
+    else
+        fail=$((fail + 1))
+        echo "FAIL $2"
+    fi
+}
+
+NGINX=$(command -v nginx || echo /usr/sbin/nginx)
+if [ ! -x "$NGINX" ]; then
+    ok 1 "nginx is installed (data/setup.sh installs nginx-light)"
+    echo "$pass passed, $fail failed"
+    exit 1
+fi
+
+mkdir -p "$T/www/norange" "$T/www/slow" "$T/www/swap" "$T/logs" "$T/tmp"
+"$BIN/hlod-gen-city" --preset small -o "$T/city.obj" --quiet &&
+    "$BIN/hlod-build" "$T/city.obj" -o "$T/city.hlod" --desired-tris 450 --quiet &&
+    "$BIN/hlod-build" "$T/city.obj" -o "$T/other.hlod" --desired-tris 300 --quiet
+ok $? "small city stores built"
+for d in www www/norange www/slow www/swap; do cp "$T/city.hlod" "$T/$d/city.hlod"; done
+chmod -R a+rX "$T/www"
+
+# start_nginx: on PORT (chosen once), every location in one server
+PORT=""
+start_nginx() {
+    local try
+    for try in 1 2 3 4 5 6 7 8; do
+        # a new random port, unless restarting on the same one
+        [ -n "$PORT" ] && [ -n "${KEEP_PORT:-}" ] || PORT=$((20000 + RANDOM % 30000))
+        cat >"$T/nginx.conf" <<EOF
+worker_processes 1;
+daemon off;
+pid $T/nginx.pid;
+error_log $T/logs/error.log warn;
+user root;
+events { worker_connections 256; }
+http {
+    access_log $T/logs/access.log;
+    client_body_temp_path $T/tmp/body;
+    proxy_temp_path $T/tmp/proxy;
+    fastcgi_temp_path $T/tmp/fastcgi;
+    uwsgi_temp_path $T/tmp/uwsgi;
+    scgi_temp_path $T/tmp/scgi;
+    types { application/octet-stream hlod; }
+    server {
+        listen 127.0.0.1:$PORT;
+        root $T/www;
+        limit_rate $RATE;
+        location /norange/ { max_ranges 0; }
+        location /slow/ { limit_rate 16k; }
+    }
+}
+EOF
+        "$NGINX" -p "$T" -c "$T/nginx.conf" 2>>"$T/logs/stderr" &
+        NGINX_PID=$!
+        local i
+        for i in $(seq 1 50); do
+            if (: </dev/tcp/127.0.0.1/$PORT) 2>/dev/null; then
+                return 0
+            fi
+            kill -0 "$NGINX_PID" 2>/dev/null || break
+            sleep 0.1
+        done
+        stop_nginx KILL
+        [ -n "${KEEP_PORT:-}" ] && sleep 0.3
+    done
+    return 1
+}
+start_nginx
+ok $? "nginx started on 127.0.0.1:$PORT ($LINK)"
+URL=http://127.0.0.1:$PORT
+export HLOD_HTTP_LATENCY_MS=40
+
+# key DIR K: a number from DIR/summary.json
+key() { perl -MJSON::PP -e 'local $/; my $j = JSON::PP->new->decode(<STDIN>);
+    print defined $j->{$ARGV[0]} ? $j->{$ARGV[0]} : "missing"' "$2" <"$1/summary.json" 2>/dev/null; }
+# bench STORE PATH OUT ARGS...: stderr in OUT.err
+bench() {
+    local s=$1 p=$2 o=$3
+    shift 3
+    rm -rf "$o"
+    "$BIN/hlod-bench" "$s" --path "$p" --paths-dir "$SRC/data/paths/small" --target-ms 33 \
+        --out "$o" --jitter-frames 0 --no-plots "$@" 2>"$o.err" >/dev/null
+}
+
+# ---- hlod-info ----
+"$BIN/hlod-info" "$T/city.hlod" --verify --json | sed 's/"file":"[^"]*",//' >"$T/info0" &&
+    "$BIN/hlod-info" "$URL/city.hlod" --verify --json | sed 's/"file":"[^"]*",//' >"$T/info1" &&
+    grep -q '"verified":true' "$T/info1" && cmp -s "$T/info0" "$T/info1"
+ok $? "hlod-info --verify URL passes, the same JSON as the file's"
+
+# ---- the file against the URL ----
+REAL=(--realtime --width 320 --height 180 --memory-mb 64)
+PATHS=(walk-drive fly)
+[ "$QUICK" = 1 ] && { PATHS=(walk-drive); REAL+=(--frames 200); }
+compare() { # P: a file run and a URL run, judged
+    local p=$1 tag=$2
+    bench "$T/city.hlod" "$p" "$T/file-$p" "${REAL[@]}" || return 1
+    bench "$URL/city.hlod" "$p" "$T/http-$p" "${REAL[@]}" || return 1
+    local fm fb hm hb hw hf ff
+    fm=$(key "$T/file-$p" missing_wanted_frames) fb=$(key "$T/file-$p" bytes_read)
+    hm=$(key "$T/http-$p" missing_wanted_frames) hb=$(key "$T/http-$p" bytes_read)
+    hw=$(key "$T/http-$p" render_waits) hf=$(key "$T/http-$p" frames) ff=$(key "$T/file-$p" frames)
+    echo "REPORT http $p$tag: file missing_wanted_frames=$fm bytes_read=$fb render_waits=$(key "$T/file-$p" render_waits)" \
+        "| http missing_wanted_frames=$hm bytes_read=$hb render_waits=$hw loads=$(key "$T/http-$p" loads)" \
+        "(file loads=$(key "$T/file-$p" loads)) | $LINK, 40 ms a request"
+    perl -e 'my ($fm, $fb, $hm, $hb, $hw, $hf, $ff) = @ARGV;
+        exit !($hf == $ff && $hw == 0 && $hm <= 1.5 * $fm + 10 && $hb <= 1.1 * $fb)' \
+        "$fm" "$fb" "$hm" "$hb" "$hw" "$hf" "$ff"
+}
+for p in "${PATHS[@]}"; do
+    compare "$p" "" || compare "$p" " (again)"
+    ok $? "$p over HTTP: every frame, render_waits 0, missing_wanted_frames <= 1.5 x file + 10, bytes_read <= 1.1 x file"
+done
+
+# ---- determinism ----
+DET=(--deterministic --set v_time=0.002 --set fixed_ms=5 --io-mbps 20 --width 160 --height 90 --frames 120)
+sel() {
+    awk -F, 'NR == 1 {
+            n = split("frame estimated_ms nodes_drawn depth0 tris_drawn cost_drawn toggles_up " \
+                      "toggles_down oscillations loads", want, " ")
+            for (i = 1; i <= NF; i++) at[$i] = i
+            for (i = 1; i <= NF; i++) if ($i ~ /^depth[0-9]+$/) d[++nd] = i
+            for (k = 1; k <= n; k++) if (!(want[k] in at)) { print "no column " want[k]; exit 1 }
+            next }
+        { line = ""
+          for (k = 1; k <= n; k++) if (want[k] != "depth0") line = line $at[want[k]] ","
+          for (k = 1; k <= nd; k++) line = line $d[k] ","
+          print line }' "$1/frames.csv"
+}
+bench "$T/city.hlod" walk-drive "$T/det-file" "${DET[@]}" &&
+    bench "$URL/city.hlod" walk-drive "$T/det-http" "${DET[@]}" &&
+    sel "$T/det-file" >"$T/sel-file" && sel "$T/det-http" >"$T/sel-http" &&
+    [ "$(wc -l <"$T/sel-file")" -eq 120 ] && [ "$(key "$T/det-file" loads)" -gt 20 ] &&
+    cmp -s "$T/sel-file" "$T/sel-http"
+ok $? "--deterministic over HTTP: the file's selection columns ($(key "$T/det-http" loads) loads)"
+
+# ---- faults ----
+# 404 and a server without ranges: refused at open, naming the URL
+"$BIN/hlod-bench" "$URL/missing.hlod" --path walk --paths-dir "$SRC/data/paths/small" \
+    --out "$T/m404" 2>"$T/err404" >/dev/null
+rc=$?
+[ $rc -eq 1 ] && grep -q "$URL/missing.hlod: HTTP status 404" "$T/err404" && [ ! -e "$T/m404/summary.json" ]
+ok $? "404: hlod-bench exits 1 (got $rc) naming the URL and the status: $(head -1 "$T/err404")"
+"$BIN/hlod-info" "$URL/norange/city.hlod" 2>"$T/errnr" >/dev/null
+rc=$?
+[ $rc -eq 1 ] && grep -q "norange/city.hlod: the server ignores range requests" "$T/errnr"
+ok $? "max_ranges 0: hlod-info exits 1 (got $rc): $(head -1 "$T/errnr" | cut -c1-120)"
+"$BIN/hlod-bench" "$URL/norange/city.hlod" --path walk --paths-dir "$SRC/data/paths/small" \
+    --out "$T/mnr" 2>"$T/errnr2" >/dev/null
+[ $? -eq 1 ] && grep -q "ignores range requests" "$T/errnr2"
+ok $? "max_ranges 0: hlod-bench exits 1 with the same message"
+
+FAULT=(--realtime --width 320 --height 180 --memory-mb 64 --frames 180)
+# fault_ok DIR: exit 0 (given), every frame, no render wait, no sanitizer report
+fault_ok() {
+    [ "$(key "$1" frames)" = 180 ] && [ "$(key "$1" render_waits)" = 0 ] &&
+        ! grep -qE 'AddressSanitizer|runtime error|LeakSanitizer' "$1.err"
+}
+
+# the server killed mid-run (SIGKILL: bodies cut, connections reset), back 1 s later
+kill_run() {
+    bench "$URL/city.hlod" walk-drive "$T/kill" "${FAULT[@]}" &
+    local b=$! t0
+    t0=$(date +%s%N)
+    sleep 1.5
+    stop_nginx KILL
+    local t_kill=$((($(date +%s%N) - t0) / 1000000))
+    sleep 1
+    KEEP_PORT=1 start_nginx || echo "nginx did not restart"
+    local t_back=$((($(date +%s%N) - t0) / 1000000))
+    wait $b
+    local rc=$?
+    # frames start every 33 ms after frame 0, which starts after the open:
+    # frame t_back / 33 is at or before the restart
+    local after
+    after=$(awk -F, -v f=$((t_back / 33 + 10)) 'NR == 1 { for (i = 1; i <= NF; i++) if ($i == "loads") c = i; next }
+        NR - 2 >= f { s += $c } END { print s + 0 }' "$T/kill/frames.csv")
+    echo "REPORT http kill: killed at ${t_kill} ms, back at ${t_back} ms; loads after frame $((t_back / 33 + 10)): $after;" \
+        "loads=$(key "$T/kill" loads) load_failures=$(key "$T/kill" load_failures) bad_nodes=$(key "$T/kill" bad_nodes)"
+    [ $rc -eq 0 ] && fault_ok "$T/kill" && [ "$after" -gt 0 ] && [ "$(key "$T/kill" bad_nodes)" = 0 ] &&
+        grep -q "retrying" "$T/kill.err" && grep -q "the server answers again" "$T/kill.err"
+}
+kill_run || kill_run
+ok $? "server killed mid-run and restarted: every frame, render_waits 0, loads go on, no node bad ($(grep -m1 retrying "$T/kill.err" | cut -c1-110))"
+
+# the store replaced on the server mid-run
+swap_run() {
+    cp "$T/city.hlod" "$T/www/swap/city.hlod"
+    bench "$URL/swap/city.hlod" walk-drive "$T/swap" "${FAULT[@]}" &
+    local b=$!
+    sleep 1.5
+    cp "$T/other.hlod" "$T/www/swap/new.hlod" && chmod a+r "$T/www/swap/new.hlod" &&
+        mv "$T/www/swap/new.hlod" "$T/www/swap/city.hlod"
+    wait $b && fault_ok "$T/swap" && grep -q "the store changed on the server (ETag" "$T/swap.err" &&
+        ! grep -q "checksum mismatch" "$T/swap.err"
+}
+swap_run || swap_run
+ok $? "store replaced mid-run: every frame, render_waits 0, $(grep -m1 -o 'the store changed on the server (ETag [^)]*)' "$T/swap.err"), no checksum mismatch, bad_nodes $(key "$T/swap" bad_nodes)"
+
+# a slow trickle: 16 KB/s a connection
+slow_run() { bench "$URL/slow/city.hlod" walk-drive "$T/slow" "${FAULT[@]}" && fault_ok "$T/slow"; }
+slow_run || slow_run
+ok $? "slow trickle (16 KB/s): every frame, render_waits 0 (loads $(key "$T/slow" loads), missing_wanted_frames $(key "$T/slow" missing_wanted_frames))"
+
+echo "$pass passed, $fail failed"
+[ "$fail" -eq 0 ]
