@@ -137,10 +137,12 @@ static fixed_machine g_machine = {0.5, 1e-6};
 
 /* Nothing is refined by choice: the budget floor (a tenth of the target)
  * is below any node's timeNeeded. */
+static double g_target_ms = 1e-3;   /* tiny: nothing refines unless it stands in */
+
 static hlod_result start(hlod_store *s, logrec *lg, hlod_engine **e)
 {
     hlod_engine_desc d = {0};
-    d.target_ms = 1e-3;
+    d.target_ms = g_target_ms;
     d.time_model = fixed_machine_time;
     d.time_model_user = &g_machine;
     d.logger.func = log_count;
@@ -317,6 +319,43 @@ static void test_bad_group_and_block(void)
     run_corrupt("group2.hlod", 1, bad, 2, want, 7);
 }
 
+/* A readable group root over a corrupt hlod_0 (node 2), with time to spare:
+ * the root refines (node 2's children stand in for it, the other blocks
+ * are drawn), where before one bad child pinned the whole group at the
+ * root forever. */
+static void test_readable_group_bad_block(void)
+{
+    logrec *lg = calloc(1, sizeof *lg);
+    pthread_mutex_init(&lg->mu, NULL);
+    uint32_t bad[1] = {2};
+    hlod_store *s = corrupt_city("group3.hlod", 1, bad, 1);
+    hlod_engine *e = NULL;
+    g_target_ms = 1e4;
+    hlod_result r = s ? start(s, lg, &e) : HLOD_ERR_IO;
+    g_target_ms = 1e-3;
+    CHECKF(r == HLOD_OK && e, "the engine does not start: %s", hlod_result_str(r));
+    if (e) {
+        hlod_camera cam;
+        whole_city(&cam);
+        tally t = {0};
+        for (int f = 0; f < FRAMES; f++)
+            frame(e, &cam, f, &t);
+        const hlod_store_node *n = hlod_store_nodes(s);
+        int under2 = 0;   /* drawn nodes in block 2's subtree */
+        for (size_t k = 0; k < e->sel.draw.n; k++)
+            under2 += n[e->sel.draw.v[k]].block == n[2].block;
+        CHECKF(!hlod_engine_node_drawn(e, 0) && !hlod_engine_node_drawn(e, 2) && under2 > 0,
+               "root drawn %d, bad node 2 drawn %d, %d nodes of block 2 drawn (of %zu)",
+               hlod_engine_node_drawn(e, 0), hlod_engine_node_drawn(e, 2), under2, e->sel.draw.n);
+        CHECK(hlod_engine_node_state(e, 2) == HLOD_NODE_BAD && t.bad_drawn == 0 &&
+              t.miscounted == 0);
+        hlod_engine_destroy(e);
+    }
+    hlod_store_close(s);
+    pthread_mutex_destroy(&lg->mu);
+    free(lg);
+}
+
 /* ---- a transient failure ---- */
 
 /* A disk whose reads touching [lo, hi) fail with EIO while fails > 0. */
@@ -399,6 +438,7 @@ int main(void)
     RUN(test_bad_chain);
     RUN(test_bad_group_root);
     RUN(test_bad_group_and_block);
+    RUN(test_readable_group_bad_block);
     RUN(test_transient_top);
     char cmd[300];
     snprintf(cmd, sizeof cmd, "rm -rf '%s'", g_dir);
