@@ -552,8 +552,8 @@ static hlod_result check_desc(const hlod_build_desc *d, const hlod_logger *lg)
         bad = "c_tex is not in [0, 1]";
     else if (d->threads > 256)
         bad = "threads is over 256";
-    else if (d->compress && (d->quant_bits < 8 || d->quant_bits > 30))
-        bad = "quant_bits is not in [8, 30]";
+    else if (d->compress && (d->quant_bits < 8 || d->quant_bits > 24))
+        bad = "quant_bits is not in [8, 24]";
     else if (d->jpeg_quality > 100)
         bad = "jpeg_quality is over 100";
     if (!bad)

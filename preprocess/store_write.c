@@ -116,6 +116,10 @@ hlod_result hlod_store_writer_open(const char *path, const hlod_store_writer_des
             return HLOD_ERR_INVALID_ARG;
         }
     }
+    /* The codec versions every reader since meshoptimizer 0.14 decodes,
+     * whatever a newer library would pick by default. */
+    meshopt_encodeVertexVersion(0);
+    meshopt_encodeIndexVersion(1);
     hlod_store_writer *w = calloc(1, sizeof *w);
     if (!w)
         return HLOD_ERR_NOMEM;

@@ -296,6 +296,15 @@ static void test_far_city_same_bytes(void)
  * it (not crash), naming the node. */
 typedef void (*mutate_fn)(uint8_t *payload, size_t size);
 
+/* 2^31 vertices claimed by a payload of a few KB: the reader must refuse it
+ * before allocating their 48 GiB (node table forged to agree). */
+static void m_huge(uint8_t *p, size_t n)
+{
+    (void)n;
+    uint32_t v = 1u << 31;
+    memcpy(p + 8, &v, 4);
+}
+
 static hlod_result read_forged(const char *path, uint32_t node, mutate_fn mutate)
 {
     FILE *fp = fopen(path, "rb");
@@ -311,6 +320,8 @@ static hlod_result read_forged(const char *path, uint32_t node, mutate_fn mutate
     hlod_store_header *h = (hlod_store_header *)file;
     hlod_store_node *t = (hlod_store_node *)(file + h->node_table_offset);
     mutate(file + t[node].payload_offset, t[node].payload_size);
+    if (mutate == m_huge)   /* the table agrees with the forged counts */
+        t[node].vertex_count = 1u << 31;
     t[node].payload_hash = hlod_store_hash(file + t[node].payload_offset, t[node].payload_size);
     h->node_table_hash = hlod_store_hash(t, h->node_table_size);
     h->header_hash = hlod_store_hash(h, HLOD_STORE_HEADER_HASHED);
@@ -382,6 +393,7 @@ static void test_forged_payloads_refused(void)
         {m_indices, 1, "index"},
         {m_jpeg, 0, "JPEG"},
         {m_uv_nan, 0, "non-finite UV range"},
+        {m_huge, 1, "cannot come from streams this short"},
     };
     for (size_t i = 0; i < sizeof cases / sizeof cases[0]; i++) {
         g_log[0] = 0;

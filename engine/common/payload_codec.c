@@ -21,6 +21,19 @@
 
 _Static_assert(sizeof(hlod_store_packed_header) == 128, "packed header layout");
 
+/* JPEG's limit on a side (libjpeg-turbo's JPEG_MAX_DIMENSION); wider
+ * textures are stored raw. */
+#define JPEG_MAX_SIDE 65500u
+
+/* The most a codec stream can expand into, per byte (a forged payload must
+ * not make the reader allocate far beyond its own size): meshoptimizer's
+ * vertex codec spends at least 2 bits per 16 bytes of vertex data and its
+ * index codec at least 4 bits per triangle; a JPEG at least 2 bits per 8x8
+ * block and channel.  Bounds with a wide margin. */
+#define MAX_VERTEX_BYTES_PER_BYTE 256u
+#define MAX_TRIS_PER_BYTE 64u
+#define MAX_PIXELS_PER_BYTE 4096u
+
 #define BAD(code, ...)                                  \
     do {                                                \
         hlod_logf(lg, HLOD_LOG_ERROR, __VA_ARGS__);     \
@@ -144,7 +157,13 @@ hlod_result hlod_payload_pack(const hlod_packed_input *in, uint8_t **out, size_t
 
     int textured = in->pixels != NULL;
     if (textured) {
-        if (in->jpeg_quality > 0 && (in->tex_channels == 1 || in->tex_channels == 3)) {
+        size_t raw_tex = (size_t)in->tex_width * in->tex_height * in->tex_channels;
+        int jpeg_ok = in->tex_width <= JPEG_MAX_SIDE && in->tex_height <= JPEG_MAX_SIDE;
+        if (!(in->jpeg_quality > 0 && jpeg_ok) && raw_tex > UINT32_MAX)
+            BAD(HLOD_ERR_INVALID_ARG, "%s: a %ux%ux%u texture is %zu bytes, over the 4 GiB a "
+                "payload section holds", name, in->tex_width, in->tex_height, in->tex_channels,
+                raw_tex);
+        if (in->jpeg_quality > 0 && jpeg_ok && (in->tex_channels == 1 || in->tex_channels == 3)) {
             r = pack_texture(in, &jpeg, &jpeg_bytes, name, lg);
             if (r != HLOD_OK)
                 goto done;
@@ -229,6 +248,9 @@ done:
 
 /* ---- unpack ---- */
 
+/* A stream's bytes, with a floor that covers codec headers. */
+static uint64_t sb_min(uint32_t bytes) { return (uint64_t)bytes + 64; }
+
 static hlod_result unpack_texture(const uint8_t *src, size_t bytes, const hlod_store_packed_header *ph,
                                   uint8_t *dst, const char *name, uint32_t node,
                                   const hlod_logger *lg)
@@ -311,6 +333,13 @@ hlod_result hlod_payload_unpack(const uint8_t *buf, size_t size, const hlod_stor
             BAD(HLOD_ERR_NAN, "%s: node %u: non-finite UV range", name, node);
 
     const size_t v = ph.vertex_count, ic = ph.index_count;
+    if ((uint64_t)v * 12 > (uint64_t)sb_min(ph.section_bytes[HLOD_SEC_POSITIONS]) * MAX_VERTEX_BYTES_PER_BYTE ||
+        (uint64_t)ic / 3 > (uint64_t)sb_min(ph.section_bytes[HLOD_SEC_INDICES]) * MAX_TRIS_PER_BYTE ||
+        (textured && ph.tex_codec == HLOD_TEX_JPEG &&
+         (uint64_t)ph.tex_width * ph.tex_height >
+             (uint64_t)sb_min(ph.section_bytes[HLOD_SEC_TEXTURE]) * MAX_PIXELS_PER_BYTE))
+        BAD(HLOD_ERR_FORMAT, "%s: node %u: %zu vertices, %zu triangles or a %ux%u texture cannot "
+            "come from streams this short", name, node, v, ic / 3, ph.tex_width, ph.tex_height);
     uint64_t raw_size = hlod_store_node_memory(n);
     raw = malloc((size_t)raw_size);
     tmp = malloc(12 * v);

@@ -55,7 +55,9 @@ typedef struct hlod_build_desc {
                                    "Store format"); 0: raw payloads */
     unsigned quant_bits;        /* packed: the position grid's step is the
                                    largest power of two <= the input's
-                                   diagonal / 2^quant_bits; 8..30, default 24 */
+                                   diagonal / 2^quant_bits; 8..24 (a float
+                                   holds every step of a node within 2^24),
+                                   default 24 */
     unsigned jpeg_quality;      /* packed: JPEG quality of textures, 1..100,
                                    default 90; 0 stores textures raw */
     /* Called from the calling thread about every 100 ms while blocks

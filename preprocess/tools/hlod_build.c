@@ -62,7 +62,7 @@ static void usage(FILE *fp)
             "                         raw floats and pixels\n"
             "  --quant-bits B         packed: the position grid step is the input's\n"
             "                         diagonal / 2^B rounded down to a power of two\n"
-            "                         (8..30, default 24)\n"
+            "                         (8..24, default 24)\n"
             "  --jpeg-quality Q       packed: JPEG quality of textures (1..100, default\n"
             "                         90); 0 keeps textures lossless\n"
             "  --json                 print one JSON object on stdout: blocks, nodes,\n"
@@ -184,7 +184,7 @@ static int parse(int argc, char **argv, options *o)
         } else if (!strcmp(a, "--quant-bits")) {
             NEED_VAL();
             size_t b;
-            if (!hlod_cli_parse_size(PROG, a, val, 8, 30, &b))
+            if (!hlod_cli_parse_size(PROG, a, val, 8, 24, &b))
                 return 0;
             o->bd.quant_bits = (unsigned)b;
         } else if (!strcmp(a, "--jpeg-quality")) {
