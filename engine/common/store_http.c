@@ -404,6 +404,9 @@ static hlod_result blocking_get(hlod_http *h, int probe, uint64_t off, void *dst
         CURLcode rc = curl_easy_perform(x.easy);
         done += (size_t)x.got;
         verdict = classify(&x, rc, &res, msg, sizeof msg);
+        if (verdict == C_RETRY && (done == len || (probe && done > 0)))
+            verdict = C_DONE;   /* every byte arrived before the error: asking
+                                   again for none would read as a change */
         if (verdict == C_RETRY)
             went_down(h, msg);
         if (verdict == C_DONE && (probe || done == len)) {
