@@ -28,6 +28,7 @@
  * passed, admitted whatever the budget, and meanwhile, or for good when it
  * is bad, the traversal draws its children in its place (traverse.c).
  */
+#define _GNU_SOURCE /* RUSAGE_THREAD */
 #include "residency.h"
 
 #include "hlod_clock.h"
@@ -36,11 +37,38 @@
 #include <math.h>
 #include <stdlib.h>
 #include <string.h>
+#include <sys/resource.h>
 #include <time.h>
 
 #define MAX_TRANSIENT_FAILURES 4
 #define KEEP_UNWANTED_FRAMES 8  /* a queued node not wanted for this long is dropped */
-#define WAIT_MS 5.0             /* a post/collect call this slow counts as a wait */
+#define WAIT_MS 5.0             /* a post/collect call this slow counts as a wait... */
+
+/* ...when the render thread slept in it (a voluntary context switch: it
+ * blocked on a lock or I/O).  A call that only lost the CPU to another
+ * thread (an involuntary switch) waited for the scheduler, not for the
+ * loader; on 2 cores under load that is common and says nothing. */
+typedef struct wait_probe {
+    double t0;
+    long nvcsw;
+} wait_probe;
+
+static long voluntary_switches(void)
+{
+    struct rusage ru;
+    return getrusage(RUSAGE_THREAD, &ru) == 0 ? ru.ru_nvcsw : 0;
+}
+
+static wait_probe wait_begin(void)
+{
+    wait_probe w = {hlod_now_ms(), voluntary_switches()};
+    return w;
+}
+
+static int wait_end(const wait_probe *w)
+{
+    return hlod_now_ms() - w->t0 > WAIT_MS && voluntary_switches() != w->nvcsw;
+}
 
 static double mem_cost(const hlod_residency *rs, double cost)
 {
@@ -255,9 +283,9 @@ void hlod_residency_collect(hlod_residency *rs)
         rs->pending = p;
         rs->pending_cap = cap;
     }
-    double t0 = hlod_now_ms();
+    wait_probe wp = wait_begin();
     size_t got = hlod_loader_collect(rs->loader, rs->pending + rs->pending_n, room);
-    if (hlod_now_ms() - t0 > WAIT_MS)
+    if (wait_end(&wp))
         rs->st->render_waits++;
     rs->pending_n += got;
 
@@ -443,9 +471,9 @@ void hlod_residency_schedule(hlod_residency *rs, const hlod_evict_order *order)
     if (resort)
         qsort(post->v, post->n, sizeof *post->v, cmp_request);
 
-    double t0 = hlod_now_ms();
+    wait_probe wp = wait_begin();
     hlod_loader_post(rs->loader, post->v, post->n); /* busy: the same list goes next frame */
-    if (hlod_now_ms() - t0 > WAIT_MS)
+    if (wait_end(&wp))
         rs->st->render_waits++;
     rs->st->queued = (uint32_t)post->n;
     if (rs->d->deterministic)

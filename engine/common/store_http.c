@@ -677,8 +677,13 @@ size_t hlod_http_multi_poll(hlod_http_multi *m, int timeout_ms, int wake_fd, hlo
     if (running) {
         int still = 0;
         curl_multi_perform(m->m, &still);
-        curl_multi_poll(m->m, wake_fd >= 0 ? &wfd : NULL, wake_fd >= 0 ? 1 : 0, (int)wait, NULL);
-        curl_multi_perform(m->m, &still);
+        /* Wait only while every running transfer is still running: one that
+         * ended in this perform is answered now, not after the timeout. */
+        if ((unsigned)still >= running) {
+            curl_multi_poll(m->m, wake_fd >= 0 ? &wfd : NULL, wake_fd >= 0 ? 1 : 0, (int)wait,
+                            NULL);
+            curl_multi_perform(m->m, &still);
+        }
     } else if (wait > 0) {
         struct pollfd p = {wake_fd, POLLIN, 0};
         if (wake_fd >= 0)

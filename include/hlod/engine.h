@@ -228,7 +228,10 @@ typedef struct hlod_frame_stats {
     uint32_t load_failures;      /* reads that failed this frame */
     uint32_t bad_nodes;          /* nodes marked bad so far */
     uint32_t queued;             /* requests handed to the loader */
-    uint32_t render_waits;       /* render thread blocked on the loader: must be 0 */
+    uint32_t render_waits;       /* render thread blocked on the loader: must be 0
+                                    (a post or collect call over 5 ms in which the
+                                    thread slept: a voluntary context switch, not
+                                    a preemption) */
     /* cost model and deadline (README, "Cost model and deadline") */
     double pixels_drawn;         /* screen pixels of the drawn nodes' projected boxes */
     double margin;               /* deadline margin: the front may take (target - uploads) / margin */
