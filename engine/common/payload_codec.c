@@ -295,10 +295,8 @@ hlod_result hlod_payload_unpack(const uint8_t *buf, size_t size, const hlod_stor
         reserved_zero &= ph.reserved[k] == 0;
     if (memcmp(ph.magic, HLOD_PACKED_MAGIC, 4) != 0 || !reserved_zero)
         BAD(HLOD_ERR_FORMAT, "%s: node %u: bad packed payload header", name, node);
-    if (ph.flags != n->flags || ph.vertex_count != n->vertex_count ||
-        ph.index_count != 3 * (uint64_t)n->tri_count || ph.tex_tri_count != n->tex_tri_count ||
-        ph.tex_width != n->tex_width || ph.tex_height != n->tex_height ||
-        ph.tex_channels != n->tex_channels)
+    if (!hlod_store_counts_agree(n, ph.flags, ph.vertex_count, ph.index_count, ph.tex_tri_count,
+                                 ph.tex_width, ph.tex_height, ph.tex_channels))
         BAD(HLOD_ERR_FORMAT, "%s: node %u: payload counts disagree with the node table", name,
             node);
     const uint32_t f = ph.flags;

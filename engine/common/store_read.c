@@ -104,6 +104,16 @@ uint64_t hlod_store_payload_size(uint32_t flags, uint32_t vertex_count, uint32_t
     return size;
 }
 
+int hlod_store_counts_agree(const hlod_store_node *n, uint32_t flags, uint32_t vertex_count,
+                            uint32_t index_count, uint32_t tex_tri_count, uint32_t tex_width,
+                            uint32_t tex_height, uint32_t tex_channels)
+{
+    return flags == n->flags && vertex_count == n->vertex_count &&
+           index_count == 3 * (uint64_t)n->tri_count && tex_tri_count == n->tex_tri_count &&
+           tex_width == n->tex_width && tex_height == n->tex_height &&
+           tex_channels == n->tex_channels;
+}
+
 uint64_t hlod_store_node_memory(const hlod_store_node *n)
 {
     return hlod_store_payload_size(n->flags, n->vertex_count, 3 * n->tri_count, n->tex_width,
@@ -682,10 +692,8 @@ static hlod_result parse_payload(const hlod_store *s, uint32_t node, uint8_t *bu
     memcpy(&ph, buf, sizeof ph);
     if (memcmp(ph.magic, HLOD_PAYLOAD_MAGIC, 4) != 0 || !is_zero(ph.reserved, sizeof ph.reserved))
         BAD(HLOD_ERR_FORMAT, "%s: node %u: bad payload header", name, node);
-    if (ph.flags != n->flags || ph.vertex_count != n->vertex_count ||
-        ph.index_count != 3 * (uint64_t)n->tri_count || ph.tex_tri_count != n->tex_tri_count ||
-        ph.tex_width != n->tex_width || ph.tex_height != n->tex_height ||
-        ph.tex_channels != n->tex_channels)
+    if (!hlod_store_counts_agree(n, ph.flags, ph.vertex_count, ph.index_count, ph.tex_tri_count,
+                                 ph.tex_width, ph.tex_height, ph.tex_channels))
         BAD(HLOD_ERR_FORMAT, "%s: node %u: payload counts disagree with the node table", name,
             node);
     if (hlod_store_payload_size(ph.flags, ph.vertex_count, ph.index_count, ph.tex_width,
