@@ -127,7 +127,10 @@ else
         { echo "demo: error: hlod-gen-city failed" >&2; exit 1; }
 fi
 STORE=$CITY-$DESIRED.hlod
-if [ -s "$STORE" ] && [ "$STORE" -nt "$CITY.obj" ] && "$ROOT/build/bin/hlod-info" "$STORE" >/dev/null 2>&1; then
+# kept only when it is this format's (a version 2 store still reads, but the
+# demo shows what hlod-build makes now: packed payloads)
+if [ -s "$STORE" ] && [ "$STORE" -nt "$CITY.obj" ] &&
+    "$ROOT/build/bin/hlod-info" --json "$STORE" 2>/dev/null | grep -q '"version":3,'; then
     echo "==> store: $STORE exists (delete it to build again)"
 else
     echo "==> hlod-build $CITY.obj (cutplane, --desired-tris $DESIRED)"
