@@ -270,7 +270,7 @@ static hlod_result unpack_texture(const uint8_t *src, size_t bytes, const hlod_s
             node, w, h, cs == TJCS_GRAY ? "gray" : "colour", ph->tex_width, ph->tex_height,
             ph->tex_channels);
     if (tjDecompress2(tj, src, (unsigned long)bytes, dst, w, 0, h, gray ? TJPF_GRAY : TJPF_RGB,
-                      TJFLAG_STOPONWARNING) != 0)
+                      TJFLAG_STOPONWARNING | TJFLAG_LIMITSCANS) != 0)
         BAD(HLOD_ERR_FORMAT, "%s: node %u: cannot decode its JPEG texture: %s", name, node,
             tjGetErrorStr2(tj));
 done:
