@@ -504,12 +504,14 @@ static int visit(walk *w, const hlod_view *v, front *fr, uint32_t p)
             update_hyst(w, cf);
             cum += (long)trunc(cf->hyst / w->d->c_hyst_switch);
         }
-        /* A child that stands down (bad, or a top node not read yet) with
-         * children of its own does not hold p back: they stand in for it
-         * when the walk reaches it.  Else one bad hlod_0 under a readable
-         * group would pin the whole group at its coarse level. */
+        /* A top child that stands down (bad, or not read yet) with children
+         * of its own does not hold p back: they stand in for it when the
+         * walk reaches it.  Else one bad hlod_0 under a readable group
+         * would pin the whole group at its coarse level.  Below the top, a
+         * bad child still draws its parent (the coarser node is whole). */
         if (hlod_residency_state(w->res, c) != HLOD_NODE_RESIDENT &&
-            !(stands_down(w, c) && hlod_store_first_child(nodes, c) < hlod_store_child_end(nodes, c))) {
+            !(c < w->res->top_count && stands_down(w, c) &&
+              hlod_store_first_child(nodes, c) < hlod_store_child_end(nodes, c))) {
             all_resident = 0;
             missing++;
         }
