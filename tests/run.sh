@@ -105,12 +105,12 @@ fi
 # two threads, the loader under injected faults and the soak.  OpenImageIO
 # is not instrumented; its internal synchronisation is suppressed
 # (tests/tsan.supp), ours is checked.
-TSAN_TESTS="test_build|test_city_levels|test_store|test_metis|test_engine\$|test_loader|test_faults|test_soak"
+TSAN_TESTS="test_build|test_city_levels|test_store\$|test_metis|test_engine\$|test_loader|test_faults|test_soak|test_bad_roots"
 build_tsan() {
     cmake -S "$ROOT" -B "$ROOT/build-tsan" -DCMAKE_BUILD_TYPE=RelWithDebInfo -DHLOD_SANITIZE=thread \
         -DHLOD_BENCH=OFF >/dev/null &&
         make -C "$ROOT/build-tsan" -j"$JOBS" hlod-build hlod-gen-city hlod-info test_build test_city_levels test_store test_metis \
-            test_engine test_loader test_faults test_soak
+            test_engine test_loader test_faults test_soak test_bad_roots
 }
 run_tsan() {
     local log="$ROOT/out/test-logs/ctest-build-tsan.log"
