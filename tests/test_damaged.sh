@@ -17,12 +17,14 @@
 # count one, but a render thread that blocks on the loader does so again.
 #
 # HLOD_DAMAGED_SEEDS (default 20) sets the number of seeds; the sanitizer
-# build runs fewer (CMakeLists.txt).  Prints one line per seed and a total.
+# build runs fewer (CMakeLists.txt).  A seed's six runs go two at a time
+# (HLOD_DAMAGED_JOBS); the reruns one at a time.  Prints one line per seed and a total.
 set -u
 BIN=${HLOD_BIN_DIR:-build/bin}
 SRC=${HLOD_SOURCE_DIR:-.}
 SEEDS=${HLOD_DAMAGED_SEEDS:-20}
 FLIPS=40
+JOBS=${HLOD_DAMAGED_JOBS:-2}
 PATHS=(walk fly walk-to-fly walk-drive orbit still)
 T=$(mktemp -d /tmp/hlod-test-damaged-XXXXXX)
 trap 'rm -rf "$T"' EXIT
@@ -95,11 +97,17 @@ for seed in $(seq 1 "$SEEDS"); do
     ntop=$(awk -v t="$TOP" '$1 < t' "$T/corrupt" | wc -l)
     [ "$ntop" -gt 0 ] && top_seeds=$((top_seeds + 1))
     bad_list="" problems=""
+    # the six runs, JOBS at a time (each run is one render and one loader
+    # thread; render_waits counts only blocking waits, not preemption)
+    for p in "${PATHS[@]}"; do
+        rm -rf "$T/run-$p"
+        (bench "$S" "$p" "$T/run-$p"; echo $? >"$T/run-$p.rc") &
+        while [ "$(jobs -rp | wc -l)" -ge "$JOBS" ]; do wait -n; done
+    done
+    wait
     for p in "${PATHS[@]}"; do
         O=$T/run-$p
-        rm -rf "$O"
-        bench "$S" "$p" "$O"
-        rc=$?
+        rc=$(cat "$O.rc" 2>/dev/null || echo 255)
         runs=$((runs + 1))
         if [ "$rc" -ne 0 ] || [ ! -s "$O/summary.json" ]; then
             crashes=$((crashes + 1))
