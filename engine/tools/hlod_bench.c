@@ -39,6 +39,7 @@
 #include "atomic_file.h"
 #include "cli.h"
 #include "hlod_clock.h"
+#include "data_dir.h"
 #include "view_flags.h"
 #include "hlod/engine.h"
 #include "hlod/image.h"
@@ -47,10 +48,6 @@
 #include "hlod/path.h"
 
 static const char *const PROG = "hlod-bench";
-
-#ifndef HLOD_DATA_DIR
-#define HLOD_DATA_DIR "data"
-#endif
 
 static void usage(FILE *fp)
 {
@@ -65,7 +62,7 @@ static void usage(FILE *fp)
         "                    built-in name (walk, fly, walk-to-fly, walk-drive,\n"
         "                    orbit, still) looked up in data/paths/default/\n"
         "  --paths-dir D     where built-in names are looked up (default\n"
-        "                    " HLOD_DATA_DIR "/paths/default)\n"
+        "                    %s/paths/default)\n"
         "  --target-ms T     c_targetTime in ms (default 33.3)\n"
         "  --out DIR         output folder (created)\n"
         "  --width W         viewport (default 1280)\n"
@@ -128,7 +125,8 @@ static void usage(FILE *fp)
         "\n"
         "Exit status: 0 success, 1 a run failed, 2 bad command line.\n"
         "\n"
-        "Engine settings (--set KEY=VALUE; default, then meaning):\n");
+        "Engine settings (--set KEY=VALUE; default, then meaning):\n",
+        hlod_tool_data_dir());
     size_t n;
     const hlod_engine_setting *set = hlod_engine_settings(&n);
     for (size_t i = 0; i < n; i++)
@@ -357,7 +355,7 @@ static int parse_args(int argc, char **argv, options *o)
     o->plots = 1;
     o->policies[0] = HLOD_POLICY_LAKHIA;
     o->npolicies = 1;
-    o->paths_dir = HLOD_DATA_DIR "/paths/default";
+    o->paths_dir = hlod_tool_default_paths_dir();
     const view_flags vf = {&o->width, &o->height, &o->target_ms, &o->memory_mb, &o->fov,
                            &o->path,  &o->paths_dir, &o->frames, &o->up_y};
     for (int i = 1; i < argc; i++) {

@@ -41,6 +41,7 @@
 #include <GLFW/glfw3.h>
 
 #include "cli.h"
+#include "data_dir.h"
 #include "view_flags.h"
 #include "hlod/engine.h"
 #include "hlod/renderer.h"
@@ -49,10 +50,6 @@
 #include "hlod/vec3.h"
 
 static const char *const PROG = "hlod-view";
-
-#ifndef HLOD_DATA_DIR
-#define HLOD_DATA_DIR "data"
-#endif
 
 #define PI 3.14159265358979323846
 #define SPEED_WALK 1.5          /* m/s, key 1 */
@@ -89,7 +86,7 @@ static void usage(FILE *fp)
         "                    movement key or the mouse takes over, and so does\n"
         "                    the end of the path\n"
         "  --paths-dir D     where built-in names are looked up (default\n"
-        "                    " HLOD_DATA_DIR "/paths/default)\n"
+        "                    %s/paths/default)\n"
         "  --record FILE     record the camera as a path (a keyframe every 0.1 s\n"
         "                    of wall time), written when the viewer exits\n"
         "  --screenshot F    save a PNG after the last frame, print the fraction\n"
@@ -113,7 +110,8 @@ static void usage(FILE *fp)
         "resident memory vs budget and loads; stderr gets a line every second.\n"
         "\n"
         "Exit status: 0 success, 1 a failure (store, display, GL, output),\n"
-        "2 bad command line.\n");
+        "2 bad command line.\n",
+        hlod_tool_data_dir());
 }
 
 /* ---- options ---- */
@@ -154,7 +152,7 @@ static int parse_args(int argc, char **argv, options *o)
     o->near_plane = 0.25;
     o->frames = -1;
     o->policy = HLOD_POLICY_LAKHIA;
-    o->paths_dir = HLOD_DATA_DIR "/paths/default";
+    o->paths_dir = hlod_tool_default_paths_dir();
     const view_flags vf = {&o->width, &o->height, &o->target_ms, &o->memory_mb, &o->fov,
                            &o->path,  &o->paths_dir, &o->frames, &o->up_y};
     for (int i = 1; i < argc; i++) {
