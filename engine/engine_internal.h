@@ -39,6 +39,8 @@ struct hlod_engine {
     /* camera motion */
     double prev_eye[3];
     int have_prev;
+    int have_front;         /* last_front_ms is set (a frame was selected) */
+    double last_front_ms;   /* the last front's estimate, fixed part included */
 
     uint32_t frame;         /* current frame stamp (1-based) */
     hlod_frame_stats st;    /* being filled */

@@ -270,7 +270,7 @@ static void load_failed(hlod_residency *rs, uint32_t node, hlod_result why)
  * it is made anyway (it may be the one node the view needs). */
 #define UPLOAD_STARVE 8
 
-void hlod_residency_collect(hlod_residency *rs)
+void hlod_residency_collect(hlod_residency *rs, double up_ms)
 {
     /* Drain the loader into our pending list (bounded by max_inflight per
      * call, so a frame never takes an unbounded batch). */
@@ -291,9 +291,20 @@ void hlod_residency_collect(hlod_residency *rs)
 
     /* Uploads stop at the byte budget or, measured, at the time budget: a
      * software GL copies and mipmaps every texture on this thread. */
-    double up_ms = rs->d->upload_budget_ms > 0 ? rs->d->upload_budget_ms : 0.1 * rs->d->target_ms;
     if (rs->d->deterministic || rs->d->time_model)
         up_ms = INFINITY; /* reproducible, or a synthetic machine: bytes alone decide */
+    /* The nodes a refinement waits for go first (a stable partition: each
+     * part keeps its arrival order, which is the loader's priority order):
+     * behind a still camera's prefetch they would wait many frames, and
+     * then refine late, after the view has settled. */
+    const uint32_t recent = rs->frame > 1 ? rs->frame - 1 : 0;
+    size_t first = 0;
+    for (size_t k = 0; k < rs->pending_n; k++)
+        if (rs->res[rs->pending[k].node].needed >= recent) {
+            hlod_load_result t = rs->pending[k];
+            memmove(rs->pending + first + 1, rs->pending + first, (k - first) * sizeof t);
+            rs->pending[first++] = t;
+        }
     double t_up = hlod_now_ms();
     uint64_t uploaded = 0;
     size_t keep = 0;
@@ -470,6 +481,16 @@ void hlod_residency_schedule(hlod_residency *rs, const hlod_evict_order *order)
     hlod_mem_free(&rs->d->allocator, old.v);
     if (resort)
         qsort(post->v, post->n, sizeof *post->v, cmp_request);
+    /* The loader reads in list order: the nodes a refinement waits for
+     * first, each part in priority order (admission above used priority
+     * alone, so the memory budget's choice is unchanged). */
+    size_t first = 0;
+    for (size_t k = 0; k < post->n; k++)
+        if (rs->res[post->v[k].node].needed == rs->frame) {
+            hlod_load_request t = post->v[k];
+            memmove(post->v + first + 1, post->v + first, (k - first) * sizeof t);
+            post->v[first++] = t;
+        }
 
     wait_probe wp = wait_begin();
     hlod_loader_post(rs->loader, post->v, post->n); /* busy: the same list goes next frame */
@@ -559,6 +580,8 @@ void hlod_residency_end_frame(hlod_residency *rs)
     hlod_loader_get_counters(rs->loader, &lc);
     rs->st->bytes_read += lc.bytes_read - rs->bytes_read_prev;
     rs->bytes_read_prev = lc.bytes_read;
+    rs->st->cache_hits += (uint32_t)(lc.cache_hits - rs->cache_hits_prev);
+    rs->cache_hits_prev = lc.cache_hits;
     rs->st->loader_finish_ms = (double)(lc.finish_ns - rs->finish_ns_prev) * 1e-6;
     rs->st->loader_busy_ms = (double)(lc.busy_ns - rs->busy_ns_prev) * 1e-6;
     rs->finish_ns_prev = lc.finish_ns;

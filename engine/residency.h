@@ -24,6 +24,8 @@ typedef struct hlod_node_res {
     uint32_t retry_frame;   /* absent until this frame after a transient failure */
     uint32_t wanted;        /* frame the selection last asked for it */
     uint32_t posted;        /* frame it was last put in the loader's list */
+    uint32_t needed;        /* frame a refinement last waited for it (it is
+                               visible, and its parent would refine into it) */
     uint32_t slot;          /* index in the resident list while resident */
     hlod_gpu_node gpu;      /* when a renderer is attached */
 } hlod_node_res;
@@ -47,6 +49,7 @@ typedef struct hlod_residency {
     hlod_req_vec want;          /* asked for this frame (hlod_residency_want) */
     hlod_req_vec post;          /* what was handed to the loader */
     uint64_t bytes_read_prev;   /* the loader's counter at the last frame's end */
+    uint64_t cache_hits_prev;   /* the loader's cache hits then */
     uint64_t finish_ns_prev, busy_ns_prev;  /* the loader's CPU-time counters then */
     uint32_t bad_total;
     uint32_t top_missing;       /* top nodes neither resident nor bad (a transient
@@ -96,6 +99,15 @@ static inline int hlod_residency_want(hlod_residency *r, uint32_t node, double p
     return hlod_req_push(&r->d->allocator, &r->want, node, priority);
 }
 
+/* As hlod_residency_want, for a node a refinement the selection would make
+ * now is waiting for (not a prefetch): the loader reads, and collect
+ * uploads, such nodes before the others. */
+static inline int hlod_residency_need(hlod_residency *r, uint32_t node, double priority)
+{
+    r->res[node].needed = r->frame;
+    return hlod_residency_want(r, node, priority);
+}
+
 static inline hlod_node_state hlod_residency_state(const hlod_residency *r, uint32_t node)
 {
     return (hlod_node_state)r->res[node].state;
@@ -106,8 +118,12 @@ static inline const hlod_gpu_node *hlod_residency_gpu(const hlod_residency *r, u
     return &r->res[node].gpu;
 }
 
-/* Collects finished loads and uploads them within the upload budget. */
-void hlod_residency_collect(hlod_residency *r);
+/* Collects finished loads and uploads them within the upload budget:
+ * up_ms of uploads this frame (the engine's budget: at least its reserve,
+ * more when the last front left the frame room), the nodes a refinement
+ * waits for first.  up_ms is ignored when deterministic or timed by a
+ * model (bytes alone decide). */
+void hlod_residency_collect(hlod_residency *r, double up_ms);
 /* Admits wanted nodes against the budget (evicting in order's order),
  * hands the loader its list. */
 void hlod_residency_schedule(hlod_residency *r, const hlod_evict_order *order);

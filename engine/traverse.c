@@ -414,7 +414,8 @@ static int stand_in(walk *w, const hlod_view *v, front *fr, uint32_t p)
         price(w, v, c, fv);
         if (fv < 1 || (!stands_down(w, c) &&
                        hlod_residency_state(w->res, c) != HLOD_NODE_RESIDENT)) {
-            if (!hlod_residency_want(w->res, c, w->fr[c].priority))
+            /* a visible one being read leaves a hole until it arrives */
+            if (!(fv >= 1 ? hlod_residency_need : hlod_residency_want)(w->res, c, w->fr[c].priority))
                 return 0;
             w->st->wanted_missing += fv >= 1;
             continue;
@@ -568,9 +569,13 @@ static int visit(walk *w, const hlod_view *v, front *fr, uint32_t p)
 
     /* Ask for the children that are not resident when refining is near. */
     if (near && !all_resident)
-        for (size_t k = mark; k < w->s->next.n; k++)
-            if (!hlod_residency_want(w->res, w->s->next.v[k], w->fr[w->s->next.v[k]].priority))
+        for (size_t k = mark; k < w->s->next.n; k++) {
+            uint32_t c = w->s->next.v[k];
+            /* a refinement held back only by this read is waited for: it
+             * is read and uploaded before the prefetch */
+            if (!(refine ? hlod_residency_need : hlod_residency_want)(w->res, c, w->fr[c].priority))
                 return 0;
+        }
 
     if (refine && !all_resident) {
         /* A visible sibling that is not resident forces the parent. */

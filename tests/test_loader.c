@@ -19,6 +19,7 @@
 #include "hlod/store.h"
 #include "hlod/store_write.h"
 #include "loader.h"
+#include "residency.h"
 
 #include <math.h>
 #include <pthread.h>
@@ -919,6 +920,83 @@ static void test_two_loaders(void)
     }
 }
 
+/* ---------- residency's order ---------- */
+
+/* Records the first node each read asks for, in order (synchronous). */
+typedef struct order_hook {
+    uint32_t node[NODES];
+    int n;
+} order_hook;
+
+static hlod_result record_order(void *user, uint32_t node, uint64_t offset, size_t bytes)
+{
+    order_hook *h = user;
+    (void)bytes;
+    if (offset == 0 && h->n < NODES) /* offset within the payload */
+        h->node[h->n++] = node;
+    return HLOD_OK;
+}
+
+static int keep_all(void *user, uint32_t node, double *key)
+{
+    (void)user, (void)node, (void)key;
+    return 0;
+}
+
+/* A node a refinement waits for (hlod_residency_need) is read before the
+ * prefetch of higher priority, and uploaded before prefetch that arrived
+ * first, with one upload a frame (upload_budget_bytes 1). */
+static void test_residency_needed_first(void)
+{
+    hlod_engine_desc d = {0};
+    hlod_engine_desc_defaults(&d);
+    d.deterministic = 1;
+    d.deterministic_load_bytes = 1u << 30; /* a schedule reads all it posts */
+    d.upload_budget_bytes = 1;             /* one upload a frame */
+    order_hook h = {0};
+    d.read_hook = record_order;
+    d.read_hook_user = &h;
+    hlod_frame_stats st = {0};
+    hlod_residency rs;
+    CHECK(hlod_residency_init(&rs, g_store, &d, &st) == HLOD_OK);
+    hlod_evict_order keep = {keep_all, NULL};
+    const uint32_t m0 = g_idx[M(0)], m1 = g_idx[M(1)], m2 = g_idx[M(2)], m3 = g_idx[M(3)];
+    h.n = 0;
+    /* frame 1: two prefetches, one need of the lowest priority */
+    hlod_residency_begin_frame(&rs, 1);
+    hlod_residency_collect(&rs, INFINITY);
+    CHECK(hlod_residency_want(&rs, m0, 5.0) && hlod_residency_need(&rs, m1, 1.0) &&
+          hlod_residency_want(&rs, m2, 4.0));
+    hlod_residency_schedule(&rs, &keep);
+    CHECKF(h.n == 3 && h.node[0] == m1 && h.node[1] == m0 && h.node[2] == m2,
+           "read order %u %u %u (n %d), want %u %u %u", h.n > 0 ? h.node[0] : 0,
+           h.n > 1 ? h.node[1] : 0, h.n > 2 ? h.node[2] : 0, h.n, m1, m0, m2);
+    /* frame 2: the needed one is uploaded first */
+    hlod_residency_begin_frame(&rs, 2);
+    hlod_residency_collect(&rs, INFINITY);
+    CHECK(hlod_residency_state(&rs, m1) == HLOD_NODE_RESIDENT &&
+          hlod_residency_state(&rs, m0) == HLOD_NODE_QUEUED &&
+          hlod_residency_state(&rs, m2) == HLOD_NODE_QUEUED);
+    /* m2 and m3 are read in priority order after m0 waits; then m3 turns
+     * needed: the next upload is m3, though m0 and m2 arrived first */
+    CHECK(hlod_residency_want(&rs, m0, 5.0) && hlod_residency_want(&rs, m2, 4.0) &&
+          hlod_residency_want(&rs, m3, 3.0));
+    hlod_residency_schedule(&rs, &keep);
+    hlod_residency_begin_frame(&rs, 3);
+    CHECK(hlod_residency_need(&rs, m3, 3.0));
+    hlod_residency_collect(&rs, INFINITY);
+    CHECKF(hlod_residency_state(&rs, m3) == HLOD_NODE_RESIDENT &&
+               hlod_residency_state(&rs, m0) != HLOD_NODE_RESIDENT &&
+               hlod_residency_state(&rs, m2) != HLOD_NODE_RESIDENT,
+           "frame 3 uploaded m0 %d m2 %d m3 %d (2 = resident)", hlod_residency_state(&rs, m0),
+           hlod_residency_state(&rs, m2), hlod_residency_state(&rs, m3));
+    /* the rest follow, one a frame, in arrival order */
+    hlod_residency_begin_frame(&rs, 4);
+    hlod_residency_collect(&rs, INFINITY);
+    CHECK(hlod_residency_state(&rs, m0) == HLOD_NODE_RESIDENT);
+    hlod_residency_destroy(&rs);
+}
+
 int main(void)
 {
     const char *tmp = getenv("TMPDIR");
@@ -947,6 +1025,7 @@ int main(void)
         RUN(test_render_never_blocks);
         RUN(test_destroy_in_flight);
         RUN(test_two_loaders);
+        RUN(test_residency_needed_first);
     }
     for (int i = 0; i < NODES; i++)
         hlod_store_payload_free(&g_ref[i]);
