@@ -6,6 +6,7 @@
 # prefix with `cmake --install`, then moves the prefix elsewhere (the CMake
 # package, hlod.pc and the tools must not need the place they were
 # installed to, nor the source or build tree), and checks:
+#   - the README's "Using the library" shows tests/install/example/main.c;
 #   - the headers, libraries, CMake package, hlod.pc, tools and camera
 #     paths are there, and no installed package file names the source or
 #     build tree or the first prefix;
@@ -51,6 +52,13 @@ finish() {
 }
 # "nodes N triangles N pixels N" with both counts above zero
 drew() { awk '$1 == "nodes" && $4 > 0 && $6 > 0 { f = 1 } END { exit !f }' "$1"; }
+
+# ---- the README shows the example as it is ----
+readme_code=$(awk '/^## Using the library/ { s = 1 } s && /^```c$/ { c = 1; next }
+    c && /^```$/ { exit } c' "$SRC/README.md")
+main_code=$(sed -n '/^#include <hlod\/engine.h>/,$p' "$SRC/tests/install/example/main.c")
+[ -n "$main_code" ] && [ "$readme_code" = "$main_code" ]
+ok $? "README's 'Using the library' shows tests/install/example/main.c"
 
 # ---- install, then move the prefix ----
 "$CMAKE" --install "$BUILD" --prefix "$T/first" >"$T/install.log" 2>&1
