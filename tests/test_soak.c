@@ -108,7 +108,8 @@ typedef struct soak {
     int blocked_frames;             /* frame() blocked (voluntary switch) */
     double worst_blocked_ms;        /* the longest of those frames */
     int unexplained_waits;          /* render waits in frames that kept the CPU */
-    int unexplained_slow;           /* slow frames that kept the CPU and never blocked */
+    int unexplained_slow;           /* frames that kept the CPU, never blocked and took
+                                       over FRAME_MS of CPU time */
     double worst_ms;                /* of the frames that kept the CPU */
     long rss_warm_kb, rss_end_kb;
     long logged_errors;
@@ -262,7 +263,11 @@ static void *soak_main(void *arg)
          * TSan not blocked in the runtime's own mutexes) are real. */
         if (span_kept_cpu(&sp)) {
             k->unexplained_waits += st.render_waits;
-            k->unexplained_slow += dt > FRAME_MS && sp.vol == 0;
+            /* the frame's own work: its CPU time (a frame that ran for
+             * only part of its wall time lost the rest to the host or to
+             * the other tests, which no switch count shows; seen once under
+             * ASan: over 20 ms of wall time, no switch) */
+            k->unexplained_slow += sp.cpu_ms > FRAME_MS && sp.vol == 0;
             k->slow_frames += dt > FRAME_MS;
             if (dt > k->worst_ms)
                 k->worst_ms = dt;
@@ -310,8 +315,9 @@ static void check_soak(const soak *k, const char *what)
            (unsigned long long)k->over_budget);
     CHECKF(k->unexplained_waits == 0, "%s: %d render waits in frames that kept the CPU (%u in all)",
            what, k->unexplained_waits, k->render_waits);
-    CHECKF(k->unexplained_slow == 0, "%s: %d frames over %.0f ms, neither preempted nor blocked",
-           what, k->unexplained_slow, FRAME_MS);
+    CHECKF(k->unexplained_slow == 0,
+           "%s: %d frames over %.0f ms of CPU time, neither preempted nor blocked", what,
+           k->unexplained_slow, FRAME_MS);
     CHECKF(k->slow_frames <= allowed && k->worst_ms < 500, "%s: %d frames over %.0f ms, worst "
            "%.1f ms", what, k->slow_frames, FRAME_MS, k->worst_ms);
     CHECKF(k->nonfinite == 0, "%s: %d frames with non-finite stats", what, k->nonfinite);
