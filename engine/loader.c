@@ -123,7 +123,7 @@ struct hlod_loader {
     atomic_uint_fast64_t version; /* lists posted so far */
     atomic_int stop;
     atomic_uint_fast64_t bytes_read, reads_done, reads_failed, switches;
-    atomic_uint_fast64_t finish_ns, busy_ns;
+    atomic_uint_fast64_t finish_ns, busy_ns, cache_hits;
 };
 
 /* ---- the loader's side (loader thread, or the pump caller) ---- */
@@ -483,9 +483,12 @@ static int start_range(hlod_loader *l, hlod_store_read *rd, uint64_t max)
 /* loader thread: the first `transfers` requests not done get a transfer
  * each, most urgent first; a transfer of any other read stops (preempted:
  * its bytes stay in the read, which resumes from there with a new range
- * when its node comes up again). */
-static void http_assign(hlod_loader *l)
+ * when its node comes up again).  A read not begun is first looked up in
+ * the local cache (HLOD_CACHE_DIR): an entry whose checksum matches is
+ * finished at once, without a transfer.  Returns the cache hits. */
+static unsigned http_assign(hlod_loader *l)
 {
+    unsigned hits = 0;
     uint32_t want[LOADER_HTTP_MAX_TRANSFERS];
     unsigned nw = 0;
     for (size_t i = next_undone(l, l->cursor); i < l->list_n && nw < l->transfers;
@@ -507,11 +510,18 @@ static void http_assign(hlod_loader *l)
         hlod_store_read *rd = open_read(l, want[k]);
         if (!rd || hlod_store_fetch_has(l->fetch, rd))
             continue;
+        if (rd->done == 0 && hlod_store_cache_get(rd)) {
+            atomic_fetch_add_explicit(&l->cache_hits, 1, memory_order_relaxed);
+            hits++;
+            finish_read(l, rd);
+            continue;
+        }
         if (rd->done == rd->size)
             finish_read(l, rd); /* not reached: a complete read is finished at once */
         else
             start_range(l, rd, LOADER_HTTP_RANGE);
     }
+    return hits;
 }
 
 /* loader thread: runs the transfers up to timeout_ms; finishes the reads
@@ -535,6 +545,7 @@ static void http_collect(hlod_loader *l, int timeout_ms)
             close_read(l, rd);
             fail_node(l, node, ends[i].result);
         } else if (rd->done == rd->size) {
+            hlod_store_cache_put(rd);   /* checksum matched: kept for the next run */
             finish_read(l, rd);
         }
     }
@@ -646,12 +657,12 @@ static void http_main(hlod_loader *l)
         uint64_t t0 = thread_cpu_ns();
         if (atomic_load(&l->version) != l->list_version)
             take_list(l);
-        http_assign(l);
+        unsigned hits = http_assign(l);
         int active = hlod_store_fetch_active(l->fetch) > 0;
-        if (active)
-            http_collect(l, LOADER_HTTP_POLL_MS);
+        if (active) /* no wait after cache hits: the next requests may be hits too */
+            http_collect(l, hits ? 0 : LOADER_HTTP_POLL_MS);
         atomic_fetch_add_explicit(&l->busy_ns, thread_cpu_ns() - t0, memory_order_relaxed);
-        if (active)
+        if (active || hits)
             continue;
         pthread_mutex_lock(&l->mu);
         while (!atomic_load(&l->stop) && atomic_load(&l->version) == l->list_version)
@@ -721,6 +732,7 @@ hlod_result hlod_loader_create(const hlod_store *s, const hlod_loader_desc *d,
     atomic_init(&l->switches, 0);
     atomic_init(&l->finish_ns, 0);
     atomic_init(&l->busy_ns, 0);
+    atomic_init(&l->cache_hits, 0);
     if (!l->nodes) {
         free(l);
         return HLOD_ERR_NOMEM;
@@ -894,4 +906,5 @@ void hlod_loader_get_counters(const hlod_loader *l, hlod_loader_counters *out)
     out->switches = atomic_load_explicit(&l->switches, memory_order_relaxed);
     out->finish_ns = atomic_load_explicit(&l->finish_ns, memory_order_relaxed);
     out->busy_ns = atomic_load_explicit(&l->busy_ns, memory_order_relaxed);
+    out->cache_hits = atomic_load_explicit(&l->cache_hits, memory_order_relaxed);
 }

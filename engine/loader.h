@@ -54,6 +54,8 @@ typedef struct hlod_loader_counters {
     uint64_t finish_ns;         /* thread CPU time in hlod_store_read_finish: checksum,
                                    decoding (packed stores) and validation */
     uint64_t busy_ns;           /* thread CPU time of all the loader's work */
+    uint64_t cache_hits;        /* payloads taken from the local cache (HLOD_CACHE_DIR):
+                                   not in bytes_read */
 } hlod_loader_counters;
 
 hlod_result hlod_loader_create(const hlod_store *s, const hlod_loader_desc *d,

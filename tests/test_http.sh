@@ -29,8 +29,24 @@
 #     and restarted 1 s later (loads go on after the restart, no node turns
 #     bad), the store replaced on the server mid-run ("the store changed on
 #     the server (ETag", no checksum mismatch: no bytes of two versions
-#     mixed), a slow trickle (limit_rate 16k).
-# HLOD_HTTP_QUICK=1 (the sanitizer build) runs walk-drive only, shorter.
+#     mixed), a slow trickle (limit_rate 16k);
+#   - faults nginx cannot make, from tests/http_fault_server.py (python3),
+#     each on every 3rd payload range request for the first 1.5 s (12 at
+#     most): a 416, a truncated body (Content-Length more than it sends,
+#     then a close), a connection reset (RST): exit 0, every frame, 0 render
+#     waits, no sanitizer report, retried and recovered ("retrying", then
+#     "the server answers again" last; loads after the last fault, or no
+#     wanted node missing at the end), no node bad;
+#   - HLOD_CACHE_DIR: walk-drive twice (--target-ms 1000: the SSE alone
+#     selects, so both runs want the same nodes): the second takes
+#     cache_hits > 0 from the cache and reads <= 0.2 x the first's bytes;
+#     then one entry with a byte flipped and one cut short: the next run
+#     exits 0 with no node bad and both entries rewritten good; a changed
+#     store at the same URL gets a folder of its own (hlod-info --verify,
+#     no damaged entry met); a cache folder that cannot be made is one
+#     warning and an uncached run.
+# HLOD_HTTP_QUICK=1 (the sanitizer build) runs walk-drive only, shorter, and
+# of the server's faults only the 416.
 set -u
 BIN=${HLOD_BIN_DIR:-build/bin}
 SRC=${HLOD_SOURCE_DIR:-.}
@@ -56,6 +72,7 @@ fi
 T=$(mktemp -d /tmp/hlod-test-http-XXXXXX)
 chmod 755 "$T"
 NGINX_PID=""
+FAULT_PID=""
 stop_nginx() {
     [ -n "$NGINX_PID" ] || return 0
     local workers
@@ -64,7 +81,7 @@ stop_nginx() {
     wait "$NGINX_PID" 2>/dev/null
     NGINX_PID=""
 }
-trap 'stop_nginx KILL; rm -rf "$T"' EXIT
+trap 'stop_nginx KILL; [ -z "$FAULT_PID" ] || kill -KILL "$FAULT_PID" 2>/dev/null; rm -rf "$T"' EXIT
 pass=0
 fail=0
 ok() {
@@ -224,9 +241,10 @@ ok $? "max_ranges 0: hlod-info exits 1 (got $rc): $(head -1 "$T/errnr" | cut -c1
 ok $? "max_ranges 0: hlod-bench exits 1 with the same message"
 
 FAULT=(--realtime --width 320 --height 180 --memory-mb 64 --frames 180)
-# fault_ok DIR: exit 0 (given), every frame, no render wait, no sanitizer report
+# fault_ok DIR [FRAMES]: exit 0 (given), every frame (180), no render wait, no
+# sanitizer report
 fault_ok() {
-    [ "$(key "$1" frames)" = 180 ] && [ "$(key "$1" render_waits)" = 0 ] &&
+    [ "$(key "$1" frames)" = "${2:-180}" ] && [ "$(key "$1" render_waits)" = 0 ] &&
         ! grep -qE 'AddressSanitizer|runtime error|LeakSanitizer' "$1.err"
 }
 
@@ -274,6 +292,104 @@ ok $? "store replaced mid-run: every frame, render_waits 0, $(grep -m1 -o 'the s
 slow_run() { bench "$URL/slow/city.hlod" walk-drive "$T/slow" "${FAULT[@]}" && fault_ok "$T/slow"; }
 slow_run || slow_run
 ok $? "slow trickle (16 KB/s): every frame, render_waits 0 (loads $(key "$T/slow" loads), missing_wanted_frames $(key "$T/slow" missing_wanted_frames))"
+
+# ---- faults nginx cannot make: tests/http_fault_server.py ----
+# loads_from DIR F: the loads of frames F.. in DIR/frames.csv
+loads_from() {
+    awk -F, -v f="$2" 'NR == 1 { for (i = 1; i <= NF; i++) if ($i == "loads") c = i; next }
+        NR - 2 >= f { s += $c } END { print s + 0 }' "$1/frames.csv"
+}
+PY=$(command -v python3 || echo /usr/bin/python3)
+"$PY" "$SRC/tests/http_fault_server.py" --root "$T/www" --port-file "$T/fault.port" \
+    --every 3 --max 12 --for 1.5 --log "$T/faults.log" 2>"$T/fault-server.err" &
+FAULT_PID=$!
+for i in $(seq 1 100); do
+    [ -s "$T/fault.port" ] && break
+    kill -0 "$FAULT_PID" 2>/dev/null || break
+    sleep 0.1
+done
+[ -s "$T/fault.port" ]
+ok $? "fault server started ($PY tests/http_fault_server.py): $(head -c 200 "$T/fault-server.err")"
+FURL=http://127.0.0.1:$(cat "$T/fault.port" 2>/dev/null)
+touch "$T/faults.log"
+FAULT150=(--realtime --width 320 --height 180 --memory-mb 64 --frames 150)
+# last_missing DIR: wanted_missing of DIR's last frame
+last_missing() {
+    awk -F, 'NR == 1 { for (i = 1; i <= NF; i++) if ($i == "wanted_missing") c = i; next }
+        { m = $c } END { print m + 0 }' "$1/frames.csv"
+}
+# server_fault RUN: walk-drive from FURL/RUN/city.hlod, RUN's faults judged
+# as the kill's (frames from (last fault - start) / 33 + 10 on are after
+# it): loads go on after the faults, or none was needed (the faulted reads
+# were all retried in time and the last frame misses no wanted node)
+server_fault() {
+    local run=$1 t0 rc n last f after tail miss
+    t0=$(date +%s%3N)
+    bench "$FURL/$run/city.hlod" walk-drive "$T/f$run" "${FAULT150[@]}"
+    rc=$?
+    n=$(grep -c " $run " "$T/faults.log")
+    last=$(grep " $run " "$T/faults.log" | tail -1 | awk '{ print $NF }')
+    f=$(((${last:-$t0} - t0) / 33 + 10))
+    after=$(loads_from "$T/f$run" "$f")
+    miss=$(last_missing "$T/f$run")
+    tail=$(grep -oE 'retrying|the server answers again' "$T/f$run.err" | tail -1)
+    echo "REPORT http fault $run: rc $rc, $n faults, the last at $((${last:-$t0} - t0)) ms; loads after frame $f: $after;" \
+        "loads=$(key "$T/f$run" loads) load_failures=$(key "$T/f$run" load_failures) bad_nodes=$(key "$T/f$run" bad_nodes)" \
+        "render_waits=$(key "$T/f$run" render_waits) last frame's wanted_missing=$miss;" \
+        "$(grep -c retrying "$T/f$run.err") retrying lines, the last state: $tail"
+    [ $rc -eq 0 ] && fault_ok "$T/f$run" 150 && [ "$n" -ge 4 ] && { [ "$after" -gt 0 ] || [ "$miss" = 0 ]; } &&
+        [ "$(key "$T/f$run" bad_nodes)" = 0 ] && [ "$tail" = "the server answers again" ]
+}
+KINDS=(416 truncate reset)
+[ "$QUICK" = 1 ] && KINDS=(416)
+for k in "${KINDS[@]}"; do
+    server_fault "$k" || server_fault "$k-2"
+    ok $? "$k from the server on every 3rd payload request for 1.5 s: every frame, render_waits 0, retried, recovered, no node bad ($(grep -m1 retrying "$T/f$k.err" | sed 's/^.*city.hlod: //' | cut -c1-90))"
+done
+
+# ---- HLOD_CACHE_DIR ----
+CACHE=(--realtime --width 320 --height 180 --memory-mb 64 --frames 90 --target-ms 1000)
+cache_run() { HLOD_CACHE_DIR="$T/cache" bench "$URL/city.hlod" walk-drive "$T/$1" "${CACHE[@]}"; }
+rm -rf "$T/cache"
+cache_run cache1 && cache_run cache2
+rc=$?
+b1=$(key "$T/cache1" bytes_read) b2=$(key "$T/cache2" bytes_read) h2=$(key "$T/cache2" cache_hits)
+echo "REPORT http cache: first run bytes_read=$b1 cache_hits=$(key "$T/cache1" cache_hits) loads=$(key "$T/cache1" loads)" \
+    "| second bytes_read=$b2 cache_hits=$h2 loads=$(key "$T/cache2" loads) render_waits=$(key "$T/cache2" render_waits)" \
+    "| $(ls "$T/cache" | wc -l) folder, $(ls "$T/cache"/* | wc -l) entries"
+[ $rc -eq 0 ] && fault_ok "$T/cache1" 90 && fault_ok "$T/cache2" 90 && [ "$h2" -gt 0 ] &&
+    perl -e 'exit !($ARGV[1] <= 0.2 * $ARGV[0])' "$b1" "$b2" && [ "$(ls "$T/cache" | wc -l)" = 1 ]
+ok $? "HLOD_CACHE_DIR: the second walk-drive takes $h2 payloads from the cache and reads $b2 bytes (first: $b1), render_waits 0"
+
+# a byte flipped in one entry (the root's), another cut short (node 1's):
+# both top nodes, read at every start
+D=$(ls -d "$T/cache"/*/ | head -1)
+cp "$D/0" "$T/entry0" && cp "$D/1" "$T/entry1" &&
+    perl -e 'open my $f, "+<", $ARGV[0] or die; seek $f, 100, 0; read $f, my $b, 1;
+        seek $f, 100, 0; print $f chr(ord($b) ^ 0xff); close $f or die' "$D/0" &&
+    truncate -s 100 "$D/1" && ! cmp -s "$D/0" "$T/entry0"
+ok $? "cache entries 0 (a byte flipped) and 1 (cut to 100 bytes) damaged"
+cache_run cache3
+rc=$?
+[ $rc -eq 0 ] && fault_ok "$T/cache3" 90 && [ "$(key "$T/cache3" bad_nodes)" = 0 ] &&
+    [ "$(key "$T/cache3" load_failures)" = 0 ] && [ "$(grep -c 'is damaged' "$T/cache3.err")" = 2 ] &&
+    cmp -s "$D/0" "$T/entry0" && cmp -s "$D/1" "$T/entry1" && ! grep -q "checksum mismatch" "$T/cache3.err"
+ok $? "damaged cache entries: exit 0 (got $rc), bad_nodes $(key "$T/cache3" bad_nodes), both read again and rewritten good ($(grep -m1 'is damaged' "$T/cache3.err" | sed 's/^.*city.hlod: //' | cut -c1-60)...)"
+
+# the same URL serving another store: a folder of its own, no stale entry met
+mkdir -p "$T/www/cached" && cp "$T/city.hlod" "$T/www/cached/city.hlod" && chmod -R a+rX "$T/www/cached"
+info_cached() { HLOD_CACHE_DIR="$T/cache" "$BIN/hlod-info" "$URL/cached/city.hlod" --verify --json 2>"$T/info-cached.err"; }
+info_cached | grep -q '"verified":true' && info_cached | grep -q '"verified":true' &&
+    cp "$T/other.hlod" "$T/www/cached/new.hlod" && chmod a+r "$T/www/cached/new.hlod" &&
+    mv "$T/www/cached/new.hlod" "$T/www/cached/city.hlod" &&
+    info_cached | grep -q '"verified":true' && [ "$(ls "$T/cache" | wc -l)" = 3 ] &&
+    ! grep -q "is damaged\|checksum" "$T/info-cached.err"
+ok $? "hlod-info --verify URL with the cache, twice, then the store replaced at that URL: verified, $(ls "$T/cache" | wc -l) folders (each store its own), no damaged entry"
+
+# a cache folder that cannot be made: one warning, no cache
+HLOD_CACHE_DIR="$T/city.hlod/cache" "$BIN/hlod-info" "$URL/city.hlod" --verify --json 2>"$T/info-nocache.err" |
+    grep -q '"verified":true' && [ "$(grep -c 'HLOD_CACHE_DIR' "$T/info-nocache.err")" = 1 ]
+ok $? "HLOD_CACHE_DIR not a folder: verified uncached, one warning ($(head -1 "$T/info-nocache.err" | sed 's/^.*HLOD_CACHE_DIR/HLOD_CACHE_DIR/' | cut -c1-100))"
 
 echo "$pass passed, $fail failed"
 [ "$fail" -eq 0 ]

@@ -236,7 +236,8 @@ static void changed(hlod_http *h, const xfer *x)
     if (atomic_exchange(&h->changed, 1))
         return;
     unsigned long long a, b, t = 0;
-    if (sscanf(x->cr, "bytes %llu-%llu/%llu", &a, &b, &t) != 3)
+    if (sscanf(x->cr, "bytes %llu-%llu/%llu", &a, &b, &t) != 3 &&
+        sscanf(x->cr, "bytes */%llu", &t) != 1)
         t = 0;
     hlod_logf(&h->lg, HLOD_LOG_ERROR,
               "%s: the store changed on the server (ETag %s -> %s, Last-Modified %s -> %s%s%s); "
@@ -279,6 +280,22 @@ static int classify(xfer *x, CURLcode rc, hlod_result *res, char *msg, size_t ca
     }
     if (code >= 500 || code == 408 || code == 429) {
         snprintf(msg, cap, "HTTP status %ld", code);
+        return C_RETRY;
+    }
+    if (code == 416 && !x->probe) {
+        /* A range inside the file refused: the file shrank or changed
+         * (Content-Range 'bytes *' + '/SIZE' with another size, or another
+         * ETag), else a glitch of the server or a proxy: retried, not the
+         * end of the node. */
+        unsigned long long t;
+        if ((sscanf(x->cr, "bytes */%llu", &t) == 1 && t != h->size) ||
+            (h->etag[0] && x->etag[0] && strcmp(h->etag, x->etag))) {
+            x->why = XF_CHANGED;
+            changed(h, x);
+            *res = HLOD_ERR_VERSION;
+            return C_FAIL;
+        }
+        snprintf(msg, cap, "HTTP status 416 (range not satisfiable)");
         return C_RETRY;
     }
     if (code >= 300 && code != 206) {
@@ -441,6 +458,12 @@ hlod_result hlod_http_read(hlod_http *h, uint64_t off, void *dst, size_t len)
     if (len == 0)
         return HLOD_OK;
     return blocking_get(h, 0, off, dst, len, NULL);
+}
+
+void hlod_http_validators(const hlod_http *h, const char **etag, const char **last_modified)
+{
+    *etag = h ? h->etag : "";
+    *last_modified = h ? h->last_modified : "";
 }
 
 void hlod_http_set_latency(hlod_http *h, double ms)

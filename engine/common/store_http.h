@@ -12,12 +12,28 @@
  * ignores ranges (HLOD_ERR_UNSUPPORTED).
  *
  * Transient failures (connection refused or reset, a timeout, a truncated
- * body, 5xx, 408, 429) are retried from the first byte not yet received,
+ * body, 5xx, 408, 429, and a 416 to a range inside the file whose
+ * Content-Range total and ETag are still those of open: a glitch of the
+ * server or a proxy; a 416 naming another size or ETag is the store
+ * changed) are retried from the first byte not yet received,
  * HLOD_HTTP_ATTEMPTS times in all, waiting 100 ms, then 200, 400 ... between
  * tries; then the read fails with HLOD_ERR_IO.  Connections are kept (one
  * per idle handle for blocking reads, the multi handle's cache for parallel
  * ones).  Test hook: a latency (env HLOD_HTTP_LATENCY_MS, or
  * hlod_http_set_latency) added before every request, retries included.
+ *
+ * Local cache (store_read.c, hlod_store_cache_get/put): env HLOD_CACHE_DIR
+ * names a folder that keeps the payloads fetched over HTTP between runs.
+ * Each store has its own subfolder, named by a hash of the URL, the
+ * validators of open (hlod_http_validators: ETag, Last-Modified), the header
+ * and the node table, so a different or changed store never reads another's
+ * entries; one file per node index, written to a temporary name and renamed
+ * (a killed process leaves no entry half written), and every entry is
+ * checked against the node table's checksum before use (a short or
+ * mismatching one is deleted and fetched again).  A folder that cannot be
+ * made or written is logged once and the run goes on without it.  Only the
+ * loader thread and the blocking readers (top nodes at start, hlod-info
+ * --verify) use it, never a synchronous (--deterministic) pump.
  */
 #ifndef HLOD_STORE_HTTP_H
 #define HLOD_STORE_HTTP_H
@@ -46,6 +62,10 @@ void hlod_http_close(hlod_http *h);
  * thread (idle handles are pooled under a mutex held only to take or give
  * one back, never across I/O). */
 hlod_result hlod_http_read(hlod_http *h, uint64_t off, void *dst, size_t len);
+
+/* The validators the open's response carried ("" when none): the ETag kept
+ * (strong only) and Last-Modified. */
+void hlod_http_validators(const hlod_http *h, const char **etag, const char **last_modified);
 
 /* Test hook: milliseconds waited before every request (>= 0). */
 void hlod_http_set_latency(hlod_http *h, double ms);

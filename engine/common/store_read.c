@@ -32,10 +32,14 @@
 #include "store_http.h"
 
 #include <assert.h>
+#include <dirent.h>
 #include <errno.h>
 #include <fcntl.h>
 #include <math.h>
+#include <signal.h>
+#include <stdatomic.h>
 #include <stddef.h>
+#include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 #include <sys/stat.h>
@@ -62,7 +66,11 @@ struct hlod_store {
     hlod_store_node *nodes;     /* node_count + 1 */
     hlod_store_pread_fn pread_fn; /* test hook; NULL: pread */
     void *pread_user;
+    struct store_cache *cache;  /* a URL's local payload cache (HLOD_CACHE_DIR), or NULL */
 };
+
+static void cache_open(hlod_store *s);
+static void cache_close(struct store_cache *c);
 
 /* ---- shared helpers ---- */
 
@@ -524,6 +532,7 @@ hlod_result hlod_store_open(const char *path, const hlod_logger *lg_in, hlod_sto
     r = hlod_store_validate(&s->header, s->nodes, file_size, path, lg);
     if (r != HLOD_OK)
         goto fail;
+    cache_open(s);
     *out = s;
     return HLOD_OK;
 fail:
@@ -538,6 +547,7 @@ void hlod_store_close(hlod_store *s)
     if (s->fd >= 0)
         close(s->fd);
     hlod_http_close(s->http);
+    cache_close(s->cache);
     free(s->nodes);
     free(s->path);
     free(s);
@@ -794,7 +804,7 @@ hlod_result hlod_store_read_node(const hlod_store *s, uint32_t node, size_t max_
     memset(out, 0, sizeof *out);
     hlod_store_read rd;
     hlod_result r = hlod_store_read_begin(s, node, &rd);
-    int complete = 0;
+    int complete = 0, cached = r == HLOD_OK && hlod_store_cache_get(&rd);
     if (!max_bytes)
         max_bytes = 65536;
     if (s && s->http)
@@ -805,6 +815,8 @@ hlod_result hlod_store_read_node(const hlod_store *s, uint32_t node, size_t max_
         hlod_store_read_cancel(&rd);
         return r;
     }
+    if (!cached)
+        hlod_store_cache_put(&rd);
     return hlod_store_read_finish(&rd, out);
 }
 
@@ -832,19 +844,25 @@ hlod_result hlod_store_read_nodes(const hlod_store *s, uint32_t first, uint32_t 
         while (next < count && hlod_store_fetch_active(f) < 8) {
             uint32_t i = next++;
             results[i] = hlod_store_read_begin(s, first + i, &rd[i]);
-            if (results[i] == HLOD_OK)
+            if (results[i] == HLOD_OK && hlod_store_cache_get(&rd[i]))
+                results[i] = hlod_store_read_finish(&rd[i], &out[i]);
+            else if (results[i] == HLOD_OK)
                 results[i] = hlod_store_fetch_start(f, &rd[i], UINT64_MAX);
-            if (results[i] != HLOD_OK) {
+            if (results[i] != HLOD_OK || !rd[i].buf) {
                 hlod_store_read_cancel(&rd[i]);
                 left--;
             }
         }
+        if (!hlod_store_fetch_active(f))
+            continue;   /* every read left came from the cache */
         size_t k = hlod_store_fetch_poll(f, 100, -1, ends, 8, NULL);
         for (size_t e = 0; e < k; e++) {
             uint32_t i = (uint32_t)(ends[e].rd - rd);
             results[i] = ends[e].result;
-            if (results[i] == HLOD_OK && rd[i].done == rd[i].size)
+            if (results[i] == HLOD_OK && rd[i].done == rd[i].size) {
+                hlod_store_cache_put(&rd[i]);
                 results[i] = hlod_store_read_finish(&rd[i], &out[i]);
+            }
             else if (results[i] == HLOD_OK)
                 results[i] = hlod_store_fetch_start(f, &rd[i], UINT64_MAX);
             if (results[i] != HLOD_OK || !rd[i].buf) {
@@ -962,4 +980,184 @@ void hlod_store_set_http_latency(hlod_store *s, double ms)
 {
     if (s)
         hlod_http_set_latency(s->http, ms);
+}
+
+/* ---- the local payload cache of a URL (HLOD_CACHE_DIR; store_http.h) ----
+ *
+ * HLOD_CACHE_DIR/<32 hex digits>/<node>: the digits are XXH3-128 of the
+ * URL, the open's ETag and Last-Modified, the header and the node table;
+ * each file holds one node's payload as stored (packed or raw), written to
+ * <node>.tmp.<pid>.<n> and renamed.  Entries are trusted only after their
+ * size and XXH3-64 match the node table.  Any thread: the state is the
+ * folder's name and two atomics. */
+
+struct store_cache {
+    char *dir;
+    hlod_logger lg;
+    atomic_int off;             /* a write failed (logged once): no more use */
+    atomic_uint seq;            /* temporary names of this process */
+};
+
+/* mkdir -p: 0, or an errno. */
+static int make_dirs(char *path)
+{
+    for (char *p = path + 1;; p++) {
+        if (*p != '/' && *p != 0)
+            continue;
+        char c = *p;
+        *p = 0;
+        int e = mkdir(path, 0755) == 0 || errno == EEXIST ? 0 : errno;
+        *p = c;
+        if (e)
+            return e;
+        if (!c)
+            break;
+    }
+    struct stat st;
+    if (stat(path, &st) != 0)
+        return errno;
+    if (!S_ISDIR(st.st_mode))
+        return ENOTDIR;
+    return access(path, W_OK | X_OK) == 0 ? 0 : errno;
+}
+
+/* Temporary files left by a process that died mid-write: removed. */
+static void cache_sweep(const char *dir)
+{
+    DIR *d = opendir(dir);
+    if (!d)
+        return;
+    struct dirent *e;
+    while ((e = readdir(d))) {
+        const char *t = strstr(e->d_name, ".tmp.");
+        long pid = t ? strtol(t + 5, NULL, 10) : 0;
+        if (pid > 0 && kill((pid_t)pid, 0) != 0 && errno == ESRCH)
+            unlinkat(dirfd(d), e->d_name, 0);
+    }
+    closedir(d);
+}
+
+static void cache_open(hlod_store *s)
+{
+    const char *root = getenv("HLOD_CACHE_DIR");
+    if (!s->http || !root || !root[0])
+        return;
+    const char *etag, *lm;
+    hlod_http_validators(s->http, &etag, &lm);
+    XXH3_state_t *st = XXH3_createState();
+    if (!st)
+        return;
+    static const char tag[] = "hlod payload cache 1";
+    XXH3_128bits_reset(st);
+    XXH3_128bits_update(st, tag, sizeof tag);
+    XXH3_128bits_update(st, s->path, strlen(s->path) + 1);
+    XXH3_128bits_update(st, etag, strlen(etag) + 1);
+    XXH3_128bits_update(st, lm, strlen(lm) + 1);
+    XXH3_128bits_update(st, &s->header, sizeof s->header);
+    XXH3_128bits_update(st, s->nodes, (size_t)s->header.node_table_size);
+    XXH128_hash_t key = XXH3_128bits_digest(st);
+    XXH3_freeState(st);
+
+    struct store_cache *c = calloc(1, sizeof *c);
+    size_t n = strlen(root) + 40;
+    char *dir = malloc(n);
+    if (!c || !dir) {
+        free(c);
+        free(dir);
+        return;
+    }
+    snprintf(dir, n, "%s/%016llx%016llx", root, (unsigned long long)key.high64,
+             (unsigned long long)key.low64);
+    int e = make_dirs(dir);
+    if (e) {
+        hlod_logf(&s->logger, HLOD_LOG_WARN, "%s: HLOD_CACHE_DIR: cannot use %s: %s; reading "
+                  "without a cache", s->path, dir, strerror(e));
+        free(c);
+        free(dir);
+        return;
+    }
+    cache_sweep(dir);
+    c->dir = dir;
+    c->lg = s->logger;
+    atomic_init(&c->off, 0);
+    atomic_init(&c->seq, 0);
+    s->cache = c;
+}
+
+static void cache_close(struct store_cache *c)
+{
+    if (!c)
+        return;
+    free(c->dir);
+    free(c);
+}
+
+int hlod_store_cache_get(hlod_store_read *rd)
+{
+    if (!rd || !rd->store || !rd->buf || rd->done != 0 || rd->size == 0)
+        return 0;
+    const hlod_store *s = rd->store;
+    struct store_cache *c = s->cache;
+    if (!c || atomic_load(&c->off))
+        return 0;
+    const hlod_store_node *n = &s->nodes[rd->node];
+    char path[4200];
+    snprintf(path, sizeof path, "%s/%u", c->dir, rd->node);
+    int fd = open(path, O_RDONLY | O_CLOEXEC);
+    if (fd < 0)
+        return 0;
+    struct stat st;
+    int ok = fstat(fd, &st) == 0 && S_ISREG(st.st_mode) && (uint64_t)st.st_size == rd->size &&
+             pread_all(fd, rd->buf, (size_t)rd->size, 0) == 0;
+    close(fd);
+    XXH3_state_t *hs = rd->hash_state;
+    if (ok)
+        ok = XXH3_64bits_update(hs, rd->buf, (size_t)rd->size) == XXH_OK &&
+             (uint64_t)XXH3_64bits_digest(hs) == n->payload_hash;
+    if (!ok) {
+        XXH3_64bits_reset(hs);
+        unlink(path);
+        hlod_logf(&c->lg, HLOD_LOG_WARN, "%s: node %u: cache entry %s is damaged (size or "
+                  "checksum); removed, read again", s->path, rd->node, path);
+        return 0;
+    }
+    rd->done = rd->size;
+    return 1;
+}
+
+void hlod_store_cache_put(const hlod_store_read *rd)
+{
+    if (!rd || !rd->store || !rd->buf || rd->done != rd->size)
+        return;
+    const hlod_store *s = rd->store;
+    struct store_cache *c = s->cache;
+    if (!c || atomic_load(&c->off) ||
+        (uint64_t)XXH3_64bits_digest(rd->hash_state) != s->nodes[rd->node].payload_hash)
+        return;
+    char tmp[4200], path[4200];
+    snprintf(path, sizeof path, "%s/%u", c->dir, rd->node);
+    snprintf(tmp, sizeof tmp, "%s/%u.tmp.%ld.%u", c->dir, rd->node, (long)getpid(),
+             atomic_fetch_add(&c->seq, 1));
+    int fd = open(tmp, O_WRONLY | O_CREAT | O_EXCL | O_CLOEXEC, 0644);
+    int e = fd < 0 ? errno : 0;
+    for (size_t at = 0; !e && at < rd->size;) {
+        ssize_t k = write(fd, rd->buf + at, (size_t)rd->size - at);
+        if (k < 0 && errno == EINTR)
+            continue;
+        if (k <= 0)
+            e = k < 0 ? errno : EIO;
+        else
+            at += (size_t)k;
+    }
+    if (fd >= 0 && close(fd) != 0 && !e)
+        e = errno;
+    if (!e && rename(tmp, path) != 0)
+        e = errno;
+    if (!e)
+        return;
+    if (fd >= 0)
+        unlink(tmp);
+    if (!atomic_exchange(&c->off, 1))
+        hlod_logf(&c->lg, HLOD_LOG_WARN, "%s: HLOD_CACHE_DIR: cannot write %s: %s; going on "
+                  "without the cache", s->path, fd >= 0 ? tmp : c->dir, strerror(e));
 }

@@ -114,6 +114,7 @@ static void usage(FILE *fp)
         "frame_ms_p95, frame_ms_p99, frame_ms_max, within_10pct, over_target_frac,\n"
         "toggles_up, toggles_down, toggles_per_frame, oscillations, psnr_mean,\n"
         "psnr_min, ssim_mean, image_flicker, tris_mean, loads, evictions, bytes_read,\n"
+        "cache_hits (payloads from HLOD_CACHE_DIR, not in bytes_read),\n"
         "loader_finish_ms, loader_busy_ms, loader_finish_share,\n"
         "peak_resident_bytes, memory_budget_bytes, missing_wanted_frames,\n"
         "render_waits, bad_nodes, load_failures, traversal_ms_mean, traversal_ms_max,\n"
@@ -496,6 +497,7 @@ typedef struct summary {
     double psnr_mean, psnr_min, ssim_mean, image_flicker;
     double tris_mean, traversal_mean, traversal_max;
     uint64_t loads, evictions, bytes_read, peak_resident, budget, missing_frames, waits;
+    uint64_t cache_hits;                    /* payloads from HLOD_CACHE_DIR (not in bytes_read) */
     double loader_finish_ms, loader_busy_ms;    /* loader thread CPU time, whole run */
     uint64_t load_failures;                 /* failed reads (top nodes at start included) */
     uint32_t bad_nodes;                     /* nodes marked bad by the run's end */
@@ -600,6 +602,7 @@ static void summarise(const frame_rec *r, long n, double target, summary *s)
         s->loads += st->loads;
         s->evictions += st->evictions;
         s->bytes_read += st->bytes_read;
+        s->cache_hits += st->cache_hits;
         s->loader_finish_ms += st->loader_finish_ms;
         s->loader_busy_ms += st->loader_busy_ms;
         if (st->resident_bytes > s->peak_resident)
@@ -745,6 +748,7 @@ static void json_summary(hlod_json *j, const summary *s, const char *policy, con
     hlod_json_int(j, "loads", (long long)s->loads);
     hlod_json_int(j, "evictions", (long long)s->evictions);
     hlod_json_int(j, "bytes_read", (long long)s->bytes_read);
+    hlod_json_int(j, "cache_hits", (long long)s->cache_hits);
     hlod_json_double(j, "loader_finish_ms", s->loader_finish_ms);
     hlod_json_double(j, "loader_busy_ms", s->loader_busy_ms);
     hlod_json_double(j, "loader_finish_share",

@@ -425,6 +425,17 @@ hlod_result hlod_store_read_nodes(const hlod_store *s, uint32_t first, uint32_t 
                                   size_t max_bytes, hlod_store_payload *out,
                                   hlod_result *results);
 
+/* The local payload cache of a store opened from a URL (env HLOD_CACHE_DIR,
+ * engine/common/store_http.h; no-ops for a file or without it).  get: rd
+ * just begun (nothing read) is filled from its entry when that entry's size
+ * and checksum match the node table (then rd->done == rd->size, hashed, and
+ * 1 is returned); a damaged entry is deleted (0: read it as usual).  put: a
+ * complete read whose checksum matches is written as the node's entry
+ * (temporary file, then rename).  hlod_store_read_node(s) use both; the
+ * loader uses them on its own thread. */
+int hlod_store_cache_get(hlod_store_read *rd);
+void hlod_store_cache_put(const hlod_store_read *rd);
+
 /* ---- parallel reads of a store opened from a URL ---- */
 
 /* Up to `transfers` range requests in flight at once (curl multi, one
