@@ -138,8 +138,9 @@ ok $? "pkg-config build of link_all runs"
 want="$P/share/hlod/paths/default)"
 for tool in hlod-bench hlod-view; do
     [ -x "$P/bin/$tool" ] || continue
-    line=$("$P/bin/$tool" --help | grep -A1 -- '--paths-dir' | tail -1)
-    [ "$(echo $line)" = "$want" ] && ! "$P/bin/$tool" --help | grep -qF -e "$SRC" -e "$BUILD"
+    help=$("$P/bin/$tool" --help)
+    line=$(echo "$help" | grep -A1 -- '--paths-dir' | tail -1)
+    [ "$(echo $line)" = "$want" ] && ! echo "$help" | grep -qF -e "$SRC" -e "$BUILD"
     ok $? "installed $tool --help names the prefix's paths ($(echo $line))"
 done
 if [ -x "$BIN/hlod-bench" ]; then
