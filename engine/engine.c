@@ -606,11 +606,19 @@ hlod_result hlod_engine_replay(hlod_engine *e, const hlod_camera *cam, int occlu
     hlod_renderer *r = e->d.renderer;
     if (r) {
         /* the last frame's nodes, in its draw order: with occlusion, the
-         * ones it drew; without, the whole selection */
-        const hlod_u32_vec *list = occlusion && e->drawn_valid ? &e->drawn : &e->sel.draw;
+         * ones it drew; without, the whole selection.  A frame that culled
+         * drew its two passes in turn; without culling, its culled nodes
+         * are drawn last, after the same nodes in the same order, so that
+         * only what culling removed can change a pixel, not where a depth
+         * tie between two nodes fell in the order */
+        const hlod_u32_vec *list = e->drawn_valid ? &e->drawn : &e->sel.draw;
         hlod_gpu_begin(r, cam);
         for (size_t k = 0; k < list->n; k++)
             gpu_draw_node(e, cam, list->v[k]);
+        if (!occlusion && e->drawn_valid)
+            for (size_t k = 0; k < e->later.n; k++)
+                if (e->sel.fr[e->later.v[k]].hidden == e->frame)
+                    gpu_draw_node(e, cam, e->later.v[k]);
         hlod_gpu_end(r, 1);
     }
     double t = e->d.time_model ? e->d.time_model(e->d.time_model_user, &e->st)

@@ -1065,6 +1065,7 @@ static hlod_result calibrate(context *c, const hlod_engine_desc *base, double *v
         return r;
     hlod_frame_stats st;
     uint64_t n = hlod_path_frame_count(&c->path, c->o->dt);
+    double sum_front = 0, sum_cost = 0;
     for (int i = 0; i < 60; i++) {
         hlod_camera cam;
         double t;
@@ -1072,12 +1073,21 @@ static hlod_result calibrate(context *c, const hlod_engine_desc *base, double *v
         r = hlod_engine_frame(e, &cam, c->o->dt, &st);
         if (r != HLOD_OK)
             break;
+        /* The deterministic engine prices by cost alone: the fitted
+         * model's other terms (per draw, per pixel) are folded into ms per
+         * cost over the warm-up's second half.  One frame alone may have
+         * no front (all fixed part, or nothing drawn); then v_time, often
+         * at its floor when draws and pixels carry the cost, would give
+         * the deterministic run an unbounded budget (seen: 1e-9 on fly). */
+        double front = st.estimated_ms - st.upload_ms - st.fixed_ms;
+        if (i >= 30 && st.cost_drawn > 0 && front > 0) {
+            sum_front += front;
+            sum_cost += st.cost_drawn;
+        }
     }
-    /* The deterministic engine prices by cost alone: the fitted model's
-     * other terms (per draw, per pixel) are folded into ms per cost at
-     * the last warm-up frame. */
-    double front = st.estimated_ms - st.upload_ms - st.fixed_ms;
-    *v_time = st.cost_drawn > 0 && front > 0 ? front / st.cost_drawn : st.v_time;
+    *v_time = sum_cost > 0 ? sum_front / sum_cost : base->fixed_v_time;
+    if (!(*v_time > 0))
+        *v_time = 1e-4; /* the setting's default */
     *fixed_ms = st.fixed_ms;
     hlod_engine_destroy(e);
     return r;

@@ -280,7 +280,9 @@ const hlod_engine_desc *hlod_engine_get_desc(const hlod_engine *e);
  * one is set).  Changes nothing: no collecting, uploads, learning or
  * loader requests, and the next frame is as if this call had not been
  * made.  occlusion 1 culls hidden nodes as a frame does (when the setting
- * is on), 0 draws every node of the selection.  For the machine's own
+ * is on), 0 draws every node of the selection (when the frame culled: in
+ * its draw order, the culled nodes last, so that a depth tie between two
+ * nodes falls the same way in both).  For the machine's own
  * jitter (hlod-bench replays one frozen selection) and for checking that
  * occlusion culling changes no pixel.  HLOD_ERR_INVALID_ARG before the
  * first frame or for a bad camera. */
