@@ -25,6 +25,15 @@
  *          HLOD_COST_WINDOW residuals moved by more than 5 % (see below:
  *          once the window is full it grows only on actual misses).
  *
+ * A settled front (the same totals frame after frame) publishes none of
+ * these, with one exception: when the median log residuals of both halves
+ * of its last SETTLED_K frames are beyond 15 % and SCALE_SE standard
+ * errors, the same way, the model is scaled once (the machine's speed changed, or the model learned
+ * it while loads competed for the CPU and they have stopped: seen as a
+ * still view held at 3 nodes, estimated 12.5 ms, measuring 9 ms against a
+ * 33 ms target).  Noise cannot pass that gate over so many frames; a
+ * persistent error passes it SETTLED_K frames after the front settled.
+ *
  * sigma is 1.4826 x the median absolute deviation: a few outliers do not
  * move it.  All coefficients are kept non-negative, the fixed part under
  * 80 % of the target.
@@ -46,6 +55,8 @@
 #define MARGIN_SETTLE 45 /* frames after which the margin moves only on evidence */
 #define MISS_W 128       /* recent frames whose misses can grow the margin */
 #define SCALE_SE 4       /* standard errors of the median that a scale change must pass */
+#define SETTLED_K 32     /* frames of a settled front whose median error may rescale it */
+#define SETTLED_ERR 0.15 /* and the log error each half of them must pass */
 
 /* z with P(N(0,1) <= z) = q, by bisection on erfc (q in (0.5, 1)). */
 static double normal_quantile(double q)
@@ -273,6 +284,7 @@ void hlod_cost_model_fit(hlod_cost_model *m, const hlod_engine_desc *d, double d
         m->ring_n ? &m->ring[(m->ring_head + HLOD_COST_WINDOW - 1) % HLOD_COST_WINDOW] : NULL;
     int settled =
         m->ring_n >= MARGIN_SETTLE && last && memcmp(last->x, s.x, sizeof s.x) == 0;
+    m->settled_run = settled ? m->settled_run + 1 : 0;
     m->frames++;
     m->ring[m->ring_head] = s;
     m->ring_head = (m->ring_head + 1) % HLOD_COST_WINDOW;
@@ -290,17 +302,32 @@ void hlod_cost_model_fit(hlod_cost_model *m, const hlod_engine_desc *d, double d
     if (m->ring_n >= 8)
         spread(m, m->ring_n, &med, &sigma, NULL);
 
-    /* scale: a persistent error of the whole model */
-    if (m->ring_n >= SCALE_K / 2 + 1 && !settled) {
-        double e[SCALE_K];
-        uint32_t n = residuals(m, m->theta, SCALE_K, e);
+    /* scale: a persistent error of the whole model (of a settled front:
+     * both halves of its last SETTLED_K frames past SETTLED_ERR, the same
+     * way, so that the error is there all along and not a step half-way
+     * that a second change would have to finish) */
+    const uint32_t k_scale = settled ? SETTLED_K : SCALE_K;
+    if (m->ring_n >= SCALE_K / 2 + 1 && (!settled || m->settled_run >= SETTLED_K)) {
+        double e[SETTLED_K > SCALE_K ? SETTLED_K : SCALE_K], h[2] = {0, 0};
+        uint32_t n = residuals(m, m->theta, k_scale, e);
+        if (settled) {
+            double part[SETTLED_K / 2];
+            for (int half = 0; half < 2; half++) {
+                memcpy(part, e + half * (SETTLED_K / 2), sizeof part);
+                h[half] = median(part, SETTLED_K / 2);
+            }
+        }
         double mk = median(e, n);
         double se = 1.2533 * sigma / sqrt((double)n); /* standard error of a median */
-        if (fabs(mk) > 0.05 && fabs(mk) > SCALE_SE * se) {
+        double se_half = 1.2533 * sigma / sqrt(SETTLED_K / 2.0);
+        int passes = settled ? h[0] * h[1] > 0 && fmin(fabs(h[0]), fabs(h[1])) > SETTLED_ERR &&
+                                   fmin(fabs(h[0]), fabs(h[1])) > SCALE_SE * se_half
+                             : fabs(mk) > 0.05 && fabs(mk) > SCALE_SE * se;
+        if (passes) {
             /* The machine changed: the frames seen before the last
              * SCALE_K are rescaled with the model, so the fit and the
              * margin do not see two machines (nor pull the model back to
-             * the old one).  The last SCALE_K are left as measured: the
+             * the old one).  The last k_scale are left as measured: the
              * next median then sees the new machine at residual 0, not
              * the same change again. */
             double f = exp(mk);
@@ -308,12 +335,13 @@ void hlod_cost_model_fit(hlod_cost_model *m, const hlod_engine_desc *d, double d
             if (m->ring_n >= MARGIN_SETTLE) {
                 /* (while the window fills it is the model that was wrong,
                  * not the machine that changed: the frames stay as measured) */
-                for (uint32_t k = SCALE_K; k < m->ring_n; k++)
+                for (uint32_t k = k_scale; k < m->ring_n; k++)
                     m->ring[(m->ring_head + HLOD_COST_WINDOW - 1 - k) % HLOD_COST_WINDOW].y *= f;
                 for (int i = 0; i < HLOD_COST_TERMS; i++)
                     m->b[i] *= f;
             }
             m->scale_updates++;
+            m->settled_run = 0; /* a settled front is checked again SETTLED_K frames on */
         }
     }
 

@@ -47,6 +47,7 @@ typedef struct hlod_cost_model {
     hlod_cost_sample ring[HLOD_COST_WINDOW];
     uint32_t ring_n, ring_head;
     uint32_t scale_updates, shape_updates, margin_updates; /* counts, for tests */
+    uint32_t settled_run;          /* frames in a row with the same front */
     uint64_t frames;               /* samples fitted */
     uint64_t shape_at;             /* frames when the shape last changed */
     double sigma;                  /* robust spread of the log residuals (last update) */
