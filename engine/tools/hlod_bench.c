@@ -60,7 +60,7 @@ static void usage(FILE *fp)
         "\n"
         "  --path P          a path file (t ex ey ez lx ly lz per line), or a\n"
         "                    built-in name (walk, fly, walk-to-fly, walk-drive,\n"
-        "                    orbit, still) looked up in data/paths/default/\n"
+        "                    orbit, still) looked up in --paths-dir\n"
         "  --paths-dir D     where built-in names are looked up (default\n"
         "                    %s/paths/default)\n"
         "  --target-ms T     c_targetTime in ms (default 33.3)\n"
