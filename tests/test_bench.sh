@@ -20,17 +20,7 @@ BIN=${HLOD_BIN_DIR:-build/bin}
 SRC=${HLOD_SOURCE_DIR:-.}
 T=$(mktemp -d /tmp/hlod-test-bench-XXXXXX)
 trap 'rm -rf "$T"' EXIT
-pass=0
-fail=0
-ok() {
-    if [ "$1" -eq 0 ]; then
-        pass=$((pass + 1))
-        echo "ok   $2"
-    else
-        fail=$((fail + 1))
-        echo "FAIL $2"
-    fi
-}
+. "$(dirname "$0")/lib.sh" # pass, fail, ok()
 
 # the non-empty values of column K (by name) of DIR/frames.csv
 col() { awk -F, -v k="$2" 'NR == 1 { for (i = 1; i <= NF; i++) if ($i == k) c = i; next }

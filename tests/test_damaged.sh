@@ -28,17 +28,7 @@ JOBS=${HLOD_DAMAGED_JOBS:-2}
 PATHS=(walk fly walk-to-fly walk-drive orbit still)
 T=$(mktemp -d /tmp/hlod-test-damaged-XXXXXX)
 trap 'rm -rf "$T"' EXIT
-pass=0
-fail=0
-ok() {
-    if [ "$1" -eq 0 ]; then
-        pass=$((pass + 1))
-        echo "ok   $2"
-    else
-        fail=$((fail + 1))
-        echo "FAIL $2"
-    fi
-}
+. "$(dirname "$0")/lib.sh" # pass, fail, ok()
 
 "$BIN/hlod-gen-city" --preset small -o "$T/city.obj" --quiet &&
     "$BIN/hlod-build" "$T/city.obj" -o "$T/city.hlod" --desired-tris 450 --quiet

@@ -29,18 +29,7 @@ BIN=${HLOD_BIN_DIR:-$BUILD/bin}
 CMAKE=${HLOD_CMAKE:-cmake}
 CC=${HLOD_CC:-cc}
 T=$(mktemp -d /tmp/hlod-test-install-XXXXXX)
-pass=0
-fail=0
-ok() {
-    if [ "$1" -eq 0 ]; then
-        pass=$((pass + 1))
-        echo "ok   $2"
-    else
-        fail=$((fail + 1))
-        echo "FAIL $2"
-    fi
-    return "$1"
-}
+. "$(dirname "$0")/../lib.sh" # pass, fail, ok()
 finish() {
     echo "cli_install: $pass passed, $fail failed"
     if [ "$fail" -eq 0 ]; then
