@@ -466,22 +466,6 @@ static double upload_reserve(const hlod_engine *e)
     return e->d.upload_budget_ms > 0 ? e->d.upload_budget_ms : 0.1 * e->d.target_ms;
 }
 
-/* Upload time this frame.  A set upload_budget_ms is a cap.  Else the
- * reserve, or, when more, what the last front's estimate left of the
- * target with the deadline margin applied (four fifths of it: the
- * per-byte prediction of an upload is rough).  A front that fills its
- * budget leaves no more than the reserve; one that is held back by reads
- * not yet uploaded, as a still view's is after a jump, leaves much more,
- * and the reads it waits for arrive that much sooner. */
-static double upload_allowance(const hlod_engine *e)
-{
-    double reserve = upload_reserve(e);
-    if (e->d.upload_budget_ms > 0 || !e->have_front)
-        return reserve;
-    double room = 0.8 * (e->d.target_ms - e->cost.margin * e->last_front_ms);
-    return room > reserve ? room : reserve;
-}
-
 /* After the frame is drawn and measured: the cost model learns from it. */
 static void learn(hlod_engine *e, double measured, double upload, double budget, int moved)
 {
@@ -521,7 +505,10 @@ hlod_result hlod_engine_frame(hlod_engine *e, const hlod_camera *cam, double dt,
     int moved = camera_motion(e, cam, dt, vel);
 
     double t0 = hlod_now_ms();
-    hlod_residency_collect(&e->res, upload_allowance(e));
+    /* room for a big upload that has waited: what the last front's
+     * estimate, with the deadline margin, left of the target */
+    double room = e->have_front ? 0.8 * (e->d.target_ms - e->cost.margin * e->last_front_ms) : 0;
+    hlod_residency_collect(&e->res, upload_reserve(e), room);
     e->st.upload_ms = hlod_now_ms() - t0;
 
     /* This frame's uploads are done and timed: the selection gets what is

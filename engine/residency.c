@@ -269,8 +269,9 @@ static void load_failed(hlod_residency *rs, uint32_t node, hlod_result why)
 /* Frames an upload predicted to overrun the time budget may wait before
  * it is made anyway (it may be the one node the view needs). */
 #define UPLOAD_STARVE 8
+#define UPLOAD_STARVE_MAX 64
 
-void hlod_residency_collect(hlod_residency *rs, double up_ms)
+void hlod_residency_collect(hlod_residency *rs, double up_ms, double room_ms)
 {
     /* Drain the loader into our pending list (bounded by max_inflight per
      * call, so a frame never takes an unbounded batch). */
@@ -327,7 +328,12 @@ void hlod_residency_collect(hlod_residency *rs, double up_ms)
          * uploads have waited for UPLOAD_STARVE frames: then one goes. */
         double elapsed = hlod_now_ms() - t_up;
         double predicted = elapsed + rs->upload_ms_per_byte * (double)lr->payload.bytes;
-        int starved = rs->upload_starved >= UPLOAD_STARVE;
+        /* a starved upload goes when the frame has room for it (the
+         * last front left room_ms under the target), or after
+         * UPLOAD_STARVE_MAX frames whatever the room: on orbit, a 15-25 ms
+         * texture that went after 8 frames made 67 of 72 deadline misses */
+        int starved = (rs->upload_starved >= UPLOAD_STARVE && predicted <= room_ms) ||
+                      rs->upload_starved >= UPLOAD_STARVE_MAX;
         if ((uploaded && (uploaded + lr->payload.bytes > rs->d->upload_budget_bytes ||
                           elapsed >= up_ms || predicted > 1.25 * up_ms)) ||
             (!uploaded && !starved && predicted > 1.25 * up_ms)) {

@@ -119,11 +119,12 @@ static inline const hlod_gpu_node *hlod_residency_gpu(const hlod_residency *r, u
 }
 
 /* Collects finished loads and uploads them within the upload budget:
- * up_ms of uploads this frame (the engine's budget: at least its reserve,
- * more when the last front left the frame room), the nodes a refinement
- * waits for first.  up_ms is ignored when deterministic or timed by a
- * model (bytes alone decide). */
-void hlod_residency_collect(hlod_residency *r, double up_ms);
+ * up_ms of uploads this frame (the engine's reserve), the nodes a
+ * refinement waits for first.  An upload too big for up_ms that has waited
+ * 8 frames goes when it fits in room_ms (what the last front left of the
+ * target), and after 64 frames whatever the room.  up_ms is ignored when
+ * deterministic or timed by a model (bytes alone decide). */
+void hlod_residency_collect(hlod_residency *r, double up_ms, double room_ms);
 /* Admits wanted nodes against the budget (evicting in order's order),
  * hands the loader its list. */
 void hlod_residency_schedule(hlod_residency *r, const hlod_evict_order *order);

@@ -964,7 +964,7 @@ static void test_residency_needed_first(void)
     h.n = 0;
     /* frame 1: two prefetches, one need of the lowest priority */
     hlod_residency_begin_frame(&rs, 1);
-    hlod_residency_collect(&rs, INFINITY);
+    hlod_residency_collect(&rs, INFINITY, 0);
     CHECK(hlod_residency_want(&rs, m0, 5.0) && hlod_residency_need(&rs, m1, 1.0) &&
           hlod_residency_want(&rs, m2, 4.0));
     hlod_residency_schedule(&rs, &keep);
@@ -973,7 +973,7 @@ static void test_residency_needed_first(void)
            h.n > 1 ? h.node[1] : 0, h.n > 2 ? h.node[2] : 0, h.n, m1, m0, m2);
     /* frame 2: the needed one is uploaded first */
     hlod_residency_begin_frame(&rs, 2);
-    hlod_residency_collect(&rs, INFINITY);
+    hlod_residency_collect(&rs, INFINITY, 0);
     CHECK(hlod_residency_state(&rs, m1) == HLOD_NODE_RESIDENT &&
           hlod_residency_state(&rs, m0) == HLOD_NODE_QUEUED &&
           hlod_residency_state(&rs, m2) == HLOD_NODE_QUEUED);
@@ -984,7 +984,7 @@ static void test_residency_needed_first(void)
     hlod_residency_schedule(&rs, &keep);
     hlod_residency_begin_frame(&rs, 3);
     CHECK(hlod_residency_need(&rs, m3, 3.0));
-    hlod_residency_collect(&rs, INFINITY);
+    hlod_residency_collect(&rs, INFINITY, 0);
     CHECKF(hlod_residency_state(&rs, m3) == HLOD_NODE_RESIDENT &&
                hlod_residency_state(&rs, m0) != HLOD_NODE_RESIDENT &&
                hlod_residency_state(&rs, m2) != HLOD_NODE_RESIDENT,
@@ -992,7 +992,7 @@ static void test_residency_needed_first(void)
            hlod_residency_state(&rs, m2), hlod_residency_state(&rs, m3));
     /* the rest follow, one a frame, in arrival order */
     hlod_residency_begin_frame(&rs, 4);
-    hlod_residency_collect(&rs, INFINITY);
+    hlod_residency_collect(&rs, INFINITY, 0);
     CHECK(hlod_residency_state(&rs, m0) == HLOD_NODE_RESIDENT);
     hlod_residency_destroy(&rs);
 }
