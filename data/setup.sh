@@ -16,6 +16,7 @@ PACKAGES=(
     xvfb xauth
     strace util-linux procps
     libcurl4-openssl-dev nginx-light iproute2 python3
+    libcjson-dev
 )
 
 missing=()
