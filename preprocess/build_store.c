@@ -22,6 +22,10 @@
  */
 #include "hlod/build_store.h"
 
+#include <errno.h>
+
+#include "atomic_file.h"
+
 #include "build.h"
 #include "city_levels.h"
 #include "hlod/image.h"
@@ -609,10 +613,10 @@ static hlod_result check_out_dir(const char *out, const hlod_logger *lg)
  * the geometry, the meshes keep only what blocks borrow (texture paths). */
 static hlod_result read_blocks(const hlod_build_desc *d, const char *const *inputs, size_t n,
                                hlod_mesh *meshes, blocks *bs, size_t *tris_in,
-                               const hlod_logger *lg)
+                               const char *scratch, const hlod_logger *lg)
 {
     for (size_t i = 0; i < n; i++) {
-        hlod_import_desc idesc = {lg, 0};
+        hlod_import_desc idesc = {lg, 0, scratch};
         hlod_result r = hlod_mesh_import(inputs[i], &idesc, &meshes[i], NULL);
         if (r != HLOD_OK) {
             hlod_logf(lg, HLOD_LOG_ERROR, "%s: cannot read: %s", inputs[i], hlod_result_str(r));
@@ -854,7 +858,25 @@ hlod_result hlod_build_store(const hlod_build_desc *d, const char *const *inputs
     blocks bs = {0};
     hlod_store_writer *w = NULL;
     block_out *outs = NULL;
-    r = meshes ? read_blocks(d, inputs, n, meshes, &bs, &rep.tris_in, lg) : HLOD_ERR_NOMEM;
+    /* images embedded in a 3D Tiles input's glb files are read from files
+     * beside the output while the build runs */
+    char scratch[4096 + 32];
+    scratch[0] = 0;
+    for (size_t i = 0; i < n && r == HLOD_OK && !scratch[0]; i++) {
+        const char *dot = strrchr(inputs[i], '.');
+        if (dot && !strcmp(dot, ".json")) {
+            snprintf(scratch, sizeof scratch, "%.4096s.images-XXXXXX", out_path);
+            if (!mkdtemp(scratch)) {
+                hlod_logf(lg, HLOD_LOG_ERROR, "%s: cannot create a folder beside it for the "
+                          "input's images: %s", out_path, strerror(errno));
+                scratch[0] = 0;
+                r = HLOD_ERR_IO;
+            }
+        }
+    }
+    if (r == HLOD_OK)
+        r = meshes ? read_blocks(d, inputs, n, meshes, &bs, &rep.tris_in,
+                                 scratch[0] ? scratch : NULL, lg) : HLOD_ERR_NOMEM;
     if (r == HLOD_OK) {
         hlod_store_writer_desc wd = {0};
         int metis = d->method == HLOD_BUILD_METIS;
@@ -905,6 +927,8 @@ hlod_result hlod_build_store(const hlod_build_desc *d, const char *const *inputs
         for (size_t i = 0; i < n; i++)
             hlod_mesh_free(&meshes[i]);
     free(meshes);
+    if (scratch[0])
+        hlod_rm_tree(scratch);
     if (report && r == HLOD_OK)
         *report = rep;
     return r;

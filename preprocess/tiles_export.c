@@ -12,7 +12,6 @@
 #include "tiles3d.h"
 
 #include <errno.h>
-#include <ftw.h>
 #include <limits.h>
 #include <math.h>
 #include <pthread.h>
@@ -28,6 +27,7 @@
 #include <meshoptimizer.h>
 #include <turbojpeg.h>
 
+#include "atomic_file.h"
 #include "hlod/image.h"
 
 #if defined(__BYTE_ORDER__) && __BYTE_ORDER__ != __ORDER_LITTLE_ENDIAN__
@@ -838,19 +838,6 @@ static char *tileset_json(const job *J, double pad, uint64_t *tiles)
 
 /* ---- the folder ---- */
 
-static int rm_entry(const char *path, const struct stat *sb, int flag, struct FTW *ftw)
-{
-    (void)sb;
-    (void)flag;
-    (void)ftw;
-    return remove(path);
-}
-
-static void rm_tree(const char *dir)
-{
-    nftw(dir, rm_entry, 16, FTW_DEPTH | FTW_PHYS);
-}
-
 static double now_s(void)
 {
     struct timespec ts;
@@ -892,7 +879,7 @@ hlod_result hlod_tiles_export(const hlod_store *s, const char *dir,
     snprintf(sub, sizeof sub, "%s/tiles", tmp);
     if (mkdir(sub, 0777) != 0) {
         hlod_logf(lg, HLOD_LOG_ERROR, "%s: %s", sub, strerror(errno));
-        rm_tree(tmp);
+        hlod_rm_tree(tmp);
         return HLOD_ERR_IO;
     }
 
@@ -977,10 +964,10 @@ hlod_result hlod_tiles_export(const hlod_store *s, const char *dir,
             r = HLOD_ERR_IO;
         }
         if (r == HLOD_OK && old[0])
-            rm_tree(old);
+            hlod_rm_tree(old);
     }
     if (r != HLOD_OK) {
-        rm_tree(tmp);
+        hlod_rm_tree(tmp);
         return r;
     }
     J.st.bytes = J.st.glb_bytes + J.st.tileset_bytes;

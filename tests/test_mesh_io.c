@@ -60,7 +60,7 @@ static hlod_result import_rec(const char *path, hlod_mesh *m, hlod_import_stats 
 {
     memset(r, 0, sizeof *r);
     hlod_logger lg = {record, r};
-    hlod_import_desc d = {&lg, keep};
+    hlod_import_desc d = {&lg, keep, NULL};
     return hlod_mesh_import(path, &d, m, st);
 }
 

@@ -27,4 +27,8 @@ hlod_result hlod_atomic_open(hlod_atomic_file *f, const char *path, const hlod_l
 hlod_result hlod_atomic_commit(hlod_atomic_file *f, const hlod_logger *lg);
 void hlod_atomic_abort(hlod_atomic_file *f);
 
+/* Removes a folder and everything under it (symbolic links are removed,
+ * not followed); best effort, for temporary folders. */
+void hlod_rm_tree(const char *dir);
+
 #endif

@@ -5,6 +5,8 @@
  * readers, which keep positions in double: Debian's assimp stores 32-bit
  * floats, which moves a vertex at y = 4.1e6 m by up to 0.25 m.  glTF 2.0
  * (.gltf/.glb) and anything else assimp knows go through assimp's C API.
+ * A 3D Tiles tileset (a .json file) is read by our own glb reader, its leaf
+ * tiles one object each, transforms in double (preprocess/io/tiles_read.c).
  * The format is chosen by file content and extension; an unknown one is an
  * HLOD_ERR_UNSUPPORTED result, never a silently empty mesh.
  *
@@ -30,6 +32,11 @@ extern "C" {
 typedef struct hlod_import_desc {
     const hlod_logger *logger;  /* may be NULL */
     int keep_degenerate;        /* non-zero: skip hlod_mesh_clean() */
+    const char *scratch_dir;    /* an existing folder where images embedded in
+                                   a 3D Tiles input's glb contents are written
+                                   (the materials' texture_path point there;
+                                   the caller removes it when done); NULL:
+                                   such images are dropped with a warning */
 } hlod_import_desc;
 
 typedef struct hlod_import_stats {

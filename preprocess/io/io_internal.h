@@ -112,6 +112,9 @@ hlod_result io_read_ply(const char *path, const hlod_logger *lg, hlod_mesh *out,
                         hlod_import_stats *st);
 hlod_result io_read_off(const char *path, const hlod_logger *lg, hlod_mesh *out,
                         hlod_import_stats *st);
+/* tiles_read.c: a 3D Tiles tileset.json; embedded images go to scratch. */
+hlod_result io_read_tileset(const char *path, const char *scratch, const hlod_logger *lg,
+                            hlod_mesh *out, hlod_import_stats *st);
 hlod_result io_read_assimp(const char *path, const hlod_logger *lg, hlod_mesh *out,
                            hlod_import_stats *st);
 int io_assimp_knows(const char *ext);

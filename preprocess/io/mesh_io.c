@@ -14,7 +14,7 @@
 #include <stdlib.h>
 #include <string.h>
 
-enum kind { K_UNKNOWN, K_OBJ, K_PLY, K_OFF, K_ASSIMP };
+enum kind { K_UNKNOWN, K_OBJ, K_PLY, K_OFF, K_ASSIMP, K_TILESET };
 
 static int is_off_keyword(const unsigned char *b, size_t n)
 {
@@ -41,6 +41,8 @@ static enum kind detect(const unsigned char *b, size_t n, const char *ext)
     size_t i = 0;
     while (i < n && (b[i] == ' ' || b[i] == '\t' || b[i] == '\r' || b[i] == '\n'))
         i++;
+    if (i < n && b[i] == '{' && strcmp(ext, "json") == 0)
+        return K_TILESET; /* 3D Tiles: tileset.json */
     if (i < n && b[i] == '{' && strcmp(ext, "obj") != 0)
         return K_ASSIMP; /* glTF JSON, whatever the file is called */
     if (strcmp(ext, "obj") == 0)
@@ -108,6 +110,9 @@ hlod_result hlod_mesh_import(const char *path, const hlod_import_desc *desc, hlo
     case K_PLY: res = io_read_ply(path, lg, out, st); break;
     case K_OFF: res = io_read_off(path, lg, out, st); break;
     case K_ASSIMP: res = io_read_assimp(path, lg, out, st); break;
+    case K_TILESET:
+        res = io_read_tileset(path, desc ? desc->scratch_dir : NULL, lg, out, st);
+        break;
     default:
         hlod_logf(lg, HLOD_LOG_ERROR, "%s: unknown mesh format (extension '%s')", path, ext);
         return HLOD_ERR_UNSUPPORTED;
