@@ -98,11 +98,33 @@ static size_t bytes_put(bytes *b, const void *data, size_t n, uint8_t pad)
 
 /* ---- JSON helpers ---- */
 
+/* A number that reads back as exactly v: cJSON prints 15 digits when they
+ * come within an epsilon of v, which may be an ulp off (a geometricError
+ * that is not the node's error, a transform a nanometre off), so a finite
+ * double goes in as the shortest of %.15g, %.16g, %.17g that round-trips. */
+static cJSON *json_num(double v)
+{
+    if (!isfinite(v))
+        return cJSON_CreateNull();
+    char b[40];
+    for (int digits = 15; digits <= 17; digits++) {
+        snprintf(b, sizeof b, "%.*g", digits, v);
+        if (strtod(b, NULL) == v)
+            break;
+    }
+    return cJSON_CreateRaw(b);
+}
+
+static void add_num(cJSON *o, const char *key, double v)
+{
+    cJSON_AddItemToObject(o, key, json_num(v));
+}
+
 static cJSON *num_array(const double *v, int n)
 {
     cJSON *a = cJSON_CreateArray();
     for (int i = 0; a && i < n; i++)
-        cJSON_AddItemToArray(a, cJSON_CreateNumber(v[i]));
+        cJSON_AddItemToArray(a, json_num(v[i]));
     return a;
 }
 
@@ -775,7 +797,7 @@ static cJSON *tile_json(const job *J, uint32_t i, const double parent_origin[3],
         box[3 + 4 * k] = 0.5 * (n->bbox_max[k] - n->bbox_min[k]) + pad;
     }
     cJSON_AddItemToObject(cJSON_AddObjectToObject(t, "boundingVolume"), "box", num_array(box, 12));
-    cJSON_AddNumberToObject(t, "geometricError", n->error);
+    add_num(t, "geometricError", n->error);
     cJSON_AddStringToObject(t, "refine", "REPLACE");
     double m[16] = {1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1};
     for (int k = 0; k < 3; k++)
@@ -822,14 +844,14 @@ static char *tileset_json(const job *J, double pad, uint64_t *tiles)
         err = fmax(2 * err, sqrt(diag2));   /* always refined */
         cJSON_AddItemToObject(cJSON_AddObjectToObject(top, "boundingVolume"), "box",
                               num_array(box, 12));
-        cJSON_AddNumberToObject(top, "geometricError", err);
+        add_num(top, "geometricError", err);
         cJSON_AddStringToObject(top, "refine", "REPLACE");
         cJSON *ch = cJSON_AddArrayToObject(top, "children");
         for (uint32_t r = 0; r < roots; r++)
             cJSON_AddItemToArray(ch, tile_json(J, r, zero, pad));
         *tiles = (uint64_t)h->node_count + 1;
     }
-    cJSON_AddNumberToObject(root, "geometricError", err);
+    add_num(root, "geometricError", err);
     cJSON_AddItemToObject(root, "root", top);
     char *s = cJSON_PrintUnformatted(root);
     cJSON_Delete(root);
