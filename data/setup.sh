@@ -17,7 +17,12 @@ PACKAGES=(
     strace util-linux procps
     libcurl4-openssl-dev nginx-light iproute2 python3
     libcjson-dev
+    nodejs chromium chromium-driver
 )
+# npm: Debian's package, unless the installed nodejs brings its own (the
+# NodeSource build does, and conflicts with Debian's npm).  tests/run.sh
+# runs npm ci; the tiles test (tests/test_tiles.sh) needs node >= 20.
+command -v npm >/dev/null 2>&1 || PACKAGES+=(npm)
 
 missing=()
 for p in "${PACKAGES[@]}"; do

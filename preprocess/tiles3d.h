@@ -4,7 +4,9 @@
  *
  * Export (hlod-export-3dtiles): tileset.json is our hierarchy, tile for
  * node, refine REPLACE, geometricError = the node's certified error, a box
- * bounding volume; each tile's transform is a translation, its node's
+ * bounding volume holding the node's content as written and every
+ * descendant's (3D Tiles wants a child's content inside its parent's box,
+ * and a simplified node may have lost a tower's top); each tile's transform is a translation, its node's
  * origin relative to its parent tile's, printed in full double precision,
  * so a city at projected coordinates keeps its millimetres.  A store with
  * several roots gets a content-less root tile above them.  Each node is one

@@ -131,7 +131,7 @@ static cJSON *num_array(const double *v, int n)
 /* ---- one node's glb ---- */
 
 typedef struct view {           /* one vertex or index stream */
-    const uint8_t *data;        /* plain bytes */
+    const uint8_t *data;        /* plain bytes (owned) */
     size_t count, stride;       /* elements and bytes each (indices: count = indices) */
     int is_index;
     uint8_t *coded;             /* meshopt-coded, or NULL */
@@ -150,6 +150,10 @@ typedef struct job {
     const char *tmp_dir;
     const hlod_tiles_export_desc *desc;
     double tol_floor;           /* max(grid step, 1e-6 x diagonal) */
+    double *box_lo, *box_hi;    /* 3 per node, world: its glb's content as
+                                   written (quantized), then, bottom-up, its
+                                   descendants' boxes too (3D Tiles: a
+                                   child's content lies in its parent's box) */
     atomic_uint next;
     atomic_uint done;
     atomic_int failed;
@@ -269,84 +273,133 @@ static void add_accessor(cJSON *accs, int view_index, size_t offset, int comp, s
     cJSON_AddItemToArray(accs, a);
 }
 
-/* Builds node i's glb from payload p (raw: its read bytes before decoding,
- * for the JPEG texture). */
-static hlod_result node_glb(job *J, uint32_t i, const hlod_store_payload *p,
-                            const uint8_t *raw, size_t raw_len, bytes *glb, glb_out *go)
-{
-    const hlod_store_node *n = &J->nodes[i];
-    const hlod_logger *lg = J->desc->logger;
-    hlod_result r = HLOD_OK;
-    size_t nv = p->vertex_count, ni = p->index_count;
-    memset(go, 0, sizeof *go);
+/* One node's glb while it is made. */
+typedef struct gb {
+    job *J;
+    uint32_t i;
+    const hlod_store_payload *p;
+    size_t nv, ni;
+    /* positions */
+    int quantize;
+    double lo[3], step, pmin[3], pmax[3];
+    /* streams: positions, then normals, UVs, colours, indices as present */
+    view views[5];
+    int nviews;
+    int has_n, has_uv, has_c, uv_quant, idx16, meshopt;
+    size_t isz;
+    /* texture */
+    int textured;
+    const uint8_t *img;         /* image bytes (the store's JPEG or img_own) */
+    size_t img_len;
+    uint8_t *img_own;
+    const char *mime;
+} gb;
 
-    /* positions in glTF's frame: (x, z, -y) */
-    double lo[3] = {INFINITY, INFINITY, INFINITY}, hi[3] = {-INFINITY, -INFINITY, -INFINITY};
-    for (size_t v = 0; v < nv; v++) {
+static void gb_free(gb *b)
+{
+    for (int k = 0; k < b->nviews; k++) {
+        free((void *)b->views[k].data);
+        free(b->views[k].coded);
+    }
+    free(b->img_own);
+}
+
+/* Adds a stream of count elements of stride bytes; NULL when out of memory. */
+static uint8_t *gb_stream(gb *b, size_t count, size_t stride, int is_index)
+{
+    uint8_t *d = malloc(count * stride + 1);
+    if (d)
+        b->views[b->nviews++] = (view){d, count, stride, is_index, NULL, 0};
+    return d;
+}
+
+/* Positions in glTF's frame, (x, z, -y): 16-bit steps of a power-of-two
+ * multiple of the store's grid when the step keeps every vertex within the
+ * tolerance, else floats.  Records the content's box (our frame, world). */
+static hlod_result gb_positions(gb *b)
+{
+    const hlod_store_payload *p = b->p;
+    const hlod_store_node *n = &b->J->nodes[b->i];
+    double hi[3] = {-INFINITY, -INFINITY, -INFINITY};
+    for (int k = 0; k < 3; k++)
+        b->lo[k] = INFINITY;
+    for (size_t v = 0; v < b->nv; v++) {
         const float *q = p->positions + 3 * v;
         double g[3] = {q[0], q[2], -(double)q[1]};
         for (int k = 0; k < 3; k++) {
-            lo[k] = fmin(lo[k], g[k]);
+            b->lo[k] = fmin(b->lo[k], g[k]);
             hi[k] = fmax(hi[k], g[k]);
         }
     }
-    double extent = fmax(fmax(hi[0] - lo[0], hi[1] - lo[1]), hi[2] - lo[2]);
+    double extent = fmax(fmax(hi[0] - b->lo[0], hi[1] - b->lo[1]), hi[2] - b->lo[2]);
     double step = extent > 0 ? extent / 65535.0 : 1.0;
-    if (J->h->quant_step > 0 && extent > 0) {  /* a power-of-two multiple of the grid */
-        double s = J->h->quant_step;
+    if (b->J->h->quant_step > 0 && extent > 0) {   /* a power-of-two multiple of the grid */
+        double s = b->J->h->quant_step;
         while (s < step)
             s *= 2;
         step = s;
     }
-    double tol = fmax(J->tol_floor, 0.1 * n->error);
-    int quantize = 0.5 * step <= tol && extent / step <= 65535.0;
-
-    uint8_t *pos = NULL, *nrm = NULL, *uv = NULL, *col = NULL, *idx = NULL, *img = NULL;
-    size_t pos_stride = quantize ? 8 : 12, uv_stride = 4;
-    double pmin[3], pmax[3];
-    int uv_quant = 1;
-    size_t img_len = 0;
-    const char *mime = NULL;
-    cJSON *root = NULL;
-    view views[5];
-    int nviews = 0;
-
-    pos = malloc(nv * pos_stride + 1);
+    b->step = step;
+    double tol = fmax(b->J->tol_floor, 0.1 * n->error);
+    b->quantize = 0.5 * step <= tol && extent / step <= 65535.0;
+    uint8_t *pos = gb_stream(b, b->nv, b->quantize ? 8 : 12, 0);
     if (!pos)
         return HLOD_ERR_NOMEM;
     for (int k = 0; k < 3; k++) {
-        pmin[k] = INFINITY;
-        pmax[k] = -INFINITY;
+        b->pmin[k] = INFINITY;
+        b->pmax[k] = -INFINITY;
     }
-    for (size_t v = 0; v < nv; v++) {
+    for (size_t v = 0; v < b->nv; v++) {
         const float *q = p->positions + 3 * v;
         double g[3] = {q[0], q[2], -(double)q[1]};
-        if (quantize) {
-            uint16_t o[4] = {0, 0, 0, 0};
+        double o[3];
+        if (b->quantize) {
+            uint16_t u[4] = {0, 0, 0, 0};
             for (int k = 0; k < 3; k++) {
-                double t = nearbyint((g[k] - lo[k]) / step);
-                o[k] = (uint16_t)(t < 0 ? 0 : t > 65535 ? 65535 : t);
-                pmin[k] = fmin(pmin[k], o[k]);
-                pmax[k] = fmax(pmax[k], o[k]);
+                double t = nearbyint((g[k] - b->lo[k]) / step);
+                u[k] = (uint16_t)(t < 0 ? 0 : t > 65535 ? 65535 : t);
+                o[k] = u[k];
             }
-            memcpy(pos + 8 * v, o, 8);
+            memcpy(pos + 8 * v, u, 8);
         } else {
-            float o[3] = {(float)g[0], (float)g[1], (float)g[2]};
-            for (int k = 0; k < 3; k++) {
-                pmin[k] = fmin(pmin[k], o[k]);
-                pmax[k] = fmax(pmax[k], o[k]);
-            }
-            memcpy(pos + 12 * v, o, 12);
+            float f[3] = {(float)g[0], (float)g[1], (float)g[2]};
+            for (int k = 0; k < 3; k++)
+                o[k] = f[k];
+            memcpy(pos + 12 * v, f, 12);
+        }
+        for (int k = 0; k < 3; k++) {
+            b->pmin[k] = fmin(b->pmin[k], o[k]);
+            b->pmax[k] = fmax(b->pmax[k], o[k]);
         }
     }
-    go->float_positions = !quantize;
-    views[nviews++] = (view){pos, nv, pos_stride, 0, NULL, 0};
+    /* the content's box as written, back in our frame: (gx, -gz, gy) */
+    double a[3], c[3];
+    for (int k = 0; k < 3; k++) {
+        a[k] = b->quantize ? b->lo[k] + b->pmin[k] * step : b->pmin[k];
+        c[k] = b->quantize ? b->lo[k] + b->pmax[k] * step : b->pmax[k];
+    }
+    double *L = b->J->box_lo + 3 * (size_t)b->i, *H = b->J->box_hi + 3 * (size_t)b->i;
+    const double *o = n->origin;
+    L[0] = o[0] + a[0], H[0] = o[0] + c[0];
+    L[1] = o[1] - c[2], H[1] = o[1] - a[2];
+    L[2] = o[2] + a[1], H[2] = o[2] + c[1];
+    return HLOD_OK;
+}
 
-    int has_n = p->normals != NULL, has_uv = p->uvs != NULL, has_c = p->colors != NULL;
-    if (has_n) {
-        nrm = malloc(nv * 8 + 1);
-        if (!nrm)
-            goto nomem;
+/* Normals (normalized 16-bit), UVs (normalized 16-bit in [0, 1], else
+ * float; v flipped to glTF's), colours (linear, normalized 16-bit) and the
+ * indices (16-bit below 65535 vertices). */
+static hlod_result gb_attributes(gb *b)
+{
+    const hlod_store_payload *p = b->p;
+    size_t nv = b->nv;
+    b->has_n = p->normals != NULL;
+    b->has_uv = p->uvs != NULL;
+    b->has_c = p->colors != NULL;
+    uint8_t *d;
+    if (b->has_n) {
+        if (!(d = gb_stream(b, nv, 8, 0)))
+            return HLOD_ERR_NOMEM;
         for (size_t v = 0; v < nv; v++) {
             const float *q = p->normals + 3 * v;
             double g[3] = {q[0], q[2], -(double)q[1]};
@@ -358,147 +411,113 @@ static hlod_result node_glb(job *J, uint32_t i, const hlod_store_payload *p,
             int16_t o[4] = {0, 0, 0, 0};
             for (int k = 0; k < 3; k++)
                 o[k] = (int16_t)lrint(g[k] / len * 32767.0);
-            memcpy(nrm + 8 * v, o, 8);
+            memcpy(d + 8 * v, o, 8);
         }
-        views[nviews++] = (view){nrm, nv, 8, 0, NULL, 0};
     }
-    if (has_uv) {
-        for (size_t v = 0; v < 2 * nv && uv_quant; v++)
-            uv_quant = p->uvs[v] >= 0.0f && p->uvs[v] <= 1.0f;
-        uv_stride = uv_quant ? 4 : 8;
-        uv = malloc(nv * uv_stride + 1);
-        if (!uv)
-            goto nomem;
+    if (b->has_uv) {
+        b->uv_quant = 1;
+        for (size_t v = 0; v < 2 * nv && b->uv_quant; v++)
+            b->uv_quant = p->uvs[v] >= 0.0f && p->uvs[v] <= 1.0f;
+        size_t stride = b->uv_quant ? 4 : 8;
+        if (!(d = gb_stream(b, nv, stride, 0)))
+            return HLOD_ERR_NOMEM;
         for (size_t v = 0; v < nv; v++) {
-            float t[2] = {p->uvs[2 * v], 1.0f - p->uvs[2 * v + 1]};  /* glTF: v down */
-            if (uv_quant) {
+            float t[2] = {p->uvs[2 * v], 1.0f - p->uvs[2 * v + 1]};
+            if (b->uv_quant) {
                 uint16_t o[2] = {(uint16_t)lrint(fmin(fmax(t[0], 0), 1) * 65535.0),
                                  (uint16_t)lrint(fmin(fmax(t[1], 0), 1) * 65535.0)};
-                memcpy(uv + 4 * v, o, 4);
+                memcpy(d + 4 * v, o, 4);
             } else {
-                memcpy(uv + 8 * v, t, 8);
+                memcpy(d + 8 * v, t, 8);
             }
         }
-        views[nviews++] = (view){uv, nv, uv_stride, 0, NULL, 0};
     }
-    if (has_c) {
-        col = malloc(nv * 8 + 1);
-        if (!col)
-            goto nomem;
+    if (b->has_c) {
+        if (!(d = gb_stream(b, nv, 8, 0)))
+            return HLOD_ERR_NOMEM;
         for (size_t v = 0; v < nv; v++) {
             uint16_t o[4];
             for (int k = 0; k < 3; k++)
                 o[k] = (uint16_t)lrint(srgb_to_linear(p->colors[4 * v + k] / 255.0) * 65535.0);
             o[3] = (uint16_t)(p->colors[4 * v + 3] * 257u);
-            memcpy(col + 8 * v, o, 8);
+            memcpy(d + 8 * v, o, 8);
         }
-        views[nviews++] = (view){col, nv, 8, 0, NULL, 0};
     }
-    int idx16 = nv <= 65535;
-    size_t isz = idx16 ? 2 : 4;
-    idx = malloc(ni * isz + 1);
-    if (!idx)
-        goto nomem;
-    for (size_t t = 0; t < ni; t++) {
-        if (idx16) {
+    b->idx16 = nv <= 65535;
+    b->isz = b->idx16 ? 2 : 4;
+    if (!(d = gb_stream(b, b->ni, b->isz, 1)))
+        return HLOD_ERR_NOMEM;
+    for (size_t t = 0; t < b->ni; t++) {
+        if (b->idx16) {
             uint16_t o = (uint16_t)p->indices[t];
-            memcpy(idx + 2 * t, &o, 2);
+            memcpy(d + 2 * t, &o, 2);
         } else {
-            memcpy(idx + 4 * t, &p->indices[t], 4);
+            memcpy(d + 4 * t, &p->indices[t], 4);
         }
     }
-    views[nviews++] = (view){idx, ni, isz, 1, NULL, 0};
+    return HLOD_OK;
+}
 
-    /* EXT_meshopt_compression: code every view, keep it when it pays */
-    int meshopt = 0;
-    if (J->desc->meshopt != HLOD_MESHOPT_NEVER) {
-        size_t plain = 0, coded = 0;
-        for (int k = 0; k < nviews; k++) {
-            view *w = &views[k];
-            size_t bound = w->is_index ? meshopt_encodeIndexBufferBound(w->count, nv)
-                                       : meshopt_encodeVertexBufferBound(w->count, w->stride);
-            w->coded = malloc(bound + 1);
-            if (!w->coded)
-                goto nomem;
-            w->coded_len = w->is_index
-                ? meshopt_encodeIndexBuffer(w->coded, bound, p->indices, w->count)
-                : meshopt_encodeVertexBuffer(w->coded, bound, w->data, w->count, w->stride);
-            if (w->coded_len == 0) {
-                hlod_logf(lg, HLOD_LOG_ERROR, "%s: node %u: meshoptimizer could not code a stream",
-                         hlod_store_path(J->s), i);
-                r = HLOD_ERR_FORMAT;
-                goto done;
-            }
-            plain += w->count * w->stride;
-            coded += w->coded_len;
+/* EXT_meshopt_compression: codes every stream; b->meshopt when it pays
+ * (or is asked for). */
+static hlod_result gb_meshopt(gb *b)
+{
+    const hlod_tiles_export_desc *desc = b->J->desc;
+    if (desc->meshopt == HLOD_MESHOPT_NEVER)
+        return HLOD_OK;
+    size_t plain = 0, coded = 0;
+    for (int k = 0; k < b->nviews; k++) {
+        view *w = &b->views[k];
+        size_t bound = w->is_index ? meshopt_encodeIndexBufferBound(w->count, b->nv)
+                                   : meshopt_encodeVertexBufferBound(w->count, w->stride);
+        w->coded = malloc(bound + 1);
+        if (!w->coded)
+            return HLOD_ERR_NOMEM;
+        w->coded_len = w->is_index
+            ? meshopt_encodeIndexBuffer(w->coded, bound, b->p->indices, w->count)
+            : meshopt_encodeVertexBuffer(w->coded, bound, w->data, w->count, w->stride);
+        if (w->coded_len == 0) {
+            hlod_logf(desc->logger, HLOD_LOG_ERROR, "%s: node %u: meshoptimizer could not code "
+                      "a stream", hlod_store_path(b->J->s), b->i);
+            return HLOD_ERR_FORMAT;
         }
-        meshopt = J->desc->meshopt == HLOD_MESHOPT_ALWAYS || coded < 0.9 * (double)plain;
+        plain += w->count * w->stride;
+        coded += w->coded_len;
     }
-    go->meshopt = meshopt;
+    b->meshopt = desc->meshopt == HLOD_MESHOPT_ALWAYS || coded < 0.9 * (double)plain;
+    return HLOD_OK;
+}
 
-    /* the texture */
-    int textured = (p->flags & HLOD_NODE_TEXTURE) && p->pixels && p->tex_tri_count > 0;
-    const uint8_t *store_jpeg = NULL;
-    size_t store_jpeg_len = 0;
-    if (textured) {
-        store_jpeg = packed_jpeg(J->h, raw, raw_len, &store_jpeg_len);
-        if (store_jpeg) {
-            mime = "image/jpeg";
-            go->jpeg_copied = 1;
-        } else if ((r = encode_texture(J, i, p, &img, &img_len, &mime)) != HLOD_OK) {
-            goto done;
-        }
+/* The texture's bytes: the store's JPEG as it is, else encoded here. */
+static hlod_result gb_texture(gb *b, const uint8_t *raw, size_t raw_len, glb_out *go)
+{
+    const hlod_store_payload *p = b->p;
+    b->textured = (p->flags & HLOD_NODE_TEXTURE) && p->pixels && p->tex_tri_count > 0;
+    if (!b->textured)
+        return HLOD_OK;
+    b->img = packed_jpeg(b->J->h, raw, raw_len, &b->img_len);
+    if (b->img) {
+        b->mime = "image/jpeg";
+        go->jpeg_copied = 1;
+        return HLOD_OK;
     }
+    hlod_result r = encode_texture(b->J, b->i, p, &b->img_own, &b->img_len, &b->mime);
+    b->img = b->img_own;
+    return r;
+}
 
-    /* the binary chunk and the JSON */
-    bytes bin = {0};
-    root = cJSON_CreateObject();
-    cJSON *asset = cJSON_AddObjectToObject(root, "asset");
-    cJSON_AddStringToObject(asset, "version", "2.0");
-    cJSON_AddStringToObject(asset, "generator", "hlod-export-3dtiles");
-    cJSON *used = cJSON_AddArrayToObject(root, "extensionsUsed");
-    cJSON *required = cJSON_AddArrayToObject(root, "extensionsRequired");
-    if (quantize || has_n || (has_uv && uv_quant) || has_c) {
-        cJSON_AddItemToArray(used, cJSON_CreateString("KHR_mesh_quantization"));
-        cJSON_AddItemToArray(required, cJSON_CreateString("KHR_mesh_quantization"));
-    }
-    if (meshopt) {
-        cJSON_AddItemToArray(used, cJSON_CreateString("EXT_meshopt_compression"));
-        cJSON_AddItemToArray(required, cJSON_CreateString("EXT_meshopt_compression"));
-    }
-    if (cJSON_GetArraySize(used) == 0) {
-        cJSON_DeleteItemFromObject(root, "extensionsUsed");
-        cJSON_DeleteItemFromObject(root, "extensionsRequired");
-    }
-    cJSON_AddNumberToObject(root, "scene", 0);
-    cJSON *scene = cJSON_CreateObject();
-    cJSON *scene_nodes = cJSON_AddArrayToObject(scene, "nodes");
-    cJSON_AddItemToArray(scene_nodes, cJSON_CreateNumber(0));
-    cJSON *scenes = cJSON_AddArrayToObject(root, "scenes");
-    cJSON_AddItemToArray(scenes, scene);
-    cJSON *gnode = cJSON_CreateObject();
-    char nname[32];
-    snprintf(nname, sizeof nname, "node %u", i);
-    cJSON_AddStringToObject(gnode, "name", nname);
-    cJSON_AddNumberToObject(gnode, "mesh", 0);
-    if (quantize) {
-        double sc[3] = {step, step, step};
-        cJSON_AddItemToObject(gnode, "translation", num_array(lo, 3));
-        cJSON_AddItemToObject(gnode, "scale", num_array(sc, 3));
-    }
-    cJSON *gnodes = cJSON_AddArrayToObject(root, "nodes");
-    cJSON_AddItemToArray(gnodes, gnode);
-
-    /* buffer 0: the glb's BIN chunk; with meshopt, buffer 1 is the
-     * decoded views' fallback, which holds no bytes */
+/* bufferViews and buffers into root, their bytes into bin; returns the
+ * image's view or -1. */
+static int gb_views_json(gb *b, cJSON *root, bytes *bin)
+{
     cJSON *bviews = cJSON_AddArrayToObject(root, "bufferViews");
     size_t fallback_len = 0;
-    for (int k = 0; k < nviews; k++) {
-        view *w = &views[k];
+    for (int k = 0; k < b->nviews; k++) {
+        view *w = &b->views[k];
         size_t plain_len = w->count * w->stride;
         cJSON *bv = cJSON_CreateObject();
-        if (meshopt) {
-            size_t at = bytes_put(&bin, w->coded, w->coded_len, 0);
+        if (b->meshopt) {   /* data in buffer 0, coded; buffer 1 holds no bytes */
+            size_t at = bytes_put(bin, w->coded, w->coded_len, 0);
             fallback_len = (fallback_len + 3) / 4 * 4;
             cJSON_AddNumberToObject(bv, "buffer", 1);
             cJSON_AddNumberToObject(bv, "byteOffset", (double)fallback_len);
@@ -513,7 +532,7 @@ static hlod_result node_glb(job *J, uint32_t i, const hlod_store_payload *p,
             cJSON_AddNumberToObject(ext, "count", (double)w->count);
             cJSON_AddStringToObject(ext, "mode", w->is_index ? "TRIANGLES" : "ATTRIBUTES");
         } else {
-            size_t at = bytes_put(&bin, w->data, plain_len, 0);
+            size_t at = bytes_put(bin, w->data, plain_len, 0);
             cJSON_AddNumberToObject(bv, "buffer", 0);
             if (at)
                 cJSON_AddNumberToObject(bv, "byteOffset", (double)at);
@@ -526,25 +545,22 @@ static hlod_result node_glb(job *J, uint32_t i, const hlod_store_payload *p,
         cJSON_AddItemToArray(bviews, bv);
     }
     int img_view = -1;
-    if (textured) {
-        const uint8_t *src = store_jpeg ? store_jpeg : img;
-        size_t len = store_jpeg ? store_jpeg_len : img_len;
-        size_t at = bytes_put(&bin, src, len, 0);
+    if (b->textured) {
+        size_t at = bytes_put(bin, b->img, b->img_len, 0);
         cJSON *bv = cJSON_CreateObject();
         cJSON_AddNumberToObject(bv, "buffer", 0);
         if (at)
             cJSON_AddNumberToObject(bv, "byteOffset", (double)at);
-        cJSON_AddNumberToObject(bv, "byteLength", (double)len);
+        cJSON_AddNumberToObject(bv, "byteLength", (double)b->img_len);
         img_view = cJSON_GetArraySize(bviews);
         cJSON_AddItemToArray(bviews, bv);
-        go->texture_bytes = len;
     }
-    bytes_put(&bin, NULL, 0, 0);    /* pad the chunk to 4 */
+    bytes_put(bin, NULL, 0, 0);     /* pad the chunk to 4 */
     cJSON *buffers = cJSON_AddArrayToObject(root, "buffers");
     cJSON *b0 = cJSON_CreateObject();
-    cJSON_AddNumberToObject(b0, "byteLength", (double)bin.len);
+    cJSON_AddNumberToObject(b0, "byteLength", (double)bin->len);
     cJSON_AddItemToArray(buffers, b0);
-    if (meshopt) {
+    if (b->meshopt) {
         cJSON *b1 = cJSON_CreateObject();
         cJSON_AddNumberToObject(b1, "byteLength", (double)fallback_len);
         cJSON_AddTrueToObject(cJSON_AddObjectToObject(cJSON_AddObjectToObject(b1, "extensions"),
@@ -552,51 +568,51 @@ static hlod_result node_glb(job *J, uint32_t i, const hlod_store_payload *p,
                               "fallback");
         cJSON_AddItemToArray(buffers, b1);
     }
+    return img_view;
+}
 
-    /* accessors: 0 positions, then normals, UVs, colours, then the two
-     * primitives' indices */
+/* Accessors (positions, normals, UVs, colours, then the textured and the
+ * untextured triangles' indices), materials, the mesh, the texture. */
+static void gb_mesh_json(gb *b, cJSON *root, int img_view)
+{
     cJSON *accs = cJSON_AddArrayToObject(root, "accessors");
-    int vi = 0, a_pos, a_n = -1, a_uv = -1, a_c = -1;
-    a_pos = cJSON_GetArraySize(accs);
-    add_accessor(accs, vi++, 0, quantize ? GL_USHORT_ : GL_FLOAT_, nv, "VEC3", 0, pmin, pmax, 3);
-    if (has_n) {
+    int vi = 0, a_n = -1, a_uv = -1, a_c = -1, a_i[2] = {-1, -1};
+    add_accessor(accs, vi++, 0, b->quantize ? GL_USHORT_ : GL_FLOAT_, b->nv, "VEC3", 0, b->pmin,
+                 b->pmax, 3);
+    if (b->has_n) {
         a_n = cJSON_GetArraySize(accs);
-        add_accessor(accs, vi++, 0, GL_SHORT_, nv, "VEC3", 1, NULL, NULL, 0);
+        add_accessor(accs, vi++, 0, GL_SHORT_, b->nv, "VEC3", 1, NULL, NULL, 0);
     }
-    if (has_uv) {
+    if (b->has_uv) {
         a_uv = cJSON_GetArraySize(accs);
-        add_accessor(accs, vi++, 0, uv_quant ? GL_USHORT_ : GL_FLOAT_, nv, "VEC2", uv_quant, NULL,
-                     NULL, 0);
+        add_accessor(accs, vi++, 0, b->uv_quant ? GL_USHORT_ : GL_FLOAT_, b->nv, "VEC2",
+                     b->uv_quant, NULL, NULL, 0);
     }
-    if (has_c) {
+    if (b->has_c) {
         a_c = cJSON_GetArraySize(accs);
-        add_accessor(accs, vi++, 0, GL_USHORT_, nv, "VEC4", 1, NULL, NULL, 0);
+        add_accessor(accs, vi++, 0, GL_USHORT_, b->nv, "VEC4", 1, NULL, NULL, 0);
     }
-    size_t tex_idx = textured ? 3 * (size_t)p->tex_tri_count : 0;
-    int a_i0 = -1, a_i1 = -1;
+    int ct = b->idx16 ? GL_USHORT_ : GL_UINT_;
+    size_t tex_idx = b->textured ? 3 * (size_t)b->p->tex_tri_count : 0;
     if (tex_idx > 0) {
-        a_i0 = cJSON_GetArraySize(accs);
-        add_accessor(accs, vi, 0, idx16 ? GL_USHORT_ : GL_UINT_, tex_idx, "SCALAR", 0, NULL, NULL, 0);
+        a_i[0] = cJSON_GetArraySize(accs);
+        add_accessor(accs, vi, 0, ct, tex_idx, "SCALAR", 0, NULL, NULL, 0);
     }
-    if (ni > tex_idx) {
-        a_i1 = cJSON_GetArraySize(accs);
-        add_accessor(accs, vi, tex_idx * isz, idx16 ? GL_USHORT_ : GL_UINT_, ni - tex_idx, "SCALAR",
-                     0, NULL, NULL, 0);
+    if (b->ni > tex_idx) {
+        a_i[1] = cJSON_GetArraySize(accs);
+        add_accessor(accs, vi, tex_idx * b->isz, ct, b->ni - tex_idx, "SCALAR", 0, NULL, NULL, 0);
     }
-
-    /* materials, textures, the mesh */
-    int double_sided = !(n->render_flags & HLOD_RENDER_SOLID);
+    int double_sided = !(b->J->nodes[b->i].render_flags & HLOD_RENDER_SOLID);
     cJSON *mats = cJSON_AddArrayToObject(root, "materials");
     cJSON *prims = cJSON_CreateArray();
     for (int part = 0; part < 2; part++) {
-        int acc = part == 0 ? a_i0 : a_i1;
-        if (acc < 0)
+        if (a_i[part] < 0)
             continue;
         cJSON *m = cJSON_CreateObject();
         cJSON *pbr = cJSON_AddObjectToObject(m, "pbrMetallicRoughness");
         if (part == 0) {
             cJSON_AddNumberToObject(cJSON_AddObjectToObject(pbr, "baseColorTexture"), "index", 0);
-        } else if (!has_c) {
+        } else if (!b->has_c) {
             double g = srgb_to_linear(RENDER_GREY), c[4] = {g, g, g, 1.0};
             cJSON_AddItemToObject(pbr, "baseColorFactor", num_array(c, 4));
         }
@@ -608,49 +624,85 @@ static hlod_result node_glb(job *J, uint32_t i, const hlod_store_payload *p,
         cJSON_AddItemToArray(mats, m);
         cJSON *pr = cJSON_CreateObject();
         cJSON *at = cJSON_AddObjectToObject(pr, "attributes");
-        cJSON_AddNumberToObject(at, "POSITION", a_pos);
+        cJSON_AddNumberToObject(at, "POSITION", 0);
         if (a_n >= 0)
             cJSON_AddNumberToObject(at, "NORMAL", a_n);
         if (part == 0 && a_uv >= 0)
             cJSON_AddNumberToObject(at, "TEXCOORD_0", a_uv);
         if (part == 1 && a_c >= 0)
             cJSON_AddNumberToObject(at, "COLOR_0", a_c);
-        cJSON_AddNumberToObject(pr, "indices", acc);
+        cJSON_AddNumberToObject(pr, "indices", a_i[part]);
         cJSON_AddNumberToObject(pr, "material", mi);
         cJSON_AddNumberToObject(pr, "mode", 4);
         cJSON_AddItemToArray(prims, pr);
     }
-    cJSON *meshes = cJSON_AddArrayToObject(root, "meshes");
     cJSON *mesh = cJSON_CreateObject();
     cJSON_AddItemToObject(mesh, "primitives", prims);
-    cJSON_AddItemToArray(meshes, mesh);
-    if (textured) {
+    cJSON_AddItemToArray(cJSON_AddArrayToObject(root, "meshes"), mesh);
+    if (b->textured) {
         cJSON *smp = cJSON_CreateObject();
         cJSON_AddNumberToObject(smp, "magFilter", 9729);    /* LINEAR */
         cJSON_AddNumberToObject(smp, "minFilter", 9987);    /* LINEAR_MIPMAP_LINEAR */
         cJSON_AddItemToArray(cJSON_AddArrayToObject(root, "samplers"), smp);
         cJSON *im = cJSON_CreateObject();
         cJSON_AddNumberToObject(im, "bufferView", img_view);
-        cJSON_AddStringToObject(im, "mimeType", mime);
+        cJSON_AddStringToObject(im, "mimeType", b->mime);
         cJSON_AddItemToArray(cJSON_AddArrayToObject(root, "images"), im);
         cJSON *tx = cJSON_CreateObject();
         cJSON_AddNumberToObject(tx, "sampler", 0);
         cJSON_AddNumberToObject(tx, "source", 0);
         cJSON_AddItemToArray(cJSON_AddArrayToObject(root, "textures"), tx);
     }
+}
 
-    char *json = cJSON_PrintUnformatted(root);
-    if (!json || bin.oom) {
-        free(json);
-        free(bin.p);
-        goto nomem;
+/* asset, extensions, the scene and its one node (the quantization's
+ * translation and scale). */
+static cJSON *gb_head_json(gb *b)
+{
+    cJSON *root = cJSON_CreateObject();
+    cJSON *asset = cJSON_AddObjectToObject(root, "asset");
+    cJSON_AddStringToObject(asset, "version", "2.0");
+    cJSON_AddStringToObject(asset, "generator", "hlod-export-3dtiles");
+    const char *ext[2];
+    int next = 0;
+    if (b->quantize || b->has_n || (b->has_uv && b->uv_quant) || b->has_c)
+        ext[next++] = "KHR_mesh_quantization";
+    if (b->meshopt)
+        ext[next++] = "EXT_meshopt_compression";
+    if (next) {
+        cJSON *used = cJSON_AddArrayToObject(root, "extensionsUsed");
+        cJSON *required = cJSON_AddArrayToObject(root, "extensionsRequired");
+        for (int k = 0; k < next; k++) {
+            cJSON_AddItemToArray(used, cJSON_CreateString(ext[k]));
+            cJSON_AddItemToArray(required, cJSON_CreateString(ext[k]));
+        }
     }
+    cJSON_AddNumberToObject(root, "scene", 0);
+    cJSON *scene = cJSON_CreateObject();
+    cJSON_AddItemToArray(cJSON_AddArrayToObject(scene, "nodes"), cJSON_CreateNumber(0));
+    cJSON_AddItemToArray(cJSON_AddArrayToObject(root, "scenes"), scene);
+    cJSON *gnode = cJSON_CreateObject();
+    char name[32];
+    snprintf(name, sizeof name, "node %u", b->i);
+    cJSON_AddStringToObject(gnode, "name", name);
+    cJSON_AddNumberToObject(gnode, "mesh", 0);
+    if (b->quantize) {
+        double sc[3] = {b->step, b->step, b->step};
+        cJSON_AddItemToObject(gnode, "translation", num_array(b->lo, 3));
+        cJSON_AddItemToObject(gnode, "scale", num_array(sc, 3));
+    }
+    cJSON_AddItemToArray(cJSON_AddArrayToObject(root, "nodes"), gnode);
+    return root;
+}
+
+/* The glb container: header, JSON chunk (space-padded), BIN chunk. */
+static int glb_assemble(bytes *glb, const char *json, const bytes *bin)
+{
     size_t jlen = strlen(json), jpad = (4 - jlen % 4) % 4;
-    uint32_t total = (uint32_t)(12 + 8 + jlen + jpad + 8 + bin.len);
-    glb->len = 0;
-    uint32_t hdr[3] = {0x46546C67u, 2u, total};  /* "glTF" */
+    uint32_t hdr[3] = {0x46546C67u, 2u, (uint32_t)(12 + 8 + jlen + jpad + 8 + bin->len)};
     uint32_t jch[2] = {(uint32_t)(jlen + jpad), 0x4E4F534Au};   /* "JSON" */
-    uint32_t bch[2] = {(uint32_t)bin.len, 0x004E4942u};         /* "BIN\0" */
+    uint32_t bch[2] = {(uint32_t)bin->len, 0x004E4942u};        /* "BIN\0" */
+    glb->len = 0;
     bytes_put(glb, hdr, 12, 0);
     bytes_put(glb, jch, 8, 0);
     bytes_put(glb, json, jlen, 0);
@@ -659,24 +711,46 @@ static hlod_result node_glb(job *J, uint32_t i, const hlod_store_payload *p,
         glb->len += jpad;
     }
     bytes_put(glb, bch, 8, 0);
-    bytes_put(glb, bin.p, bin.len, 0);
-    free(json);
-    free(bin.p);
-    if (glb->oom)
-        goto nomem;
-    goto done;
-nomem:
-    r = HLOD_ERR_NOMEM;
-done:
-    cJSON_Delete(root);
-    for (int k = 0; k < nviews; k++)
-        free(views[k].coded);
-    free(pos);
-    free(nrm);
-    free(uv);
-    free(col);
-    free(idx);
-    free(img);
+    bytes_put(glb, bin->p, bin->len, 0);
+    return !glb->oom;
+}
+
+/* Builds node i's glb from payload p (raw: its read bytes before decoding,
+ * for the JPEG texture). */
+static hlod_result node_glb(job *J, uint32_t i, const hlod_store_payload *p,
+                            const uint8_t *raw, size_t raw_len, bytes *glb, glb_out *go)
+{
+    gb b;
+    memset(&b, 0, sizeof b);
+    b.J = J;
+    b.i = i;
+    b.p = p;
+    b.nv = p->vertex_count;
+    b.ni = p->index_count;
+    memset(go, 0, sizeof *go);
+    hlod_result r = gb_positions(&b);
+    if (r == HLOD_OK)
+        r = gb_attributes(&b);
+    if (r == HLOD_OK)
+        r = gb_meshopt(&b);
+    if (r == HLOD_OK)
+        r = gb_texture(&b, raw, raw_len, go);
+    if (r == HLOD_OK) {
+        bytes bin = {0};
+        cJSON *root = gb_head_json(&b);
+        int img_view = gb_views_json(&b, root, &bin);
+        gb_mesh_json(&b, root, img_view);
+        char *json = cJSON_PrintUnformatted(root);
+        if (!json || bin.oom || !glb_assemble(glb, json, &bin))
+            r = HLOD_ERR_NOMEM;
+        cJSON_free(json);
+        cJSON_Delete(root);
+        free(bin.p);
+        go->meshopt = b.meshopt;
+        go->float_positions = !b.quantize;
+        go->texture_bytes = b.textured ? b.img_len : 0;
+    }
+    gb_free(&b);
     return r;
 }
 
@@ -792,9 +866,10 @@ static cJSON *tile_json(const job *J, uint32_t i, const double parent_origin[3],
     const hlod_store_node *n = &J->nodes[i];
     cJSON *t = cJSON_CreateObject();
     double box[12] = {0};
+    const double *lo = J->box_lo + 3 * (size_t)i, *hi = J->box_hi + 3 * (size_t)i;
     for (int k = 0; k < 3; k++) {
-        box[k] = 0.5 * (n->bbox_min[k] + n->bbox_max[k]) - n->origin[k];
-        box[3 + 4 * k] = 0.5 * (n->bbox_max[k] - n->bbox_min[k]) + pad;
+        box[k] = 0.5 * (lo[k] + hi[k]) - n->origin[k];
+        box[3 + 4 * k] = 0.5 * (hi[k] - lo[k]) + pad;
     }
     cJSON_AddItemToObject(cJSON_AddObjectToObject(t, "boundingVolume"), "box", num_array(box, 12));
     add_num(t, "geometricError", n->error);
@@ -834,8 +909,13 @@ static char *tileset_json(const job *J, double pad, uint64_t *tiles)
         top = cJSON_CreateObject();
         double box[12] = {0}, diag2 = 0;
         for (int k = 0; k < 3; k++) {
-            box[k] = 0.5 * (h->bbox_min[k] + h->bbox_max[k]);
-            box[3 + 4 * k] = 0.5 * (h->bbox_max[k] - h->bbox_min[k]) + pad;
+            double lo = INFINITY, hi = -INFINITY;
+            for (uint32_t r = 0; r < roots; r++) {
+                lo = fmin(lo, J->box_lo[3 * r + k]);
+                hi = fmax(hi, J->box_hi[3 * r + k]);
+            }
+            box[k] = 0.5 * (lo + hi);
+            box[3 + 4 * k] = 0.5 * (hi - lo) + pad;
             diag2 += (h->bbox_max[k] - h->bbox_min[k]) * (h->bbox_max[k] - h->bbox_min[k]);
         }
         err = 0;
@@ -865,6 +945,35 @@ static double now_s(void)
     struct timespec ts;
     clock_gettime(CLOCK_MONOTONIC, &ts);
     return (double)ts.tv_sec + 1e-9 * (double)ts.tv_nsec;
+}
+
+/* Renames the finished folder tmp to dir (dl: dir's length without
+ * trailing slashes); an existing dir is moved aside first and removed
+ * after, or put back if the rename fails. */
+static hlod_result into_place(const char *tmp, const char *dir, size_t dl, int exists,
+                              const hlod_logger *lg)
+{
+    hlod_result r = HLOD_OK;
+    char old[PATH_MAX + 16];
+    old[0] = 0;
+    if (exists) {
+        snprintf(old, sizeof old, "%.*s.old-XXXXXX", (int)dl, dir);
+        if (!mkdtemp(old) || rename(dir, old) != 0) {
+            hlod_logf(lg, HLOD_LOG_ERROR, "%s: cannot move the old folder aside: %s", dir,
+                      strerror(errno));
+            return HLOD_ERR_IO;
+        }
+    }
+    if (rename(tmp, dir) != 0) {
+        hlod_logf(lg, HLOD_LOG_ERROR, "%s: cannot rename %s into place: %s", dir, tmp,
+                  strerror(errno));
+        if (old[0])
+            rename(old, dir);
+        r = HLOD_ERR_IO;
+    }
+    if (r == HLOD_OK && old[0])
+        hlod_rm_tree(old);
+    return r;
 }
 
 hlod_result hlod_tiles_export(const hlod_store *s, const char *dir,
@@ -916,6 +1025,15 @@ hlod_result hlod_tiles_export(const hlod_store *s, const char *dir,
     for (int k = 0; k < 3; k++)
         diag2 += (J.h->bbox_max[k] - J.h->bbox_min[k]) * (J.h->bbox_max[k] - J.h->bbox_min[k]);
     J.tol_floor = fmax(J.h->quant_step, 1e-6 * sqrt(diag2));
+    uint32_t nn = hlod_store_node_count(s);
+    J.box_lo = malloc(3 * (size_t)nn * sizeof *J.box_lo);
+    J.box_hi = malloc(3 * (size_t)nn * sizeof *J.box_hi);
+    if (!J.box_lo || !J.box_hi) {
+        free(J.box_lo);
+        free(J.box_hi);
+        hlod_rm_tree(tmp);
+        return HLOD_ERR_NOMEM;
+    }
     atomic_init(&J.next, 0u);
     atomic_init(&J.done, 0u);
     atomic_init(&J.failed, 0);
@@ -956,7 +1074,19 @@ hlod_result hlod_tiles_export(const hlod_store *s, const char *dir,
         desc->progress(desc->progress_user, count, count);
 
     if (r == HLOD_OK) {
-        char *ts = tileset_json(&J, J.tol_floor, &J.st.tiles);
+        /* children's boxes into their parents' (breadth-first: children
+         * come after their parent) */
+        for (uint32_t i = count; i-- > 0;) {
+            uint32_t p = J.nodes[i].parent;
+            if (p == HLOD_STORE_NO_PARENT)
+                continue;
+            for (int k = 0; k < 3; k++) {
+                J.box_lo[3 * p + k] = fmin(J.box_lo[3 * p + k], J.box_lo[3 * i + k]);
+                J.box_hi[3 * p + k] = fmax(J.box_hi[3 * p + k], J.box_hi[3 * i + k]);
+            }
+        }
+        /* a margin for the viewer's rounding: 1e-7 of the diagonal */
+        char *ts = tileset_json(&J, 1e-7 * sqrt(diag2) + 1e-12, &J.st.tiles);
         if (!ts) {
             r = HLOD_ERR_NOMEM;
         } else {
@@ -967,27 +1097,10 @@ hlod_result hlod_tiles_export(const hlod_store *s, const char *dir,
             cJSON_free(ts);
         }
     }
-    if (r == HLOD_OK) {     /* into place */
-        char old[PATH_MAX + 16];
-        old[0] = 0;
-        if (exists) {
-            snprintf(old, sizeof old, "%.*s.old-XXXXXX", (int)dl, dir);
-            if (!mkdtemp(old) || rename(dir, old) != 0) {
-                hlod_logf(lg, HLOD_LOG_ERROR, "%s: cannot move the old folder aside: %s", dir,
-                         strerror(errno));
-                r = HLOD_ERR_IO;
-            }
-        }
-        if (r == HLOD_OK && rename(tmp, dir) != 0) {
-            hlod_logf(lg, HLOD_LOG_ERROR, "%s: cannot rename %s into place: %s", dir, tmp,
-                     strerror(errno));
-            if (old[0])
-                rename(old, dir);
-            r = HLOD_ERR_IO;
-        }
-        if (r == HLOD_OK && old[0])
-            hlod_rm_tree(old);
-    }
+    if (r == HLOD_OK)
+        r = into_place(tmp, dir, dl, exists, lg);
+    free(J.box_lo);
+    free(J.box_hi);
     if (r != HLOD_OK) {
         hlod_rm_tree(tmp);
         return r;

@@ -4,13 +4,16 @@
 #   bash tests/run.sh        (as root on Debian 12; safe to run again)
 #
 # 1. data/setup.sh installs missing Debian packages;
-# 2. data/fetch-meshes.sh puts the real test meshes into data/meshes/;
-# 3. configures and builds build/ (normal, with benchmarks) and runs ctest;
-# 4. configures and builds build-asan/ (ASan + UBSan, no benchmarks) and
+# 2. npm ci installs the node packages pinned in package-lock.json into
+#    node_modules/ (the tiles test's readers and browser driver,
+#    meshoptimizer for hlod-bench-simplify);
+# 3. data/fetch-meshes.sh puts the real test meshes into data/meshes/;
+# 4. configures and builds build/ (normal, with benchmarks) and runs ctest;
+# 5. configures and builds build-asan/ (ASan + UBSan, no benchmarks) and
 #    runs ctest again;
-# 5. builds the threaded tools and their tests with ThreadSanitizer
+# 6. builds the threaded tools and their tests with ThreadSanitizer
 #    (build-tsan/) and runs those tests;
-# 6. builds the libFuzzer harnesses with clang (build-fuzz/), replays their
+# 7. builds the libFuzzer harnesses with clang (build-fuzz/), replays their
 #    corpora and fuzzes each for 20 s (tests/fuzz/run.sh).
 # Prints a summary and exits non-zero if any step or any test failed.
 # .ci/run calls exactly this script.
@@ -91,6 +94,10 @@ run_ctest() {
 }
 
 step "setup packages" bash "$ROOT/data/setup.sh" || finish
+# Not fatal to the run: without node_modules the tests that need it fail,
+# naming the package; the rest still build and run.
+npm_ci() { (cd "$ROOT" && npm ci --no-audit --no-fund); }
+step "npm ci" npm_ci
 step "fetch meshes" sh "$ROOT/data/fetch-meshes.sh" || finish
 
 if step "build build/" build build -DCMAKE_BUILD_TYPE=RelWithDebInfo -DHLOD_SANITIZE= -DHLOD_BENCH=ON; then
