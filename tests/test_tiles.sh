@@ -33,6 +33,9 @@
 #     SSIM lets through).
 #     On a failure both images, the numbers and the logs are kept in
 #     out/test-logs/tiles/;
+#   - the untextured small city (hlod-gen-city --untextured: vertex
+#     colours, COLOR_0 in the glb, linear) in the browser against hlod's
+#     image: SSIM >= 0.8 and PSNR >= 30 dB likewise;
 #   - the round trip (item 4): hlod-build reads the export's tileset.json
 #     (one block per leaf tile) into a new store with as many leaf
 #     triangles as the original; full-detail frames 0, 40, 80 and 120 of
@@ -187,6 +190,26 @@ if [ -f "$T/browser.png" ] && [ -f "$T/hlod_ref.png" ]; then
 else
     ok 1 "the browser's image matches hlod's (no image to compare)"
 fi
+
+# ---- the untextured city: COLOR_0 ----
+"$BIN/hlod-gen-city" --preset small --untextured -o "$T/u.obj" --quiet &&
+    "$BIN/hlod-build" "$T/u.obj" -o "$T/u.hlod" --desired-tris 450 --quiet &&
+    "$BIN/hlod-export-3dtiles" "$T/u.hlod" -o "$T/utiles" --quiet >/dev/null &&
+    "$BIN/hlod-bench" "$T/u.hlod" --path "$VIEW" --paths-dir "$PATHS_DIR" --frames $((FRAME + 1)) \
+        --reference --save-frames "$FRAME" --width $W --height $H --out "$T/uref" --no-plots \
+        --jitter-frames 0 >/dev/null 2>"$T/uref.err" &&
+    timeout 300 node "$SRC/tests/tiles/render_tiles.mjs" --tileset "$T/utiles" --path "$PATHS_DIR/$VIEW.path" \
+        --frame "$FRAME" --width $W --height $H --out "$T/ubrowser.png" --chromium "$CHROMIUM" \
+        --timeout-s 120 >"$T/ubrowser.log" 2>&1 &&
+    cp "$T/uref/frame_$(printf %05d "$FRAME")_ref.png" "$T/uhlod_ref.png" &&
+    "$BIN/hlod-bench" --compare "$T/ubrowser.png" "$T/uhlod_ref.png" >"$T/ucompare.json" 2>&1
+rc=$?
+USSIM=$(jget "$T/ucompare.json" ssim)
+UPSNR=$(jget "$T/ucompare.json" psnr)
+[ $rc -eq 0 ] && node -e 'process.exit(Number(process.argv[1]) >= Number(process.argv[2]) &&
+    Number(process.argv[3]) >= Number(process.argv[4]) ? 0 : 1)' "${USSIM:-0}" "$SSIM_MIN" "${UPSNR:-0}" "$PSNR_MIN"
+ok $? "the untextured city (COLOR_0) in the browser matches hlod's: SSIM ${USSIM:-?} >= $SSIM_MIN, PSNR ${UPSNR:-?} dB >= $PSNR_MIN dB" ||
+    keep ubrowser.png uhlod_ref.png ucompare.json ubrowser.log uref.err
 
 # ---- the round trip: the export built again ----
 "$BIN/hlod-build" "$T/tiles/tileset.json" -o "$T/rt.hlod" --desired-tris 450 --quiet &&
