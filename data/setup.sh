@@ -15,7 +15,7 @@ PACKAGES=(
     clang libclang-rt-14-dev
     xvfb xauth
     strace util-linux procps
-    libcurl4-openssl-dev nginx-light iproute2 python3
+    libcurl4-openssl-dev nginx-light iproute2 python3 openssl
     libcjson-dev
     nodejs chromium chromium-driver
 )

@@ -21,6 +21,10 @@
 #     city by tests/bench/bench_http.sh; here fly missed 46-48 frames over
 #     HTTP against the file's 19); a pair that misses is run once more
 #     (wall-clock noise), a render wait too (as test_damaged.sh);
+#   - https (nginx ssl on PORT + 1, a self-signed certificate): refused
+#     naming the URL and the certificate until CURL_CA_BUNDLE names it,
+#     then hlod-info --verify gives the file's JSON and --deterministic the
+#     file's selection columns;
 #   - --deterministic over HTTP: the same selection columns as from the file,
 #     and bytes_read <= 1.1 x the file's for those same loads (no over-fetch:
 #     in a --realtime pair the two load different node sets, an HTTP run
@@ -109,6 +113,11 @@ mkdir -p "$T/www/norange" "$T/www/slow" "$T/www/swap" "$T/logs" "$T/tmp"
 ok $? "small city stores built"
 for d in www www/norange www/slow www/swap; do cp "$T/city.hlod" "$T/$d/city.hlod"; done
 chmod -R a+rX "$T/www"
+# https: a self-signed certificate for 127.0.0.1 (openssl), served beside
+# the plain port on PORT + 1
+openssl req -x509 -newkey rsa:2048 -nodes -days 2 -subj /CN=127.0.0.1 \
+    -addext subjectAltName=IP:127.0.0.1 -keyout "$T/key.pem" -out "$T/cert.pem" 2>/dev/null
+ok $? "a self-signed certificate for 127.0.0.1 made (openssl)"
 
 # start_nginx: on PORT (chosen once), every location in one server
 PORT=""
@@ -134,6 +143,9 @@ http {
     types { application/octet-stream hlod; }
     server {
         listen 127.0.0.1:$PORT;
+        listen 127.0.0.1:$((PORT + 1)) ssl;
+        ssl_certificate $T/cert.pem;
+        ssl_certificate_key $T/key.pem;
         root $T/www;
         limit_rate $RATE;
         location /norange/ { max_ranges 0; }
@@ -225,6 +237,23 @@ bench "$T/city.hlod" walk-drive "$T/det-file" "${DET[@]}" &&
     cmp -s "$T/sel-file" "$T/sel-http" &&
     perl -e 'exit !($ARGV[1] <= 1.1 * $ARGV[0])' "$(key "$T/det-file" bytes_read)" "$(key "$T/det-http" bytes_read)"
 ok $? "--deterministic over HTTP: the file's selection columns ($(key "$T/det-http" loads) loads), bytes_read $(key "$T/det-http" bytes_read) <= 1.1 x the file's $(key "$T/det-file" bytes_read)"
+
+# ---- https ----
+# The certificate is checked: untrusted, open fails naming the URL; with
+# its bundle named the way the curl tool reads it (CURL_CA_BUNDLE), the
+# store reads as the file, selection columns and all.
+SURL=https://127.0.0.1:$((PORT + 1))
+"$BIN/hlod-info" "$SURL/city.hlod" --json >/dev/null 2>"$T/tls.err"
+rc=$?
+[ $rc -eq 1 ] && grep -q "$SURL/city.hlod" "$T/tls.err" && grep -qi "certificate" "$T/tls.err"
+ok $? "https with an untrusted certificate: hlod-info exits 1 (got $rc) naming the URL and the certificate: $(head -1 "$T/tls.err" | cut -c1-140)"
+CURL_CA_BUNDLE="$T/cert.pem" "$BIN/hlod-info" "$SURL/city.hlod" --verify --json |
+    sed 's/"file":"[^"]*",//' >"$T/info-tls" &&
+    grep -q '"verified":true' "$T/info-tls" && cmp -s "$T/info0" "$T/info-tls"
+ok $? "https with CURL_CA_BUNDLE naming the certificate: hlod-info --verify passes, the file's JSON"
+CURL_CA_BUNDLE="$T/cert.pem" bench "$SURL/city.hlod" walk-drive "$T/det-https" "${DET[@]}" &&
+    sel "$T/det-https" >"$T/sel-https" && cmp -s "$T/sel-file" "$T/sel-https"
+ok $? "--deterministic over https: the file's selection columns ($(key "$T/det-https" loads) loads)"
 
 # ---- faults ----
 # 404 and a server without ranges: refused at open, naming the URL

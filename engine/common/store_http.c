@@ -37,6 +37,8 @@
 
 struct hlod_http {
     char *url;
+    char *cainfo;       /* CA bundle for https (env CURL_CA_BUNDLE or
+                           SSL_CERT_FILE), or NULL: libcurl's default */
     hlod_logger lg;
     uint64_t size;              /* the file's size at open */
     char etag[256];             /* strong ETag of the first response, or "" */
@@ -208,6 +210,8 @@ static CURL *new_easy(xfer *x)
     curl_easy_setopt(e, CURLOPT_LOW_SPEED_TIME, HTTP_LOW_SPEED_S);
     curl_easy_setopt(e, CURLOPT_TCP_KEEPALIVE, 1L);
     curl_easy_setopt(e, CURLOPT_USERAGENT, "hlod");
+    if (x->h->cainfo)
+        curl_easy_setopt(e, CURLOPT_CAINFO, x->h->cainfo);
     return e;
 }
 
@@ -489,6 +493,17 @@ hlod_result hlod_http_open(const char *url, const hlod_logger *lg, void *probe, 
     if (lg)
         h->lg = *lg;
     pthread_mutex_init(&h->mu, NULL);
+    /* https: certificates are verified against the system's CAs, or the
+     * bundle the environment names, as the curl tool reads it */
+    const char *ca = getenv("CURL_CA_BUNDLE");
+    if (!ca || !*ca)
+        ca = getenv("SSL_CERT_FILE");
+    if (ca && *ca && !(h->cainfo = strdup(ca))) {
+        free(h->url);
+    free(h->cainfo);
+        free(h);
+        return HLOD_ERR_NOMEM;
+    }
     const char *lat = getenv("HLOD_HTTP_LATENCY_MS");
     atomic_init(&h->latency_ms, lat ? atof(lat) : 0.0);
     atomic_init(&h->changed, 0);
