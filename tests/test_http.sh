@@ -21,6 +21,8 @@
 #     city by tests/bench/bench_http.sh; here fly missed 46-48 frames over
 #     HTTP against the file's 19); a pair that misses is run once more
 #     (wall-clock noise), a render wait too (as test_damaged.sh);
+#   - hlod-view URL under Xvfb: 60 frames, exit 0, the screenshot more
+#     than 30% city (its coverage line);
 #   - https (nginx ssl on PORT + 1, a self-signed certificate): refused
 #     naming the URL and the certificate until CURL_CA_BUNDLE names it,
 #     then hlod-info --verify gives the file's JSON and --deterministic the
@@ -237,6 +239,18 @@ bench "$T/city.hlod" walk-drive "$T/det-file" "${DET[@]}" &&
     cmp -s "$T/sel-file" "$T/sel-http" &&
     perl -e 'exit !($ARGV[1] <= 1.1 * $ARGV[0])' "$(key "$T/det-file" bytes_read)" "$(key "$T/det-http" bytes_read)"
 ok $? "--deterministic over HTTP: the file's selection columns ($(key "$T/det-http" loads) loads), bytes_read $(key "$T/det-http" bytes_read) <= 1.1 x the file's $(key "$T/det-file" bytes_read)"
+
+# ---- hlod-view from a URL (under Xvfb) ----
+if command -v xvfb-run >/dev/null 2>&1; then
+    xvfb-run -a -s "-screen 0 800x600x24" "$BIN/hlod-view" "$URL/city.hlod" --width 320 --height 240 \
+        --frames 60 --screenshot "$T/view-url.png" >"$T/view-url.out" 2>"$T/view-url.err"
+    rc=$?
+    cov=$(sed -n 's/^coverage=//p' "$T/view-url.out")
+    [ $rc -eq 0 ] && [ -n "$cov" ] && awk -v c="$cov" 'BEGIN { exit !(c > 0.3) }'
+    ok $? "hlod-view URL: 60 frames under Xvfb, exit $rc, the screenshot's city covers ${cov:-?} of it (> 0.3)"
+else
+    ok 1 "hlod-view URL: xvfb-run not installed (data/setup.sh installs xvfb)"
+fi
 
 # ---- https ----
 # The certificate is checked: untrusted, open fails naming the URL; with
