@@ -790,6 +790,28 @@ static hlod_result build_levels(const hlod_build_desc *d, const blocks *bs, bloc
     return r;
 }
 
+/* Each node's box grows to hold its descendants' boxes.  A node's
+ * content is simplified, and simplification may drop or shrink a part
+ * (a tower's top, a building next to a street): a box of its own content
+ * alone would let the runtime cull the node, and its whole subtree with
+ * it, while its children's content is in view, and 3D Tiles requires a
+ * child's content inside its parent's volume.  Parents are global indices
+ * in any order, so each box is carried up its whole chain of ancestors
+ * (n x depth steps). */
+static void contain_descendants(hlod_store_node *all, size_t total)
+{
+    for (size_t i = 0; i < total; i++) {
+        const hlod_store_node *c = &all[i];
+        size_t guard = 0;
+        for (uint32_t p = c->parent; p != HLOD_STORE_NO_PARENT && p < total && guard++ < total;
+             p = all[p].parent)
+            for (int k = 0; k < 3; k++) {
+                all[p].bbox_min[k] = fmin(all[p].bbox_min[k], c->bbox_min[k]);
+                all[p].bbox_max[k] = fmax(all[p].bbox_max[k], c->bbox_max[k]);
+            }
+    }
+}
+
 /* The global node list (blocks in order, then the groups, parents as
  * global indices) and the store's finish.  Consumes w. */
 static hlod_result finish_store(hlod_store_writer *w, const blocks *bs, const block_out *outs,
@@ -831,6 +853,7 @@ static hlod_result finish_store(hlod_store_writer *w, const blocks *bs, const bl
         all[blocks_nodes + g] = T->nodes[g];
         all[blocks_nodes + g].parent = T->up[blocks_nodes + g];
     }
+    contain_descendants(all, total);
     hlod_result r = hlod_store_writer_finish(w, all, (uint32_t)total, NULL);
     free(all);
     if (r != HLOD_OK)

@@ -61,6 +61,30 @@ static hlod_result lib_build(const char *in, const char *out, hlod_build_method 
     return hlod_build_store(&d, inputs, 1, b, &lg, rep);
 }
 
+/* Children's boxes lying outside their parent's (0: every node's box
+ * holds its descendants'), over the store at path. */
+static int boxes_outside(const char *path, double *worst)
+{
+    hlod_store *s = NULL;
+    *worst = 0;
+    if (hlod_store_open(path, NULL, &s) != HLOD_OK)
+        return -1;
+    const hlod_store_node *n = hlod_store_nodes(s);
+    int bad = 0;
+    for (uint32_t i = 0; i < hlod_store_node_count(s); i++) {
+        if (n[i].parent == HLOD_STORE_NO_PARENT)
+            continue;
+        const hlod_store_node *p = &n[n[i].parent];
+        double out = 0;
+        for (int k = 0; k < 3; k++)
+            out = fmax(out, fmax(p->bbox_min[k] - n[i].bbox_min[k], n[i].bbox_max[k] - p->bbox_max[k]));
+        bad += out > 0;
+        *worst = fmax(*worst, out);
+    }
+    hlod_store_close(s);
+    return bad;
+}
+
 static void builds_and_verifies_both_methods(void)
 {
     city("c", "");
@@ -96,6 +120,17 @@ static void builds_and_verifies_both_methods(void)
         hlod_store_close(s);
     }
     CHECK(build("c", "bad.hlod", "--city-levels maybe") == 2);
+    /* every box holds its descendants' (simplified nodes lose parts: a
+     * box of their own content alone let 187 of the small city's 333
+     * children stick out, by up to 1.42 m) */
+    const char *const stores[] = {"cut.hlod", "metis.hlod", "flat.hlod"};
+    for (int k = 0; k < 3; k++) {
+        double worst;
+        snprintf(p, sizeof p, "%s/%s", tmp, stores[k]);
+        int bad = boxes_outside(p, &worst);
+        CHECKF(bad == 0, "%s: %d children's boxes outside their parent's, by up to %.3g", stores[k],
+               bad, worst);
+    }
 }
 
 static void json_keys(void)

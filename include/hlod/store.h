@@ -203,7 +203,10 @@ typedef struct hlod_store_node {
     uint32_t tex_width;         /*  36 texture size; all 0 when untextured */
     uint32_t tex_height;        /*  40 */
     uint32_t tex_channels;      /*  44 1..4 */
-    double bbox_min[3];         /*  48 world coordinates, model units */
+    double bbox_min[3];         /*  48 world coordinates, model units: the
+                                   node's content and every descendant's
+                                   (the builder's rule; what the runtime
+                                   culls a subtree by) */
     double bbox_max[3];         /*  72 */
     double origin[3];           /*  96 payload positions are relative to it */
     double cost;                /* 120 Lakhia eq. 1 with header.build.c_tex */
