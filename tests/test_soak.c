@@ -48,6 +48,12 @@
 
 #define DEFAULT_FRAMES 60000
 #define FRAME_MS 20.0
+/* The CPU time a frame that kept the CPU may take.  Under the sanitizers
+ * their allocator has its own spikes (quarantine recycling, shadow pages
+ * faulted in): one frame of 30,000 took 28.8 ms of CPU time under ASan,
+ * never blocked nor preempted, where the one-engine run's worst was
+ * 10.6 ms. */
+#define FRAME_CPU_MS (SANITIZED ? 2 * FRAME_MS : FRAME_MS)
 #define RSS_TOLERANCE_KB 2048   /* allocator noise allowed after warm-up */
 
 static char g_dir[256];
@@ -267,7 +273,7 @@ static void *soak_main(void *arg)
              * only part of its wall time lost the rest to the host or to
              * the other tests, which no switch count shows; seen once under
              * ASan: over 20 ms of wall time, no switch) */
-            k->unexplained_slow += sp.cpu_ms > FRAME_MS && sp.vol == 0;
+            k->unexplained_slow += sp.cpu_ms > FRAME_CPU_MS && sp.vol == 0;
             k->slow_frames += dt > FRAME_MS;
             if (dt > k->worst_ms)
                 k->worst_ms = dt;
@@ -317,7 +323,7 @@ static void check_soak(const soak *k, const char *what)
            what, k->unexplained_waits, k->render_waits);
     CHECKF(k->unexplained_slow == 0,
            "%s: %d frames over %.0f ms of CPU time, neither preempted nor blocked", what,
-           k->unexplained_slow, FRAME_MS);
+           k->unexplained_slow, FRAME_CPU_MS);
     CHECKF(k->slow_frames <= allowed && k->worst_ms < 500, "%s: %d frames over %.0f ms, worst "
            "%.1f ms", what, k->slow_frames, FRAME_MS, k->worst_ms);
     CHECKF(k->nonfinite == 0, "%s: %d frames with non-finite stats", what, k->nonfinite);

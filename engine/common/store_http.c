@@ -499,8 +499,8 @@ hlod_result hlod_http_open(const char *url, const hlod_logger *lg, void *probe, 
     if (!ca || !*ca)
         ca = getenv("SSL_CERT_FILE");
     if (ca && *ca && !(h->cainfo = strdup(ca))) {
+        pthread_mutex_destroy(&h->mu);
         free(h->url);
-    free(h->cainfo);
         free(h);
         return HLOD_ERR_NOMEM;
     }
@@ -539,6 +539,7 @@ void hlod_http_close(hlod_http *h)
     curl_slist_free_all(h->hdrs);
     pthread_mutex_destroy(&h->mu);
     free(h->url);
+    free(h->cainfo);
     free(h);
 }
 
