@@ -22,7 +22,8 @@ import { TilesRenderer } from '3d-tiles-renderer';
 import { GLTFExtensionsPlugin } from '3d-tiles-renderer/plugins';
 import { MeshoptDecoder } from 'three/examples/jsm/libs/meshopt_decoder.module.js';
 
-const vertexShader = /* glsl */ `
+// what the vertex shader hands the fragment shader (declared in both)
+const varyings = /* glsl */ `
 varying vec2 v_uv;
 varying vec3 v_color;
 #ifdef HLOD_NORMAL
@@ -30,7 +31,10 @@ varying float v_light;
 #else
 varying vec3 v_rel;
 #endif
-void main() {
+`;
+
+const vertexShader = /* glsl */ `
+${varyings}void main() {
     vec4 world = modelMatrix * vec4(position, 1.0);
     vec3 rel = world.xyz - cameraPosition;
 #ifdef HLOD_NORMAL
@@ -64,14 +68,7 @@ uniform vec3 u_factor;
 #ifdef HLOD_MAP
 uniform sampler2D u_map;
 #endif
-varying vec2 v_uv;
-varying vec3 v_color;
-#ifdef HLOD_NORMAL
-varying float v_light;
-#else
-varying vec3 v_rel;
-#endif
-vec3 to_srgb(vec3 c) {
+${varyings}vec3 to_srgb(vec3 c) {
     c = clamp(c, 0.0, 1.0);
     return mix(c * 12.92, 1.055 * pow(c, vec3(1.0 / 2.4)) - 0.055, step(vec3(0.0031308), c));
 }
