@@ -241,13 +241,18 @@ bench "$T/city.hlod" walk-drive "$T/det-file" "${DET[@]}" &&
 ok $? "--deterministic over HTTP: the file's selection columns ($(key "$T/det-http" loads) loads), bytes_read $(key "$T/det-http" bytes_read) <= 1.1 x the file's $(key "$T/det-file" bytes_read)"
 
 # ---- hlod-view from a URL (under Xvfb) ----
+# Leak checking is off for this one run in sanitizer builds, as in
+# test_view.sh: Mesa's GLX driver leaks 112 bytes in 2 allocations and is
+# unloaded before LeakSanitizer reports, so tests/lsan.supp cannot name it
+# (it failed cli_http under ASan).  ASan and UBSan errors still fail it.
 if command -v xvfb-run >/dev/null 2>&1; then
-    xvfb-run -a -s "-screen 0 800x600x24" "$BIN/hlod-view" "$URL/city.hlod" --width 320 --height 240 \
+    ASAN_OPTIONS="${ASAN_OPTIONS:-}${ASAN_OPTIONS:+:}detect_leaks=0" xvfb-run -a -s "-screen 0 800x600x24" "$BIN/hlod-view" "$URL/city.hlod" --width 320 --height 240 \
         --frames 60 --screenshot "$T/view-url.png" >"$T/view-url.out" 2>"$T/view-url.err"
     rc=$?
     cov=$(sed -n 's/^coverage=//p' "$T/view-url.out")
     [ $rc -eq 0 ] && [ -n "$cov" ] && awk -v c="$cov" 'BEGIN { exit !(c > 0.3) }'
     ok $? "hlod-view URL: 60 frames under Xvfb, exit $rc, the screenshot's city covers ${cov:-?} of it (> 0.3)"
+    [ $rc -eq 0 ] || tail -5 "$T/view-url.err"
 else
     ok 1 "hlod-view URL: xvfb-run not installed (data/setup.sh installs xvfb)"
 fi
