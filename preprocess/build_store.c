@@ -28,6 +28,7 @@
 
 #include "build.h"
 #include "city_levels.h"
+#include "part.h"
 #include "hlod/image.h"
 #include "hlod/mesh_io.h"
 #include "hlod/store_write.h"
@@ -342,9 +343,9 @@ typedef struct job {
  * tex_tris) when tex has pixels, per-vertex colours (colors, or rgba for
  * every vertex) when some triangle is untextured, area-weighted normals
  * when the mesh has none. */
-static hlod_result add_payload(hlod_store_writer *w, const hlod_mesh *m, const hlod_image *tex,
-                               size_t tex_tris, const uint8_t *colors, const uint8_t rgba[4],
-                               hlod_store_node *node)
+hlod_result hlod_build_add_payload(hlod_store_writer *w, const hlod_mesh *m, const hlod_image *tex,
+                                  size_t tex_tris, const uint8_t *colors, const uint8_t rgba[4],
+                                  hlod_store_node *node)
 {
     double lo[3], hi[3];
     hlod_mesh_bounds(m, lo, hi);
@@ -412,7 +413,7 @@ static hlod_result emit_block(job *J, size_t bi, hlod_btree *t)
     for (size_t k = 0; k < t->count; k++) {
         const hlod_bnode *n = &t->nodes[k];
         const hlod_mesh *m = &n->mesh;
-        hlod_result r = add_payload(J->w, m, &n->tex, m->tri_count, NULL, rgba, &o->nodes[k]);
+        hlod_result r = hlod_build_add_payload(J->w, m, &n->tex, m->tri_count, NULL, rgba, &o->nodes[k]);
         if (r != HLOD_OK)
             return r;
         o->nodes[k].error = n->error;
@@ -560,6 +561,8 @@ static hlod_result check_desc(const hlod_build_desc *d, const hlod_logger *lg)
         bad = "quant_bits is not in [8, 24]";
     else if (d->jpeg_quality > 100)
         bad = "jpeg_quality is over 100";
+    else if (d->shard_count > 65536 || (d->shard_count && (d->shard_index < 1 || d->shard_index > d->shard_count)))
+        bad = "shard is not I/N with 1 <= I <= N <= 65536";
     if (!bad)
         return HLOD_OK;
     hlod_logf(lg, HLOD_LOG_ERROR, "build: %s", bad);
@@ -672,9 +675,9 @@ static int want_levels(const hlod_build_desc *d, const blocks *bs)
 /* Builds every block on the worker threads and streams their nodes into
  * w; the calling thread reports progress. */
 static hlod_result build_blocks(const hlod_build_desc *d, blocks *bs, block_out *outs,
-                                hlod_store_writer *w, const hlod_logger *lg)
+                                hlod_store_writer *w, int keep_top, const hlod_logger *lg)
 {
-    job J = {.desc = d, .bs = bs, .out = outs, .w = w, .lg = lg, .keep_top = want_levels(d, bs)};
+    job J = {.desc = d, .bs = bs, .out = outs, .w = w, .lg = lg, .keep_top = keep_top};
     J.bp.desired_tris = d->desired_tris;
     J.bp.level_factor = d->level_factor;
     J.bp.voxel_tris = d->voxel_tris;
@@ -724,6 +727,7 @@ static hlod_result build_blocks(const hlod_build_desc *d, blocks *bs, block_out 
 typedef struct top_levels {
     hlod_store_writer *w;
     hlod_store_node *nodes;     /* group nodes, filled by the writer */
+    uint32_t *level, *index;    /* each group's place in the plan */
     size_t n, cap;
     size_t base;                /* global index of the first group */
     uint32_t *up;               /* per global index: parent, or NO_PARENT */
@@ -732,19 +736,22 @@ typedef struct top_levels {
 } top_levels;
 
 /* called from the thread that runs hlod_city_levels */
-static hlod_result emit_group(void *user, hlod_city_item *g, const hlod_city_item *const *kids,
-                              size_t n)
+static hlod_result emit_group(void *user, uint32_t level, uint32_t index, hlod_city_item *g,
+                              const hlod_city_item *const *kids, size_t n)
 {
     top_levels *T = user;
     if (T->n == T->cap)
-        return HLOD_ERR_INVALID_ARG; /* more groups than blocks: cannot be */
+        return HLOD_ERR_INVALID_ARG; /* more groups than the plan has: cannot be */
     hlod_store_node *node = &T->nodes[T->n];
-    hlod_result r = add_payload(T->w, &g->mesh, &g->tex, g->tex_tris, g->colors, g->color, node);
+    hlod_result r = hlod_build_add_payload(T->w, &g->mesh, &g->tex, g->tex_tris, g->colors,
+                                           g->color, node);
     if (r != HLOD_OK)
         return r;
     node->error = g->error;
     node->render_flags = g->solid ? HLOD_RENDER_SOLID : 0;
     node->block = HLOD_STORE_NO_BLOCK;
+    T->level[T->n] = level;
+    T->index[T->n] = index;
     g->node = (uint32_t)(T->base + T->n);
     for (size_t k = 0; k < n; k++)
         T->up[kids[k]->node] = g->node;
@@ -753,41 +760,59 @@ static hlod_result emit_group(void *user, hlod_city_item *g, const hlod_city_ite
     return HLOD_OK;
 }
 
-/* Groups over the blocks' hlod_0 nodes (outs[b].top), up to one root. */
-static hlod_result build_levels(const hlod_build_desc *d, const blocks *bs, block_out *outs,
-                                hlod_store_writer *w, top_levels *T, const hlod_logger *lg)
+/* The group levels 1 .. to of plan p over the blocks' hlod_0 nodes
+ * (outs[b].top, bs's blocks being the plan's blocks gid[b]); *tops: level
+ * `to`'s items when to > 0 (see hlod_city_levels). */
+static hlod_result build_levels(const hlod_build_desc *d, const hlod_city_plan *p, uint32_t to,
+                                const blocks *bs, const uint32_t *gid, block_out *outs,
+                                hlod_store_writer *w, top_levels *T, hlod_city_item **tops,
+                                const hlod_logger *lg)
 {
     size_t base = 0;
     for (size_t b = 0; b < bs->n; b++)
         base += outs[b].count;
     T->w = w;
     T->base = base;
-    T->cap = bs->n;
-    T->nodes = calloc(T->cap, sizeof *T->nodes);
-    T->up = malloc((base + T->cap) * sizeof *T->up);
-    hlod_city_item *items = malloc(bs->n * sizeof *items);
-    if (!T->nodes || !T->up || !items) {
+    T->cap = 0;
+    for (uint32_t l = 1; l <= to; l++)
+        T->cap += p->count[l];
+    T->nodes = calloc(T->cap + 1, sizeof *T->nodes);
+    T->level = calloc(T->cap + 1, sizeof *T->level);
+    T->index = calloc(T->cap + 1, sizeof *T->index);
+    T->up = malloc((base + T->cap + 1) * sizeof *T->up);
+    hlod_city_item **items = calloc(p->count[0], sizeof *items);
+    if (!T->nodes || !T->level || !T->index || !T->up || !items) {
         free(items);
         return HLOD_ERR_NOMEM;
     }
     for (size_t i = 0; i < base + T->cap; i++)
         T->up[i] = HLOD_STORE_NO_PARENT;
     for (size_t b = 0, at = 0; b < bs->n; at += outs[b].count, b++) {
-        items[b] = outs[b].top; /* shallow: outs keeps ownership */
-        items[b].node = (uint32_t)at;
+        outs[b].top.node = (uint32_t)at;
+        items[gid ? gid[b] : b] = &outs[b].top;
     }
     hlod_city_levels_desc cd = {0};
-    cd.target_tris = d->method == HLOD_BUILD_METIS ? d->node_tris : d->desired_tris;
-    cd.group_size = (size_t)llround(d->level_factor * d->level_factor);
+    cd.target_tris = hlod_build_group_tris(d);
     cd.threads = build_threads(d);
     cd.logger = lg;
     cd.emit = emit_group;
     cd.user = T;
-    hlod_result r = hlod_city_levels(items, bs->n, &cd, &T->levels);
+    hlod_result r = hlod_city_levels(p, 0, items, to, &cd, tops);
     free(items);
+    T->levels = to;
     if (r != HLOD_OK)
         hlod_logf(lg, HLOD_LOG_ERROR, "city levels over %zu blocks: %s", bs->n, hlod_result_str(r));
     return r;
+}
+
+size_t hlod_build_group_tris(const hlod_build_desc *d)
+{
+    return d->method == HLOD_BUILD_METIS ? d->node_tris : d->desired_tris;
+}
+
+size_t hlod_build_group_size(const hlod_build_desc *d)
+{
+    return (size_t)llround(d->level_factor * d->level_factor);
 }
 
 /* Each node's box grows to hold its descendants' boxes.  A node's
@@ -798,7 +823,7 @@ static hlod_result build_levels(const hlod_build_desc *d, const blocks *bs, bloc
  * child's content inside its parent's volume.  Parents are global indices
  * in any order, so each box is carried up its whole chain of ancestors
  * (n x depth steps). */
-static void contain_descendants(hlod_store_node *all, size_t total)
+void hlod_build_contain(hlod_store_node *all, size_t total)
 {
     for (size_t i = 0; i < total; i++) {
         const hlod_store_node *c = &all[i];
@@ -816,7 +841,8 @@ static void contain_descendants(hlod_store_node *all, size_t total)
  * global indices) and the store's finish.  Consumes w. */
 static hlod_result finish_store(hlod_store_writer *w, const blocks *bs, const block_out *outs,
                                 const top_levels *T, const char *out_path,
-                                hlod_build_report *rep, const hlod_logger *lg)
+                                hlod_build_report *rep, uint32_t **store_index,
+                                const hlod_logger *lg)
 {
     size_t total = 0;
     for (size_t b = 0; b < bs->n; b++) {
@@ -853,14 +879,117 @@ static hlod_result finish_store(hlod_store_writer *w, const blocks *bs, const bl
         all[blocks_nodes + g] = T->nodes[g];
         all[blocks_nodes + g].parent = T->up[blocks_nodes + g];
     }
-    contain_descendants(all, total);
-    hlod_result r = hlod_store_writer_finish(w, all, (uint32_t)total, NULL);
+    hlod_build_contain(all, total);
+    uint32_t *index = store_index ? malloc((total + 1) * sizeof *index) : NULL;
+    if (store_index && !index) {
+        free(all);
+        hlod_store_writer_abort(w);
+        return HLOD_ERR_NOMEM;
+    }
+    hlod_result r = hlod_store_writer_finish(w, all, (uint32_t)total, index);
     free(all);
+    if (store_index && r == HLOD_OK)
+        *store_index = index;
+    else
+        free(index);
     if (r != HLOD_OK)
         hlod_logf(lg, HLOD_LOG_ERROR, "%s: cannot finish the store: %s", out_path,
                   hlod_result_str(r));
     rep->nodes = total;
     return r;
+}
+
+/* Each block's box (of its input vertices). */
+static hlod_result block_boxes(const blocks *bs, double (**lo)[3], double (**hi)[3])
+{
+    *lo = malloc(bs->n * sizeof **lo);
+    *hi = malloc(bs->n * sizeof **hi);
+    if (!*lo || !*hi)
+        return HLOD_ERR_NOMEM;
+    for (size_t b = 0; b < bs->n; b++)
+        if (!hlod_mesh_bounds(&bs->b[b].mesh, (*lo)[b], (*hi)[b]))
+            for (int k = 0; k < 3; k++)
+                (*lo)[b][k] = (*hi)[b][k] = 0;
+    return HLOD_OK;
+}
+
+/* The shard's blocks: the cut level is the plan's highest with at least N
+ * nodes, shard I owns its nodes [(I-1) m / N, I m / N) and their subtrees
+ * (part.h).  Keeps only the owned blocks in bs (in block order; gid[b]:
+ * the block's index in the whole input), freeing the others. */
+static hlod_result select_shard(const hlod_build_desc *d, const hlod_city_plan *p, blocks *bs,
+                                hlod_part_header *h, uint32_t **gid_out, const hlod_logger *lg)
+{
+    uint32_t N = d->shard_count, I = d->shard_index;
+    if (p->count[0] < N) {
+        hlod_logf(lg, HLOD_LOG_ERROR, "shard %u/%u: the input has %zu blocks, fewer than %u shards",
+                  I, N, p->count[0], N);
+        return HLOD_ERR_INVALID_ARG;
+    }
+    uint32_t L = 0;
+    for (uint32_t l = 1; l <= p->levels; l++)
+        if (p->count[l] >= N)
+            L = l;
+    uint64_t m = p->count[L];
+    h->shard_index = I;
+    h->shard_count = N;
+    h->cut_level = L;
+    h->levels = p->levels;
+    h->cut_first = (I - 1) * m / N;
+    h->cut_end = I * m / N;
+    /* each block's node at the cut level */
+    uint32_t *anc = malloc(bs->n * sizeof *anc), *up = malloc((bs->n + 1) * sizeof *up);
+    uint32_t *gid = malloc((bs->n + 1) * sizeof *gid);
+    if (!anc || !up || !gid) {
+        free(anc);
+        free(up);
+        free(gid);
+        return HLOD_ERR_NOMEM;
+    }
+    for (size_t b = 0; b < bs->n; b++)
+        anc[b] = (uint32_t)b;
+    for (uint32_t l = 1; l <= L; l++) {
+        for (size_t g = 0; g < p->count[l]; g++)
+            for (size_t k = p->first[l][g]; k < p->first[l][g + 1]; k++)
+                up[p->kids[l][k]] = (uint32_t)g;
+        for (size_t b = 0; b < bs->n; b++)
+            anc[b] = up[anc[b]];
+    }
+    size_t kept = 0;
+    for (size_t b = 0; b < bs->n; b++) {
+        if (anc[b] >= h->cut_first && anc[b] < h->cut_end) {
+            gid[kept] = (uint32_t)b;
+            bs->b[kept++] = bs->b[b];
+        } else {
+            hlod_mesh_free(&bs->b[b].mesh);
+        }
+    }
+    bs->n = kept;
+    free(anc);
+    free(up);
+    *gid_out = gid;
+    return HLOD_OK;
+}
+
+/* The part's keys, in the order of the shard's node list (blocks' nodes,
+ * then groups), each with its store index. */
+static hlod_part_key *part_keys(const blocks *bs, const uint32_t *gid, const block_out *outs,
+                                const top_levels *T, const uint32_t *store_index, size_t *count)
+{
+    size_t total = T->n;
+    for (size_t b = 0; b < bs->n; b++)
+        total += outs[b].count;
+    hlod_part_key *keys = malloc((total + 1) * sizeof *keys);
+    if (!keys)
+        return NULL;
+    size_t j = 0;
+    for (size_t b = 0; b < bs->n; b++)
+        for (size_t k = 0; k < outs[b].count; k++, j++)
+            keys[j] = (hlod_part_key){store_index[j], 0, gid[b], (uint32_t)k, outs[b].nodes[k].error};
+    for (size_t g = 0; g < T->n; g++, j++)
+        keys[j] = (hlod_part_key){store_index[j], T->level[g], T->index[g], 0, T->nodes[g].error};
+    *count = total;
+    return keys;
 }
 
 hlod_result hlod_build_store(const hlod_build_desc *d, const char *const *inputs, size_t n,
@@ -881,6 +1010,13 @@ hlod_result hlod_build_store(const hlod_build_desc *d, const char *const *inputs
     blocks bs = {0};
     hlod_store_writer *w = NULL;
     block_out *outs = NULL;
+    double (*blo)[3] = NULL, (*bhi)[3] = NULL;
+    hlod_city_plan plan = {0};
+    hlod_part_header ph = {0};
+    uint32_t *gid = NULL;
+    int sharded = d->shard_count > 0;
+    char store_path[4096 + 32];
+    store_path[0] = 0;
     /* images embedded in a 3D Tiles input's glb files are read from files
      * beside the output while the build runs */
     char scratch[4096 + 32];
@@ -900,8 +1036,23 @@ hlod_result hlod_build_store(const hlod_build_desc *d, const char *const *inputs
     if (r == HLOD_OK)
         r = meshes ? read_blocks(d, inputs, n, meshes, &bs, &rep.tris_in,
                                  scratch[0] ? scratch : NULL, lg) : HLOD_ERR_NOMEM;
+    /* the group tree, from the blocks' boxes before any is built */
+    int levels = r == HLOD_OK && want_levels(d, &bs);
+    size_t all_blocks = bs.n;
+    if (r == HLOD_OK)
+        r = block_boxes(&bs, &blo, &bhi);
+    if (r == HLOD_OK && levels) {
+        r = hlod_city_plan_make((const double (*)[3])blo, (const double (*)[3])bhi, bs.n,
+                                hlod_build_group_size(d), &plan);
+    } else if (r == HLOD_OK) {
+        plan.count = calloc(1, sizeof *plan.count);
+        if (plan.count)
+            plan.count[0] = bs.n;
+        else
+            r = HLOD_ERR_NOMEM;
+    }
+    hlod_store_writer_desc wd = {0};
     if (r == HLOD_OK) {
-        hlod_store_writer_desc wd = {0};
         int metis = d->method == HLOD_BUILD_METIS;
         wd.build.method = metis ? HLOD_STORE_METHOD_METIS : HLOD_STORE_METHOD_CUTPLANE;
         wd.build.desired_tris = metis ? 0 : d->desired_tris;
@@ -916,26 +1067,88 @@ hlod_result hlod_build_store(const hlod_build_desc *d, const char *const *inputs
             wd.jpeg_quality = d->jpeg_quality;
             wd.payload_align = HLOD_STORE_MIN_ALIGN;    /* packed payloads are small */
         }
-        r = hlod_store_writer_open(out_path, &wd, &w);
-        if (r != HLOD_OK)
-            hlod_logf(lg, HLOD_LOG_ERROR, "%s: cannot create: %s", out_path, hlod_result_str(r));
     }
-    if (r == HLOD_OK && !(outs = calloc(bs.n, sizeof *outs)))
+    if (r == HLOD_OK && sharded) {
+        ph.block_count = bs.n;
+        ph.tris_in = rep.tris_in;
+        ph.params_hash = hlod_part_params_hash(d, rep.tris_in, bs.n, (const double (*)[3])blo,
+                                               (const double (*)[3])bhi);
+        ph.plan_hash = hlod_city_plan_hash(&plan);
+        ph.group_tris = hlod_build_group_tris(d);
+        ph.group_size = hlod_build_group_size(d);
+        ph.jpeg_quality = wd.jpeg_quality;
+        r = select_shard(d, &plan, &bs, &ph, &gid, lg);
+        /* the shard's store is written beside the part, then copied in */
+        snprintf(store_path, sizeof store_path, "%.4096s.store-XXXXXX", out_path);
+        int fd = r == HLOD_OK ? mkstemp(store_path) : -1;
+        if (fd >= 0) {
+            close(fd);
+        } else if (r == HLOD_OK) {
+            hlod_logf(lg, HLOD_LOG_ERROR, "%s: cannot create a file beside it: %s", out_path,
+                      strerror(errno));
+            store_path[0] = 0;
+            r = HLOD_ERR_IO;
+        } else {
+            store_path[0] = 0;
+        }
+    }
+    if (r == HLOD_OK) {
+        const char *path = sharded ? store_path : out_path;
+        r = hlod_store_writer_open(path, &wd, &w);
+        if (r != HLOD_OK)
+            hlod_logf(lg, HLOD_LOG_ERROR, "%s: cannot create: %s", path, hlod_result_str(r));
+    }
+    if (r == HLOD_OK && !(outs = calloc(bs.n ? bs.n : 1, sizeof *outs)))
         r = HLOD_ERR_NOMEM;
     if (r == HLOD_OK)
-        r = build_blocks(d, &bs, outs, w, lg);
+        r = build_blocks(d, &bs, outs, w, levels, lg);
     rep.blocks = bs.n;
     top_levels T = {0};
-    if (r == HLOD_OK && want_levels(d, &bs))
-        r = build_levels(d, &bs, outs, w, &T, lg);
+    hlod_city_item *tops = NULL;
+    uint32_t to = sharded ? ph.cut_level : plan.levels;
+    if (r == HLOD_OK && levels)
+        r = build_levels(d, &plan, to, &bs, gid, outs, w, &T, &tops, lg);
+    uint32_t *store_index = NULL;
     if (r == HLOD_OK) {
-        r = finish_store(w, &bs, outs, &T, out_path, &rep, lg);
+        r = finish_store(w, &bs, outs, &T, sharded ? store_path : out_path, &rep,
+                         sharded ? &store_index : NULL, lg);
         w = NULL;
     }
+    if (r == HLOD_OK && sharded) {
+        /* the part: the store, the keys and the cut-level items */
+        size_t nkeys = 0;
+        hlod_part_key *keys = part_keys(&bs, gid, outs, &T, store_index, &nkeys);
+        hlod_city_item **cut = calloc(plan.count[ph.cut_level] + 1, sizeof *cut);
+        if (!keys || !cut) {
+            r = HLOD_ERR_NOMEM;
+        } else {
+            for (size_t b = 0; b < bs.n && ph.cut_level == 0; b++)
+                cut[gid[b]] = &outs[b].top;
+            for (size_t i = 0; tops && i < plan.count[ph.cut_level]; i++)
+                cut[i] = &tops[i];
+            ph.key_count = (uint32_t)nkeys;
+            ph.block_count = all_blocks;
+            r = hlod_part_write(out_path, store_path, &ph, (const double (*)[3])blo,
+                                (const double (*)[3])bhi, keys, levels ? cut : NULL, lg);
+            if (r == HLOD_OK)
+                store_path[0] = 0;
+        }
+        free(keys);
+        free(cut);
+    }
+    free(store_index);
+    if (tops)
+        for (size_t i = 0; i < plan.count[to]; i++)
+            hlod_city_item_free(&tops[i]);
+    free(tops);
     free(T.nodes);
+    free(T.level);
+    free(T.index);
     free(T.up);
     if (w)
         hlod_store_writer_abort(w);
+    if (store_path[0])
+        unlink(store_path);
     if (outs)
         for (size_t b = 0; b < bs.n; b++) {
             free(outs[b].nodes);
@@ -950,6 +1163,10 @@ hlod_result hlod_build_store(const hlod_build_desc *d, const char *const *inputs
         for (size_t i = 0; i < n; i++)
             hlod_mesh_free(&meshes[i]);
     free(meshes);
+    free(blo);
+    free(bhi);
+    free(gid);
+    hlod_city_plan_free(&plan);
     if (scratch[0])
         hlod_rm_tree(scratch);
     if (report && r == HLOD_OK)

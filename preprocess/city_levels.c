@@ -1,11 +1,15 @@
 /*
  * city_levels.c - group nodes above the blocks (README, "City levels").
  *
- * Grouping: the items of a level (first the blocks' hlod_0 nodes) are
- * split by their box centres, recursively at the median of the axis of
- * largest spread, into ceil(n / group_size) parts of nearly equal size; a
- * part of at most group_size items is a group.  Each level's groups become
- * the next level's items until one is left: the root.
+ * Grouping (the plan, made before any block is built): the blocks are
+ * split by the centres of their input boxes, recursively at the median of
+ * the axis of largest spread, into ceil(n / group_size) parts of nearly
+ * equal size; a part of at most group_size items is a group.  Each level's
+ * groups, with the union of their children's boxes, become the next
+ * level's items until one is left: the root.  The plan depends on the
+ * input alone, not on what simplification makes of it, so a shard of a
+ * sharded build (README, "Sharded builds") knows the whole tree after
+ * reading the blocks' boxes, and builds whole subtrees of it.
  *
  * A group node:
  * 1. Atlas: the textured children's textures are shelf-packed, with a
@@ -31,6 +35,7 @@
 #include "city_levels.h"
 
 #include "hlod/simplify.h"
+#include "hlod/store.h"
 
 #include <math.h>
 #include <pthread.h>
@@ -588,81 +593,208 @@ static hlod_result build_level(level_job *J, size_t threads)
     return HLOD_OK;
 }
 
-static void item_center(const hlod_city_item *it, double c[3])
+void hlod_city_plan_free(hlod_city_plan *p)
 {
-    double lo[3], hi[3];
-    if (!hlod_mesh_bounds(&it->mesh, lo, hi))
-        lo[0] = lo[1] = lo[2] = hi[0] = hi[1] = hi[2] = 0;
-    for (int a = 0; a < 3; a++)
-        c[a] = 0.5 * (lo[a] + hi[a]);
+    for (uint32_t l = 1; p->first && p->kids && l <= p->levels; l++) {
+        free(p->first[l]);
+        free(p->kids[l]);
+    }
+    free(p->first);
+    free(p->kids);
+    free(p->count);
+    memset(p, 0, sizeof *p);
 }
 
-hlod_result hlod_city_levels(hlod_city_item *items, size_t n, const hlod_city_levels_desc *d,
-                             uint32_t *levels)
+hlod_result hlod_city_plan_make(const double (*lo)[3], const double (*hi)[3], size_t n,
+                                size_t group_size, hlod_city_plan *p)
 {
-    *levels = 0;
-    if (n < 2 || !d || d->group_size < 2 || !d->target_tris || !d->emit)
+    memset(p, 0, sizeof *p);
+    if (!n || group_size < 2 || n > UINT32_MAX)
         return HLOD_ERR_INVALID_ARG;
-    hlod_city_item *cur = items, *made = NULL;
+    /* levels: at most log2(n) + 1 (each level at least halves) */
+    size_t maxl = 2;
+    for (size_t k = n; k > 1; k = (k + 1) / 2)
+        maxl++;
+    p->count = calloc(maxl, sizeof *p->count);
+    p->first = calloc(maxl, sizeof *p->first);
+    p->kids = calloc(maxl, sizeof *p->kids);
+    double (*blo)[3] = malloc(n * sizeof *blo), (*bhi)[3] = malloc(n * sizeof *bhi);
+    double (*c)[3] = malloc(n * sizeof *c);
+    uint32_t *ix = malloc(n * sizeof *ix);
+    size_t *ends = malloc(n * sizeof *ends);
+    sort_key *scratch = malloc(n * sizeof *scratch);
+    hlod_result r = p->count && p->first && p->kids && blo && bhi && c && ix && ends && scratch
+                        ? HLOD_OK : HLOD_ERR_NOMEM;
+    if (r == HLOD_OK) {
+        memcpy(blo, lo, n * sizeof *blo);
+        memcpy(bhi, hi, n * sizeof *bhi);
+        p->count[0] = n;
+    }
     size_t ncur = n;
-    hlod_result r = HLOD_OK;
-    while (ncur > 1 && r == HLOD_OK) {
-        uint32_t *ix = malloc(ncur * sizeof *ix);
-        size_t *ends = malloc(ncur * sizeof *ends);
-        sort_key *scratch = malloc(ncur * sizeof *scratch);
-        double (*c)[3] = malloc(ncur * sizeof *c);
-        const hlod_city_item **ordered = malloc(ncur * sizeof *ordered);
-        level_job J = {0};
+    while (r == HLOD_OK && ncur > 1) {
+        for (size_t i = 0; i < ncur; i++) {
+            ix[i] = (uint32_t)i;
+            for (int a = 0; a < 3; a++)
+                c[i][a] = 0.5 * (blo[i][a] + bhi[i][a]);
+        }
         size_t groups = 0;
-        if (ix && ends && scratch && c && ordered) {
-            for (size_t i = 0; i < ncur; i++) {
-                ix[i] = (uint32_t)i;
-                item_center(&cur[i], c[i]);
+        partition(ix, ncur, (const double (*)[3])c, group_size, scratch, 0, ends, &groups);
+        uint32_t l = ++p->levels;
+        p->count[l] = groups;
+        p->first[l] = malloc((groups + 1) * sizeof **p->first);
+        p->kids[l] = malloc(ncur * sizeof **p->kids);
+        if (!p->first[l] || !p->kids[l]) {
+            r = HLOD_ERR_NOMEM;
+            break;
+        }
+        memcpy(p->kids[l], ix, ncur * sizeof *ix);
+        p->first[l][0] = 0;
+        for (size_t g = 0; g < groups; g++)
+            p->first[l][g + 1] = ends[g];
+        /* the groups' boxes: their children's, joined (in place: group g
+         * reads children only, written as g < each child's old slot or
+         * after all of them are read) */
+        double (*glo)[3] = malloc(groups * sizeof *glo), (*ghi)[3] = malloc(groups * sizeof *ghi);
+        if (!glo || !ghi) {
+            free(glo);
+            free(ghi);
+            r = HLOD_ERR_NOMEM;
+            break;
+        }
+        for (size_t g = 0; g < groups; g++) {
+            for (int a = 0; a < 3; a++) {
+                glo[g][a] = INFINITY;
+                ghi[g][a] = -INFINITY;
             }
-            partition(ix, ncur, (const double (*)[3])c, d->group_size, scratch, 0, ends, &groups);
-            for (size_t i = 0; i < ncur; i++)
-                ordered[i] = &cur[ix[i]];
+            for (size_t k = p->first[l][g]; k < p->first[l][g + 1]; k++)
+                for (int a = 0; a < 3; a++) {
+                    glo[g][a] = fmin(glo[g][a], blo[ix[k]][a]);
+                    ghi[g][a] = fmax(ghi[g][a], bhi[ix[k]][a]);
+                }
+        }
+        memcpy(blo, glo, groups * sizeof *glo);
+        memcpy(bhi, ghi, groups * sizeof *ghi);
+        free(glo);
+        free(ghi);
+        ncur = groups;
+    }
+    free(blo);
+    free(bhi);
+    free(c);
+    free(ix);
+    free(ends);
+    free(scratch);
+    if (r != HLOD_OK)
+        hlod_city_plan_free(p);
+    return r;
+}
+
+uint64_t hlod_city_plan_hash(const hlod_city_plan *p)
+{
+    uint64_t h = hlod_store_hash(&p->levels, sizeof p->levels);
+    for (uint32_t l = 0; l <= p->levels; l++) {
+        uint64_t c = p->count[l];
+        h ^= hlod_store_hash(&c, sizeof c) + 0x9e3779b97f4a7c15ull + (h << 6) + (h >> 2);
+        if (l)
+            h ^= hlod_store_hash(p->kids[l], p->count[l - 1] * sizeof *p->kids[l]) +
+                 0x9e3779b97f4a7c15ull + (h << 6) + (h >> 2);
+    }
+    return h;
+}
+
+hlod_result hlod_city_levels(const hlod_city_plan *p, uint32_t from, hlod_city_item *const *items,
+                             uint32_t to, const hlod_city_levels_desc *d, hlod_city_item **tops)
+{
+    if (tops)
+        *tops = NULL;
+    if (!p || !d || from > to || to > p->levels || !d->target_tris || !d->emit)
+        return HLOD_ERR_INVALID_ARG;
+    /* cur[i]: level l's item i, or NULL where it is not built here */
+    hlod_city_item *const *cur = items;
+    hlod_city_item *made = NULL;    /* level l's items, when l > from */
+    hlod_city_item **made_ptr = NULL;
+    hlod_result r = HLOD_OK;
+    for (uint32_t l = from + 1; l <= to && r == HLOD_OK; l++) {
+        size_t groups = p->count[l], nkids = p->count[l - 1];
+        const hlod_city_item **ordered = malloc((nkids ? nkids : 1) * sizeof *ordered);
+        size_t *ends = malloc((groups ? groups : 1) * sizeof *ends);
+        size_t *which = malloc((groups ? groups : 1) * sizeof *which);
+        hlod_city_item *out = calloc(groups ? groups : 1, sizeof *out);
+        hlod_city_item **out_ptr = calloc(groups ? groups : 1, sizeof *out_ptr);
+        level_job J = {0};
+        size_t built = 0, at = 0;
+        if (!ordered || !ends || !which || !out || !out_ptr)
+            r = HLOD_ERR_NOMEM;
+        /* the groups whose children are all here, their children in order */
+        for (size_t g = 0; g < groups && r == HLOD_OK; g++) {
+            size_t b = p->first[l][g], e = p->first[l][g + 1], k = b;
+            while (k < e && cur[p->kids[l][k]])
+                k++;
+            if (k < e)
+                continue;
+            for (k = b; k < e; k++)
+                ordered[at++] = cur[p->kids[l][k]];
+            ends[built] = at;
+            which[built++] = g;
+        }
+        hlod_city_item *res_items = NULL;
+        if (r == HLOD_OK && built) {
+            res_items = calloc(built, sizeof *res_items);
+            J.res = calloc(built, sizeof *J.res);
+            if (!res_items || !J.res)
+                r = HLOD_ERR_NOMEM;
+        }
+        if (r == HLOD_OK && built) {
             J.items = ordered;
             J.ends = ends;
-            J.groups = groups;
+            J.groups = built;
             J.target = d->target_tris;
             J.lg = d->logger;
-            J.out = calloc(groups, sizeof *J.out);
-            J.res = calloc(groups, sizeof *J.res);
-        }
-        if (!J.out || !J.res)
-            r = HLOD_ERR_NOMEM;
-        if (r == HLOD_OK)
+            J.out = res_items;
             r = build_level(&J, d->threads ? d->threads : 1);
-        for (size_t k = 0; k < groups && r == HLOD_OK; k++) {
+        }
+        for (size_t k = 0; k < built && r == HLOD_OK; k++) {
             size_t b = k ? ends[k - 1] : 0;
-            r = d->emit(d->user, &J.out[k], ordered + b, ends[k] - b);
+            r = d->emit(d->user, l, (uint32_t)which[k], &res_items[k], ordered + b, ends[k] - b);
         }
-        if (r != HLOD_OK && J.out) {
-            for (size_t k = 0; k < groups; k++)
-                hlod_city_item_free(&J.out[k]);
-            free(J.out);
-            J.out = NULL;
-            groups = 0;
+        for (size_t k = 0; k < built; k++) {
+            if (r == HLOD_OK) {
+                out[which[k]] = res_items[k];
+                out_ptr[which[k]] = &out[which[k]];
+            } else {
+                hlod_city_item_free(&res_items[k]);
+            }
         }
+        free(res_items);
         free(J.res);
-        free(ix);
-        free(ends);
-        free(scratch);
-        free(c);
         free(ordered);
+        free(ends);
+        free(which);
         if (made) /* the level before: no longer needed */
-            for (size_t i = 0; i < ncur; i++)
+            for (size_t i = 0; i < nkids; i++)
                 hlod_city_item_free(&made[i]);
         free(made);
-        made = cur = J.out;
-        ncur = groups;
-        if (r == HLOD_OK)
-            (*levels)++;
+        free(made_ptr);
+        made = out;
+        made_ptr = out_ptr;
+        cur = out_ptr;
+        if (r != HLOD_OK && made) {
+            for (size_t i = 0; i < groups; i++)
+                hlod_city_item_free(&made[i]);
+            free(made);
+            free(made_ptr);
+            made = NULL;
+            made_ptr = NULL;
+        }
+    }
+    if (r == HLOD_OK && tops && made) {
+        *tops = made;
+        made = NULL;
     }
     if (made)
-        for (size_t i = 0; i < ncur; i++)
+        for (size_t i = 0; i < p->count[to]; i++)
             hlod_city_item_free(&made[i]);
     free(made);
+    free(made_ptr);
     return r;
 }

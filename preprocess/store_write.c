@@ -391,6 +391,9 @@ done:
 }
 
 /* called from any thread */
+static hlod_result store_payload(hlod_store_writer *w, uint8_t *buf, uint64_t size,
+                                 hlod_store_node *node);
+
 hlod_result hlod_store_writer_add(hlod_store_writer *w, const hlod_store_payload_desc *p,
                                   hlod_store_node *node)
 {
@@ -414,6 +417,15 @@ hlod_result hlod_store_writer_add(hlod_store_writer *w, const hlod_store_payload
     }
     if (r != HLOD_OK)
         return r;
+    return store_payload(w, buf, size, node);
+}
+
+/* Writes the serialized payload buf (size bytes, freed here) at the next
+ * aligned offset and completes *node's payload fields. */
+static hlod_result store_payload(hlod_store_writer *w, uint8_t *buf, uint64_t size,
+                                 hlod_store_node *node)
+{
+    const char *name = w->file.final_path;
     uint64_t hash = hlod_store_hash(buf, (size_t)size);
 
     /* Reserve the offset and the record; write outside the lock. */
@@ -470,6 +482,29 @@ hlod_result hlod_store_writer_add(hlod_store_writer *w, const hlod_store_payload
     node->payload_size = size;
     node->payload_hash = hash;
     return HLOD_OK;
+}
+
+hlod_result hlod_store_writer_add_copy(hlod_store_writer *w, const hlod_store_node *src,
+                                       const void *bytes, hlod_store_node *node)
+{
+    if (!w || !src || !bytes || !node || !src->payload_size || src->payload_size > SIZE_MAX)
+        return HLOD_ERR_INVALID_ARG;
+    if (hlod_store_hash(bytes, (size_t)src->payload_size) != src->payload_hash) {
+        hlod_logf(w->lg, HLOD_LOG_ERROR, "%s: a copied payload does not match its checksum",
+                  w->file.final_path);
+        return HLOD_ERR_CHECKSUM;
+    }
+    uint8_t *buf = malloc((size_t)src->payload_size);
+    if (!buf)
+        return HLOD_ERR_NOMEM;
+    memcpy(buf, bytes, (size_t)src->payload_size);
+    *node = *src;
+    node->parent = 0;
+    node->first_child = 0;
+    node->depth = 0;
+    node->block = 0;
+    node->error = 0;
+    return store_payload(w, buf, src->payload_size, node);
 }
 
 /* ---- finish ---- */

@@ -60,6 +60,11 @@ typedef struct hlod_build_desc {
                                    default 24 */
     unsigned jpeg_quality;      /* packed: JPEG quality of textures, 1..100,
                                    default 90; 0 stores textures raw */
+    /* A sharded build (README, "Sharded builds"): shard_count 0 (default)
+     * builds the whole store; 1..65536 builds only shard shard_index
+     * (1..shard_count) and writes a part file at the output path instead of
+     * a store, for hlod_merge_store. */
+    uint32_t shard_index, shard_count;
     /* Called from the calling thread about every 100 ms while blocks
      * build; NULL for none. */
     void (*progress)(void *user, size_t blocks_done, size_t blocks);
@@ -89,6 +94,27 @@ void hlod_build_desc_defaults(hlod_build_desc *d);
 hlod_result hlod_build_store(const hlod_build_desc *d, const char *const *inputs, size_t n,
                              const char *out_path, const hlod_logger *lg,
                              hlod_build_report *report);
+
+/* ---- merging a sharded build's parts (README, "Sharded builds") ---- */
+
+typedef struct hlod_merge_report {
+    size_t parts, shards;
+    size_t blocks, nodes;
+    size_t cut_level;           /* the plan level shared out among the shards */
+    size_t nodes_copied;        /* from the parts, payloads as they are */
+    size_t groups_built;        /* the group nodes above the cut level */
+} hlod_merge_report;
+
+/* Merges the part files paths[0..n) (every shard of one build, each once,
+ * in any order) into the store out_path: the bytes hlod_build_store writes
+ * for the same inputs and parameters unsharded.  Every part is checked
+ * (its checksums, its store's rules) and the set must be complete:
+ * HLOD_ERR_INVALID_ARG names a missing or duplicate shard or parts of
+ * different builds; HLOD_ERR_FORMAT, HLOD_ERR_CHECKSUM, HLOD_ERR_VERSION
+ * name the damaged part.  The store appears only when complete (temporary
+ * file + rename).  threads: for the levels above the shards (0: 1). */
+hlod_result hlod_merge_store(const char *const *paths, size_t n, const char *out_path,
+                             size_t threads, const hlod_logger *lg, hlod_merge_report *report);
 
 #ifdef __cplusplus
 }

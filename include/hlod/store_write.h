@@ -93,6 +93,16 @@ hlod_result hlod_store_writer_open(const char *path, const hlod_store_writer_des
 hlod_result hlod_store_writer_add(hlod_store_writer *w, const hlod_store_payload_desc *p,
                                   hlod_store_node *node);
 
+/* called from any thread, as add: writes the payload of another store's
+ * node as it is (bytes: src->payload_size bytes, checked against
+ * src->payload_hash: HLOD_ERR_CHECKSUM) and fills *node with src's
+ * fields, its payload offset this store's; parent, first_child, depth,
+ * block and error are zeroed as add leaves them.  The two stores must
+ * share the payload layout: quant_step, quant_origin and jpeg_quality
+ * (hlod-merge copies the payloads of part files, README "Sharded builds"). */
+hlod_result hlod_store_writer_add_copy(hlod_store_writer *w, const hlod_store_node *src,
+                                       const void *bytes, hlod_store_node *node);
+
 /* called from the owner thread after every add returned.  nodes[0..count)
  * in any order, each filled by add and then given its parent (an index into
  * nodes, or HLOD_STORE_NO_PARENT for a root), its error, and for roots its

@@ -6,7 +6,7 @@
  *              [--level-factor F] [--voxel-tris N] [--leaf-tris N]
  *              [--node-tris N] [--c-tex C] [--city-levels on|off] [--threads T]
  *              [--compress on|off] [--quant-bits B] [--jpeg-quality Q]
- *              [--json] [--quiet]
+ *              [--shard I/N] [--json] [--quiet]
  *
  * The pipeline is the library's (hlod/build_store.h, preprocess/build_store.c);
  * this file parses flags, draws the progress bar and prints the summary.
@@ -66,10 +66,13 @@ static void usage(FILE *fp)
             "                         (8..24, default 24)\n"
             "  --jpeg-quality Q       packed: JPEG quality of textures (1..100, default\n"
             "                         90); 0 keeps textures lossless\n"
+            "  --shard I/N            build only shard I of N (1 <= I <= N) and write a\n"
+            "                         part file at OUT for hlod-merge (README,\n"
+            "                         \"Sharded builds\")\n"
             "  --json                 print one JSON object on stdout: blocks, nodes,\n"
             "                         levels, groups, block_depth, tris_in,\n"
             "                         tris_leaf, tris_total, bytes, seconds,\n"
-            "                         peak_rss_bytes\n"
+            "                         peak_rss_bytes (a shard's: its own)\n"
             "  --quiet                errors only, no progress bar\n"
             "  -h, --help             show this help\n"
             "\n"
@@ -194,6 +197,17 @@ static int parse(int argc, char **argv, options *o)
             if (!hlod_cli_parse_size(PROG, a, val, 0, 100, &q))
                 return 0;
             o->bd.jpeg_quality = (unsigned)q;
+        } else if (!strcmp(a, "--shard")) {
+            NEED_VAL();
+            unsigned si, sn;
+            int used = 0;
+            if (sscanf(val, "%u/%u%n", &si, &sn, &used) != 2 || val[used] || !sn || sn > 65536 ||
+                !si || si > sn || val[0] < '0' || val[0] > '9') {
+                hlod_cli_error(PROG, "--shard: '%s' is not I/N with 1 <= I <= N <= 65536", val);
+                return 0;
+            }
+            o->bd.shard_index = si;
+            o->bd.shard_count = sn;
         } else if (!strcmp(a, "--json")) {
             o->json = 1;
         } else if (!strcmp(a, "--quiet")) {
@@ -269,6 +283,10 @@ int main(int argc, char **argv)
         hlod_json_size(&j, "peak_rss_bytes", hlod_cli_peak_rss());
         hlod_json_string(&j, "method", opt.bd.method == HLOD_BUILD_METIS ? "metis" : "cutplane");
         hlod_json_size(&j, "threads", opt.bd.threads);
+        if (opt.bd.shard_count) {
+            hlod_json_size(&j, "shard_index", opt.bd.shard_index);
+            hlod_json_size(&j, "shard_count", opt.bd.shard_count);
+        }
         if (hlod_json_end(&j) != 0)
             return 1;
     }
