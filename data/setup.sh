@@ -17,6 +17,7 @@ PACKAGES=(
     strace util-linux procps
     libcurl4-openssl-dev nginx-light iproute2 python3 openssl
     libcjson-dev
+    parallel
     nodejs chromium chromium-driver
 )
 # npm: Debian's package, unless the installed nodejs brings its own (the

@@ -992,6 +992,80 @@ static hlod_part_key *part_keys(const blocks *bs, const uint32_t *gid, const blo
     return keys;
 }
 
+/* The store writer's descriptor: the build's parameters and, packed, the
+ * position grid of every block (a shard's too: it has all of them here). */
+static void writer_desc(const hlod_build_desc *d, const blocks *bs, const hlod_logger *lg,
+                        hlod_store_writer_desc *wd)
+{
+    int metis = d->method == HLOD_BUILD_METIS;
+    wd->build.method = metis ? HLOD_STORE_METHOD_METIS : HLOD_STORE_METHOD_CUTPLANE;
+    wd->build.desired_tris = metis ? 0 : d->desired_tris;
+    wd->build.level_factor = metis ? 0 : d->level_factor;
+    wd->build.voxel_tris = metis ? d->voxel_tris : 0;
+    wd->build.leaf_tris = metis ? d->leaf_tris : 0;
+    wd->build.node_tris = metis ? d->node_tris : 0;
+    wd->build.c_tex = d->c_tex;
+    wd->logger = lg;
+    if (d->compress) {
+        position_grid(bs, d->quant_bits, wd);
+        wd->jpeg_quality = d->jpeg_quality;
+        wd->payload_align = HLOD_STORE_MIN_ALIGN;    /* packed payloads are small */
+    }
+}
+
+/* A shard's start: the part header's build fields, the shard's blocks
+ * (select_shard), and the file beside the part its store is written to
+ * (store_path; "" when none was made). */
+static hlod_result start_shard(const hlod_build_desc *d, const hlod_city_plan *plan, blocks *bs,
+                               const double (*lo)[3], const double (*hi)[3], const char *out_path,
+                               hlod_part_header *ph, uint32_t **gid, char *store_path,
+                               size_t store_cap, const hlod_logger *lg)
+{
+    ph->params_hash = hlod_part_params_hash(d, (size_t)ph->tris_in, bs->n, lo, hi);
+    ph->plan_hash = hlod_city_plan_hash(plan);
+    ph->group_tris = hlod_build_group_tris(d);
+    ph->group_size = hlod_build_group_size(d);
+    store_path[0] = 0;
+    hlod_result r = select_shard(d, plan, bs, ph, gid, lg);
+    if (r != HLOD_OK)
+        return r;
+    snprintf(store_path, store_cap, "%.4096s.store-XXXXXX", out_path);
+    int fd = mkstemp(store_path);
+    if (fd < 0) {
+        hlod_logf(lg, HLOD_LOG_ERROR, "%s: cannot create a file beside it: %s", out_path,
+                  strerror(errno));
+        store_path[0] = 0;
+        return HLOD_ERR_IO;
+    }
+    close(fd);
+    return HLOD_OK;
+}
+
+/* The part file: the shard's store, its keys and its cut-level items
+ * (the blocks' hlod_0 nodes at cut level 0, else tops). */
+static hlod_result write_part(const hlod_city_plan *plan, const blocks *bs, const uint32_t *gid,
+                              block_out *outs, const top_levels *T, const uint32_t *store_index,
+                              hlod_city_item *tops, int levels, const double (*lo)[3],
+                              const double (*hi)[3], const char *out_path, const char *store_path,
+                              hlod_part_header *ph, const hlod_logger *lg)
+{
+    size_t nkeys = 0;
+    hlod_part_key *keys = part_keys(bs, gid, outs, T, store_index, &nkeys);
+    hlod_city_item **cut = calloc(plan->count[ph->cut_level] + 1, sizeof *cut);
+    hlod_result r = keys && cut ? HLOD_OK : HLOD_ERR_NOMEM;
+    if (r == HLOD_OK) {
+        for (size_t b = 0; b < bs->n && ph->cut_level == 0; b++)
+            cut[gid[b]] = &outs[b].top;
+        for (size_t i = 0; tops && i < plan->count[ph->cut_level]; i++)
+            cut[i] = &tops[i];
+        ph->key_count = (uint32_t)nkeys;
+        r = hlod_part_write(out_path, store_path, ph, lo, hi, keys, levels ? cut : NULL, lg);
+    }
+    free(keys);
+    free(cut);
+    return r;
+}
+
 hlod_result hlod_build_store(const hlod_build_desc *d, const char *const *inputs, size_t n,
                              const char *out_path, const hlod_logger *lg,
                              hlod_build_report *report)
@@ -1052,45 +1126,13 @@ hlod_result hlod_build_store(const hlod_build_desc *d, const char *const *inputs
             r = HLOD_ERR_NOMEM;
     }
     hlod_store_writer_desc wd = {0};
-    if (r == HLOD_OK) {
-        int metis = d->method == HLOD_BUILD_METIS;
-        wd.build.method = metis ? HLOD_STORE_METHOD_METIS : HLOD_STORE_METHOD_CUTPLANE;
-        wd.build.desired_tris = metis ? 0 : d->desired_tris;
-        wd.build.level_factor = metis ? 0 : d->level_factor;
-        wd.build.voxel_tris = metis ? d->voxel_tris : 0;
-        wd.build.leaf_tris = metis ? d->leaf_tris : 0;
-        wd.build.node_tris = metis ? d->node_tris : 0;
-        wd.build.c_tex = d->c_tex;
-        wd.logger = lg;
-        if (d->compress) {
-            position_grid(&bs, d->quant_bits, &wd);
-            wd.jpeg_quality = d->jpeg_quality;
-            wd.payload_align = HLOD_STORE_MIN_ALIGN;    /* packed payloads are small */
-        }
-    }
+    if (r == HLOD_OK)
+        writer_desc(d, &bs, lg, &wd);
     if (r == HLOD_OK && sharded) {
-        ph.block_count = bs.n;
         ph.tris_in = rep.tris_in;
-        ph.params_hash = hlod_part_params_hash(d, rep.tris_in, bs.n, (const double (*)[3])blo,
-                                               (const double (*)[3])bhi);
-        ph.plan_hash = hlod_city_plan_hash(&plan);
-        ph.group_tris = hlod_build_group_tris(d);
-        ph.group_size = hlod_build_group_size(d);
         ph.jpeg_quality = wd.jpeg_quality;
-        r = select_shard(d, &plan, &bs, &ph, &gid, lg);
-        /* the shard's store is written beside the part, then copied in */
-        snprintf(store_path, sizeof store_path, "%.4096s.store-XXXXXX", out_path);
-        int fd = r == HLOD_OK ? mkstemp(store_path) : -1;
-        if (fd >= 0) {
-            close(fd);
-        } else if (r == HLOD_OK) {
-            hlod_logf(lg, HLOD_LOG_ERROR, "%s: cannot create a file beside it: %s", out_path,
-                      strerror(errno));
-            store_path[0] = 0;
-            r = HLOD_ERR_IO;
-        } else {
-            store_path[0] = 0;
-        }
+        r = start_shard(d, &plan, &bs, (const double (*)[3])blo, (const double (*)[3])bhi, out_path,
+                        &ph, &gid, store_path, sizeof store_path, lg);
     }
     if (r == HLOD_OK) {
         const char *path = sharded ? store_path : out_path;
@@ -1115,26 +1157,12 @@ hlod_result hlod_build_store(const hlod_build_desc *d, const char *const *inputs
         w = NULL;
     }
     if (r == HLOD_OK && sharded) {
-        /* the part: the store, the keys and the cut-level items */
-        size_t nkeys = 0;
-        hlod_part_key *keys = part_keys(&bs, gid, outs, &T, store_index, &nkeys);
-        hlod_city_item **cut = calloc(plan.count[ph.cut_level] + 1, sizeof *cut);
-        if (!keys || !cut) {
-            r = HLOD_ERR_NOMEM;
-        } else {
-            for (size_t b = 0; b < bs.n && ph.cut_level == 0; b++)
-                cut[gid[b]] = &outs[b].top;
-            for (size_t i = 0; tops && i < plan.count[ph.cut_level]; i++)
-                cut[i] = &tops[i];
-            ph.key_count = (uint32_t)nkeys;
-            ph.block_count = all_blocks;
-            r = hlod_part_write(out_path, store_path, &ph, (const double (*)[3])blo,
-                                (const double (*)[3])bhi, keys, levels ? cut : NULL, lg);
-            if (r == HLOD_OK)
-                store_path[0] = 0;
-        }
-        free(keys);
-        free(cut);
+        ph.block_count = all_blocks;
+        r = write_part(&plan, &bs, gid, outs, &T, store_index, levels ? tops : NULL, levels,
+                       (const double (*)[3])blo, (const double (*)[3])bhi, out_path, store_path,
+                       &ph, lg);
+        if (r == HLOD_OK)
+            store_path[0] = 0;
     }
     free(store_index);
     if (tops)

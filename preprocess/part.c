@@ -286,7 +286,8 @@ typedef struct part {
     uint8_t *sec;
     double (*lo)[3], (*hi)[3];
     hlod_part_key *keys;
-    hlod_city_item *tops;       /* cut_end - cut_first */
+    hlod_city_item *tops;       /* ntops: cut_end - cut_first, or 0 without levels */
+    size_t ntops;
     uint32_t *global;           /* per store node: its index in the merged store */
 } part;
 
@@ -296,9 +297,8 @@ static void part_close(part *p)
         close(p->fd);
     free(p->nodes);
     free(p->sec);
-    if (p->tops)
-        for (uint64_t i = 0; i < p->h.cut_end - p->h.cut_first; i++)
-            hlod_city_item_free(&p->tops[i]);
+    for (size_t i = 0; p->tops && i < p->ntops; i++)
+        hlod_city_item_free(&p->tops[i]);
     free(p->tops);
     free(p->global);
     p->fd = -1;
@@ -389,6 +389,7 @@ static hlod_result part_open(part *p, const char *path, const hlod_logger *lg)
     p->tops = calloc(ntops ? ntops : 1, sizeof *p->tops);
     if (!p->tops)
         return HLOD_ERR_NOMEM;
+    p->ntops = ntops;
     for (size_t i = 0; i < ntops && !c.bad; i++)
         if (take_item(&c, &p->tops[i]) != HLOD_OK)
             c.bad = 1;
@@ -466,6 +467,16 @@ static hlod_result copy_node(merge *M, part *p, uint32_t j, uint8_t **scratch, s
         hlod_logf(lg, HLOD_LOG_ERROR, "%s: cannot read a payload: %s", p->path, strerror(errno));
         return HLOD_ERR_IO;
     }
+    if (hlod_store_hash(*scratch, (size_t)src->payload_size) != src->payload_hash) {
+        hlod_logf(lg, HLOD_LOG_ERROR, "%s: store node %u: payload checksum mismatch (damaged)",
+                  p->path, p->keys[j].store);
+        return HLOD_ERR_CHECKSUM;
+    }
+    if (hlod_store_hash(*scratch, (size_t)src->payload_size) != src->payload_hash) {
+        hlod_logf(lg, HLOD_LOG_ERROR, "%s: store node %u: payload checksum mismatch (damaged)",
+                  p->path, p->keys[j].store);
+        return HLOD_ERR_CHECKSUM;
+    }
     if (M->n == M->cap)
         return HLOD_ERR_INVALID_ARG;
     hlod_store_node *node = &M->all[M->n];
@@ -494,6 +505,212 @@ static int cmp_key_order(const void *a, const void *b)
     return x->k < y->k ? -1 : x->k > y->k;
 }
 
+/* Do the parts belong together: one build (parameters, input, plan, N),
+ * every shard once? */
+static hlod_result check_together(const part *parts, size_t n, const hlod_logger *lg)
+{
+    const hlod_part_header *h0 = &parts[0].h;
+    const hlod_store_header *s0 = &parts[0].sh;
+    uint32_t N = h0->shard_count;
+    for (size_t i = 1; i < n; i++) {
+        const hlod_part_header *h = &parts[i].h;
+        const hlod_store_header *sh = &parts[i].sh;
+        if (h->shard_count != N) {
+            hlod_logf(lg, HLOD_LOG_ERROR, "%s is shard %u/%u, %s shard %u/%u: not one build",
+                      parts[i].path, h->shard_index, h->shard_count, parts[0].path,
+                      h0->shard_index, N);
+            return HLOD_ERR_INVALID_ARG;
+        }
+        if (h->params_hash != h0->params_hash || h->plan_hash != h0->plan_hash ||
+            h->block_count != h0->block_count || h->cut_level != h0->cut_level ||
+            h->levels != h0->levels || h->tris_in != h0->tris_in ||
+            h->group_tris != h0->group_tris || h->group_size != h0->group_size ||
+            h->jpeg_quality != h0->jpeg_quality || memcmp(&sh->build, &s0->build, sizeof s0->build) ||
+            sh->quant_step != s0->quant_step ||
+            memcmp(sh->quant_origin, s0->quant_origin, sizeof s0->quant_origin) ||
+            sh->payload_align != s0->payload_align || sh->payload_codec != s0->payload_codec) {
+            hlod_logf(lg, HLOD_LOG_ERROR, "%s and %s are parts of different builds (other input "
+                      "or parameters)", parts[0].path, parts[i].path);
+            return HLOD_ERR_INVALID_ARG;
+        }
+    }
+    const char **by_index = calloc((size_t)N + 1, sizeof *by_index);
+    if (!by_index)
+        return HLOD_ERR_NOMEM;
+    hlod_result r = HLOD_OK;
+    for (size_t i = 0; i < n && r == HLOD_OK; i++) {
+        uint32_t I = parts[i].h.shard_index;
+        if (by_index[I]) {
+            hlod_logf(lg, HLOD_LOG_ERROR, "shard %u/%u given twice: %s and %s", I, N, by_index[I],
+                      parts[i].path);
+            r = HLOD_ERR_INVALID_ARG;
+        }
+        by_index[I] = parts[i].path;
+    }
+    for (uint32_t I = 1; I <= N && r == HLOD_OK; I++)
+        if (!by_index[I]) {
+            hlod_logf(lg, HLOD_LOG_ERROR, "shard %u/%u is missing (%zu of %u parts given)", I, N, n, N);
+            r = HLOD_ERR_INVALID_ARG;
+        }
+    free(by_index);
+    return r;
+}
+
+/* The plan again, from the blocks' boxes, and each part's share of it as
+ * hlod-build gives it. */
+static hlod_result merge_plan(const part *parts, size_t n, hlod_city_plan *plan,
+                              const hlod_logger *lg)
+{
+    const hlod_part_header *h0 = &parts[0].h;
+    size_t B = (size_t)h0->block_count;
+    hlod_result r = HLOD_OK;
+    if (h0->levels) {
+        r = hlod_city_plan_make((const double (*)[3])parts[0].lo, (const double (*)[3])parts[0].hi,
+                                B, (size_t)h0->group_size, plan);
+    } else if (!(plan->count = calloc(1, sizeof *plan->count))) {
+        r = HLOD_ERR_NOMEM;
+    } else {
+        plan->count[0] = B;
+    }
+    if (r == HLOD_OK && (plan->levels != h0->levels || hlod_city_plan_hash(plan) != h0->plan_hash)) {
+        hlod_logf(lg, HLOD_LOG_ERROR, "%s: its blocks do not give its plan", parts[0].path);
+        return HLOD_ERR_FORMAT;
+    }
+    uint32_t L = h0->cut_level, N = h0->shard_count;
+    for (size_t i = 0; i < n && r == HLOD_OK; i++) {
+        uint64_t m = plan->count[L], I = parts[i].h.shard_index;
+        if (parts[i].h.cut_first != (I - 1) * m / N || parts[i].h.cut_end != I * m / N) {
+            hlod_logf(lg, HLOD_LOG_ERROR, "%s: its share of level %u is not shard %llu/%u's",
+                      parts[i].path, L, (unsigned long long)I, N);
+            r = HLOD_ERR_FORMAT;
+        }
+    }
+    return r;
+}
+
+/* A part's key with where it comes from. */
+typedef struct ref {
+    hlod_part_key k;
+    uint32_t part, key;
+} ref;
+
+/* Every part's keys, sorted into the single build's order, each node of
+ * the plan up to the cut level there exactly once. */
+static hlod_result sorted_refs(const part *parts, size_t n, const hlod_city_plan *plan,
+                               ref **out, size_t *count, const hlod_logger *lg)
+{
+    uint32_t L = parts[0].h.cut_level;
+    size_t total = 0;
+    for (size_t i = 0; i < n; i++)
+        total += parts[i].h.key_count;
+    ref *refs = malloc((total + 1) * sizeof *refs);
+    if (!refs)
+        return HLOD_ERR_NOMEM;
+    *out = refs;
+    *count = total;
+    size_t at = 0;
+    for (size_t i = 0; i < n; i++)
+        for (uint32_t j = 0; j < parts[i].h.key_count; j++)
+            refs[at++] = (ref){parts[i].keys[j], (uint32_t)i, j};
+    qsort(refs, total, sizeof *refs, cmp_key_order);
+    for (size_t a = 0; a < total; a++)
+        if (refs[a].k.id >= plan->count[refs[a].k.level] || (refs[a].k.level && refs[a].k.k)) {
+            hlod_logf(lg, HLOD_LOG_ERROR, "%s: part key %u names no node of the plan",
+                      parts[refs[a].part].path, refs[a].key);
+            return HLOD_ERR_FORMAT;
+        }
+    for (size_t a = 1; a < total; a++)
+        if (!cmp_key_order(&refs[a - 1].k, &refs[a].k)) {
+            hlod_logf(lg, HLOD_LOG_ERROR, "%s and %s both hold node %u of %s %u",
+                      parts[refs[a - 1].part].path, parts[refs[a].part].path, refs[a].k.k,
+                      refs[a].k.level ? "group" : "block", refs[a].k.id);
+            return HLOD_ERR_FORMAT;
+        }
+    size_t want = 0, have = 0;
+    for (uint32_t l = 0; l <= L; l++)
+        want += plan->count[l];
+    for (size_t a = 0; a < total; a++)
+        have += refs[a].k.level > 0 || refs[a].k.k == 0;
+    if (have != want) {
+        hlod_logf(lg, HLOD_LOG_ERROR, "the parts hold %zu of the %zu blocks and groups up to "
+                  "level %u", have, want, L);
+        return HLOD_ERR_FORMAT;
+    }
+    return HLOD_OK;
+}
+
+/* The groups above the cut level, on the parts' cut-level items (their
+ * nodes cut_node[c]), streamed into M after the copied nodes. */
+static hlod_result build_above(merge *M, const hlod_city_plan *plan, const uint32_t *cut_node,
+                               size_t threads, const hlod_logger *lg)
+{
+    uint32_t L = M->parts[0].h.cut_level;
+    hlod_city_item **items = calloc(plan->count[L], sizeof *items);
+    if (!items)
+        return HLOD_ERR_NOMEM;
+    for (size_t i = 0; i < M->nparts; i++) {
+        part *p = &M->parts[i];
+        for (uint64_t c = p->h.cut_first; c < p->h.cut_end; c++) {
+            hlod_city_item *it = &p->tops[c - p->h.cut_first];
+            it->node = cut_node[c];
+            items[c] = it;
+        }
+    }
+    for (size_t i = 0; i < M->cap; i++)
+        M->up[i] = HLOD_STORE_NO_PARENT;
+    hlod_city_levels_desc cd = {0};
+    cd.target_tris = (size_t)M->parts[0].h.group_tris;
+    cd.threads = threads ? threads : 1;
+    cd.logger = lg;
+    cd.emit = emit_merged;
+    cd.user = M;
+    hlod_result r = hlod_city_levels(plan, L, items, plan->levels, &cd, NULL);
+    free(items);
+    for (size_t i = 0; i < M->n && r == HLOD_OK; i++)
+        if (M->up[i] != HLOD_STORE_NO_PARENT)
+            M->all[i].parent = M->up[i];
+    if (r != HLOD_OK)
+        hlod_logf(lg, HLOD_LOG_ERROR, "city levels above level %u: %s", L, hlod_result_str(r));
+    return r;
+}
+
+/* Every node up to the cut, copied from the part that holds it in the
+ * single build's order (refs), then the parents inside the parts as the
+ * merged store's indices; cut_node[c]: the merged index of cut-level node c. */
+static hlod_result copy_parts(merge *M, const ref *refs, size_t total, uint32_t *cut_node,
+                              const hlod_logger *lg)
+{
+    uint32_t L = M->parts[0].h.cut_level;
+    uint8_t *scratch = NULL;
+    size_t scap = 0;
+    hlod_result r = HLOD_OK;
+    for (size_t a = 0; a < total && r == HLOD_OK; a++) {
+        r = copy_node(M, &M->parts[refs[a].part], refs[a].key, &scratch, &scap, lg);
+        if (refs[a].k.level == L && refs[a].k.k == 0)
+            cut_node[refs[a].k.id] = (uint32_t)(M->n - 1);
+    }
+    free(scratch);
+    for (size_t a = 0; a < total && r == HLOD_OK; a++) {
+        part *p = &M->parts[refs[a].part];
+        hlod_store_node *node = &M->all[p->global[p->keys[refs[a].key].store]];
+        if (node->parent != HLOD_STORE_NO_PARENT)
+            node->parent = p->global[node->parent];
+    }
+    return r;
+}
+
+/* The merged store's writer: the parts' payload layout and build fields. */
+static void merged_desc(const part *p0, const hlod_logger *lg, hlod_store_writer_desc *wd)
+{
+    memset(wd, 0, sizeof *wd);
+    wd->build = p0->sh.build;
+    wd->payload_align = p0->sh.payload_align;
+    wd->quant_step = p0->sh.quant_step;
+    memcpy(wd->quant_origin, p0->sh.quant_origin, sizeof wd->quant_origin);
+    wd->jpeg_quality = p0->h.jpeg_quality;
+    wd->logger = lg;
+}
+
 hlod_result hlod_merge_store(const char *const *paths, size_t n, const char *out_path,
                              size_t threads, const hlod_logger *lg, hlod_merge_report *report)
 {
@@ -509,188 +726,38 @@ hlod_result hlod_merge_store(const char *const *paths, size_t n, const char *out
     hlod_result r = HLOD_OK;
     for (size_t i = 0; i < n && r == HLOD_OK; i++)
         r = part_open(&parts[i], paths[i], lg);
-
-    /* do they belong together? */
-    const hlod_part_header *h0 = &parts[0].h;
-    uint32_t N = h0->shard_count;
-    const char **by_index = NULL;
-    for (size_t i = 1; i < n && r == HLOD_OK; i++) {
-        const hlod_part_header *h = &parts[i].h;
-        if (h->shard_count != N) {
-            hlod_logf(lg, HLOD_LOG_ERROR, "%s is shard %u/%u, %s shard %u/%u: not one build",
-                      paths[i], h->shard_index, h->shard_count, paths[0], h0->shard_index, N);
-            r = HLOD_ERR_INVALID_ARG;
-        } else if (h->params_hash != h0->params_hash || h->plan_hash != h0->plan_hash ||
-                   h->block_count != h0->block_count || h->cut_level != h0->cut_level ||
-                   h->levels != h0->levels || h->tris_in != h0->tris_in ||
-                   h->group_tris != h0->group_tris || h->group_size != h0->group_size ||
-                   h->jpeg_quality != h0->jpeg_quality ||
-                   memcmp(&parts[i].sh.build, &parts[0].sh.build, sizeof parts[0].sh.build) ||
-                   parts[i].sh.quant_step != parts[0].sh.quant_step ||
-                   memcmp(parts[i].sh.quant_origin, parts[0].sh.quant_origin, sizeof parts[0].sh.quant_origin) ||
-                   parts[i].sh.payload_align != parts[0].sh.payload_align ||
-                   parts[i].sh.payload_codec != parts[0].sh.payload_codec) {
-            hlod_logf(lg, HLOD_LOG_ERROR, "%s and %s are parts of different builds (other input "
-                      "or parameters)", paths[0], paths[i]);
-            r = HLOD_ERR_INVALID_ARG;
-        }
-    }
-    if (r == HLOD_OK && !(by_index = calloc(N + 1, sizeof *by_index)))
-        r = HLOD_ERR_NOMEM;
-    for (size_t i = 0; i < n && r == HLOD_OK; i++) {
-        uint32_t I = parts[i].h.shard_index;
-        if (by_index[I]) {
-            hlod_logf(lg, HLOD_LOG_ERROR, "shard %u/%u given twice: %s and %s", I, N, by_index[I],
-                      paths[i]);
-            r = HLOD_ERR_INVALID_ARG;
-        }
-        by_index[I] = paths[i];
-    }
-    for (uint32_t I = 1; I <= N && r == HLOD_OK; I++)
-        if (!by_index[I]) {
-            hlod_logf(lg, HLOD_LOG_ERROR, "shard %u/%u is missing (%zu of %u parts given)", I, N, n, N);
-            r = HLOD_ERR_INVALID_ARG;
-        }
-    free(by_index);
-
-    /* the plan, again, from the blocks' boxes */
+    if (r == HLOD_OK)
+        r = check_together(parts, n, lg);
     hlod_city_plan plan = {0};
-    size_t B = (size_t)h0->block_count;
-    if (r == HLOD_OK) {
-        if (h0->levels) {
-            r = hlod_city_plan_make((const double (*)[3])parts[0].lo, (const double (*)[3])parts[0].hi,
-                                    B, (size_t)h0->group_size, &plan);
-        } else if (!(plan.count = calloc(1, sizeof *plan.count))) {
-            r = HLOD_ERR_NOMEM;
-        } else {
-            plan.count[0] = B;
-        }
-        if (r == HLOD_OK && (plan.levels != h0->levels || hlod_city_plan_hash(&plan) != h0->plan_hash)) {
-            hlod_logf(lg, HLOD_LOG_ERROR, "%s: its blocks do not give its plan", paths[0]);
-            r = HLOD_ERR_FORMAT;
-        }
-    }
-    uint32_t L = h0->cut_level;
-    /* each shard's share, as hlod-build gives it */
-    for (size_t i = 0; i < n && r == HLOD_OK; i++) {
-        uint64_t m = plan.count[L], I = parts[i].h.shard_index;
-        if (parts[i].h.cut_first != (I - 1) * m / N || parts[i].h.cut_end != I * m / N) {
-            hlod_logf(lg, HLOD_LOG_ERROR, "%s: its share of level %u is not shard %llu/%u's", paths[i],
-                      L, (unsigned long long)I, N);
-            r = HLOD_ERR_FORMAT;
-        }
-    }
-
-    /* every node up to the cut, from the part that holds it, in the single
-     * build's order: blocks' nodes by block, then groups by level and index */
-    size_t total_parts = 0;
-    for (size_t i = 0; i < n; i++)
-        total_parts += parts[i].h.key_count;
-    size_t above = 0;
+    if (r == HLOD_OK)
+        r = merge_plan(parts, n, &plan, lg);
+    ref *refs = NULL;
+    size_t total = 0;
+    if (r == HLOD_OK)
+        r = sorted_refs(parts, n, &plan, &refs, &total, lg);
+    uint32_t L = parts[0].h.cut_level;
+    merge M = {parts, n, NULL, NULL, 0, total, NULL, 0};
     for (uint32_t l = L + 1; r == HLOD_OK && l <= plan.levels; l++)
-        above += plan.count[l];
-    merge M = {parts, n, NULL, NULL, 0, total_parts + above, NULL, 0};
-    hlod_store_writer_desc wd = {0};
+        M.cap += plan.count[l];
+    uint32_t *cut_node = NULL;
     if (r == HLOD_OK) {
-        wd.build = parts[0].sh.build;
-        wd.payload_align = parts[0].sh.payload_align;
-        wd.quant_step = parts[0].sh.quant_step;
-        memcpy(wd.quant_origin, parts[0].sh.quant_origin, sizeof wd.quant_origin);
-        wd.jpeg_quality = h0->jpeg_quality;
-        wd.logger = lg;
         M.all = calloc(M.cap + 1, sizeof *M.all);
         M.up = malloc((M.cap + 1) * sizeof *M.up);
-        if (!M.all || !M.up)
+        cut_node = malloc((plan.count[L] + 1) * sizeof *cut_node);
+        if (!M.all || !M.up || !cut_node)
             r = HLOD_ERR_NOMEM;
     }
-    /* (part, key) of every key, sorted into the single build's order */
-    typedef struct ref { hlod_part_key k; uint32_t part, key; } ref;
-    ref *refs = r == HLOD_OK ? malloc((total_parts + 1) * sizeof *refs) : NULL;
-    if (r == HLOD_OK && !refs)
-        r = HLOD_ERR_NOMEM;
     if (r == HLOD_OK) {
-        size_t at = 0;
-        for (size_t i = 0; i < n; i++)
-            for (uint32_t j = 0; j < parts[i].h.key_count; j++)
-                refs[at++] = (ref){parts[i].keys[j], (uint32_t)i, j};
-        qsort(refs, total_parts, sizeof *refs, cmp_key_order);
-        for (size_t a = 0; a < total_parts && r == HLOD_OK; a++)
-            if (refs[a].k.id >= plan.count[refs[a].k.level] || (refs[a].k.level && refs[a].k.k)) {
-                hlod_logf(lg, HLOD_LOG_ERROR, "%s: part key %u names no node of the plan",
-                          paths[refs[a].part], refs[a].key);
-                r = HLOD_ERR_FORMAT;
-            }
-        /* each (level, id, k) once; every block and every group up to the cut present */
-        for (size_t a = 1; a < total_parts && r == HLOD_OK; a++)
-            if (!cmp_key_order(&refs[a - 1].k, &refs[a].k)) {
-                hlod_logf(lg, HLOD_LOG_ERROR, "%s and %s both hold node %u of %s %u",
-                          paths[refs[a - 1].part], paths[refs[a].part], refs[a].k.k,
-                          refs[a].k.level ? "group" : "block", refs[a].k.id);
-                r = HLOD_ERR_FORMAT;
-            }
-        size_t want = 0, have = 0;
-        for (uint32_t l = 1; l <= L; l++)
-            want += plan.count[l];
-        for (size_t a = 0; a < total_parts; a++)
-            have += refs[a].k.level > 0 || refs[a].k.k == 0;
-        want += B;
-        if (r == HLOD_OK && have != want) {
-            hlod_logf(lg, HLOD_LOG_ERROR, "the parts hold %zu of the %zu blocks and groups up to "
-                      "level %u", have, want, L);
-            r = HLOD_ERR_FORMAT;
-        }
-    }
-    if (r == HLOD_OK) {
+        hlod_store_writer_desc wd;
+        merged_desc(&parts[0], lg, &wd);
         r = hlod_store_writer_open(out_path, &wd, &M.w);
         if (r != HLOD_OK)
             hlod_logf(lg, HLOD_LOG_ERROR, "%s: cannot create: %s", out_path, hlod_result_str(r));
     }
-    uint8_t *scratch = NULL;
-    size_t scap = 0;
-    uint32_t *cut_node = r == HLOD_OK ? malloc((plan.count[L] + 1) * sizeof *cut_node) : NULL;
-    if (r == HLOD_OK && !cut_node)
-        r = HLOD_ERR_NOMEM;
-    for (size_t a = 0; a < total_parts && r == HLOD_OK; a++) {
-        r = copy_node(&M, &parts[refs[a].part], refs[a].key, &scratch, &scap, lg);
-        if (refs[a].k.level == L && refs[a].k.k == 0)
-            cut_node[refs[a].k.id] = (uint32_t)(M.n - 1);
-    }
-    free(scratch);
-    /* parents inside the parts, as global indices */
-    for (size_t a = 0; a < total_parts && r == HLOD_OK; a++) {
-        part *p = &parts[refs[a].part];
-        hlod_store_node *node = &M.all[p->global[p->keys[refs[a].key].store]];
-        if (node->parent != HLOD_STORE_NO_PARENT)
-            node->parent = p->global[node->parent];
-    }
-    /* the levels above the cut, on the parts' cut-level items */
-    if (r == HLOD_OK && L < plan.levels) {
-        hlod_city_item **items = calloc(plan.count[L], sizeof *items);
-        if (!items)
-            r = HLOD_ERR_NOMEM;
-        for (size_t i = 0; i < n && r == HLOD_OK; i++) {
-            part *p = &parts[i];
-            for (uint64_t c = p->h.cut_first; c < p->h.cut_end; c++) {
-                hlod_city_item *it = &p->tops[c - p->h.cut_first];
-                it->node = cut_node[c];
-                items[c] = it;
-            }
-        }
-        for (size_t i = 0; i < M.cap; i++)
-            M.up[i] = HLOD_STORE_NO_PARENT;
-        hlod_city_levels_desc cd = {0};
-        cd.target_tris = (size_t)h0->group_tris;
-        cd.threads = threads ? threads : 1;
-        cd.logger = lg;
-        cd.emit = emit_merged;
-        cd.user = &M;
-        if (r == HLOD_OK)
-            r = hlod_city_levels(&plan, L, items, plan.levels, &cd, NULL);
-        free(items);
-        for (size_t i = 0; i < M.n && r == HLOD_OK; i++)
-            if (M.up[i] != HLOD_STORE_NO_PARENT)
-                M.all[i].parent = M.up[i];
-    }
+    if (r == HLOD_OK)
+        r = copy_parts(&M, refs, total, cut_node, lg);
+    if (r == HLOD_OK && L < plan.levels)
+        r = build_above(&M, &plan, cut_node, threads, lg);
     if (r == HLOD_OK) {
         hlod_build_contain(M.all, M.n);
         r = hlod_store_writer_finish(M.w, M.all, (uint32_t)M.n, NULL);
@@ -703,12 +770,12 @@ hlod_result hlod_merge_store(const char *const *paths, size_t n, const char *out
         hlod_store_writer_abort(M.w);
     if (r == HLOD_OK && report) {
         report->parts = n;
-        report->shards = N;
+        report->shards = parts[0].h.shard_count;
         report->nodes = M.n;
-        report->blocks = B;
+        report->blocks = (size_t)parts[0].h.block_count;
         report->cut_level = L;
         report->groups_built = M.groups;
-        report->nodes_copied = total_parts;
+        report->nodes_copied = total;
     }
     free(refs);
     free(cut_node);

@@ -81,6 +81,21 @@ static void usage(FILE *fp)
 
 /* ---- command line ------------------------------------------------------------ */
 
+/* --shard I/N */
+static int parse_shard(const char *val, hlod_build_desc *bd)
+{
+    unsigned si, sn;
+    int used = 0;
+    if (sscanf(val, "%u/%u%n", &si, &sn, &used) != 2 || val[used] || !sn || sn > 65536 || !si ||
+        si > sn || val[0] < '0' || val[0] > '9') {
+        hlod_cli_error(PROG, "--shard: '%s' is not I/N with 1 <= I <= N <= 65536", val);
+        return 0;
+    }
+    bd->shard_index = si;
+    bd->shard_count = sn;
+    return 1;
+}
+
 static int parse(int argc, char **argv, options *o)
 {
     memset(o, 0, sizeof *o);
@@ -199,15 +214,8 @@ static int parse(int argc, char **argv, options *o)
             o->bd.jpeg_quality = (unsigned)q;
         } else if (!strcmp(a, "--shard")) {
             NEED_VAL();
-            unsigned si, sn;
-            int used = 0;
-            if (sscanf(val, "%u/%u%n", &si, &sn, &used) != 2 || val[used] || !sn || sn > 65536 ||
-                !si || si > sn || val[0] < '0' || val[0] > '9') {
-                hlod_cli_error(PROG, "--shard: '%s' is not I/N with 1 <= I <= N <= 65536", val);
+            if (!parse_shard(val, &o->bd))
                 return 0;
-            }
-            o->bd.shard_index = si;
-            o->bd.shard_count = sn;
         } else if (!strcmp(a, "--json")) {
             o->json = 1;
         } else if (!strcmp(a, "--quiet")) {

@@ -1,0 +1,185 @@
+#!/usr/bin/env bash
+# test_shard.sh - the sharded build (README, "Sharded builds"; issue 20):
+# hlod-build --shard I/N run through GNU parallel, then hlod-merge.
+#
+# Checks:
+#   - the small city (9 blocks, one group level), N = 1, 3 and 8, cutplane
+#     and metis: the shards run as GNU parallel jobs (parallel --halt
+#     now,fail=1), hlod-merge (parts given in reverse order) writes a store
+#     byte-identical (cmp) to hlod-build without --shard; hlod-info --verify
+#     passes on it;
+#   - a 30-block city (two group levels: with N = 3 the cut is level 1 and
+#     the merge builds the root from the shards' group nodes): N = 3 and 8,
+#     byte-identical likewise;
+#   - refused, exit 1, naming the part or the shard, and no store written:
+#     a missing part ("shard 2/3 is missing"), a part given twice ("given
+#     twice"), a part of another build (metis's part among cutplane's), a
+#     byte flipped in the part header, in a payload of the store inside,
+#     in the node table and in the part section, a part cut short, a store
+#     that is not a part;
+#   - a shard killed (SIGKILL) at 6 moments of its run: either no part at
+#     its path (the merge says the shard is missing) or a complete one (the
+#     merge gives the single build's bytes) - never a part the merge takes
+#     wrongly; then that shard rerun alone and merged again: byte-identical;
+#   - bad --shard values (0/3, 4/3, 3, 1/0, x/2): exit 2.
+# Env: HLOD_BIN_DIR (the tools), HLOD_SOURCE_DIR.
+set -uo pipefail
+BIN=${HLOD_BIN_DIR:-build/bin}
+BIN=$(cd "$BIN" && pwd)
+T=$(mktemp -d "${TMPDIR:-/tmp}/hlod-test-shard.XXXXXX")
+cleanup() { rm -rf "$T"; }
+trap cleanup EXIT
+. "$(dirname "$0")/lib.sh"
+
+if ! command -v parallel >/dev/null 2>&1; then
+    echo "FAIL GNU parallel is not installed (data/setup.sh installs parallel)"
+    exit 1
+fi
+for tool in hlod-gen-city hlod-build hlod-merge hlod-info; do
+    [ -x "$BIN/$tool" ] || { echo "FAIL $BIN/$tool not built"; exit 1; }
+done
+
+"$BIN/hlod-gen-city" --preset small -o "$T/small.obj" >/dev/null 2>&1 &&
+    "$BIN/hlod-gen-city" --preset small --blocks 30 --tris-per-block 600 --texture-size 64 \
+        -o "$T/c30.obj" >/dev/null 2>&1
+ok $? "inputs: the small city and a 30-block city"
+
+# sharded CITY METHOD N: the shards through GNU parallel, then the merge;
+# the store is $T/CITY-METHOD-N.hlod
+sharded() {
+    local city=$1 method=$2 n=$3 pre=$T/$1-$2-$3
+    local extra=()
+    [ "$method" = cutplane ] && extra=(--desired-tris 450)
+    parallel --halt now,fail=1 "$BIN/hlod-build" "$T/$city.obj" -o "$pre.{}.part" --method "$method" \
+        "${extra[@]}" --threads 1 --quiet --shard "{}/$n" ::: $(seq 1 "$n") &&
+        "$BIN/hlod-merge" $(ls -r "$pre".*.part) -o "$pre.hlod" --quiet --json >"$pre.json"
+}
+
+single() {
+    local city=$1 method=$2
+    local extra=()
+    [ "$method" = cutplane ] && extra=(--desired-tris 450)
+    "$BIN/hlod-build" "$T/$city.obj" -o "$T/$city-$method.hlod" --method "$method" "${extra[@]}" --quiet
+}
+
+key() { sed -n "s/.*\"$2\": *\([0-9.]*\).*/\1/p" "$1"; }
+
+for method in cutplane metis; do
+    single small $method
+    ok $? "single build, small city, $method"
+    for n in 1 3 8; do
+        sharded small $method $n &&
+            cmp -s "$T/small-$method.hlod" "$T/small-$method-$n.hlod" &&
+            "$BIN/hlod-info" "$T/small-$method-$n.hlod" --verify --json | grep -q '"verified":true'
+        ok $? "small city, $method, $n shards through GNU parallel: merge byte-identical to the single build (cut level $(key "$T/small-$method-$n.json" cut_level), $(key "$T/small-$method-$n.json" nodes_copied) nodes copied, $(key "$T/small-$method-$n.json" groups_built) groups built by the merge), verified"
+    done
+done
+
+single c30 cutplane
+ok $? "single build, 30-block city"
+for n in 3 8; do
+    sharded c30 cutplane $n && cmp -s "$T/c30-cutplane.hlod" "$T/c30-cutplane-$n.hlod"
+    ok $? "30-block city, $n shards: merge byte-identical (cut level $(key "$T/c30-cutplane-$n.json" cut_level), $(key "$T/c30-cutplane-$n.json" groups_built) groups built by the merge)"
+done
+
+# ---- refusals ----
+P=$T/small-cutplane-3
+# refused WHAT PATTERN PARTS...: exit 1, stderr matching PATTERN, no store
+refused() {
+    local what=$1 pat=$2
+    shift 2
+    rm -f "$T/bad.hlod"
+    "$BIN/hlod-merge" "$@" -o "$T/bad.hlod" 2>"$T/bad.err" >/dev/null
+    local rc=$?
+    [ $rc -eq 1 ] && grep -q -- "$pat" "$T/bad.err" && [ ! -e "$T/bad.hlod" ] &&
+        [ -z "$(ls "$T" | grep '^bad\.hlod\.tmp-')" ]
+    ok $? "$what: exit $rc, no store ($(head -1 "$T/bad.err" | cut -c1-150))"
+}
+refused "a missing part" "shard 2/3 is missing" "$P.1.part" "$P.3.part"
+refused "a part given twice" "given twice" "$P.1.part" "$P.2.part" "$P.2.part" "$P.3.part"
+refused "a part of another build" "different builds" "$P.1.part" "$T/small-metis-3.2.part" "$P.3.part"
+refused "a part of a build with another N" "not one build" "$P.1.part" "$P.2.part" "$T/small-cutplane-8.3.part"
+refused "a store that is not a part" "$T/small-cutplane.hlod: not a part file" "$T/small-cutplane.hlod" "$P.2.part" "$P.3.part"
+
+# flip OFFSET: a copy of part 2 with the byte at OFFSET inverted
+flip() {
+    cp "$P.2.part" "$T/flip.part"
+    python3 - "$T/flip.part" "$1" <<'EOF'
+import sys
+p, off = sys.argv[1], int(sys.argv[2])
+with open(p, "r+b") as f:
+    f.seek(off)
+    b = f.read(1)
+    f.seek(off)
+    f.write(bytes([b[0] ^ 0xFF]))
+EOF
+}
+# the part's layout, from its header and its store's (part.h, store.h)
+read -r store_off store_size sec_off sec_size table_off first_payload < <(python3 - "$P.2.part" <<'EOF'
+import struct, sys
+d = open(sys.argv[1], "rb").read()
+# hlod_part_header: the offsets after magic(8) + 6 u32 + 8 u64 + 2 u32 = 104
+store_off, store_size, sec_off, sec_size = struct.unpack_from("<4Q", d, 104)
+table_off, = struct.unpack_from("<Q", d, store_off + 56)
+first_payload, = struct.unpack_from("<Q", d, store_off + table_off + 160)
+print(store_off, store_size, sec_off, sec_size, table_off, first_payload)
+EOF
+)
+flip 20
+refused "a byte flipped in the part header" "flip.part: part header checksum mismatch" "$P.1.part" "$T/flip.part" "$P.3.part"
+flip $((store_off + first_payload + 40))
+refused "a byte flipped in a payload of the part's store" "flip.part: store node .*: payload checksum mismatch" "$P.1.part" "$T/flip.part" "$P.3.part"
+flip $((store_off + table_off + 200))
+refused "a byte flipped in the part's node table" "flip.part: the shard's node table checksum" "$P.1.part" "$T/flip.part" "$P.3.part"
+flip $((sec_off + sec_size / 2))
+refused "a byte flipped in the part section" "flip.part: part section checksum" "$P.1.part" "$T/flip.part" "$P.3.part"
+head -c $((sec_off + sec_size / 2)) "$P.2.part" >"$T/flip.part"
+refused "a part cut short" "flip.part: .* bytes, its header says" "$P.1.part" "$T/flip.part" "$P.3.part"
+
+# ---- a shard killed ----
+K=$T/kill
+mkdir -p "$K"
+cp "$P.1.part" "$K/p.1.part"
+cp "$P.3.part" "$K/p.3.part"
+kills=0
+wrong=0
+for at in 0.05 0.2 0.4 0.6 0.9 1.3; do
+    rm -f "$K/p.2.part"
+    "$BIN/hlod-build" "$T/small.obj" -o "$K/p.2.part" --desired-tris 450 --threads 1 --quiet \
+        --shard 2/3 &
+    pid=$!
+    sleep "$at"
+    kill -9 $pid 2>/dev/null && kills=$((kills + 1))
+    wait $pid 2>/dev/null
+    rm -f "$K/m.hlod"
+    if [ -e "$K/p.2.part" ]; then
+        # a part there must be the whole one
+        "$BIN/hlod-merge" "$K"/p.1.part "$K"/p.2.part "$K"/p.3.part -o "$K/m.hlod" --quiet 2>/dev/null &&
+            cmp -s "$K/m.hlod" "$T/small-cutplane.hlod" || wrong=$((wrong + 1))
+    else
+        "$BIN/hlod-merge" "$K"/p.1.part "$K"/p.3.part -o "$K/m.hlod" --quiet 2>"$K/err" &&
+            wrong=$((wrong + 1))
+        grep -q "shard 2/3 is missing" "$K/err" || wrong=$((wrong + 1))
+    fi
+done
+[ $wrong -eq 0 ] && [ $kills -ge 3 ]
+ok $? "shard 2/3 killed at 6 moments ($kills killed before it finished): never a part the merge takes wrongly ($wrong wrong)"
+"$BIN/hlod-build" "$T/small.obj" -o "$K/p.2.part" --desired-tris 450 --quiet --shard 2/3 &&
+    "$BIN/hlod-merge" "$K/p.1.part" "$K/p.2.part" "$K/p.3.part" -o "$K/m.hlod" --quiet &&
+    cmp -s "$K/m.hlod" "$T/small-cutplane.hlod"
+ok $? "the killed shard rerun alone, merged again: byte-identical"
+
+# ---- the command line ----
+bad=0
+for s in 0/3 4/3 3 1/0 x/2 -1/3 "1/3x"; do
+    "$BIN/hlod-build" "$T/small.obj" -o "$T/x.part" --shard "$s" --quiet 2>/dev/null
+    [ $? -eq 2 ] || { bad=$((bad + 1)); echo "  --shard $s: not exit 2"; }
+done
+[ $bad -eq 0 ] && [ ! -e "$T/x.part" ]
+ok $? "bad --shard values refused with exit 2"
+"$BIN/hlod-merge" --help | grep -q "hlod-merge PART" && "$BIN/hlod-merge" -o "$T/x.hlod" 2>/dev/null
+[ $? -eq 2 ]
+ok $? "hlod-merge --help; no part: exit 2"
+
+echo "$pass passed, $fail failed"
+[ $fail -eq 0 ]
