@@ -17,7 +17,7 @@ PACKAGES=(
     strace util-linux procps
     libcurl4-openssl-dev nginx-light iproute2 python3 openssl
     libcjson-dev
-    parallel
+    parallel munge slurmctld slurmd slurm-client
     nodejs chromium chromium-driver
 )
 # npm: Debian's package, unless the installed nodejs brings its own (the
