@@ -573,17 +573,16 @@ static hlod_result check_desc(const hlod_build_desc *d, const hlod_logger *lg)
  * input's box corner, its step the largest power of two at most the box's
  * diagonal / 2^bits.  Both depend only on the input, so a city moved by a
  * whole number of steps quantizes exactly as before. */
-static void position_grid(const blocks *bs, unsigned bits, hlod_store_writer_desc *wd)
+static void position_grid(const double (*blo)[3], const double (*bhi)[3], size_t nb,
+                          unsigned bits, hlod_store_writer_desc *wd)
 {
+    /* the blocks' boxes are of their vertices: their union is the input's */
     double lo[3] = {INFINITY, INFINITY, INFINITY}, hi[3] = {-INFINITY, -INFINITY, -INFINITY};
-    for (size_t b = 0; b < bs->n; b++) {
-        const hlod_mesh *m = &bs->b[b].mesh;
-        for (size_t i = 0; i < m->vertex_count; i++)
-            for (int k = 0; k < 3; k++) {
-                lo[k] = fmin(lo[k], m->positions[3 * i + k]);
-                hi[k] = fmax(hi[k], m->positions[3 * i + k]);
-            }
-    }
+    for (size_t b = 0; b < nb; b++)
+        for (int k = 0; k < 3; k++) {
+            lo[k] = fmin(lo[k], blo[b][k]);
+            hi[k] = fmax(hi[k], bhi[b][k]);
+        }
     double diag = 0;
     for (int k = 0; k < 3; k++)
         diag += (hi[k] - lo[k]) * (hi[k] - lo[k]);
@@ -614,9 +613,60 @@ static hlod_result check_out_dir(const char *out, const hlod_logger *lg)
 
 /* Reads every input and splits it into blocks; the blocks own copies of
  * the geometry, the meshes keep only what blocks borrow (texture paths). */
+/* What read_blocks keeps of the blocks: all of them (a build), only
+ * their boxes (a shard's first pass: every block's box, the geometry
+ * dropped file by file), or those marked in keep (a shard's second pass:
+ * gid[k] receives the k-th kept block's index in the whole input). */
+typedef struct read_mode {
+    int boxes_only;
+    double (*lo)[3], (*hi)[3];  /* boxes_only: every block's box (grown here) */
+    size_t count, cap;          /* blocks seen so far */
+    const uint8_t *keep;        /* per block of the whole input, or NULL */
+    uint32_t *gid;
+} read_mode;
+
+/* Applies mode to the blocks bs->b[first .. n) just made from one file. */
+static hlod_result filter_blocks(blocks *bs, size_t first, read_mode *mode)
+{
+    if (!mode)
+        return HLOD_OK;
+    size_t made = bs->n - first;
+    if (mode->boxes_only && mode->count + made > mode->cap) {
+        size_t cap = mode->cap ? mode->cap : 64;
+        while (cap < mode->count + made)
+            cap *= 2;
+        double (*lo)[3] = realloc(mode->lo, cap * sizeof *lo);
+        if (lo)
+            mode->lo = lo;
+        double (*hi)[3] = realloc(mode->hi, cap * sizeof *hi);
+        if (hi)
+            mode->hi = hi;
+        if (!lo || !hi)
+            return HLOD_ERR_NOMEM;
+        mode->cap = cap;
+    }
+    size_t kept = first;
+    for (size_t b = first; b < bs->n; b++, mode->count++) {
+        block *bl = &bs->b[b];
+        if (mode->boxes_only) {
+            if (!hlod_mesh_bounds(&bl->mesh, mode->lo[mode->count], mode->hi[mode->count]))
+                for (int k = 0; k < 3; k++)
+                    mode->lo[mode->count][k] = mode->hi[mode->count][k] = 0;
+            hlod_mesh_free(&bl->mesh);
+        } else if (mode->keep[mode->count]) {
+            mode->gid[kept] = (uint32_t)mode->count;
+            bs->b[kept++] = *bl;
+        } else {
+            hlod_mesh_free(&bl->mesh);
+        }
+    }
+    bs->n = mode->boxes_only ? first : kept;
+    return HLOD_OK;
+}
+
 static hlod_result read_blocks(const hlod_build_desc *d, const char *const *inputs, size_t n,
                                hlod_mesh *meshes, blocks *bs, size_t *tris_in,
-                               const char *scratch, const hlod_logger *lg)
+                               const char *scratch, read_mode *mode, const hlod_logger *lg)
 {
     for (size_t i = 0; i < n; i++) {
         hlod_import_desc idesc = {lg, 0, scratch};
@@ -635,12 +685,15 @@ static hlod_result read_blocks(const hlod_build_desc *d, const char *const *inpu
                     return HLOD_ERR_NAN;
                 }
         const char *base = strrchr(inputs[i], '/');
+        size_t first = bs->n;
         r = make_blocks(&meshes[i], base ? base + 1 : inputs[i], d->grid, bs);
         if (r != HLOD_OK) {
             hlod_logf(lg, HLOD_LOG_ERROR, "%s: cannot split into blocks: %s", inputs[i],
                       hlod_result_str(r));
             return r;
         }
+        if ((r = filter_blocks(bs, first, mode)) != HLOD_OK)
+            return r;
         hlod_mesh *m = &meshes[i];
         free(m->positions);
         free(m->normals);
@@ -653,7 +706,7 @@ static hlod_result read_blocks(const hlod_build_desc *d, const char *const *inpu
         m->indices = NULL;
         m->tri_material = NULL;
     }
-    if (!bs->n) {
+    if (mode ? !mode->count : !bs->n) {
         hlod_logf(lg, HLOD_LOG_ERROR, "no triangles in the input");
         return HLOD_ERR_EMPTY;
     }
@@ -667,9 +720,9 @@ static size_t build_threads(const hlod_build_desc *d)
 }
 
 /* City levels are built over more than one block unless turned off. */
-static int want_levels(const hlod_build_desc *d, const blocks *bs)
+static int want_levels(const hlod_build_desc *d, size_t blocks)
 {
-    return d->city_levels && bs->n >= 2;
+    return d->city_levels && blocks >= 2;
 }
 
 /* Builds every block on the worker threads and streams their nodes into
@@ -915,15 +968,16 @@ static hlod_result block_boxes(const blocks *bs, double (**lo)[3], double (**hi)
 
 /* The shard's blocks: the cut level is the plan's highest with at least N
  * nodes, shard I owns its nodes [(I-1) m / N, I m / N) and their subtrees
- * (part.h).  Keeps only the owned blocks in bs (in block order; gid[b]:
- * the block's index in the whole input), freeing the others. */
-static hlod_result select_shard(const hlod_build_desc *d, const hlod_city_plan *p, blocks *bs,
-                                hlod_part_header *h, uint32_t **gid_out, const hlod_logger *lg)
+ * (part.h).  Sets h's shard fields and keep[b] for each block b of the
+ * whole input the shard owns. */
+static hlod_result shard_keep(const hlod_build_desc *d, const hlod_city_plan *p,
+                              hlod_part_header *h, uint8_t **keep_out, const hlod_logger *lg)
 {
     uint32_t N = d->shard_count, I = d->shard_index;
-    if (p->count[0] < N) {
+    size_t nb = p->count[0];
+    if (nb < N) {
         hlod_logf(lg, HLOD_LOG_ERROR, "shard %u/%u: the input has %zu blocks, fewer than %u shards",
-                  I, N, p->count[0], N);
+                  I, N, nb, N);
         return HLOD_ERR_INVALID_ARG;
     }
     uint32_t L = 0;
@@ -938,37 +992,102 @@ static hlod_result select_shard(const hlod_build_desc *d, const hlod_city_plan *
     h->cut_first = (I - 1) * m / N;
     h->cut_end = I * m / N;
     /* each block's node at the cut level */
-    uint32_t *anc = malloc(bs->n * sizeof *anc), *up = malloc((bs->n + 1) * sizeof *up);
-    uint32_t *gid = malloc((bs->n + 1) * sizeof *gid);
-    if (!anc || !up || !gid) {
+    uint32_t *anc = malloc(nb * sizeof *anc), *up = malloc((nb + 1) * sizeof *up);
+    uint8_t *keep = malloc(nb);
+    if (!anc || !up || !keep) {
         free(anc);
         free(up);
-        free(gid);
+        free(keep);
         return HLOD_ERR_NOMEM;
     }
-    for (size_t b = 0; b < bs->n; b++)
+    for (size_t b = 0; b < nb; b++)
         anc[b] = (uint32_t)b;
     for (uint32_t l = 1; l <= L; l++) {
         for (size_t g = 0; g < p->count[l]; g++)
             for (size_t k = p->first[l][g]; k < p->first[l][g + 1]; k++)
                 up[p->kids[l][k]] = (uint32_t)g;
-        for (size_t b = 0; b < bs->n; b++)
+        for (size_t b = 0; b < nb; b++)
             anc[b] = up[anc[b]];
     }
-    size_t kept = 0;
-    for (size_t b = 0; b < bs->n; b++) {
-        if (anc[b] >= h->cut_first && anc[b] < h->cut_end) {
-            gid[kept] = (uint32_t)b;
-            bs->b[kept++] = bs->b[b];
-        } else {
-            hlod_mesh_free(&bs->b[b].mesh);
-        }
-    }
-    bs->n = kept;
+    for (size_t b = 0; b < nb; b++)
+        keep[b] = anc[b] >= h->cut_first && anc[b] < h->cut_end;
     free(anc);
     free(up);
-    *gid_out = gid;
+    *keep_out = keep;
     return HLOD_OK;
+}
+
+/* The plan over nb blocks with boxes lo, hi: the city levels' tree, or
+ * none (one level of blocks) without levels. */
+static hlod_result make_plan(const hlod_build_desc *d, int levels, const double (*lo)[3],
+                             const double (*hi)[3], size_t nb, hlod_city_plan *plan)
+{
+    if (levels)
+        return hlod_city_plan_make(lo, hi, nb, hlod_build_group_size(d), plan);
+    plan->count = calloc(1, sizeof *plan->count);
+    if (!plan->count)
+        return HLOD_ERR_NOMEM;
+    plan->count[0] = nb;
+    return HLOD_OK;
+}
+
+/* What a build knows of its input before building: the blocks it builds
+ * (bs; a shard's only), every block's box (lo, hi; nb of them) and the
+ * plan.  A shard reads the input twice: first every block's box, file by
+ * file, dropping the geometry, then only the files with its blocks,
+ * keeping those (gid: their indices in the whole input). */
+typedef struct input {
+    blocks bs;
+    double (*lo)[3], (*hi)[3];
+    size_t nb;
+    int levels;
+    hlod_city_plan plan;
+    uint32_t *gid;
+} input;
+
+static hlod_result read_input(const hlod_build_desc *d, const char *const *inputs, size_t n,
+                              hlod_mesh *meshes, const char *scratch, input *in,
+                              hlod_part_header *ph, size_t *tris_in, const hlod_logger *lg)
+{
+    hlod_result r;
+    if (!d->shard_count) {
+        r = read_blocks(d, inputs, n, meshes, &in->bs, tris_in, scratch, NULL, lg);
+        if (r == HLOD_OK)
+            r = block_boxes(&in->bs, &in->lo, &in->hi);
+        in->nb = in->bs.n;
+        in->levels = want_levels(d, in->nb);
+        return r == HLOD_OK ? make_plan(d, in->levels, (const double (*)[3])in->lo,
+                                        (const double (*)[3])in->hi, in->nb, &in->plan) : r;
+    }
+    read_mode boxes = {.boxes_only = 1};
+    r = read_blocks(d, inputs, n, meshes, &in->bs, tris_in, scratch, &boxes, lg);
+    in->lo = boxes.lo;
+    in->hi = boxes.hi;
+    in->nb = boxes.count;
+    for (size_t i = 0; i < n; i++)
+        hlod_mesh_free(&meshes[i]);
+    if (r != HLOD_OK)
+        return r;
+    in->levels = want_levels(d, in->nb);
+    r = make_plan(d, in->levels, (const double (*)[3])in->lo, (const double (*)[3])in->hi, in->nb,
+                  &in->plan);
+    uint8_t *keep = NULL;
+    if (r == HLOD_OK)
+        r = shard_keep(d, &in->plan, ph, &keep, lg);
+    if (r == HLOD_OK && !(in->gid = malloc((in->nb + 1) * sizeof *in->gid)))
+        r = HLOD_ERR_NOMEM;
+    if (r == HLOD_OK) {
+        read_mode mine = {.keep = keep, .gid = in->gid};
+        size_t again = 0;
+        r = read_blocks(d, inputs, n, meshes, &in->bs, &again, scratch, &mine, lg);
+        if (r == HLOD_OK && (again != *tris_in || mine.count != in->nb)) {
+            hlod_logf(lg, HLOD_LOG_ERROR, "the input changed while it was read (%zu triangles, "
+                      "then %zu)", *tris_in, again);
+            r = HLOD_ERR_IO;
+        }
+    }
+    free(keep);
+    return r;
 }
 
 /* The part's keys, in the order of the shard's node list (blocks' nodes,
@@ -994,7 +1113,7 @@ static hlod_part_key *part_keys(const blocks *bs, const uint32_t *gid, const blo
 
 /* The store writer's descriptor: the build's parameters and, packed, the
  * position grid of every block (a shard's too: it has all of them here). */
-static void writer_desc(const hlod_build_desc *d, const blocks *bs, const hlod_logger *lg,
+static void writer_desc(const hlod_build_desc *d, const input *in, const hlod_logger *lg,
                         hlod_store_writer_desc *wd)
 {
     int metis = d->method == HLOD_BUILD_METIS;
@@ -1007,28 +1126,26 @@ static void writer_desc(const hlod_build_desc *d, const blocks *bs, const hlod_l
     wd->build.c_tex = d->c_tex;
     wd->logger = lg;
     if (d->compress) {
-        position_grid(bs, d->quant_bits, wd);
+        position_grid((const double (*)[3])in->lo, (const double (*)[3])in->hi, in->nb,
+                      d->quant_bits, wd);
         wd->jpeg_quality = d->jpeg_quality;
         wd->payload_align = HLOD_STORE_MIN_ALIGN;    /* packed payloads are small */
     }
 }
 
-/* A shard's start: the part header's build fields, the shard's blocks
- * (select_shard), and the file beside the part its store is written to
- * (store_path; "" when none was made). */
-static hlod_result start_shard(const hlod_build_desc *d, const hlod_city_plan *plan, blocks *bs,
-                               const double (*lo)[3], const double (*hi)[3], const char *out_path,
-                               hlod_part_header *ph, uint32_t **gid, char *store_path,
-                               size_t store_cap, const hlod_logger *lg)
+/* A shard's start: the part header's build fields and the file beside
+ * the part its store is written to (store_path; "" when none was made). */
+static hlod_result start_shard(const hlod_build_desc *d, const input *in, const char *out_path,
+                               hlod_part_header *ph, char *store_path, size_t store_cap,
+                               const hlod_logger *lg)
 {
-    ph->params_hash = hlod_part_params_hash(d, (size_t)ph->tris_in, bs->n, lo, hi);
-    ph->plan_hash = hlod_city_plan_hash(plan);
+    ph->params_hash = hlod_part_params_hash(d, (size_t)ph->tris_in, in->nb,
+                                            (const double (*)[3])in->lo,
+                                            (const double (*)[3])in->hi);
+    ph->plan_hash = hlod_city_plan_hash(&in->plan);
     ph->group_tris = hlod_build_group_tris(d);
     ph->group_size = hlod_build_group_size(d);
-    store_path[0] = 0;
-    hlod_result r = select_shard(d, plan, bs, ph, gid, lg);
-    if (r != HLOD_OK)
-        return r;
+    ph->block_count = in->nb;
     snprintf(store_path, store_cap, "%.4096s.store-XXXXXX", out_path);
     int fd = mkstemp(store_path);
     if (fd < 0) {
@@ -1081,13 +1198,10 @@ hlod_result hlod_build_store(const hlod_build_desc *d, const char *const *inputs
     if (r != HLOD_OK)
         return r;
     hlod_mesh *meshes = calloc(n, sizeof *meshes);
-    blocks bs = {0};
+    input in = {0};
     hlod_store_writer *w = NULL;
     block_out *outs = NULL;
-    double (*blo)[3] = NULL, (*bhi)[3] = NULL;
-    hlod_city_plan plan = {0};
     hlod_part_header ph = {0};
-    uint32_t *gid = NULL;
     int sharded = d->shard_count > 0;
     char store_path[4096 + 32];
     store_path[0] = 0;
@@ -1107,66 +1221,51 @@ hlod_result hlod_build_store(const hlod_build_desc *d, const char *const *inputs
             }
         }
     }
+    /* the blocks and the group tree, from the blocks' boxes before any is built */
     if (r == HLOD_OK)
-        r = meshes ? read_blocks(d, inputs, n, meshes, &bs, &rep.tris_in,
-                                 scratch[0] ? scratch : NULL, lg) : HLOD_ERR_NOMEM;
-    /* the group tree, from the blocks' boxes before any is built */
-    int levels = r == HLOD_OK && want_levels(d, &bs);
-    size_t all_blocks = bs.n;
-    if (r == HLOD_OK)
-        r = block_boxes(&bs, &blo, &bhi);
-    if (r == HLOD_OK && levels) {
-        r = hlod_city_plan_make((const double (*)[3])blo, (const double (*)[3])bhi, bs.n,
-                                hlod_build_group_size(d), &plan);
-    } else if (r == HLOD_OK) {
-        plan.count = calloc(1, sizeof *plan.count);
-        if (plan.count)
-            plan.count[0] = bs.n;
-        else
-            r = HLOD_ERR_NOMEM;
-    }
+        r = meshes ? read_input(d, inputs, n, meshes, scratch[0] ? scratch : NULL, &in, &ph,
+                                &rep.tris_in, lg) : HLOD_ERR_NOMEM;
     hlod_store_writer_desc wd = {0};
     if (r == HLOD_OK)
-        writer_desc(d, &bs, lg, &wd);
+        writer_desc(d, &in, lg, &wd);
     if (r == HLOD_OK && sharded) {
         ph.tris_in = rep.tris_in;
         ph.jpeg_quality = wd.jpeg_quality;
-        r = start_shard(d, &plan, &bs, (const double (*)[3])blo, (const double (*)[3])bhi, out_path,
-                        &ph, &gid, store_path, sizeof store_path, lg);
+        r = start_shard(d, &in, out_path, &ph, store_path, sizeof store_path, lg);
     }
+    blocks *bs = &in.bs;
     if (r == HLOD_OK) {
         const char *path = sharded ? store_path : out_path;
         r = hlod_store_writer_open(path, &wd, &w);
         if (r != HLOD_OK)
             hlod_logf(lg, HLOD_LOG_ERROR, "%s: cannot create: %s", path, hlod_result_str(r));
     }
-    if (r == HLOD_OK && !(outs = calloc(bs.n ? bs.n : 1, sizeof *outs)))
+    if (r == HLOD_OK && !(outs = calloc(bs->n ? bs->n : 1, sizeof *outs)))
         r = HLOD_ERR_NOMEM;
     if (r == HLOD_OK)
-        r = build_blocks(d, &bs, outs, w, levels, lg);
-    rep.blocks = bs.n;
+        r = build_blocks(d, bs, outs, w, in.levels, lg);
+    rep.blocks = bs->n;
     top_levels T = {0};
     hlod_city_item *tops = NULL;
-    uint32_t to = sharded ? ph.cut_level : plan.levels;
-    if (r == HLOD_OK && levels)
-        r = build_levels(d, &plan, to, &bs, gid, outs, w, &T, &tops, lg);
+    uint32_t to = sharded ? ph.cut_level : in.plan.levels;
+    if (r == HLOD_OK && in.levels)
+        r = build_levels(d, &in.plan, to, bs, in.gid, outs, w, &T, &tops, lg);
     uint32_t *store_index = NULL;
     if (r == HLOD_OK) {
-        r = finish_store(w, &bs, outs, &T, sharded ? store_path : out_path, &rep,
+        r = finish_store(w, bs, outs, &T, sharded ? store_path : out_path, &rep,
                          sharded ? &store_index : NULL, lg);
         w = NULL;
     }
     if (r == HLOD_OK && sharded) {
-        ph.block_count = all_blocks;
-        r = write_part(&plan, &bs, gid, outs, &T, store_index, levels ? tops : NULL, levels,
-                       (const double (*)[3])blo, (const double (*)[3])bhi, out_path, store_path,
-                       &ph, lg);
+        r = write_part(&in.plan, bs, in.gid, outs, &T, store_index, in.levels ? tops : NULL,
+                       in.levels, (const double (*)[3])in.lo, (const double (*)[3])in.hi, out_path,
+                       store_path, &ph, lg);
         if (r == HLOD_OK)
             store_path[0] = 0;
     }
     free(store_index);
     if (tops)
-        for (size_t i = 0; i < plan.count[to]; i++)
+        for (size_t i = 0; i < in.plan.count[to]; i++)
             hlod_city_item_free(&tops[i]);
     free(tops);
     free(T.nodes);
@@ -1178,23 +1277,23 @@ hlod_result hlod_build_store(const hlod_build_desc *d, const char *const *inputs
     if (store_path[0])
         unlink(store_path);
     if (outs)
-        for (size_t b = 0; b < bs.n; b++) {
+        for (size_t b = 0; b < bs->n; b++) {
             free(outs[b].nodes);
             free(outs[b].parent);
             hlod_city_item_free(&outs[b].top);
         }
     free(outs);
-    for (size_t b = 0; b < bs.n; b++)
-        hlod_mesh_free(&bs.b[b].mesh);
-    free(bs.b);
+    for (size_t b = 0; b < bs->n; b++)
+        hlod_mesh_free(&bs->b[b].mesh);
+    free(bs->b);
     if (meshes)
         for (size_t i = 0; i < n; i++)
             hlod_mesh_free(&meshes[i]);
     free(meshes);
-    free(blo);
-    free(bhi);
-    free(gid);
-    hlod_city_plan_free(&plan);
+    free(in.lo);
+    free(in.hi);
+    free(in.gid);
+    hlod_city_plan_free(&in.plan);
     if (scratch[0])
         hlod_rm_tree(scratch);
     if (report && r == HLOD_OK)

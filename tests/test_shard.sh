@@ -11,6 +11,7 @@
 #   - a 30-block city (two group levels: with N = 3 the cut is level 1 and
 #     the merge builds the root from the shards' group nodes): N = 3 and 8,
 #     byte-identical likewise;
+#   - two input files (two 6-block cities side by side), N = 3: likewise;
 #   - refused, exit 1, naming the part or the shard, and no store written:
 #     a missing part ("shard 2/3 is missing"), a part given twice ("given
 #     twice"), a part of another build (metis's part among cutplane's), a
@@ -91,6 +92,19 @@ for n in $NS; do
     sharded c30 cutplane $n && cmp -s "$T/c30-cutplane.hlod" "$T/c30-cutplane-$n.hlod"
     ok $? "30-block city, $n shards: merge byte-identical (cut level $(key "$T/c30-cutplane-$n.json" cut_level), $(key "$T/c30-cutplane-$n.json" groups_built) groups built by the merge)"
 done
+
+# many input files (one per tile, as real city data comes): two cities side
+# by side, each shard reading the files twice (boxes, then its own blocks)
+"$BIN/hlod-gen-city" --preset small --blocks 6 --tris-per-block 600 --texture-size 64 --seed 2 \
+    -o "$T/tile0.obj" >/dev/null 2>&1 &&
+    "$BIN/hlod-gen-city" --preset small --blocks 6 --tris-per-block 600 --texture-size 64 --seed 3 \
+        --origin 300 0 0 -o "$T/tile1.obj" >/dev/null 2>&1 &&
+    "$BIN/hlod-build" "$T/tile0.obj" "$T/tile1.obj" -o "$T/tiles.hlod" --desired-tris 450 --quiet &&
+    parallel --halt now,fail=1 "$BIN/hlod-build" "$T/tile0.obj" "$T/tile1.obj" -o "$T/tiles.{}.part" \
+        --desired-tris 450 --threads 1 --quiet --shard "{}/3" ::: 1 2 3 &&
+    "$BIN/hlod-merge" "$T"/tiles.*.part -o "$T/tiles-3.hlod" --quiet &&
+    cmp -s "$T/tiles.hlod" "$T/tiles-3.hlod"
+ok $? "two input files (two 6-block cities side by side), 3 shards: merge byte-identical"
 
 # ---- refusals ----
 P=$T/small-cutplane-3
