@@ -623,7 +623,23 @@ typedef struct read_mode {
     size_t count, cap;          /* blocks seen so far */
     const uint8_t *keep;        /* per block of the whole input, or NULL */
     uint32_t *gid;
+    size_t *file_blocks;        /* per input file: its blocks and triangles */
+    size_t *file_tris;          /* (boxes_only fills them; keep skips the
+                                   files without a kept block) */
 } read_mode;
+
+/* keep: does input file i hold no kept block?  Then it is skipped. */
+static int skip_file(read_mode *mode, size_t i, size_t *tris_in)
+{
+    if (!mode || !mode->keep)
+        return 0;
+    for (size_t b = 0; b < mode->file_blocks[i]; b++)
+        if (mode->keep[mode->count + b])
+            return 0;
+    mode->count += mode->file_blocks[i];
+    *tris_in += mode->file_tris[i];
+    return 1;
+}
 
 /* Applies mode to the blocks bs->b[first .. n) just made from one file. */
 static hlod_result filter_blocks(blocks *bs, size_t first, read_mode *mode)
@@ -669,6 +685,9 @@ static hlod_result read_blocks(const hlod_build_desc *d, const char *const *inpu
                                const char *scratch, read_mode *mode, const hlod_logger *lg)
 {
     for (size_t i = 0; i < n; i++) {
+        if (skip_file(mode, i, tris_in))
+            continue;
+        size_t tris_before = *tris_in, blocks_before = mode ? mode->count : 0;
         hlod_import_desc idesc = {lg, 0, scratch};
         hlod_result r = hlod_mesh_import(inputs[i], &idesc, &meshes[i], NULL);
         if (r != HLOD_OK) {
@@ -692,8 +711,17 @@ static hlod_result read_blocks(const hlod_build_desc *d, const char *const *inpu
                       hlod_result_str(r));
             return r;
         }
+        if (mode && mode->keep && bs->n - first != mode->file_blocks[i]) {
+            hlod_logf(lg, HLOD_LOG_ERROR, "%s: changed while it was read (%zu blocks, then %zu)",
+                      inputs[i], mode->file_blocks[i], bs->n - first);
+            return HLOD_ERR_IO;
+        }
         if ((r = filter_blocks(bs, first, mode)) != HLOD_OK)
             return r;
+        if (mode && mode->boxes_only) {
+            mode->file_blocks[i] = mode->count - blocks_before;
+            mode->file_tris[i] = *tris_in - tris_before;
+        }
         hlod_mesh *m = &meshes[i];
         free(m->positions);
         free(m->normals);
@@ -1059,17 +1087,18 @@ static hlod_result read_input(const hlod_build_desc *d, const char *const *input
         return r == HLOD_OK ? make_plan(d, in->levels, (const double (*)[3])in->lo,
                                         (const double (*)[3])in->hi, in->nb, &in->plan) : r;
     }
-    read_mode boxes = {.boxes_only = 1};
-    r = read_blocks(d, inputs, n, meshes, &in->bs, tris_in, scratch, &boxes, lg);
+    size_t *file_blocks = calloc(n, sizeof *file_blocks), *file_tris = calloc(n, sizeof *file_tris);
+    read_mode boxes = {.boxes_only = 1, .file_blocks = file_blocks, .file_tris = file_tris};
+    r = file_blocks && file_tris ? read_blocks(d, inputs, n, meshes, &in->bs, tris_in, scratch,
+                                               &boxes, lg) : HLOD_ERR_NOMEM;
     in->lo = boxes.lo;
     in->hi = boxes.hi;
     in->nb = boxes.count;
     for (size_t i = 0; i < n; i++)
         hlod_mesh_free(&meshes[i]);
-    if (r != HLOD_OK)
-        return r;
     in->levels = want_levels(d, in->nb);
-    r = make_plan(d, in->levels, (const double (*)[3])in->lo, (const double (*)[3])in->hi, in->nb,
+    if (r == HLOD_OK)
+        r = make_plan(d, in->levels, (const double (*)[3])in->lo, (const double (*)[3])in->hi, in->nb,
                   &in->plan);
     uint8_t *keep = NULL;
     if (r == HLOD_OK)
@@ -1077,7 +1106,8 @@ static hlod_result read_input(const hlod_build_desc *d, const char *const *input
     if (r == HLOD_OK && !(in->gid = malloc((in->nb + 1) * sizeof *in->gid)))
         r = HLOD_ERR_NOMEM;
     if (r == HLOD_OK) {
-        read_mode mine = {.keep = keep, .gid = in->gid};
+        read_mode mine = {.keep = keep, .gid = in->gid, .file_blocks = file_blocks,
+                          .file_tris = file_tris};
         size_t again = 0;
         r = read_blocks(d, inputs, n, meshes, &in->bs, &again, scratch, &mine, lg);
         if (r == HLOD_OK && (again != *tris_in || mine.count != in->nb)) {
@@ -1087,6 +1117,8 @@ static hlod_result read_input(const hlod_build_desc *d, const char *const *input
         }
     }
     free(keep);
+    free(file_blocks);
+    free(file_tris);
     return r;
 }
 
