@@ -994,9 +994,14 @@ static hlod_result block_boxes(const blocks *bs, double (**lo)[3], double (**hi)
     return HLOD_OK;
 }
 
-/* The shard's blocks: the cut level is the plan's highest with at least N
- * nodes, shard I owns its nodes [(I-1) m / N, I m / N) and their subtrees
- * (part.h).  Sets h's shard fields and keep[b] for each block b of the
+/* Cut-level nodes per shard at least: shards then differ by at most about
+ * a quarter of their nodes (with m = N + 1, one would build twice another's
+ * share), and the merge builds only the few levels above. */
+#define CUT_NODES_PER_SHARD 4
+
+/* The shard's blocks: the cut level is the plan's highest with at least
+ * CUT_NODES_PER_SHARD x N nodes (else the blocks), shard I owns its nodes
+ * [(I-1) m / N, I m / N) and their subtrees (part.h).  Sets h's shard fields and keep[b] for each block b of the
  * whole input the shard owns. */
 static hlod_result shard_keep(const hlod_build_desc *d, const hlod_city_plan *p,
                               hlod_part_header *h, uint8_t **keep_out, const hlod_logger *lg)
@@ -1010,7 +1015,7 @@ static hlod_result shard_keep(const hlod_build_desc *d, const hlod_city_plan *p,
     }
     uint32_t L = 0;
     for (uint32_t l = 1; l <= p->levels; l++)
-        if (p->count[l] >= N)
+        if (p->count[l] >= (uint64_t)CUT_NODES_PER_SHARD * N)
             L = l;
     uint64_t m = p->count[L];
     h->shard_index = I;

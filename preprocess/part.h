@@ -17,9 +17,9 @@
  *                    quantized and JPEG-coded, the single build groups
  *                    from the originals)
  *
- * The cut level is the highest level of the plan with at least N nodes;
- * shard I owns its nodes [floor((I-1) m / N), floor(I m / N)) of m, each
- * with its whole subtree.  Payloads are copied into the merged store as
+ * The cut level is the highest level of the plan with at least 4 N nodes
+ * (else the blocks' level); shard I owns its nodes [floor((I-1) m / N),
+ * floor(I m / N)) of m, each with its whole subtree.  Payloads are copied into the merged store as
  * they are, so the merge writes the single build's bytes.
  */
 #ifndef HLOD_PART_H

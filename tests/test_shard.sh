@@ -8,9 +8,11 @@
 #     now,fail=1), hlod-merge (parts given in reverse order) writes a store
 #     byte-identical (cmp) to hlod-build without --shard; hlod-info --verify
 #     passes on it;
-#   - a 30-block city (two group levels: with N = 3 the cut is level 1 and
-#     the merge builds the root from the shards' group nodes): N = 3 and 8,
-#     byte-identical likewise;
+#   - a 30-block city (two group levels: with N = 1 the cut is level 1,
+#     its 4 groups, and the merge builds the root from the shard's group
+#     nodes): N = 1, 3 and 8, byte-identical likewise;
+#   - --city-levels off (every block a root), N = 3: likewise, the merge
+#     building no group;
 #   - two input files (two 6-block cities side by side), N = 3: likewise;
 #   - refused, exit 1, naming the part or the shard, and no store written:
 #     a missing part ("shard 2/3 is missing"), a part given twice ("given
@@ -24,7 +26,7 @@
 #     wrongly; then that shard rerun alone and merged again: byte-identical;
 #   - bad --shard values (0/3, 4/3, 3, 1/0, x/2): exit 2.
 # HLOD_SHARD_QUICK=1 (the sanitizer build): the small city with cutplane
-# and N = 3 and the 30-block city with N = 3 only (cut levels 0 and 1), then
+# and N = 3 and the 30-block city with N = 1 only (cut levels 0 and 1), then
 # every refusal and the killed shard (which use metis's and N = 8's parts:
 # those are built, not merged).
 # Env: HLOD_BIN_DIR (the tools), HLOD_SOURCE_DIR.
@@ -86,12 +88,20 @@ done
 
 single c30 cutplane
 ok $? "single build, 30-block city"
-NS="3 8"
-[ "$QUICK" = 1 ] && NS=3
+NS="1 3 8"
+[ "$QUICK" = 1 ] && NS=1
 for n in $NS; do
     sharded c30 cutplane $n && cmp -s "$T/c30-cutplane.hlod" "$T/c30-cutplane-$n.hlod"
     ok $? "30-block city, $n shards: merge byte-identical (cut level $(key "$T/c30-cutplane-$n.json" cut_level), $(key "$T/c30-cutplane-$n.json" groups_built) groups built by the merge)"
 done
+
+# no city levels: every block a root, nothing for the merge to build
+"$BIN/hlod-build" "$T/small.obj" -o "$T/flat.hlod" --desired-tris 450 --city-levels off --quiet &&
+    parallel --halt now,fail=1 "$BIN/hlod-build" "$T/small.obj" -o "$T/flat.{}.part" --desired-tris 450 \
+        --city-levels off --threads 1 --quiet --shard "{}/3" ::: 1 2 3 &&
+    "$BIN/hlod-merge" "$T"/flat.*.part -o "$T/flat-3.hlod" --quiet --json >"$T/flat.json" &&
+    cmp -s "$T/flat.hlod" "$T/flat-3.hlod" && [ "$(key "$T/flat.json" groups_built)" = 0 ]
+ok $? "--city-levels off, 3 shards: merge byte-identical, $(key "$T/flat.json" groups_built) groups built"
 
 # many input files (one per tile, as real city data comes): two cities side
 # by side, each shard reading the files twice (boxes, then its own blocks)
