@@ -816,6 +816,20 @@ typedef struct top_levels {
     uint32_t levels;
 } top_levels;
 
+hlod_result hlod_build_add_group(hlod_store_writer *w, const hlod_city_item *g,
+                                 hlod_store_node *node)
+{
+    hlod_result r = hlod_build_add_payload(w, &g->mesh, &g->tex, g->tex_tris, g->colors, g->color,
+                                           node);
+    if (r != HLOD_OK)
+        return r;
+    node->error = g->error;
+    node->render_flags = g->solid ? HLOD_RENDER_SOLID : 0;
+    node->block = HLOD_STORE_NO_BLOCK;
+    node->parent = HLOD_STORE_NO_PARENT;
+    return HLOD_OK;
+}
+
 /* called from the thread that runs hlod_city_levels */
 static hlod_result emit_group(void *user, uint32_t level, uint32_t index, hlod_city_item *g,
                               const hlod_city_item *const *kids, size_t n)
@@ -823,14 +837,9 @@ static hlod_result emit_group(void *user, uint32_t level, uint32_t index, hlod_c
     top_levels *T = user;
     if (T->n == T->cap)
         return HLOD_ERR_INVALID_ARG; /* more groups than the plan has: cannot be */
-    hlod_store_node *node = &T->nodes[T->n];
-    hlod_result r = hlod_build_add_payload(T->w, &g->mesh, &g->tex, g->tex_tris, g->colors,
-                                           g->color, node);
+    hlod_result r = hlod_build_add_group(T->w, g, &T->nodes[T->n]);
     if (r != HLOD_OK)
         return r;
-    node->error = g->error;
-    node->render_flags = g->solid ? HLOD_RENDER_SOLID : 0;
-    node->block = HLOD_STORE_NO_BLOCK;
     T->level[T->n] = level;
     T->index[T->n] = index;
     g->node = (uint32_t)(T->base + T->n);

@@ -702,6 +702,14 @@ uint64_t hlod_city_plan_hash(const hlod_city_plan *p)
     return h;
 }
 
+/* Frees items[0..n) and the array (NULL is fine). */
+static void free_items(hlod_city_item *items, size_t n)
+{
+    for (size_t i = 0; items && i < n; i++)
+        hlod_city_item_free(&items[i]);
+    free(items);
+}
+
 hlod_result hlod_city_levels(const hlod_city_plan *p, uint32_t from, hlod_city_item *const *items,
                              uint32_t to, const hlod_city_levels_desc *d, hlod_city_item **tops)
 {
@@ -770,18 +778,13 @@ hlod_result hlod_city_levels(const hlod_city_plan *p, uint32_t from, hlod_city_i
         free(ordered);
         free(ends);
         free(which);
-        if (made) /* the level before: no longer needed */
-            for (size_t i = 0; i < nkids; i++)
-                hlod_city_item_free(&made[i]);
-        free(made);
+        free_items(made, nkids); /* the level before: no longer needed */
         free(made_ptr);
         made = out;
         made_ptr = out_ptr;
         cur = out_ptr;
-        if (r != HLOD_OK && made) {
-            for (size_t i = 0; i < groups; i++)
-                hlod_city_item_free(&made[i]);
-            free(made);
+        if (r != HLOD_OK) {
+            free_items(made, groups);
             free(made_ptr);
             made = NULL;
             made_ptr = NULL;
@@ -791,10 +794,7 @@ hlod_result hlod_city_levels(const hlod_city_plan *p, uint32_t from, hlod_city_i
         *tops = made;
         made = NULL;
     }
-    if (made)
-        for (size_t i = 0; i < p->count[to]; i++)
-            hlod_city_item_free(&made[i]);
-    free(made);
+    free_items(made, p->count[to]);
     free(made_ptr);
     return r;
 }

@@ -434,15 +434,9 @@ static hlod_result emit_merged(void *user, uint32_t level, uint32_t index, hlod_
     merge *M = user;
     if (M->n == M->cap)
         return HLOD_ERR_INVALID_ARG;
-    hlod_store_node *node = &M->all[M->n];
-    hlod_result r = hlod_build_add_payload(M->w, &g->mesh, &g->tex, g->tex_tris, g->colors,
-                                           g->color, node);
+    hlod_result r = hlod_build_add_group(M->w, g, &M->all[M->n]);
     if (r != HLOD_OK)
         return r;
-    node->error = g->error;
-    node->render_flags = g->solid ? HLOD_RENDER_SOLID : 0;
-    node->block = HLOD_STORE_NO_BLOCK;
-    node->parent = HLOD_STORE_NO_PARENT;
     g->node = (uint32_t)M->n;
     for (size_t k = 0; k < n; k++)
         M->up[kids[k]->node] = g->node;
