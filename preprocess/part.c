@@ -130,7 +130,8 @@ static hlod_result take_item(cursor *c, hlod_city_item *it)
     /* every array must fit in what is left */
     size_t left = c->n - c->at;
     if (c->bad || nv == 0 || nt == 0 || nv > left / 24 || nt > left / 12 || tex_tris > nt ||
-        w[2] > 65536 || w[3] > 65536 || w[4] > 4 || (w[2] && !w[4]) || !isfinite(it->error))
+        w[2] > 65536 || w[3] > 65536 || w[4] > 4 || !w[2] != !w[3] || !w[2] != !w[4] ||
+        (uint64_t)w[2] * w[3] * w[4] > left || !isfinite(it->error) || it->error < 0)
         return HLOD_ERR_FORMAT;
     unsigned mf = (w[0] & ITEM_NORMALS ? HLOD_MESH_NORMALS : 0) | (w[0] & ITEM_UVS ? HLOD_MESH_UVS : 0);
     if (hlod_mesh_alloc(&it->mesh, nv, nt, mf) != HLOD_OK)
@@ -164,7 +165,9 @@ static hlod_result take_item(cursor *c, hlod_city_item *it)
     for (size_t i = 0; !c->bad && i < 3 * nt; i++)
         c->bad = m->indices[i] >= nv;
     for (size_t i = 0; !c->bad && i < 3 * nv; i++)
-        c->bad = !isfinite(m->positions[i]);
+        c->bad = !isfinite(m->positions[i]) || (m->normals && !isfinite(m->normals[i]));
+    for (size_t i = 0; !c->bad && m->uvs && i < 2 * nv; i++)
+        c->bad = !isfinite(m->uvs[i]);
     if (c->bad) {
         hlod_city_item_free(it);
         return HLOD_ERR_FORMAT;
@@ -336,8 +339,19 @@ static hlod_result part_open(part *p, const char *path, const hlod_logger *lg)
                   path, (unsigned long long)st.st_size, (unsigned long long)h->file_size);
         return HLOD_ERR_FORMAT;
     }
-    if (!h->shard_count || !h->shard_index || h->shard_index > h->shard_count ||
+    uint8_t pad[HLOD_PART_STORE_OFFSET - sizeof *h];
+    int nonzero = read_all(p->fd, pad, sizeof pad, sizeof *h) != 0;
+    for (size_t i = 0; i < sizeof pad && !nonzero; i++)
+        nonzero = pad[i] != 0;
+    if (nonzero) {
+        hlod_logf(lg, HLOD_LOG_ERROR, "%s: part header padding is not zero (damaged)", path);
+        return HLOD_ERR_FORMAT;
+    }
+    if (!h->shard_count || h->shard_count > 65536 || !h->shard_index ||
+        h->shard_index > h->shard_count || h->file_size < HLOD_PART_STORE_OFFSET ||
         h->store_offset != HLOD_PART_STORE_OFFSET || h->store_size < sizeof p->sh ||
+        h->store_size > h->file_size - HLOD_PART_STORE_OFFSET ||
+        h->section_size > h->file_size || h->levels > 64 ||
         h->section_offset != h->store_offset + h->store_size ||
         h->section_offset + h->section_size != h->file_size || h->cut_level > h->levels ||
         h->cut_first > h->cut_end || !h->block_count || h->block_count > UINT32_MAX ||
@@ -347,16 +361,14 @@ static hlod_result part_open(part *p, const char *path, const hlod_logger *lg)
     }
     /* the store inside */
     hlod_store_header *sh = &p->sh;
-    if (read_all(p->fd, sh, sizeof *sh, h->store_offset) ||
-        memcmp(sh->magic, HLOD_STORE_MAGIC, 8) || sh->header_size != sizeof *sh ||
-        hlod_store_hash(sh, HLOD_STORE_HEADER_HASHED) != sh->header_hash) {
-        hlod_logf(lg, HLOD_LOG_ERROR, "%s: the shard's store header is damaged", path);
-        return HLOD_ERR_CHECKSUM;
+    if (read_all(p->fd, sh, sizeof *sh, h->store_offset)) {
+        hlod_logf(lg, HLOD_LOG_ERROR, "%s: cannot read the shard's store header", path);
+        return HLOD_ERR_IO;
     }
-    if (sh->file_size != h->store_size || sh->node_count != h->key_count ||
-        sh->node_table_offset > sh->file_size ||
-        sh->node_table_size != ((uint64_t)sh->node_count + 1) * sizeof(hlod_store_node) ||
-        sh->node_table_size > sh->file_size - sh->node_table_offset) {
+    hlod_result r = hlod_store_check_header(sh, h->store_size, path, lg);
+    if (r != HLOD_OK)
+        return r;
+    if (sh->node_count != h->key_count) {
         hlod_logf(lg, HLOD_LOG_ERROR, "%s: the shard's store is inconsistent with the part header",
                   path);
         return HLOD_ERR_FORMAT;
@@ -369,7 +381,7 @@ static hlod_result part_open(part *p, const char *path, const hlod_logger *lg)
         hlod_logf(lg, HLOD_LOG_ERROR, "%s: the shard's node table checksum mismatch (damaged)", path);
         return HLOD_ERR_CHECKSUM;
     }
-    hlod_result r = hlod_store_validate(sh, p->nodes, sh->file_size, path, lg);
+    r = hlod_store_validate(sh, p->nodes, sh->file_size, path, lg);
     if (r != HLOD_OK)
         return r;
     /* the section */
@@ -385,7 +397,16 @@ static hlod_result part_open(part *p, const char *path, const hlod_logger *lg)
     p->lo = (double (*)[3])take(&c, h->block_count * sizeof *p->lo);
     p->hi = (double (*)[3])take(&c, h->block_count * sizeof *p->hi);
     p->keys = (hlod_part_key *)take(&c, (size_t)h->key_count * sizeof *p->keys);
+    for (uint64_t b = 0; !c.bad && b < h->block_count; b++)
+        for (int k = 0; k < 3; k++)
+            if (!(isfinite(p->lo[b][k]) && isfinite(p->hi[b][k]) && p->lo[b][k] <= p->hi[b][k]))
+                c.bad = 1;
+    /* an item takes 68 bytes before its arrays */
     size_t ntops = h->levels ? (size_t)(h->cut_end - h->cut_first) : 0;
+    if (c.bad || ntops > (c.n - c.at) / 68) {
+        hlod_logf(lg, HLOD_LOG_ERROR, "%s: part section inconsistent", path);
+        return HLOD_ERR_FORMAT;
+    }
     p->tops = calloc(ntops ? ntops : 1, sizeof *p->tops);
     if (!p->tops)
         return HLOD_ERR_NOMEM;
@@ -397,15 +418,28 @@ static hlod_result part_open(part *p, const char *path, const hlod_logger *lg)
         hlod_logf(lg, HLOD_LOG_ERROR, "%s: part section inconsistent", path);
         return HLOD_ERR_FORMAT;
     }
-    for (uint32_t j = 0; j < h->key_count; j++)
-        if (p->keys[j].store >= h->key_count || p->keys[j].level > h->cut_level ||
+    uint8_t *seen = calloc(h->key_count, 1);
+    if (!seen)
+        return HLOD_ERR_NOMEM;
+    for (uint32_t j = 0; j < h->key_count; j++) {
+        int twice = p->keys[j].store < h->key_count && seen[p->keys[j].store]++;
+        if (twice || p->keys[j].store >= h->key_count || p->keys[j].level > h->cut_level ||
+            (p->keys[j].level == h->cut_level && p->keys[j].k == 0 &&
+             (p->keys[j].id < h->cut_first || p->keys[j].id >= h->cut_end)) ||
             (p->keys[j].level == 0 && p->keys[j].id >= h->block_count) ||
             !(p->keys[j].error >= 0 && p->keys[j].error <= p->nodes[p->keys[j].store].error)) {
             hlod_logf(lg, HLOD_LOG_ERROR, "%s: part key %u inconsistent", path, j);
+            free(seen);
             return HLOD_ERR_FORMAT;
         }
+    }
+    free(seen);
     p->global = malloc((size_t)h->key_count * sizeof *p->global);
-    return p->global ? HLOD_OK : HLOD_ERR_NOMEM;
+    if (!p->global)
+        return HLOD_ERR_NOMEM;
+    for (uint32_t j = 0; j < h->key_count; j++)
+        p->global[j] = UINT32_MAX;
+    return HLOD_OK;
 }
 
 /* ---- the merge -------------------------------------------------------------- */
@@ -460,11 +494,6 @@ static hlod_result copy_node(merge *M, part *p, uint32_t j, uint8_t **scratch, s
     if (read_all(p->fd, *scratch, (size_t)src->payload_size, p->h.store_offset + src->payload_offset)) {
         hlod_logf(lg, HLOD_LOG_ERROR, "%s: cannot read a payload: %s", p->path, strerror(errno));
         return HLOD_ERR_IO;
-    }
-    if (hlod_store_hash(*scratch, (size_t)src->payload_size) != src->payload_hash) {
-        hlod_logf(lg, HLOD_LOG_ERROR, "%s: store node %u: payload checksum mismatch (damaged)",
-                  p->path, p->keys[j].store);
-        return HLOD_ERR_CHECKSUM;
     }
     if (hlod_store_hash(*scratch, (size_t)src->payload_size) != src->payload_hash) {
         hlod_logf(lg, HLOD_LOG_ERROR, "%s: store node %u: payload checksum mismatch (damaged)",
@@ -687,8 +716,14 @@ static hlod_result copy_parts(merge *M, const ref *refs, size_t total, uint32_t 
     for (size_t a = 0; a < total && r == HLOD_OK; a++) {
         part *p = &M->parts[refs[a].part];
         hlod_store_node *node = &M->all[p->global[p->keys[refs[a].key].store]];
-        if (node->parent != HLOD_STORE_NO_PARENT)
-            node->parent = p->global[node->parent];
+        if (node->parent == HLOD_STORE_NO_PARENT)
+            continue;
+        /* the part store's parent (validated: < its node count) */
+        node->parent = p->global[node->parent];
+        if (node->parent == UINT32_MAX) {
+            hlod_logf(lg, HLOD_LOG_ERROR, "%s: a node's parent has no key", p->path);
+            r = HLOD_ERR_FORMAT;
+        }
     }
     return r;
 }

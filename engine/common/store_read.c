@@ -373,8 +373,8 @@ static int pread_all(int fd, void *buf, size_t n, uint64_t off)
     return 0;
 }
 
-static hlod_result check_header(const hlod_store_header *h, uint64_t file_size, const char *name,
-                                const hlod_logger *lg)
+hlod_result hlod_store_check_header(const hlod_store_header *h, uint64_t file_size,
+                                   const char *name, const hlod_logger *lg)
 {
     if (memcmp(h->magic, HLOD_STORE_MAGIC, 8) != 0)
         BAD(HLOD_ERR_FORMAT, "%s: not an hlod store (bad magic)", name);
@@ -510,7 +510,7 @@ hlod_result hlod_store_open(const char *path, const hlod_logger *lg_in, hlod_sto
     r = source_open(s, &file_size);
     if (r != HLOD_OK)
         goto fail;
-    r = check_header(&s->header, file_size, path, lg);
+    r = hlod_store_check_header(&s->header, file_size, path, lg);
     if (r != HLOD_OK)
         goto fail;
 

@@ -308,6 +308,16 @@ double hlod_store_cost(uint32_t tex_tris, uint32_t untex_tris, double c_tex);
 hlod_result hlod_store_validate(const hlod_store_header *h, const hlod_store_node *nodes,
                                 uint64_t file_size, const char *name, const hlod_logger *lg);
 
+/* Checks a header as the reader does at open, before the node table:
+ * magic, byte order, version, record sizes, checksum, file_size equal to
+ * file_size, reserved fields, codec and position grid, the node table
+ * inside the file, finite numbers.  The first problem is logged through
+ * lg prefixed with `name`.  HLOD_OK, HLOD_ERR_FORMAT, HLOD_ERR_VERSION,
+ * HLOD_ERR_UNSUPPORTED, HLOD_ERR_CHECKSUM or HLOD_ERR_NAN.  (hlod-merge
+ * checks the stores inside part files with it.) */
+hlod_result hlod_store_check_header(const hlod_store_header *h, uint64_t file_size,
+                                   const char *name, const hlod_logger *lg);
+
 /* ---- reader ---- */
 
 typedef struct hlod_store hlod_store;
