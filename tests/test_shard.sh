@@ -14,6 +14,8 @@
 #   - --city-levels off (every block a root), N = 3: likewise, the merge
 #     building no group;
 #   - two input files (two 6-block cities side by side), N = 3: likewise;
+#   - a model not generated here (data/meshes/2CylinderEngine.glb, 67
+#     blocks), N = 3: likewise;
 #   - refused, exit 1, naming the part or the shard, and no store written:
 #     a missing part ("shard 2/3 is missing"), a part given twice ("given
 #     twice"), a part of another build (metis's part among cutplane's), a
@@ -116,6 +118,16 @@ ok $? "--city-levels off, 3 shards: merge byte-identical, $(key "$T/flat.json" g
     "$BIN/hlod-merge" "$T"/tiles.*.part -o "$T/tiles-3.hlod" --quiet &&
     cmp -s "$T/tiles.hlod" "$T/tiles-3.hlod"
 ok $? "two input files (two 6-block cities side by side), 3 shards: merge byte-identical"
+
+# a model nobody here made: Khronos' 2CylinderEngine (glTF, 67 blocks of
+# real multi-part geometry; data/fetch-meshes.sh fetches it)
+ENG=${HLOD_SOURCE_DIR:-.}/data/meshes/2CylinderEngine.glb
+"$BIN/hlod-build" "$ENG" -o "$T/engine.hlod" --desired-tris 450 --quiet &&
+    parallel --halt now,fail=1 "$BIN/hlod-build" "$ENG" -o "$T/engine.{}.part" --desired-tris 450 \
+        --threads 1 --quiet --shard "{}/3" ::: 1 2 3 &&
+    "$BIN/hlod-merge" "$T"/engine.*.part -o "$T/engine-3.hlod" --quiet &&
+    cmp -s "$T/engine.hlod" "$T/engine-3.hlod"
+ok $? "2CylinderEngine.glb (67 blocks, not generated here), 3 shards: merge byte-identical"
 
 # ---- refusals ----
 P=$T/small-cutplane-3
