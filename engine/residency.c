@@ -11,8 +11,9 @@
  *             in that order while c_memory * sum(cost) and the real bytes
  *             (resident + reserved for reads in flight) stay under
  *             maxMemory, evicting resident nodes of lower priority to make
- *             room: never a top node (group or hlod_0), never one drawn this frame.  The
- *             admitted list goes to the loader.
+ *             room: never a pinned node (the top of the tree, or its
+ *             first levels: pinned_count), never one drawn this frame.
+ *             The admitted list goes to the loader.
  *
  * Admission reserves a node's bytes before it is read, so the budget holds
  * at every instant, reads in flight included.  A scene that fits the budget
@@ -23,7 +24,7 @@
  * (logged once by the loader, never retried; its parent keeps being drawn).
  * A transient error (HLOD_ERR_IO) is retried after a backoff that doubles
  * with each failure (16, 32, 64 frames), and the node turns bad after 4.
- * Top nodes too: one that cannot be read at start does not stop the engine
+ * Pinned nodes too: one that cannot be read at start does not stop the engine
  * (load_top); a missing one is asked for every frame once its backoff has
  * passed, admitted whatever the budget, and meanwhile, or for good when it
  * is bad, the traversal draws its children in its place (traverse.c).
@@ -98,8 +99,8 @@ static hlod_result make_resident(hlod_residency *rs, uint32_t node, hlod_store_p
     nr->state = HLOD_NODE_RESIDENT;
     nr->slot = (uint32_t)(rs->resident.n - 1);
     nr->failures = 0;
-    if (node < rs->top_count)
-        rs->top_missing--; /* top nodes are never evicted */
+    if (node < rs->pinned_count)
+        rs->top_missing--; /* pinned nodes are never evicted */
     rs->resident_bytes += hlod_store_node_memory(&rs->nodes[node]);
     rs->resident_cost += rs->nodes[node].cost;
     return HLOD_OK;
@@ -108,7 +109,7 @@ static hlod_result make_resident(hlod_residency *rs, uint32_t node, hlod_store_p
 static void evict(hlod_residency *rs, uint32_t node)
 {
     hlod_node_res *nr = &rs->res[node];
-    assert(nr->state == HLOD_NODE_RESIDENT && node >= rs->top_count);
+    assert(nr->state == HLOD_NODE_RESIDENT && node >= rs->pinned_count);
     if (rs->d->renderer)
         hlod_gpu_release(rs->d->renderer, &nr->gpu);
     uint32_t last = rs->resident.v[rs->resident.n - 1];
@@ -167,7 +168,7 @@ hlod_result hlod_residency_load_now(hlod_residency *rs, uint32_t node)
     return res;
 }
 
-/* A top node (group or hlod_0) that cannot be read at start does not stop
+/* A pinned node that cannot be read at start does not stop
  * the engine: a permanent failure (checksum, format) marks it bad, a
  * transient one (I/O) leaves it absent, retried through the loader after
  * the usual backoff (hlod_residency_schedule asks for it).  Either way the
@@ -182,7 +183,7 @@ static void top_failed(hlod_residency *rs, uint32_t node, hlod_result why)
         nr->state = HLOD_NODE_ABSENT;
         nr->retry_frame = 8u << nr->failures;
         hlod_logf(&rs->d->logger, HLOD_LOG_WARN,
-                  "%s: top node %u (a group or hlod_0) cannot be loaded yet (%s); retried later, "
+                  "%s: pinned node %u cannot be loaded yet (%s); retried later, "
                   "its readable children are drawn in its place",
                   hlod_store_path(rs->store), node, hlod_result_str(why));
         return;
@@ -191,11 +192,11 @@ static void top_failed(hlod_residency *rs, uint32_t node, hlod_result why)
     rs->bad_total++;
     rs->top_missing--;
     hlod_logf(&rs->d->logger, HLOD_LOG_ERROR,
-              "%s: top node %u (a group or hlod_0) is unreadable (%s); its readable children are "
+              "%s: pinned node %u is unreadable (%s); its readable children are "
               "drawn in its place", hlod_store_path(rs->store), node, hlod_result_str(why));
 }
 
-/* The top nodes [first, first + n) of a store read over HTTP, read with
+/* The pinned nodes [first, first + n) of a store read over HTTP, read with
  * parallel requests (hlod_store_read_nodes), made resident. */
 #define TOP_BATCH 32u
 static hlod_result load_top_batch(hlod_residency *rs, uint32_t first, uint32_t n)
@@ -221,13 +222,13 @@ static hlod_result load_top_batch(hlod_residency *rs, uint32_t first, uint32_t n
 
 static hlod_result load_top(hlod_residency *rs)
 {
-    for (uint32_t i = 0; hlod_store_is_remote(rs->store) && i < rs->top_count; i += TOP_BATCH) {
-        uint32_t n = rs->top_count - i < TOP_BATCH ? rs->top_count - i : TOP_BATCH;
+    for (uint32_t i = 0; hlod_store_is_remote(rs->store) && i < rs->pinned_count; i += TOP_BATCH) {
+        uint32_t n = rs->pinned_count - i < TOP_BATCH ? rs->pinned_count - i : TOP_BATCH;
         hlod_result r = load_top_batch(rs, i, n);
         if (r != HLOD_OK)
             return r;
     }
-    for (uint32_t i = 0; !hlod_store_is_remote(rs->store) && i < rs->top_count; i++) {
+    for (uint32_t i = 0; !hlod_store_is_remote(rs->store) && i < rs->pinned_count; i++) {
         hlod_result r = hlod_residency_load_now(rs, i);
         if (r == HLOD_ERR_NOMEM)
             return r;
@@ -236,7 +237,7 @@ static hlod_result load_top(hlod_residency *rs)
     }
     if (rs->resident_bytes > rs->d->memory_budget_bytes)
         hlod_logf(&rs->d->logger, HLOD_LOG_WARN,
-                  "%s: the top nodes (groups and hlod_0) alone take %llu bytes, over the %llu-byte budget",
+                  "%s: the roots alone take %llu bytes, over the %llu-byte budget",
                   hlod_store_path(rs->store), (unsigned long long)rs->resident_bytes,
                   (unsigned long long)rs->d->memory_budget_bytes);
     return HLOD_OK;
@@ -255,9 +256,9 @@ static void load_failed(hlod_residency *rs, uint32_t node, hlod_result why)
     }
     nr->state = HLOD_NODE_BAD;
     rs->bad_total++;
-    if (node < rs->top_count) {
+    if (node < rs->pinned_count) {
         rs->top_missing--;
-        hlod_logf(&rs->d->logger, HLOD_LOG_WARN, "%s: top node %u (a group or hlod_0) is "
+        hlod_logf(&rs->d->logger, HLOD_LOG_WARN, "%s: pinned node %u is "
                   "unreadable (%s); its readable children are drawn in its place",
                   hlod_store_path(rs->store), node, hlod_result_str(why));
         return;
@@ -385,7 +386,7 @@ static int cmp_request(const void *a, const void *b)
 }
 
 /* Resident nodes that may be evicted, least valuable first (the order's
- * keys); top nodes (groups, hlod_0) never. */
+ * keys); pinned nodes never. */
 static victim *victims(hlod_residency *rs, const hlod_evict_order *order, size_t *count)
 {
     victim *v = hlod_mem_alloc(&rs->d->allocator, (rs->resident.n + 1) * sizeof *v);
@@ -394,7 +395,7 @@ static victim *victims(hlod_residency *rs, const hlod_evict_order *order, size_t
         return NULL;
     for (size_t k = 0; k < rs->resident.n; k++) {
         uint32_t i = rs->resident.v[k];
-        if (i < rs->top_count || !order->key(order->user, i, &v[n].key))
+        if (i < rs->pinned_count || !order->key(order->user, i, &v[n].key))
             continue;
         v[n].node = i;
         n++;
@@ -441,7 +442,7 @@ void hlod_residency_schedule(hlod_residency *rs, const hlod_evict_order *order)
         if (nr->state != HLOD_NODE_ABSENT)
             continue;
         const hlod_store_node *n = &rs->nodes[node];
-        const int top = node < rs->top_count; /* admitted whatever the budget, as at start */
+        const int top = node < rs->pinned_count; /* admitted whatever the budget, as at start */
         while (!top) {
             uint64_t used = rs->resident_bytes + rs->reserved_bytes;
             double used_c = mem_cost(rs, rs->resident_cost + rs->reserved_cost);
@@ -509,6 +510,30 @@ void hlod_residency_schedule(hlod_residency *rs, const hlod_evict_order *order)
 
 /* ---- life and frame ---- */
 
+/* The nodes kept resident: the top of the tree (groups and the blocks'
+ * hlod_0 nodes), or, when those take more than PINNED_SHARE of the budget
+ * (a large city: 2,816 blocks' hlod_0 nodes take 1.4 GB), its first levels
+ * only: the depths [0, d] for the deepest d whose nodes fit that share,
+ * the roots at least.  Nodes are stored breadth-first, so that is a prefix
+ * [0, n).  Below it every node is loaded, drawn and evicted by priority:
+ * an hlod_0 node not read yet leaves its group drawn. */
+#define PINNED_SHARE 0.5
+static uint32_t pinned_count(const hlod_store *s, uint64_t budget)
+{
+    const hlod_store_node *nodes = hlod_store_nodes(s);
+    const uint32_t top = hlod_store_top_count(s), roots = nodes[0].first_child;
+    uint64_t bytes = 0;
+    uint32_t pinned = roots;
+    for (uint32_t i = 0; i < top; i++) {
+        bytes += hlod_store_node_memory(&nodes[i]);
+        if (bytes > PINNED_SHARE * (double)budget)
+            break;
+        if (i + 1 == top || nodes[i + 1].depth != nodes[i].depth)
+            pinned = i + 1; /* depth nodes[i].depth fits whole */
+    }
+    return pinned > roots ? pinned : roots;
+}
+
 hlod_result hlod_residency_init(hlod_residency *rs, const hlod_store *store,
                                 const hlod_engine_desc *d, hlod_frame_stats *st)
 {
@@ -517,13 +542,14 @@ hlod_result hlod_residency_init(hlod_residency *rs, const hlod_store *store,
     rs->nodes = hlod_store_nodes(store);
     rs->node_count = hlod_store_node_count(store);
     rs->top_count = hlod_store_top_count(store);
+    rs->pinned_count = pinned_count(store, d->memory_budget_bytes);
     rs->d = d;
     rs->st = st;
     rs->res = hlod_mem_alloc(&d->allocator, (size_t)rs->node_count * sizeof *rs->res);
     if (!rs->res)
         return HLOD_ERR_NOMEM;
     memset(rs->res, 0, (size_t)rs->node_count * sizeof *rs->res);
-    rs->top_missing = rs->top_count;
+    rs->top_missing = rs->pinned_count;
     hlod_result r = load_top(rs);
     if (r == HLOD_OK) {
         hlod_loader_desc ld = {0};
@@ -575,7 +601,7 @@ void hlod_residency_begin_frame(hlod_residency *rs, uint32_t frame)
     /* Top nodes that could not be read yet (a transient failure) are asked
      * for first, visible or not, once their backoff has passed; while
      * missing, the traversal draws their children in their place. */
-    for (uint32_t i = 0; rs->top_missing && i < rs->top_count; i++)
+    for (uint32_t i = 0; rs->top_missing && i < rs->pinned_count; i++)
         if (rs->res[i].state == HLOD_NODE_ABSENT || rs->res[i].state == HLOD_NODE_QUEUED)
             (void)hlod_residency_want(rs, i, TOP_PRIORITY);
 }

@@ -33,8 +33,11 @@ typedef struct hlod_node_res {
 typedef struct hlod_residency {
     const hlod_store *store;
     const hlod_store_node *nodes;
-    uint32_t node_count, top_count; /* [0, top_count) stay resident: groups and
-                                       the blocks' hlod_0 nodes */
+    uint32_t node_count;
+    uint32_t top_count;         /* groups and the blocks' hlod_0 nodes */
+    uint32_t pinned_count;      /* [0, pinned_count) stay resident: the top of
+                                   the tree, or its first levels when the top
+                                   takes over half the budget (residency.c) */
     const hlod_engine_desc *d;  /* the engine's settings, read only */
     hlod_frame_stats *st;       /* the engine's stats of the current frame */
     uint32_t frame;             /* current frame stamp (1-based; 0 = before any) */
@@ -52,9 +55,9 @@ typedef struct hlod_residency {
     uint64_t cache_hits_prev;   /* the loader's cache hits then */
     uint64_t finish_ns_prev, busy_ns_prev;  /* the loader's CPU-time counters then */
     uint32_t bad_total;
-    uint32_t top_missing;       /* top nodes neither resident nor bad (a transient
+    uint32_t top_missing;       /* pinned nodes neither resident nor bad (a transient
                                    failure, being retried) */
-    uint32_t start_failures;    /* failed reads of top nodes at start, not yet in a
+    uint32_t start_failures;    /* failed reads of pinned nodes at start, not yet in a
                                    frame's stats */
     double upload_ms_per_byte;  /* measured cost of an upload (0: none measured yet) */
     uint32_t upload_starved;    /* frames in a row that deferred every upload */
@@ -68,8 +71,9 @@ typedef struct hlod_evict_order {
     void *user;
 } hlod_evict_order;
 
-/* Reads and uploads every top node (groups and hlod_0 nodes), then starts the loader (threaded
- * unless deterministic).  A top node that cannot be read does not fail it:
+/* Reads and uploads the pinned nodes (residency.c: the groups and hlod_0
+ * nodes, or the first levels of a large city), then starts the loader (threaded
+ * unless deterministic).  A pinned node that cannot be read does not fail it:
  * it turns bad (checksum, format) or stays absent and is retried (I/O), and
  * the traversal draws its children in its place.  d and st must outlive r.
  * On failure (memory, the loader) everything is released. */
@@ -79,7 +83,7 @@ hlod_result hlod_residency_init(hlod_residency *r, const hlod_store *store,
 void hlod_residency_destroy(hlod_residency *r);
 
 /* A new frame: stamps it and empties the wanted list, then asks for the
- * top nodes still missing after a transient failure (first of all). */
+ * pinned nodes still missing after a transient failure (first of all). */
 void hlod_residency_begin_frame(hlod_residency *r, uint32_t frame);
 
 /* The selection would like node resident: queues it for admission unless

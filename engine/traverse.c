@@ -23,8 +23,8 @@
  * parent (Lakhia III-C), and for the time-based policies the frame estimate
  * never exceeds the budget: a refinement that would push the running
  * estimate of the whole front over it draws the parent instead.  A top
- * node that cannot be drawn (bad, or not read yet) is the exception: its
- * readable children stand in for it (stand_in).
+ * node (group or hlod_0) that is bad, or a pinned one not read yet, is the
+ * exception: its readable children stand in for it (stand_in).
  *
  * Visibility: a node whose box meets the frustum is visible (frustumVis = 1).
  * Outside, frustumVis falls linearly to 0 over c_vis_falloff node radii;
@@ -386,13 +386,13 @@ typedef struct front {
 } front;
 
 /* A node that cannot be drawn, its children standing in for it: one marked
- * bad, or a top node (group or hlod_0) not read yet after a transient
+ * bad, or a pinned node (residency.h) not read yet after a transient
  * failure.  Any other node the walk reaches is resident (a parent is drawn
  * while a visible child is not). */
 static int stands_down(const walk *w, uint32_t i)
 {
     hlod_node_state st = hlod_residency_state(w->res, i);
-    return st == HLOD_NODE_BAD || (i < w->res->top_count && st != HLOD_NODE_RESIDENT);
+    return st == HLOD_NODE_BAD || (i < w->res->pinned_count && st != HLOD_NODE_RESIDENT);
 }
 
 /* Node p stands down: its visible children take its place, whatever the
@@ -505,11 +505,13 @@ static int visit(walk *w, const hlod_view *v, front *fr, uint32_t p)
             update_hyst(w, cf);
             cum += (long)trunc(cf->hyst / w->d->c_hyst_switch);
         }
-        /* A top child that stands down (bad, or not read yet) with children
-         * of its own does not hold p back: they stand in for it when the
-         * walk reaches it.  Else one bad hlod_0 under a readable group
-         * would pin the whole group at its coarse level.  Below the top, a
-         * bad child still draws its parent (the coarser node is whole). */
+        /* A top child (group or hlod_0) that stands down (bad, or pinned
+         * and not read yet) with children of its own does not hold p back:
+         * they stand in for it when the walk reaches it.  Else one bad
+         * hlod_0 under a readable group would hold the whole group at its
+         * coarse level.  Below the top, a bad child still draws its parent
+         * (the coarser node is whole); so does an unpinned hlod_0 not read
+         * yet (it is on its way). */
         if (hlod_residency_state(w->res, c) != HLOD_NODE_RESIDENT &&
             !(c < w->res->top_count && stands_down(w, c) &&
               hlod_store_first_child(nodes, c) < hlod_store_child_end(nodes, c))) {

@@ -626,6 +626,15 @@ typedef struct read_mode {
     size_t *file_blocks;        /* per input file: its blocks and triangles */
     size_t *file_tris;          /* (boxes_only fills them; keep skips the
                                    files without a kept block) */
+    size_t *file_objs;          /* per input file: its objects in objs */
+    /* OBJ files are streamed one object at a time (hlod_obj_stream), so a
+     * shard holds the vertices its objects use, not the file: per object of
+     * such files, in input order, what it gave in the first pass */
+    struct obj_rec {
+        hlod_obj_info info;
+        size_t blocks;
+    } *objs;
+    size_t nobj, objcap;
 } read_mode;
 
 /* keep: does input file i hold no kept block?  Then it is skipped. */
@@ -680,6 +689,174 @@ static hlod_result filter_blocks(blocks *bs, size_t first, read_mode *mode)
     return HLOD_OK;
 }
 
+/* A coordinate past HLOD_BUILD_MAX_COORD, named with its file. */
+static hlod_result check_coords(const hlod_mesh *m, const char *path, const hlod_logger *lg)
+{
+    for (size_t v = 0; v < m->vertex_count; v++)
+        for (int k = 0; k < 3; k++)
+            if (!(fabs(m->positions[3 * v + k]) <= HLOD_BUILD_MAX_COORD)) {
+                hlod_logf(lg, HLOD_LOG_ERROR, "%s: vertex %zu: coordinate %c = %g is beyond "
+                          "+-%g, which a store cannot hold", path, v, "xyz"[k],
+                          m->positions[3 * v + k], HLOD_BUILD_MAX_COORD);
+                return HLOD_ERR_NAN;
+            }
+    return HLOD_OK;
+}
+
+/* One OBJ file streamed object by object (a shard's passes). */
+typedef struct stream_ctx {
+    const char *path, *base;
+    blocks *bs;
+    read_mode *mode;
+    size_t *tris_in;
+    size_t obj0;                /* the file's first object in mode->objs */
+    const hlod_logger *lg;
+} stream_ctx;
+
+static hlod_result stream_changed(const stream_ctx *c)
+{
+    hlod_logf(c->lg, HLOD_LOG_ERROR, "%s: changed while it was read", c->path);
+    return HLOD_ERR_IO;
+}
+
+/* The keep pass: does object k of the file hold a kept block?  (Called as
+ * the object starts: the blocks before it are counted.) */
+static int stream_want(void *user, size_t k)
+{
+    stream_ctx *c = user;
+    read_mode *mode = c->mode;
+    size_t g = c->obj0 + k;
+    if (mode->boxes_only || g >= mode->nobj)
+        return 1;
+    for (size_t b = 0; b < mode->objs[g].blocks; b++)
+        if (mode->keep[mode->count + b])
+            return 1;
+    return 0;
+}
+
+static hlod_result stream_object(void *user, const hlod_obj_info *info, const hlod_mesh *m)
+{
+    stream_ctx *c = user;
+    read_mode *mode = c->mode;
+    size_t g = c->obj0 + info->index;
+    if (mode->boxes_only) {
+        if (g >= mode->objcap) {
+            size_t cap = mode->objcap ? 2 * mode->objcap : 256;
+            struct obj_rec *o = realloc(mode->objs, cap * sizeof *o);
+            if (!o)
+                return HLOD_ERR_NOMEM;
+            mode->objs = o;
+            mode->objcap = cap;
+        }
+        mode->objs[g] = (struct obj_rec){*info, 0};
+        mode->nobj = g + 1;
+    } else if (g >= mode->nobj || memcmp(&info->v, &mode->objs[g].info.v, 3 * sizeof info->v)) {
+        return stream_changed(c);
+    }
+    struct obj_rec *o = &mode->objs[g];
+    if (!m) { /* not the shard's */
+        mode->count += o->blocks;
+        *c->tris_in += o->info.tris;
+        return HLOD_OK;
+    }
+    hlod_result r = check_coords(m, c->path, c->lg);
+    if (r != HLOD_OK)
+        return r;
+    *c->tris_in += m->tri_count;
+    size_t first = c->bs->n;
+    if ((r = make_blocks(m, c->base, 0, c->bs)) != HLOD_OK) {
+        hlod_logf(c->lg, HLOD_LOG_ERROR, "%s: cannot split into blocks: %s", c->path,
+                  hlod_result_str(r));
+        return r;
+    }
+    if (mode->boxes_only)
+        o->blocks = c->bs->n - first;
+    else if (o->blocks != c->bs->n - first || o->info.tris != m->tri_count)
+        return stream_changed(c);
+    return filter_blocks(c->bs, first, mode);
+}
+
+static int range_cmp(const void *a, const void *b)
+{
+    const hlod_obj_range *x = a, *y = b;
+    return x->lo < y->lo ? -1 : x->lo > y->lo;
+}
+
+/* The keep pass: the v/vt/vn lines the file's kept objects use, merged
+ * (keep[k]: NULL in the first pass, every position read). */
+static hlod_result stream_lines(const read_mode *mode, size_t obj0, size_t nobj,
+                                hlod_obj_range *keep[3], size_t keep_n[3])
+{
+    size_t block = mode->count;
+    for (int k = 0; k < 3; k++)
+        if (!(keep[k] = malloc((nobj ? nobj : 1) * sizeof *keep[k])))
+            return HLOD_ERR_NOMEM;
+    for (size_t g = obj0; g < obj0 + nobj; g++) {
+        const struct obj_rec *o = &mode->objs[g];
+        int want = 0;
+        for (size_t b = 0; b < o->blocks; b++)
+            want |= mode->keep[block + b];
+        block += o->blocks;
+        const hlod_obj_range *u[3] = {&o->info.v, &o->info.vt, &o->info.vn};
+        for (int k = 0; k < 3 && want; k++)
+            if (u[k]->lo < u[k]->hi)
+                keep[k][keep_n[k]++] = *u[k];
+    }
+    for (int k = 0; k < 3; k++) {
+        qsort(keep[k], keep_n[k], sizeof *keep[k], range_cmp);
+        size_t w = 0;
+        for (size_t i = 0; i < keep_n[k]; i++) {
+            if (w && keep[k][i].lo <= keep[k][w - 1].hi) {
+                if (keep[k][i].hi > keep[k][w - 1].hi)
+                    keep[k][w - 1].hi = keep[k][i].hi;
+            } else {
+                keep[k][w++] = keep[k][i];
+            }
+        }
+        keep_n[k] = w;
+    }
+    return HLOD_OK;
+}
+
+/* A shard's OBJ input file i, object by object: the first pass takes every
+ * block's box from positions alone, the second the kept blocks, holding
+ * only the lines their objects use.  The material table stays in *mesh
+ * (blocks borrow its texture paths). */
+static hlod_result stream_file(const hlod_build_desc *d, const char *path, size_t i, hlod_mesh *mesh,
+                               blocks *bs, size_t *tris_in, read_mode *mode, const hlod_logger *lg)
+{
+    (void)d;
+    const char *base = strrchr(path, '/');
+    size_t obj0 = 0;
+    for (size_t f = 0; f < i; f++)
+        obj0 += mode->file_objs[f];
+    stream_ctx c = {path, base ? base + 1 : path, bs, mode, tris_in, obj0, lg};
+    hlod_obj_stream_desc sd = {.logger = lg, .positions_only = mode->boxes_only,
+                               .want = stream_want, .object = stream_object, .user = &c};
+    hlod_obj_range *keep[3] = {NULL, NULL, NULL};
+    size_t count0 = mode->count, tris0 = *tris_in;
+    hlod_result r = HLOD_OK;
+    if (!mode->boxes_only && (r = stream_lines(mode, obj0, mode->file_objs[i], keep, sd.keep_n)) == HLOD_OK)
+        for (int k = 0; k < 3; k++)
+            sd.keep[k] = keep[k];
+    if (r == HLOD_OK)
+        r = hlod_obj_stream(path, &sd, mesh);
+    for (int k = 0; k < 3; k++)
+        free(keep[k]);
+    if (r != HLOD_OK)
+        return r;
+    if (mode->boxes_only) {
+        mode->file_objs[i] = mode->nobj - obj0;
+        if (*tris_in == tris0) {
+            hlod_logf(lg, HLOD_LOG_ERROR, "%s: all triangles are degenerate or duplicates", path);
+            return HLOD_ERR_EMPTY;
+        }
+    } else if (mode->count - count0 != mode->file_blocks[i]) {
+        return stream_changed(&c);
+    }
+    return HLOD_OK;
+}
+
 static hlod_result read_blocks(const hlod_build_desc *d, const char *const *inputs, size_t n,
                                hlod_mesh *meshes, blocks *bs, size_t *tris_in,
                                const char *scratch, read_mode *mode, const hlod_logger *lg)
@@ -688,6 +865,16 @@ static hlod_result read_blocks(const hlod_build_desc *d, const char *const *inpu
         if (skip_file(mode, i, tris_in))
             continue;
         size_t tris_before = *tris_in, blocks_before = mode ? mode->count : 0;
+        if (mode && d->grid <= 0 && hlod_mesh_is_obj(inputs[i])) {
+            hlod_result r = stream_file(d, inputs[i], i, &meshes[i], bs, tris_in, mode, lg);
+            if (r != HLOD_OK)
+                return r;
+            if (mode->boxes_only) {
+                mode->file_blocks[i] = mode->count - blocks_before;
+                mode->file_tris[i] = *tris_in - tris_before;
+            }
+            continue;
+        }
         hlod_import_desc idesc = {lg, 0, scratch};
         hlod_result r = hlod_mesh_import(inputs[i], &idesc, &meshes[i], NULL);
         if (r != HLOD_OK) {
@@ -695,14 +882,8 @@ static hlod_result read_blocks(const hlod_build_desc *d, const char *const *inpu
             return r;
         }
         *tris_in += meshes[i].tri_count;
-        for (size_t v = 0; v < meshes[i].vertex_count; v++)
-            for (int k = 0; k < 3; k++)
-                if (!(fabs(meshes[i].positions[3 * v + k]) <= HLOD_BUILD_MAX_COORD)) {
-                    hlod_logf(lg, HLOD_LOG_ERROR, "%s: vertex %zu: coordinate %c = %g is beyond "
-                              "+-%g, which a store cannot hold", inputs[i], v, "xyz"[k],
-                              meshes[i].positions[3 * v + k], HLOD_BUILD_MAX_COORD);
-                    return HLOD_ERR_NAN;
-                }
+        if ((r = check_coords(&meshes[i], inputs[i], lg)) != HLOD_OK)
+            return r;
         const char *base = strrchr(inputs[i], '/');
         size_t first = bs->n;
         r = make_blocks(&meshes[i], base ? base + 1 : inputs[i], d->grid, bs);
@@ -1102,9 +1283,11 @@ static hlod_result read_input(const hlod_build_desc *d, const char *const *input
                                         (const double (*)[3])in->hi, in->nb, &in->plan) : r;
     }
     size_t *file_blocks = calloc(n, sizeof *file_blocks), *file_tris = calloc(n, sizeof *file_tris);
-    read_mode boxes = {.boxes_only = 1, .file_blocks = file_blocks, .file_tris = file_tris};
-    r = file_blocks && file_tris ? read_blocks(d, inputs, n, meshes, &in->bs, tris_in, scratch,
-                                               &boxes, lg) : HLOD_ERR_NOMEM;
+    size_t *file_objs = calloc(n, sizeof *file_objs);
+    read_mode boxes = {.boxes_only = 1, .file_blocks = file_blocks, .file_tris = file_tris,
+                       .file_objs = file_objs};
+    r = file_blocks && file_tris && file_objs ? read_blocks(d, inputs, n, meshes, &in->bs, tris_in,
+                                                            scratch, &boxes, lg) : HLOD_ERR_NOMEM;
     in->lo = boxes.lo;
     in->hi = boxes.hi;
     in->nb = boxes.count;
@@ -1121,7 +1304,8 @@ static hlod_result read_input(const hlod_build_desc *d, const char *const *input
         r = HLOD_ERR_NOMEM;
     if (r == HLOD_OK) {
         read_mode mine = {.keep = keep, .gid = in->gid, .file_blocks = file_blocks,
-                          .file_tris = file_tris};
+                          .file_tris = file_tris, .file_objs = file_objs, .objs = boxes.objs,
+                          .nobj = boxes.nobj};
         size_t again = 0;
         r = read_blocks(d, inputs, n, meshes, &in->bs, &again, scratch, &mine, lg);
         if (r == HLOD_OK && (again != *tris_in || mine.count != in->nb)) {
@@ -1133,6 +1317,8 @@ static hlod_result read_input(const hlod_build_desc *d, const char *const *input
     free(keep);
     free(file_blocks);
     free(file_tris);
+    free(file_objs);
+    free(boxes.objs);
     return r;
 }
 

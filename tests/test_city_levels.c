@@ -193,9 +193,10 @@ static void look_down(hlod_camera *cam, const hlod_store_header *h)
     CHECK(hlod_camera_look_at(cam, eye, c, up, 60, 0.5, 1e5, 1280, 720) == HLOD_OK);
 }
 
-/* The runtime: every top node resident from the start and never evicted
- * (memory budget of one byte), the coarsest frame is the root alone; with
- * --city-levels off it is every block in view. */
+/* The runtime: with a memory budget of one byte only the roots are pinned
+ * (resident from the start, never evicted) and the coarsest frame is the
+ * root alone; with --city-levels off the roots are the blocks, and it is
+ * every block in view. */
 static void runtime_uses_the_root(void)
 {
     const char *names[2] = {"scan-flat.hlod", "scan.hlod"};
@@ -226,10 +227,10 @@ static void runtime_uses_the_root(void)
         for (int f = 0; f < 10; f++)
             CHECK(hlod_engine_frame(e, &cam, 1.0 / 30, &st) == HLOD_OK);
         uint32_t resident = 0;
-        for (uint32_t i = 0; i < h->top_count; i++)
+        for (uint32_t i = 0; i < h->node_count; i++)
             resident += hlod_engine_node_state(e, i) == HLOD_NODE_RESIDENT;
-        CHECKF(resident == h->top_count, "%s: %u of %u top nodes resident", names[levels], resident,
-               h->top_count);
+        CHECKF(resident == h->root_count, "%s: %u nodes resident, %u roots", names[levels], resident,
+               h->root_count);
         if (levels)
             CHECKF(st.nodes_drawn == 1 && st.tris_drawn == hlod_store_nodes(s)[0].tri_count,
                    "%s: the coarsest frame draws %u nodes, %llu triangles", names[levels],
@@ -255,6 +256,87 @@ static void runtime_uses_the_root(void)
     }
 }
 
+/* Resident nodes of e among [first, end). */
+static uint32_t resident_in(hlod_engine *e, uint32_t first, uint32_t end)
+{
+    uint32_t n = 0;
+    for (uint32_t i = first; i < end; i++)
+        n += hlod_engine_node_state(e, i) == HLOD_NODE_RESIDENT;
+    return n;
+}
+
+/* The pinned set follows the budget (README, "City levels"): every group
+ * and hlod_0 node when they take at most half of it; else whole depths
+ * from the root while they fit that half, and the hlod_0 nodes come and
+ * go by priority under the budget like any other node. */
+static void runtime_pins_what_fits(void)
+{
+    char p[2048];
+    snprintf(p, sizeof p, "%s/scan.hlod", tmp);
+    hlod_store *s = NULL;
+    CHECK(hlod_store_open(p, NULL, &s) == HLOD_OK);
+    if (!s)
+        return;
+    const hlod_store_header *h = hlod_store_get_header(s);
+    const hlod_store_node *nodes = hlod_store_nodes(s);
+    uint64_t top_bytes = 0, depth_end_bytes[64] = {0};
+    uint32_t depth_end[64] = {0};
+    for (uint32_t i = 0; i < h->top_count; i++) {
+        top_bytes += hlod_store_node_memory(&nodes[i]);
+        depth_end[nodes[i].depth] = i + 1;
+        depth_end_bytes[nodes[i].depth] = top_bytes;
+    }
+    CHECKF(h->block_depth >= 1 && h->block_depth < 64, "block depth %u", h->block_depth);
+    hlod_camera cam;
+    look_down(&cam, h);
+    const uint64_t budgets[3] = {2 * top_bytes, top_bytes, top_bytes + top_bytes / 2};
+    for (int k = 0; k < 3 && h->block_depth >= 1 && h->block_depth < 64; k++) {
+        hlod_engine_desc d = {0};
+        d.deterministic = 1;
+        d.fixed_v_time = 1e-3;
+        d.target_ms = 1e3;
+        d.memory_budget_bytes = budgets[k];
+        d.deterministic_load_bytes = 1u << 30;
+        /* the expected pinned prefix, from the node table */
+        uint32_t pinned = h->root_count;
+        for (uint32_t dd = 0; dd <= h->block_depth; dd++)
+            if (depth_end_bytes[dd] <= budgets[k] / 2)
+                pinned = depth_end[dd] > pinned ? depth_end[dd] : pinned;
+        hlod_engine *e = NULL;
+        CHECK(hlod_engine_create(s, &d, &e) == HLOD_OK);
+        if (!e)
+            continue;
+        uint32_t at_start = resident_in(e, 0, h->node_count);
+        CHECKF(at_start == pinned && resident_in(e, 0, pinned) == pinned,
+               "budget %llu (top %llu): %u resident at start, %u pinned expected",
+               (unsigned long long)budgets[k], (unsigned long long)top_bytes, at_start, pinned);
+        CHECKF(k == 0 ? pinned == h->top_count : pinned < h->top_count,
+               "budget %llu: %u pinned of %u top nodes", (unsigned long long)budgets[k], pinned,
+               h->top_count);
+        hlod_frame_stats st;
+        uint64_t peak = 0;
+        uint32_t below = 0;
+        for (int f = 0; f < 40; f++) {
+            CHECK(hlod_engine_frame(e, &cam, 1.0 / 30, &st) == HLOD_OK);
+            peak = st.resident_bytes > peak ? st.resident_bytes : peak;
+            if (resident_in(e, 0, pinned) != pinned) {
+                CHECKF(0, "budget %llu: frame %d: a pinned node is not resident",
+                       (unsigned long long)budgets[k], f);
+                break;
+            }
+        }
+        for (uint32_t dd = h->block_depth; dd < HLOD_STATS_MAX_DEPTH; dd++)
+            below += st.nodes_per_depth[dd];
+        CHECKF(peak <= budgets[k], "budget %llu: peak resident %llu", (unsigned long long)budgets[k],
+               (unsigned long long)peak);
+        /* room for more than the top: the frame reaches the blocks and below */
+        CHECKF(below > 0, "budget %llu: %u of %u drawn nodes at or below the blocks",
+               (unsigned long long)budgets[k], below, st.nodes_drawn);
+        hlod_engine_destroy(e);
+    }
+    hlod_store_close(s);
+}
+
 int main(void)
 {
     const char *b = getenv("HLOD_BIN_DIR");
@@ -265,6 +347,7 @@ int main(void)
     RUN(parts_city);
     RUN(parts_block_aggregates);
     RUN(runtime_uses_the_root);
+    RUN(runtime_pins_what_fits);
     check_sh("rm -rf '%s'", tmp);
     return check_done();
 }

@@ -124,7 +124,7 @@ for seed in $(seq 1 "$SEEDS"); do
         bad_total=$((bad_total + b))
         bad_list="$bad_list $b"
         # the nodes logged unreadable: each once, each corrupt, as many as bad_nodes
-        sed -n 's/.*: \(top \)\{0,1\}node \([0-9][0-9]*\)[^:]* is unreadable.*/\2/p' "$O.err" |
+        sed -n 's/.*: \(pinned \)\{0,1\}node \([0-9][0-9]*\)[^:]* is unreadable.*/\2/p' "$O.err" |
             sort -n >"$T/logged"
         [ "$(wc -l <"$T/logged")" -eq "$b" ] || problems="$problems $p:logged=$(wc -l <"$T/logged")/$b"
         [ -z "$(uniq -d "$T/logged")" ] || problems="$problems $p:logged-twice"

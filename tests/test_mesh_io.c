@@ -929,14 +929,15 @@ static void test_degenerate_and_duplicate_triangles_dropped(void)
 static void test_clean_keeps_objects_and_materials_consistent(void)
 {
     hlod_mesh m = {0};
-    CHECK(hlod_mesh_alloc(&m, 4, 5, HLOD_MESH_MATERIALS) == HLOD_OK);
+    CHECK(hlod_mesh_alloc(&m, 4, 6, HLOD_MESH_MATERIALS) == HLOD_OK);
     static const double pos[12] = {0, 0, 0, 1, 0, 0, 0, 1, 0, 7, 7, 7};
     memcpy(m.positions, pos, sizeof pos);
-    /* object a: [dup of t1? no: t0 = (0,1,2)], object b: [t1 = dup of t0, t2 degenerate],
-     * object c: [t3 = (1,2,0) dup, t4 = (0,1,3)] */
-    static const uint32_t idx[15] = {0, 1, 2, 2, 1, 0, 0, 0, 1, 1, 2, 0, 0, 1, 3};
+    /* object a: t0 = (0,1,2); object b: t1, t2 degenerate (b ends empty);
+     * object c: t3 = (2,1,0), the same triangle as a's t0 (another object:
+     * kept), t4 = (1,2,0), a duplicate of t3 in c (dropped), t5 = (0,1,3) */
+    static const uint32_t idx[18] = {0, 1, 2, 0, 0, 1, 1, 1, 2, 2, 1, 0, 1, 2, 0, 0, 1, 3};
     memcpy(m.indices, idx, sizeof idx);
-    for (uint32_t t = 0; t < 5; t++)
+    for (uint32_t t = 0; t < 6; t++)
         m.tri_material[t] = t % 2;
     m.material_count = 2;
     m.materials = calloc(2, sizeof *m.materials);
@@ -944,20 +945,20 @@ static void test_clean_keeps_objects_and_materials_consistent(void)
     m.objects = calloc(3, sizeof *m.objects);
     m.objects[0] = (hlod_object){strdup("a"), 0, 1};
     m.objects[1] = (hlod_object){strdup("b"), 1, 2};
-    m.objects[2] = (hlod_object){strdup("c"), 3, 2};
+    m.objects[2] = (hlod_object){strdup("c"), 3, 3};
     CHECK(hlod_mesh_validate(&m, "mem", NULL) == HLOD_OK);
     size_t deg, dup;
     CHECK(hlod_mesh_clean(&m, &deg, &dup) == HLOD_OK);
-    CHECK(deg == 1 && dup == 2);
-    CHECK(m.tri_count == 2);
+    CHECKF(deg == 2 && dup == 1, "%zu degenerate, %zu duplicates", deg, dup);
+    CHECK(m.tri_count == 3);
     CHECK(m.object_count == 2);
     if (m.object_count == 2) {
         CHECK(strcmp(m.objects[0].name, "a") == 0 && m.objects[0].tri_count == 1);
         CHECK(strcmp(m.objects[1].name, "c") == 0 && m.objects[1].first_tri == 1 &&
-              m.objects[1].tri_count == 1);
+              m.objects[1].tri_count == 2);
     }
-    CHECK(m.tri_material[0] == 0 && m.tri_material[1] == 0);
-    CHECK(m.vertex_count == 4 && m.indices[5] == 3);
+    CHECK(m.tri_material[0] == 0 && m.tri_material[1] == 1 && m.tri_material[2] == 1);
+    CHECK(m.vertex_count == 4 && m.indices[8] == 3);
     CHECK(hlod_mesh_validate(&m, "mem", NULL) == HLOD_OK);
     hlod_mesh_free(&m);
 }

@@ -182,6 +182,53 @@ typedef struct slot {
     uint32_t hash_hi;
 } slot;
 
+/* keep[t] = 1 for each triangle that is neither degenerate nor a
+ * duplicate of an earlier one in its object.  Duplicates count within an
+ * object only: a triangle two objects share belongs to both blocks, and an
+ * object alone cleans as it does in its file (the sharded build reads one
+ * object at a time: README, "Sharded builds"). */
+static void mark_kept(const hlod_mesh *m, const uint32_t *pid, slot *table, size_t cap,
+                      uint8_t *keep, size_t *ndeg, size_t *ndup)
+{
+    size_t obj_at = 0, obj_first = 0, at_end = m->object_count ? m->objects[0].tri_count : m->tri_count;
+    for (size_t t = 0; t < m->tri_count; t++) {
+        keep[t] = 0;
+        while (m->object_count && t >= at_end && obj_at + 1 < m->object_count) {
+            obj_first = at_end;
+            at_end += m->objects[++obj_at].tri_count;
+        }
+        uint32_t k[3];
+        tri_key(m, pid, t, k);
+        /* equal ids cover both a repeated index and a repeated position */
+        if (k[0] == k[1] || k[1] == k[2] || zero_area(m, t)) {
+            (*ndeg)++;
+            continue;
+        }
+        uint64_t h = fmix64(((uint64_t)k[0] << 32 | k[1]) ^ (uint64_t)k[2] * 0x9e3779b97f4a7c15ull ^
+                            (uint64_t)obj_at * 0xc2b2ae3d27d4eb4full);
+        uint32_t hi = (uint32_t)(h >> 32);
+        size_t i = (size_t)h & (cap - 1);
+        int dup = 0;
+        for (; table[i].tri_plus1; i = (i + 1) & (cap - 1)) {
+            if (table[i].hash_hi != hi || table[i].tri_plus1 - 1 < obj_first)
+                continue;
+            uint32_t o[3];
+            tri_key(m, pid, table[i].tri_plus1 - 1, o);
+            if (o[0] == k[0] && o[1] == k[1] && o[2] == k[2]) {
+                dup = 1;
+                break;
+            }
+        }
+        if (dup) {
+            (*ndup)++;
+            continue;
+        }
+        table[i].tri_plus1 = (uint32_t)t + 1;
+        table[i].hash_hi = hi;
+        keep[t] = 1;
+    }
+}
+
 hlod_result hlod_mesh_clean(hlod_mesh *m, size_t *degenerate, size_t *duplicate)
 {
     size_t ndeg = 0, ndup = 0;
@@ -213,37 +260,7 @@ hlod_result hlod_mesh_clean(hlod_mesh *m, size_t *degenerate, size_t *duplicate)
         free(keep);
         return HLOD_ERR_NOMEM;
     }
-    for (size_t t = 0; t < m->tri_count; t++) {
-        keep[t] = 0;
-        uint32_t k[3];
-        tri_key(m, pid, t, k);
-        /* equal ids cover both a repeated index and a repeated position */
-        if (k[0] == k[1] || k[1] == k[2] || zero_area(m, t)) {
-            ndeg++;
-            continue;
-        }
-        uint64_t h = fmix64(((uint64_t)k[0] << 32 | k[1]) ^ (uint64_t)k[2] * 0x9e3779b97f4a7c15ull);
-        uint32_t hi = (uint32_t)(h >> 32);
-        size_t i = (size_t)h & (cap - 1);
-        int dup = 0;
-        for (; table[i].tri_plus1; i = (i + 1) & (cap - 1)) {
-            if (table[i].hash_hi != hi)
-                continue;
-            uint32_t o[3];
-            tri_key(m, pid, table[i].tri_plus1 - 1, o);
-            if (o[0] == k[0] && o[1] == k[1] && o[2] == k[2]) {
-                dup = 1;
-                break;
-            }
-        }
-        if (dup) {
-            ndup++;
-            continue;
-        }
-        table[i].tri_plus1 = (uint32_t)t + 1;
-        table[i].hash_hi = hi;
-        keep[t] = 1;
-    }
+    mark_kept(m, pid, table, cap, keep, &ndeg, &ndup);
     free(pid);
     free(table);
 

@@ -87,7 +87,8 @@ hlod_result hlod_mesh_validate(const hlod_mesh *m, const char *name, const hlod_
 
 /* Removes degenerate triangles (repeated index, or zero area in double) and
  * duplicate triangles (the same three vertex positions in any rotation or
- * winding), keeping the first of each duplicate set, and drops vertices no
+ * winding, within one object: a triangle two objects share stays in both),
+ * keeping the first of each duplicate set, and drops vertices no
  * triangle uses.  Object ranges and materials are kept consistent.  Counts go
  * to *degenerate / *duplicate (either may be NULL). */
 hlod_result hlod_mesh_clean(hlod_mesh *m, size_t *degenerate, size_t *duplicate);

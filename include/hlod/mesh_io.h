@@ -56,6 +56,57 @@ hlod_result hlod_mesh_import(const char *path, const hlod_import_desc *desc,
  * .gltf/.glb (through assimp, float positions). */
 hlod_result hlod_mesh_export(const char *path, const hlod_mesh *m, const hlod_logger *lg);
 
+/* ---- An OBJ file one object at a time (the sharded build's reader) ----
+ *
+ * hlod_mesh_import holds the whole file; a shard wants a few of its
+ * objects.  hlod_obj_stream reads an OBJ file once to learn its materials
+ * and whether faces carry texture coordinates and normals, then again,
+ * handing each object (its faces, in file order; the triangles before the
+ * first o/g form one named after the file) to a callback as a mesh of its
+ * own.  Each such mesh is what hlod_mesh_import's mesh holds of that
+ * object: the same vertex values and triangles in the same order, the
+ * same materials, cleaned alike (duplicates are dropped within an object).
+ * Memory: the v/vt/vn values the kept objects use (all of them unless
+ * ranges say which) and one object's faces.
+ */
+typedef struct hlod_obj_range {
+    uint32_t lo, hi;            /* lines [lo, hi) of one kind (0-based); lo == hi: none */
+} hlod_obj_range;
+
+typedef struct hlod_obj_info {
+    size_t index;               /* k: the k-th object with faces in the file */
+    size_t tris;                /* its triangles after cleaning (0: not wanted) */
+    hlod_obj_range v, vt, vn;   /* the v, vt and vn lines its faces use */
+} hlod_obj_info;
+
+typedef struct hlod_obj_stream_desc {
+    const hlod_logger *logger;  /* may be NULL */
+    int positions_only;         /* vt/vn values not kept: each object's uvs and
+                                   normals (present as in the file) are zero */
+    /* the v, vt and vn lines to keep ([3]: v, vt, vn), sorted and
+     * disjoint; NULL: every line (keep[k] non-NULL with keep_n[k] = 0:
+     * none).  A wanted object that uses another is an error */
+    const hlod_obj_range *keep[3];
+    size_t keep_n[3];
+    /* want(user, k): is the k-th object wanted?  NULL: every one */
+    int (*want)(void *user, size_t k);
+    /* every object with faces, in file order; mesh is NULL when not wanted
+     * (its faces were checked, not kept) and is freed after the call */
+    hlod_result (*object)(void *user, const hlod_obj_info *info, const hlod_mesh *mesh);
+    void *user;
+} hlod_obj_stream_desc;
+
+/* Is path read as OBJ by hlod_mesh_import (its first bytes, else its
+ * extension)? */
+int hlod_mesh_is_obj(const char *path);
+
+/* Streams path's objects to d->object.  *materials receives the file's
+ * material table (materials and material_count only), which every
+ * object's mesh points into: it must outlive anything that borrows a
+ * texture path.  An error names the file and line; a callback's error
+ * stops the stream and is returned. */
+hlod_result hlod_obj_stream(const char *path, const hlod_obj_stream_desc *d, hlod_mesh *materials);
+
 #ifdef __cplusplus
 }
 #endif

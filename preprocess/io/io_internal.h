@@ -130,6 +130,11 @@ hlod_result io_write_gltf(const char *path, const hlod_mesh *m, int binary,
  * target's absolute path; used to reference textures from a written file. */
 char *io_relative_path(const char *dir, const char *target);
 
+/* A material whose texture file is missing becomes untextured, with a
+ * warning naming the file, the material and the texture. */
+void io_check_textures(const char *path, hlod_mesh *m, const hlod_logger *lg,
+                       hlod_import_stats *st);
+
 /* Ends a single-object reader (PLY, OFF): on success the mesh becomes one
  * object named after the file's stem and st->tris_read is set; on failure
  * (out of memory logged) the mesh is freed.  Returns the final result. */

@@ -58,8 +58,8 @@ static enum kind detect(const unsigned char *b, size_t n, const char *ext)
 
 /* A texture that cannot be read makes its material untextured: the mesh
  * is still worth building, and the warning says what went missing. */
-static void check_textures(const char *path, hlod_mesh *m, const hlod_logger *lg,
-                           hlod_import_stats *st)
+void io_check_textures(const char *path, hlod_mesh *m, const hlod_logger *lg,
+                       hlod_import_stats *st)
 {
     for (size_t i = 0; i < m->material_count; i++) {
         hlod_material *mt = &m->materials[i];
@@ -71,6 +71,19 @@ static void check_textures(const char *path, hlod_mesh *m, const hlod_logger *lg
         mt->texture_path = NULL;
         st->missing_textures++;
     }
+}
+
+int hlod_mesh_is_obj(const char *path)
+{
+    FILE *f = path ? fopen(path, "rb") : NULL;
+    if (!f)
+        return 0;
+    unsigned char magic[64];
+    size_t n = fread(magic, 1, sizeof magic, f);
+    fclose(f);
+    char ext[16];
+    io_ext(path, ext, sizeof ext);
+    return detect(magic, n, ext) == K_OBJ;
 }
 
 hlod_result hlod_mesh_import(const char *path, const hlod_import_desc *desc, hlod_mesh *out,
@@ -121,7 +134,7 @@ hlod_result hlod_mesh_import(const char *path, const hlod_import_desc *desc, hlo
         hlod_mesh_free(out);
         return res;
     }
-    check_textures(path, out, lg, st);
+    io_check_textures(path, out, lg, st);
     res = hlod_mesh_validate(out, path, lg);
     if (res == HLOD_OK && !(desc && desc->keep_degenerate)) {
         res = hlod_mesh_clean(out, &st->degenerate_dropped, &st->duplicate_dropped);

@@ -40,7 +40,59 @@ typedef struct obj_reader {
     uint32_t cur_mat;
     int any_untagged, has_vt, has_vn;
     size_t faces;
+    size_t lines[3];  /* v, vt and vn lines read so far (the indices' range) */
+    /* hlod_obj_stream: which lines are kept (n == 0: all; none: keep_none)
+     * and, for the object being read, whether its faces are kept and the
+     * lines they use */
+    int stream;
+    struct window {
+        const hlod_obj_range *r;
+        size_t n, at;
+        size_t *start; /* stored index of r[i].lo */
+        int keep_none;
+    } win[3];
+    int want_cur;
+    hlod_obj_range used[3];
+    const hlod_obj_stream_desc *sd;
+    hlod_mesh *table;     /* the material table every object points into */
+    char *cur_name;       /* the object being read (NULL: named after the file) */
+    size_t ordinal;       /* objects with faces so far */
+    size_t object_faces;  /* faces before the object being read */
 } obj_reader;
+
+/* Is line `line` of kind k kept?  (Lines come in order: the cursor only
+ * moves forward.) */
+static int window_keeps(struct window *w, size_t line)
+{
+    if (w->keep_none)
+        return 0;
+    if (!w->n)
+        return 1;
+    while (w->at < w->n && w->r[w->at].hi <= line)
+        w->at++;
+    return w->at < w->n && w->r[w->at].lo <= line;
+}
+
+/* Where kept line `line` of a kind is stored; 0 when it was not kept. */
+static int window_index(const struct window *w, uint32_t line, uint32_t *stored)
+{
+    if (!w->n) {
+        *stored = line;
+        return !w->keep_none;
+    }
+    size_t a = 0, b = w->n;
+    while (a < b) {
+        size_t m = a + (b - a) / 2;
+        if (w->r[m].hi <= line)
+            a = m + 1;
+        else
+            b = m;
+    }
+    if (a == w->n || w->r[a].lo > line)
+        return 0;
+    *stored = (uint32_t)(w->start[a] + (line - w->r[a].lo));
+    return 1;
+}
 
 static hlod_result fail(obj_reader *r, hlod_result res, const char *fmt, ...)
     __attribute__((format(printf, 3, 4)));
@@ -97,8 +149,10 @@ static hlod_result read_v(obj_reader *r, const char *p)
         return res;
     for (int k = 0; k < 3; k++)
         if (!(xyz[k] - xyz[k] == 0))
-            return fail(r, HLOD_ERR_NAN, "vertex %zu: coordinate is %s", r->pos.count + 1,
+            return fail(r, HLOD_ERR_NAN, "vertex %zu: coordinate is %s", r->lines[0] + 1,
                         xyz[k] != xyz[k] ? "NaN" : "infinite");
+    if (!window_keeps(&r->win[0], r->lines[0]++))
+        return HLOD_OK;
     double *d = io_vec_push(&r->pos, sizeof(double[3]), 1);
     if (!d)
         return HLOD_ERR_NOMEM;
@@ -113,7 +167,9 @@ static hlod_result read_vt(obj_reader *r, const char *p)
     if (res)
         return res;
     if (!(uv[0] - uv[0] == 0) || !(uv[1] - uv[1] == 0))
-        return fail(r, HLOD_ERR_NAN, "texture coordinate %zu is not finite", r->uv.count + 1);
+        return fail(r, HLOD_ERR_NAN, "texture coordinate %zu is not finite", r->lines[1] + 1);
+    if (!window_keeps(&r->win[1], r->lines[1]++))
+        return HLOD_OK;
     float *d = io_vec_push(&r->uv, sizeof(float[2]), 1);
     if (!d)
         return HLOD_ERR_NOMEM;
@@ -130,7 +186,9 @@ static hlod_result read_vn(obj_reader *r, const char *p)
         return res;
     for (int k = 0; k < 3; k++)
         if (!(n[k] - n[k] == 0))
-            return fail(r, HLOD_ERR_NAN, "normal %zu is not finite", r->nrm.count + 1);
+            return fail(r, HLOD_ERR_NAN, "normal %zu is not finite", r->lines[2] + 1);
+    if (!window_keeps(&r->win[2], r->lines[2]++))
+        return HLOD_OK;
     float *d = io_vec_push(&r->nrm, sizeof(float[3]), 1);
     if (!d)
         return HLOD_ERR_NOMEM;
@@ -141,17 +199,34 @@ static hlod_result read_vn(obj_reader *r, const char *p)
 
 /* OBJ indices are 1-based; negative ones count back from the last element
  * defined so far. */
-static hlod_result resolve(obj_reader *r, long long idx, size_t count, const char *what,
-                           uint32_t *out)
+static hlod_result resolve(obj_reader *r, long long idx, int kind, uint32_t *out)
 {
+    static const char *const what[3] = {"vertex", "texture coordinate", "normal"};
+    const size_t count = r->lines[kind];
     long long abs_idx = idx > 0 ? idx - 1 : (long long)count + idx;
     if (idx == 0)
         return fail(r, HLOD_ERR_FORMAT, "face %zu: %s index 0 (OBJ indices start at 1)",
-                    r->faces + 1, what);
+                    r->faces + 1, what[kind]);
     if (abs_idx < 0 || (unsigned long long)abs_idx >= count)
         return fail(r, HLOD_ERR_INDEX_RANGE, "face %zu: %s index %lld out of range (%zu defined)",
-                    r->faces + 1, what, idx, count);
-    *out = (uint32_t)abs_idx;
+                    r->faces + 1, what[kind], idx, count);
+    uint32_t line = (uint32_t)abs_idx;
+    if (!r->stream) {
+        *out = line;
+        return HLOD_OK;
+    }
+    hlod_obj_range *u = &r->used[kind];
+    if (u->lo == u->hi) {
+        u->lo = line;
+        u->hi = line + 1;
+    } else {
+        u->lo = line < u->lo ? line : u->lo;
+        u->hi = line + 1 > u->hi ? line + 1 : u->hi;
+    }
+    *out = 0;
+    if (r->want_cur && !r->win[kind].keep_none && !window_index(&r->win[kind], line, out))
+        return fail(r, HLOD_ERR_IO, "face %zu: %s %u was not kept: the file changed while it "
+                    "was read", r->faces + 1, what[kind], line + 1);
     return HLOD_OK;
 }
 
@@ -167,7 +242,7 @@ static hlod_result read_f(obj_reader *r, const char *p)
         hlod_result res;
         if (!io_parse_long(&p, &iv))
             return fail(r, HLOD_ERR_FORMAT, "face %zu: bad vertex reference", r->faces + 1);
-        if ((res = resolve(r, iv, r->pos.count, "vertex", &cn.v)))
+        if ((res = resolve(r, iv, 0, &cn.v)))
             return res;
         if (*p == '/') {
             p++;
@@ -175,9 +250,9 @@ static hlod_result read_f(obj_reader *r, const char *p)
                 if (!io_parse_long(&p, &it))
                     return fail(r, HLOD_ERR_FORMAT, "face %zu: bad texture coordinate reference",
                                 r->faces + 1);
-                if ((res = resolve(r, it, r->uv.count, "texture coordinate", &cn.vt)))
+                if ((res = resolve(r, it, 1, &cn.vt)))
                     return res;
-                cn.vt++;
+                cn.vt = r->win[1].keep_none ? 0 : cn.vt + 1;
                 r->has_vt = 1;
             }
             if (*p == '/') {
@@ -185,9 +260,9 @@ static hlod_result read_f(obj_reader *r, const char *p)
                 if (!io_parse_long(&p, &in))
                     return fail(r, HLOD_ERR_FORMAT, "face %zu: bad normal reference",
                                 r->faces + 1);
-                if ((res = resolve(r, in, r->nrm.count, "normal", &cn.vn)))
+                if ((res = resolve(r, in, 2, &cn.vn)))
                     return res;
-                cn.vn++;
+                cn.vn = r->win[2].keep_none ? 0 : cn.vn + 1;
                 r->has_vn = 1;
             }
         }
@@ -202,6 +277,10 @@ static hlod_result read_f(obj_reader *r, const char *p)
     if (n < 3)
         return fail(r, HLOD_ERR_FORMAT, "face %zu has %zu vertices, needs at least 3",
                     r->faces + 1, n);
+    if (r->stream && !r->want_cur) {
+        r->faces++; /* checked, not kept */
+        return HLOD_OK;
+    }
     const corner *pc = r->poly.data;
     corner *out = io_vec_push(&r->corners, sizeof(corner), 3 * (n - 2));
     uint32_t *tm = io_vec_push(&r->tri_mat, sizeof(uint32_t), n - 2);
@@ -393,7 +472,9 @@ static hlod_result read_mtllib(obj_reader *r, const char *lib, hlod_material *ma
     return res;
 }
 
-static hlod_result build_materials(obj_reader *r, hlod_mesh *m, const char *obj_dir)
+/* The materials the usemtl lines name, in first-use order (plus "default"
+ * when some face comes before any usemtl), filled from the libraries. */
+static hlod_result build_material_table(obj_reader *r, hlod_mesh *m, const char *obj_dir)
 {
     size_t n = r->mat_names.count;
     if (n == 0)
@@ -429,8 +510,16 @@ static hlod_result build_materials(obj_reader *r, hlod_mesh *m, const char *obj_
                       "%s: material '%s' is not defined in any material library; using grey",
                       r->path, m->materials[i].name);
     free(defined);
-    if (res)
-        return res;
+    return res;
+}
+
+/* Each triangle's material: "default" (the last) for those before any
+ * usemtl; none at all without usemtl lines. */
+static hlod_result take_tri_materials(obj_reader *r, hlod_mesh *m)
+{
+    size_t n = r->mat_names.count;
+    if (n == 0)
+        return HLOD_OK;
     uint32_t *tm = r->tri_mat.data;
     for (size_t t = 0; t < r->tri_mat.count; t++)
         if (tm[t] == UINT32_MAX)
@@ -478,7 +567,7 @@ static hlod_result build_vertices(obj_reader *r, hlod_mesh *m)
     if (!m->indices)
         return HLOD_ERR_NOMEM;
     const corner *cs = r->corners.data;
-    if (!r->has_vt && !r->has_vn) {
+    if (!r->has_vt && !r->has_vn && !r->stream) {
         for (size_t i = 0; i < nc; i++)
             m->indices[i] = cs[i].v;
         io_vec_free(&r->corners);
@@ -605,6 +694,68 @@ static hlod_result build_objects(obj_reader *r, hlod_mesh *m)
     return HLOD_OK;
 }
 
+/* What every reader's end frees. */
+static void reader_free(obj_reader *r)
+{
+    io_vec_free(&r->pos);
+    io_vec_free(&r->uv);
+    io_vec_free(&r->nrm);
+    io_vec_free(&r->corners);
+    io_vec_free(&r->tri_mat);
+    io_vec_free(&r->poly);
+    hlod_object *objs = r->objects.data;
+    for (size_t i = 0; i < r->objects.count; i++)
+        free(objs[i].name);
+    io_vec_free(&r->objects);
+    char **names = r->mat_names.data;
+    for (size_t i = 0; i < r->mat_names.count; i++)
+        free(names[i]);
+    io_vec_free(&r->mat_names);
+    char **libs = r->mtllibs.data;
+    for (size_t i = 0; i < r->mtllibs.count; i++)
+        free(libs[i]);
+    io_vec_free(&r->mtllibs);
+    io_strmap_free(&r->mat_index);
+    for (int k = 0; k < 3; k++)
+        free(r->win[k].start);
+    free(r->cur_name);
+}
+
+static hlod_result stream_next_object(obj_reader *r, char *name);
+
+/* Every line of the file, each to its reader. */
+static hlod_result read_lines(obj_reader *r, const char *dir)
+{
+    hlod_result res = HLOD_OK;
+    char *line;
+    while (res == HLOD_OK && io_line(&r->s, &line, NULL)) {
+        char *p = line;
+        char c = io_skip_blanks((const char **)&p);
+        if (!c || c == '#')
+            continue;
+        if (p[0] == 'v' && is_blank(p[1])) {
+            res = read_v(r, p + 2);
+        } else if (p[0] == 'f' && is_blank(p[1])) {
+            res = read_f(r, p + 2);
+        } else if (p[0] == 'v' && p[1] == 't' && is_blank(p[2])) {
+            res = read_vt(r, p + 3);
+        } else if (p[0] == 'v' && p[1] == 'n' && is_blank(p[2])) {
+            res = read_vn(r, p + 3);
+        } else if ((p[0] == 'o' || p[0] == 'g') && (is_blank(p[1]) || !p[1])) {
+            res = r->stream ? stream_next_object(r, rest_of_line(p + 1))
+                            : start_object(r, rest_of_line(p + 1));
+        } else if (strncmp(p, "usemtl", 6) == 0 && (is_blank(p[6]) || !p[6])) {
+            res = use_material(r, rest_of_line(p + 6));
+        } else if (strncmp(p, "mtllib", 6) == 0 && is_blank(p[6]) && !r->stream) {
+            res = add_mtllib(r, rest_of_line(p + 6), dir);
+        }
+        /* Everything else (s, l, p, vp, curves, ...) carries nothing we keep. */
+    }
+    if (res == HLOD_OK && r->s.error)
+        res = HLOD_ERR_IO;
+    return res;
+}
+
 hlod_result io_read_obj(const char *path, const hlod_logger *lg, hlod_mesh *out,
                         hlod_import_stats *st)
 {
@@ -621,31 +772,7 @@ hlod_result io_read_obj(const char *path, const hlod_logger *lg, hlod_mesh *out,
         io_close(&r.s);
         return HLOD_ERR_NOMEM;
     }
-    char *line;
-    while (res == HLOD_OK && io_line(&r.s, &line, NULL)) {
-        char *p = line;
-        char c = io_skip_blanks((const char **)&p);
-        if (!c || c == '#')
-            continue;
-        if (p[0] == 'v' && is_blank(p[1])) {
-            res = read_v(&r, p + 2);
-        } else if (p[0] == 'f' && is_blank(p[1])) {
-            res = read_f(&r, p + 2);
-        } else if (p[0] == 'v' && p[1] == 't' && is_blank(p[2])) {
-            res = read_vt(&r, p + 3);
-        } else if (p[0] == 'v' && p[1] == 'n' && is_blank(p[2])) {
-            res = read_vn(&r, p + 3);
-        } else if ((p[0] == 'o' || p[0] == 'g') && (is_blank(p[1]) || !p[1])) {
-            res = start_object(&r, rest_of_line(p + 1));
-        } else if (strncmp(p, "usemtl", 6) == 0 && (is_blank(p[6]) || !p[6])) {
-            res = use_material(&r, rest_of_line(p + 6));
-        } else if (strncmp(p, "mtllib", 6) == 0 && is_blank(p[6])) {
-            res = add_mtllib(&r, rest_of_line(p + 6), dir);
-        }
-        /* Everything else (s, l, p, vp, curves, ...) carries nothing we keep. */
-    }
-    if (res == HLOD_OK && r.s.error)
-        res = HLOD_ERR_IO;
+    res = read_lines(&r, dir);
     if (res == HLOD_OK && r.corners.count == 0) {
         hlod_logf(lg, HLOD_LOG_ERROR, "%s: no faces (%zu vertices)", path, r.pos.count);
         res = HLOD_ERR_EMPTY;
@@ -656,7 +783,9 @@ hlod_result io_read_obj(const char *path, const hlod_logger *lg, hlod_mesh *out,
     if (res == HLOD_OK)
         res = build_objects(&r, out);
     if (res == HLOD_OK)
-        res = build_materials(&r, out, dir);
+        res = build_material_table(&r, out, dir);
+    if (res == HLOD_OK)
+        res = take_tri_materials(&r, out);
     if (res == HLOD_OK && st)
         st->tris_read = out->tri_count;
     if (res)
@@ -666,24 +795,184 @@ hlod_result io_read_obj(const char *path, const hlod_logger *lg, hlod_mesh *out,
 
     io_close(&r.s);
     free(dir);
-    io_vec_free(&r.pos);
-    io_vec_free(&r.uv);
-    io_vec_free(&r.nrm);
-    io_vec_free(&r.corners);
-    io_vec_free(&r.tri_mat);
-    io_vec_free(&r.poly);
-    hlod_object *objs = r.objects.data;
-    for (size_t i = 0; i < r.objects.count; i++)
-        free(objs[i].name);
-    io_vec_free(&r.objects);
-    char **names = r.mat_names.data;
-    for (size_t i = 0; i < r.mat_names.count; i++)
-        free(names[i]);
-    io_vec_free(&r.mat_names);
-    char **libs = r.mtllibs.data;
-    for (size_t i = 0; i < r.mtllibs.count; i++)
-        free(libs[i]);
-    io_vec_free(&r.mtllibs);
-    io_strmap_free(&r.mat_index);
+    reader_free(&r);
+    return res;
+}
+
+/* ---- hlod_obj_stream (mesh_io.h) ---- */
+
+/* The first pass: materials (usemtl in first-use order, mtllib), faces
+ * before any usemtl, and whether faces carry texture coordinates or
+ * normals, which decide every object's mesh as they decide the file's. */
+static hlod_result prescan(obj_reader *r, const char *dir)
+{
+    hlod_result res = HLOD_OK;
+    char *line;
+    while (res == HLOD_OK && io_line(&r->s, &line, NULL)) {
+        char *p = line;
+        char c = io_skip_blanks((const char **)&p);
+        if (c == 'f' && is_blank(p[1])) {
+            r->faces++;
+            r->any_untagged |= r->cur_mat == UINT32_MAX;
+            /* "v/vt", "v/vt/vn", "v//vn": what follows each slash */
+            for (const char *q = p + 2; *q && *q != '#'; q++) {
+                if (*q != '/')
+                    continue;
+                if (q[1] && q[1] != '/' && !is_blank(q[1]))
+                    r->has_vt = 1;
+                const char *e = q + 1;
+                while (*e && *e != '/' && !is_blank(*e))
+                    e++;
+                if (*e == '/')
+                    r->has_vn = 1;
+                while (*e && !is_blank(*e))
+                    e++;
+                q = e - 1;
+            }
+        } else if (strncmp(p, "usemtl", 6) == 0 && (is_blank(p[6]) || !p[6])) {
+            res = use_material(r, rest_of_line(p + 6));
+        } else if (strncmp(p, "mtllib", 6) == 0 && is_blank(p[6])) {
+            res = add_mtllib(r, rest_of_line(p + 6), dir);
+        }
+    }
+    if (res == HLOD_OK && r->s.error)
+        res = HLOD_ERR_IO;
+    return res;
+}
+
+/* The object just read as a mesh of its own (its faces' corners and
+ * materials are taken from r). */
+static hlod_result object_mesh(obj_reader *r, hlod_mesh *m)
+{
+    size_t ntri = r->tri_mat.count;
+    hlod_result res = build_vertices(r, m);
+    if (res == HLOD_OK)
+        res = take_tri_materials(r, m);
+    r->tri_mat.count = 0;
+    if (res != HLOD_OK)
+        return res;
+    m->materials = r->table->materials;
+    m->material_count = r->table->material_count;
+    m->objects = calloc(1, sizeof *m->objects);
+    if (!m->objects)
+        return HLOD_ERR_NOMEM;
+    m->object_count = 1;
+    m->objects[0].name = r->cur_name ? io_strdup(r->cur_name) : io_file_stem(r->path);
+    m->objects[0].tri_count = ntri;
+    if (!m->objects[0].name)
+        return HLOD_ERR_NOMEM;
+    res = hlod_mesh_validate(m, r->path, r->lg);
+    return res == HLOD_OK ? hlod_mesh_clean(m, NULL, NULL) : res;
+}
+
+/* The object being read ends: one with faces goes to the callback. */
+static hlod_result stream_flush(obj_reader *r)
+{
+    if (r->faces == r->object_faces)
+        return HLOD_OK; /* none: dropped, as build_objects does */
+    hlod_obj_info info = {.index = r->ordinal++};
+    memcpy(&info.v, &r->used[0], sizeof info.v);
+    memcpy(&info.vt, &r->used[1], sizeof info.vt);
+    memcpy(&info.vn, &r->used[2], sizeof info.vn);
+    const hlod_obj_stream_desc *d = r->sd;
+    if (!r->want_cur)
+        return d->object(d->user, &info, NULL);
+    hlod_mesh m = {0};
+    hlod_result res = object_mesh(r, &m);
+    info.tris = m.tri_count;
+    if (res == HLOD_OK)
+        res = d->object(d->user, &info, &m);
+    m.materials = NULL; /* the table's */
+    m.material_count = 0;
+    hlod_mesh_free(&m);
+    return res;
+}
+
+static hlod_result stream_next_object(obj_reader *r, char *name)
+{
+    hlod_result res = stream_flush(r);
+    if (res != HLOD_OK)
+        return res;
+    free(r->cur_name);
+    r->cur_name = NULL;
+    if (name[0] && !(r->cur_name = io_strdup(name)))
+        return HLOD_ERR_NOMEM;
+    r->want_cur = !r->sd->want || r->sd->want(r->sd->user, r->ordinal);
+    memset(r->used, 0, sizeof r->used);
+    r->object_faces = r->faces;
+    return HLOD_OK;
+}
+
+/* The kept lines of each kind and where each range starts once stored. */
+static hlod_result set_windows(obj_reader *r, const hlod_obj_stream_desc *d)
+{
+    for (int k = 0; k < 3; k++) {
+        struct window *w = &r->win[k];
+        w->keep_none = k > 0 && d->positions_only;
+        w->r = d->keep[k];
+        w->n = d->keep[k] ? d->keep_n[k] : 0;
+        if (d->keep[k] && !w->n)
+            w->keep_none = 1;
+        if (!w->n)
+            continue;
+        if (!(w->start = malloc(w->n * sizeof *w->start)))
+            return HLOD_ERR_NOMEM;
+        size_t at = 0;
+        for (size_t i = 0; i < w->n; i++) {
+            if (w->r[i].hi < w->r[i].lo || (i && w->r[i].lo < w->r[i - 1].hi))
+                return HLOD_ERR_INVALID_ARG; /* not sorted and disjoint */
+            w->start[i] = at;
+            at += w->r[i].hi - w->r[i].lo;
+        }
+    }
+    return HLOD_OK;
+}
+
+hlod_result hlod_obj_stream(const char *path, const hlod_obj_stream_desc *d, hlod_mesh *materials)
+{
+    if (!path || !d || !d->object || !materials)
+        return HLOD_ERR_INVALID_ARG;
+    hlod_mesh_free(materials);
+    obj_reader r;
+    memset(&r, 0, sizeof r);
+    r.path = path;
+    r.lg = d->logger;
+    r.cur_mat = UINT32_MAX;
+    r.sd = d;
+    r.table = materials;
+    char *dir = io_dirname(path);
+    if (!dir)
+        return HLOD_ERR_NOMEM;
+    hlod_result res = io_open(&r.s, path, r.lg);
+    if (res == HLOD_OK)
+        res = prescan(&r, dir);
+    if (res == HLOD_OK && !r.faces) {
+        hlod_logf(r.lg, HLOD_LOG_ERROR, "%s: no faces", path);
+        res = HLOD_ERR_EMPTY;
+    }
+    if (res == HLOD_OK && (res = build_material_table(&r, materials, dir)) == HLOD_OK) {
+        hlod_import_stats st = {0};
+        io_check_textures(path, materials, r.lg, &st);
+    }
+    if (res == HLOD_OK)
+        res = set_windows(&r, d);
+    if (r.s.fp)
+        io_close(&r.s);
+    if (res == HLOD_OK && (res = io_open(&r.s, path, r.lg)) == HLOD_OK) {
+        r.stream = 1;
+        r.faces = 0;
+        r.cur_mat = UINT32_MAX;
+        r.want_cur = !d->want || d->want(d->user, 0);
+        res = read_lines(&r, dir);
+        if (res == HLOD_OK)
+            res = stream_flush(&r);
+        io_close(&r.s);
+    }
+    if (res == HLOD_ERR_NOMEM)
+        hlod_logf(r.lg, HLOD_LOG_ERROR, "%s: out of memory", path);
+    if (res != HLOD_OK)
+        hlod_mesh_free(materials);
+    free(dir);
+    reader_free(&r);
     return res;
 }
