@@ -17,7 +17,7 @@ PACKAGES=(
     strace util-linux procps
     libcurl4-openssl-dev nginx-light iproute2 python3 openssl
     libcjson-dev
-    parallel munge slurmctld slurmd slurm-client
+    parallel munge slurmctld slurmd slurm-client openssh-server openssh-client
     nodejs chromium chromium-driver
 )
 # npm: Debian's package, unless the installed nodejs brings its own (the

@@ -963,6 +963,110 @@ static void test_clean_keeps_objects_and_materials_consistent(void)
     hlod_mesh_free(&m);
 }
 
+/* ---- hlod_obj_stream: one object at a time ---- */
+
+typedef struct stream_rec {
+    hlod_mesh whole;            /* hlod_mesh_import's mesh of the file */
+    size_t seen, wanted_seen, bad;
+    size_t want_only;           /* SIZE_MAX: every object */
+    hlod_obj_info info[8];
+} stream_rec;
+
+static int want_one(void *user, size_t k)
+{
+    stream_rec *s = user;
+    return s->want_only == SIZE_MAX || k == s->want_only;
+}
+
+/* Each streamed object equals the whole import's object k: its triangles'
+ * corners (positions, uvs, normals) and materials' colours, in order. */
+static hlod_result check_object(void *user, const hlod_obj_info *info, const hlod_mesh *m)
+{
+    stream_rec *s = user;
+    if (info->index < 8)
+        s->info[info->index] = *info;
+    s->seen++;
+    if (!m)
+        return HLOD_OK;
+    s->wanted_seen++;
+    const hlod_mesh *w = &s->whole;
+    if (info->index >= w->object_count || m->object_count != 1 ||
+        m->tri_count != w->objects[info->index].tri_count ||
+        strcmp(m->objects[0].name, w->objects[info->index].name) != 0 || !m->uvs != !w->uvs ||
+        !m->normals != !w->normals) {
+        s->bad++;
+        return HLOD_OK;
+    }
+    size_t t0 = w->objects[info->index].first_tri;
+    for (size_t t = 0; t < m->tri_count; t++) {
+        for (int c = 0; c < 3; c++) {
+            uint32_t a = m->indices[3 * t + c], b = w->indices[3 * (t0 + t) + c];
+            if (memcmp(m->positions + 3 * a, w->positions + 3 * b, 3 * sizeof(double)) ||
+                (m->uvs && memcmp(m->uvs + 2 * a, w->uvs + 2 * b, 2 * sizeof(float))) ||
+                (m->normals && memcmp(m->normals + 3 * a, w->normals + 3 * b, 3 * sizeof(float))))
+                s->bad++;
+        }
+        const hlod_material *ma = &m->materials[m->tri_material[t]];
+        const hlod_material *mb = &w->materials[w->tri_material[t0 + t]];
+        if (memcmp(ma->diffuse, mb->diffuse, sizeof ma->diffuse) || strcmp(ma->name, mb->name))
+            s->bad++;
+    }
+    return HLOD_OK;
+}
+
+static void test_obj_stream_matches_import(void)
+{
+    char p[128], mtl[128];
+    write_text(tpath("stream.mtl", mtl), "newmtl red\nKd 1 0 0\nnewmtl blue\nKd 0 0 1\n");
+    /* faces before any o and usemtl; usemtl before mtllib; an empty
+     * object; negative indices; a later object using an earlier one's
+     * vertices; a duplicate (dropped) and the first object's triangle
+     * again in the last (kept) */
+    write_text(tpath("stream.obj", p),
+               "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 1 1 0\nvt 0 0\nvt 1 0\nvt 0 1\nvn 0 0 1\n"
+               "f 1 2 3\nf 2 4 3\n"
+               "usemtl red\no a\nv 10 0 0\nv 11 0 0\nv 10 1 0.5\n"
+               "f -3/1/1 -2/2/1 -1/3/1\nf 5 6 7\n"
+               "mtllib stream.mtl\no empty\ng b\nusemtl blue\nv 20 0 0\nv 21 0 0\nv 20 1 0\nv 21 1 1\n"
+               "f 8//1 9//1 10//1 11//1\nf 8 10 9\n"
+               "o c\nusemtl red\nf 1 2 11\nf 2 4 3\n");
+    stream_rec s = {.want_only = SIZE_MAX};
+    recorder r = {0};
+    CHECK(import_rec(p, &s.whole, NULL, &r, 0) == HLOD_OK);
+    CHECKF(s.whole.object_count == 4, "%zu objects", s.whole.object_count);
+    hlod_obj_stream_desc d = {.want = want_one, .object = check_object, .user = &s};
+    hlod_mesh mats = {0};
+    CHECK(hlod_obj_stream(p, &d, &mats) == HLOD_OK);
+    CHECKF(s.seen == 4 && s.wanted_seen == 4 && s.bad == 0, "%zu objects, %zu wanted, %zu differ",
+           s.seen, s.wanted_seen, s.bad);
+    CHECK(mats.material_count == s.whole.material_count && d.lines_kept[0] == 11);
+    /* object b alone, holding only the lines it uses */
+    CHECK(s.info[2].v.lo == 7 && s.info[2].v.hi == 11 && s.info[2].vn.lo == 0 && s.info[2].vn.hi == 1);
+    stream_rec one = {.want_only = 2, .whole = s.whole};
+    hlod_obj_stream_desc d1 = {.want = want_one, .object = check_object, .user = &one};
+    d1.keep[0] = &s.info[2].v;
+    d1.keep[1] = &s.info[2].vt;
+    d1.keep[2] = &s.info[2].vn;
+    d1.keep_n[0] = d1.keep_n[2] = 1;
+    d1.keep_n[1] = 0; /* b uses no vt line: none kept */
+    CHECK(hlod_obj_stream(p, &d1, &mats) == HLOD_OK);
+    CHECKF(one.seen == 4 && one.wanted_seen == 1 && one.bad == 0 && d1.lines_kept[0] == 4 &&
+           d1.lines_kept[1] == 0 && d1.lines_kept[2] == 1,
+           "%zu objects, %zu wanted, %zu differ, %zu/%zu/%zu lines kept", one.seen, one.wanted_seen,
+           one.bad, d1.lines_kept[0], d1.lines_kept[1], d1.lines_kept[2]);
+    /* object c uses lines b's window does not hold: an error, not a guess */
+    stream_rec bad = {.want_only = 3, .whole = s.whole};
+    hlod_obj_stream_desc d2 = d1;
+    d2.user = &bad;
+    recorder r2 = {0};
+    hlod_logger lg = {record, &r2};
+    d2.logger = &lg;
+    CHECK(hlod_obj_stream(p, &d2, &mats) == HLOD_ERR_IO);
+    CHECK(logged(&r2, HLOD_LOG_ERROR, p, "was not kept"));
+    hlod_mesh_free(&mats);
+    hlod_mesh_free(&s.whole);
+}
+
 static void test_validate_reports_bad_ranges(void)
 {
     hlod_mesh m = {0};
@@ -1312,6 +1416,7 @@ int main(void)
     RUN(test_real_ply_meshes);
     RUN(test_image_probe_and_read_real_texture);
     RUN(test_image_png_round_trip_is_exact);
+    RUN(test_obj_stream_matches_import);
     RUN(test_image_errors_name_the_file);
     RUN(test_image_resize_keeps_flat_colour);
     RUN(test_image_shrink_averages_covered_area);

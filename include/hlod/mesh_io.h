@@ -94,6 +94,7 @@ typedef struct hlod_obj_stream_desc {
      * (its faces were checked, not kept) and is freed after the call */
     hlod_result (*object)(void *user, const hlod_obj_info *info, const hlod_mesh *mesh);
     void *user;
+    size_t lines_kept[3];       /* out: the v, vt and vn lines held in memory */
 } hlod_obj_stream_desc;
 
 /* Is path read as OBJ by hlod_mesh_import (its first bytes, else its
@@ -105,7 +106,7 @@ int hlod_mesh_is_obj(const char *path);
  * object's mesh points into: it must outlive anything that borrows a
  * texture path.  An error names the file and line; a callback's error
  * stops the stream and is returned. */
-hlod_result hlod_obj_stream(const char *path, const hlod_obj_stream_desc *d, hlod_mesh *materials);
+hlod_result hlod_obj_stream(const char *path, hlod_obj_stream_desc *d, hlod_mesh *materials);
 
 #ifdef __cplusplus
 }

@@ -928,7 +928,7 @@ static hlod_result set_windows(obj_reader *r, const hlod_obj_stream_desc *d)
     return HLOD_OK;
 }
 
-hlod_result hlod_obj_stream(const char *path, const hlod_obj_stream_desc *d, hlod_mesh *materials)
+hlod_result hlod_obj_stream(const char *path, hlod_obj_stream_desc *d, hlod_mesh *materials)
 {
     if (!path || !d || !d->object || !materials)
         return HLOD_ERR_INVALID_ARG;
@@ -967,6 +967,9 @@ hlod_result hlod_obj_stream(const char *path, const hlod_obj_stream_desc *d, hlo
         if (res == HLOD_OK)
             res = stream_flush(&r);
         io_close(&r.s);
+        d->lines_kept[0] = r.pos.count;
+        d->lines_kept[1] = r.uv.count;
+        d->lines_kept[2] = r.nrm.count;
     }
     if (res == HLOD_ERR_NOMEM)
         hlod_logf(r.lg, HLOD_LOG_ERROR, "%s: out of memory", path);
