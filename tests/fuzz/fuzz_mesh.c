@@ -13,7 +13,9 @@
  *
  * Oracles: a mesh import accepts must pass hlod_mesh_validate, with
  * triangles, vertices and the reported counts consistent; on failure the
- * mesh must be left empty.  Never a crash, leak, hang or huge allocation
+ * mesh must be left empty.  An OBJ import accepts (cleaned) must stream
+ * (hlod_obj_stream, the sharded build's reader) too, to the same objects
+ * and triangles, each object's mesh valid.  Never a crash, leak, hang or huge allocation
  * (libFuzzer's -malloc_limit_mb catches a reader trusting a count).
  */
 #include "hlod/mesh_io.h"
@@ -63,6 +65,34 @@ static int goes_to_assimp(const uint8_t *b, size_t n, int obj)
     return !obj && i < n && b[i] == '{';
 }
 
+typedef struct streamed {
+    size_t objects, tris, bad;
+} streamed;
+
+static hlod_result count_object(void *user, const hlod_obj_info *info, const hlod_mesh *m)
+{
+    streamed *s = user;
+    /* (an object whose triangles all clean away streams with none) */
+    if (!m || info->tris != m->tri_count ||
+        (m->tri_count && hlod_mesh_validate(m, "object", NULL) != HLOD_OK))
+        s->bad++;
+    s->objects += m && m->tri_count > 0;
+    s->tris += m ? m->tri_count : 0;
+    return HLOD_OK;
+}
+
+/* The OBJ file import took, streamed: the same objects and triangles. */
+static void check_stream(const char *path, const hlod_mesh *m)
+{
+    streamed s = {0};
+    hlod_obj_stream_desc d = {.object = count_object, .user = &s};
+    hlod_mesh mats = {0};
+    if (hlod_obj_stream(path, &d, &mats) != HLOD_OK || s.bad || s.tris != m->tri_count ||
+        s.objects != m->object_count || mats.material_count != m->material_count)
+        abort();
+    hlod_mesh_free(&mats);
+}
+
 int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
 {
     if (size < 1)
@@ -99,6 +129,8 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
         for (size_t i = 0; i < 3 * m.tri_count; i++)
             if (!isfinite(m.positions[3 * (size_t)m.indices[i]]))
                 abort();
+        if (kind == 0 && !keep)
+            check_stream(path, &m);
     }
     hlod_mesh_free(&m);
     unlink(path);   /* the next input must not see this one as an mtllib */
