@@ -822,10 +822,9 @@ static hlod_result stream_lines(const read_mode *mode, size_t obj0, size_t nobj,
  * block's box from positions alone, the second the kept blocks, holding
  * only the lines their objects use.  The material table stays in *mesh
  * (blocks borrow its texture paths). */
-static hlod_result stream_file(const hlod_build_desc *d, const char *path, size_t i, hlod_mesh *mesh,
-                               blocks *bs, size_t *tris_in, read_mode *mode, const hlod_logger *lg)
+static hlod_result stream_file(const char *path, size_t i, hlod_mesh *mesh, blocks *bs,
+                               size_t *tris_in, read_mode *mode, const hlod_logger *lg)
 {
-    (void)d;
     const char *base = strrchr(path, '/');
     size_t obj0 = 0;
     for (size_t f = 0; f < i; f++)
@@ -866,7 +865,7 @@ static hlod_result read_blocks(const hlod_build_desc *d, const char *const *inpu
             continue;
         size_t tris_before = *tris_in, blocks_before = mode ? mode->count : 0;
         if (mode && d->grid <= 0 && hlod_mesh_is_obj(inputs[i])) {
-            hlod_result r = stream_file(d, inputs[i], i, &meshes[i], bs, tris_in, mode, lg);
+            hlod_result r = stream_file(inputs[i], i, &meshes[i], bs, tris_in, mode, lg);
             if (r != HLOD_OK)
                 return r;
             if (mode->boxes_only) {

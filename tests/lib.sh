@@ -14,3 +14,18 @@ ok() {
     fi
     return "$1"
 }
+
+# free_port N: prints a TCP port P such that P .. P + N - 1 are free on
+# this machine (0 when 50 tries found none).
+free_port() {
+    local n=${1:-1} p k busy
+    for try in $(seq 50); do
+        p=$((20000 + RANDOM % 30000))
+        busy=0
+        for k in $(seq 0 $((n - 1))); do
+            ss -ltn | awk '{print $4}' | grep -Eq ":$((p + k))\$" && busy=1
+        done
+        [ $busy -eq 0 ] && { echo "$p"; return 0; }
+    done
+    echo 0
+}

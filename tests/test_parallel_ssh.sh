@@ -35,14 +35,7 @@ cleanup() {
 }
 trap cleanup EXIT
 
-port=0
-for try in $(seq 50); do
-    p=$((20000 + RANDOM % 30000))
-    if ! ss -ltn | awk '{print $4}' | grep -Eq ":$p\$"; then
-        port=$p
-        break
-    fi
-done
+port=$(free_port 1)
 ME=$(id -un)
 ssh-keygen -q -t ed25519 -N '' -f "$T/host_key" &&
     ssh-keygen -q -t ed25519 -N '' -f "$T/client_key" &&

@@ -49,14 +49,7 @@ logs() {
 }
 
 # a free TCP port pair: PORT and PORT + 1
-port=0
-for try in $(seq 50); do
-    p=$((20000 + RANDOM % 30000))
-    if ! ss -ltn | awk '{print $4}' | grep -Eq ":($p|$((p + 1)))\$"; then
-        port=$p
-        break
-    fi
-done
+port=$(free_port 2)
 mkdir -p "$T/state" "$T/spool" "$T/log" "$T/parts" "$T/bad"
 H=$(hostname -s)
 ME=$(id -un)
