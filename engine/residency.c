@@ -100,7 +100,7 @@ static hlod_result make_resident(hlod_residency *rs, uint32_t node, hlod_store_p
     nr->slot = (uint32_t)(rs->resident.n - 1);
     nr->failures = 0;
     if (node < rs->pinned_count)
-        rs->top_missing--; /* pinned nodes are never evicted */
+        rs->pinned_missing--; /* pinned nodes are never evicted */
     rs->resident_bytes += hlod_store_node_memory(&rs->nodes[node]);
     rs->resident_cost += rs->nodes[node].cost;
     return HLOD_OK;
@@ -190,7 +190,7 @@ static void top_failed(hlod_residency *rs, uint32_t node, hlod_result why)
     }
     nr->state = HLOD_NODE_BAD;
     rs->bad_total++;
-    rs->top_missing--;
+    rs->pinned_missing--;
     hlod_logf(&rs->d->logger, HLOD_LOG_ERROR,
               "%s: pinned node %u is unreadable (%s); its readable children are "
               "drawn in its place", hlod_store_path(rs->store), node, hlod_result_str(why));
@@ -257,7 +257,7 @@ static void load_failed(hlod_residency *rs, uint32_t node, hlod_result why)
     nr->state = HLOD_NODE_BAD;
     rs->bad_total++;
     if (node < rs->pinned_count) {
-        rs->top_missing--;
+        rs->pinned_missing--;
         hlod_logf(&rs->d->logger, HLOD_LOG_WARN, "%s: pinned node %u is "
                   "unreadable (%s); its readable children are drawn in its place",
                   hlod_store_path(rs->store), node, hlod_result_str(why));
@@ -531,7 +531,7 @@ static uint32_t pinned_count(const hlod_store *s, uint64_t budget)
         if (i + 1 == top || nodes[i + 1].depth != nodes[i].depth)
             pinned = i + 1; /* depth nodes[i].depth fits whole */
     }
-    return pinned > roots ? pinned : roots;
+    return pinned;
 }
 
 hlod_result hlod_residency_init(hlod_residency *rs, const hlod_store *store,
@@ -549,7 +549,7 @@ hlod_result hlod_residency_init(hlod_residency *rs, const hlod_store *store,
     if (!rs->res)
         return HLOD_ERR_NOMEM;
     memset(rs->res, 0, (size_t)rs->node_count * sizeof *rs->res);
-    rs->top_missing = rs->pinned_count;
+    rs->pinned_missing = rs->pinned_count;
     hlod_result r = load_top(rs);
     if (r == HLOD_OK) {
         hlod_loader_desc ld = {0};
@@ -601,7 +601,7 @@ void hlod_residency_begin_frame(hlod_residency *rs, uint32_t frame)
     /* Top nodes that could not be read yet (a transient failure) are asked
      * for first, visible or not, once their backoff has passed; while
      * missing, the traversal draws their children in their place. */
-    for (uint32_t i = 0; rs->top_missing && i < rs->pinned_count; i++)
+    for (uint32_t i = 0; rs->pinned_missing && i < rs->pinned_count; i++)
         if (rs->res[i].state == HLOD_NODE_ABSENT || rs->res[i].state == HLOD_NODE_QUEUED)
             (void)hlod_residency_want(rs, i, TOP_PRIORITY);
 }

@@ -55,7 +55,7 @@ typedef struct hlod_residency {
     uint64_t cache_hits_prev;   /* the loader's cache hits then */
     uint64_t finish_ns_prev, busy_ns_prev;  /* the loader's CPU-time counters then */
     uint32_t bad_total;
-    uint32_t top_missing;       /* pinned nodes neither resident nor bad (a transient
+    uint32_t pinned_missing;    /* pinned nodes neither resident nor bad (a transient
                                    failure, being retried) */
     uint32_t start_failures;    /* failed reads of pinned nodes at start, not yet in a
                                    frame's stats */

@@ -73,17 +73,33 @@ void io_check_textures(const char *path, hlod_mesh *m, const hlod_logger *lg,
     }
 }
 
-int hlod_mesh_is_obj(const char *path)
+/* The reader path needs (its first bytes, else its extension) in *k;
+ * logs and returns HLOD_ERR_IO when it cannot be read (lg may be NULL). */
+static hlod_result sniff(const char *path, const hlod_logger *lg, enum kind *k)
 {
-    FILE *f = path ? fopen(path, "rb") : NULL;
-    if (!f)
-        return 0;
+    FILE *f = fopen(path, "rb");
+    if (!f) {
+        hlod_logf(lg, HLOD_LOG_ERROR, "%s: cannot open: %s", path, strerror(errno));
+        return HLOD_ERR_IO;
+    }
     unsigned char magic[64];
     size_t n = fread(magic, 1, sizeof magic, f);
+    int err = ferror(f) ? errno : 0;
     fclose(f);
+    if (err) {
+        hlod_logf(lg, HLOD_LOG_ERROR, "%s: cannot read: %s", path, strerror(err));
+        return HLOD_ERR_IO;
+    }
     char ext[16];
     io_ext(path, ext, sizeof ext);
-    return detect(magic, n, ext) == K_OBJ;
+    *k = detect(magic, n, ext);
+    return HLOD_OK;
+}
+
+int hlod_mesh_is_obj(const char *path)
+{
+    enum kind k;
+    return path && sniff(path, NULL, &k) == HLOD_OK && k == K_OBJ;
 }
 
 hlod_result hlod_mesh_import(const char *path, const hlod_import_desc *desc, hlod_mesh *out,
@@ -101,24 +117,13 @@ hlod_result hlod_mesh_import(const char *path, const hlod_import_desc *desc, hlo
         return HLOD_ERR_INVALID_ARG;
     }
 
-    FILE *f = fopen(path, "rb");
-    if (!f) {
-        hlod_logf(lg, HLOD_LOG_ERROR, "%s: cannot open: %s", path, strerror(errno));
-        return HLOD_ERR_IO;
-    }
-    unsigned char magic[64];
-    size_t n = fread(magic, 1, sizeof magic, f);
-    int err = ferror(f) ? errno : 0;
-    fclose(f);
-    if (err) {
-        hlod_logf(lg, HLOD_LOG_ERROR, "%s: cannot read: %s", path, strerror(err));
-        return HLOD_ERR_IO;
-    }
+    enum kind kind;
+    hlod_result res = sniff(path, lg, &kind);
+    if (res != HLOD_OK)
+        return res;
     char ext[16];
-    io_ext(path, ext, sizeof ext);
-
-    hlod_result res;
-    switch (detect(magic, n, ext)) {
+    io_ext(path, ext, sizeof ext); /* for the message below */
+    switch (kind) {
     case K_OBJ: res = io_read_obj(path, lg, out, st); break;
     case K_PLY: res = io_read_ply(path, lg, out, st); break;
     case K_OFF: res = io_read_off(path, lg, out, st); break;
