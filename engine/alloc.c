@@ -3,7 +3,30 @@
  */
 #include "alloc.h"
 
+#include <pthread.h>
 #include <stdlib.h>
+#include <string.h>
+#if defined(__GLIBC__)
+#include <malloc.h>
+#endif
+
+static void steady_heap_once(void)
+{
+#if defined(__GLIBC__)
+    const char *tun = getenv("GLIBC_TUNABLES");
+    if ((tun && strstr(tun, "glibc.malloc.")) || getenv("MALLOC_TRIM_THRESHOLD_") ||
+        getenv("MALLOC_MMAP_THRESHOLD_") || getenv("MALLOC_TOP_PAD_"))
+        return; /* the user chose */
+    mallopt(M_MMAP_THRESHOLD, 32 << 20);
+    mallopt(M_TRIM_THRESHOLD, 128 << 20);
+#endif
+}
+
+void hlod_steady_heap(void)
+{
+    static pthread_once_t once = PTHREAD_ONCE_INIT;
+    pthread_once(&once, steady_heap_once);
+}
 
 void *hlod_mem_alloc(const hlod_allocator *a, size_t size)
 {

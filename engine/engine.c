@@ -175,6 +175,8 @@ hlod_result hlod_engine_create(const hlod_store *store, const hlod_engine_desc *
     if (r != HLOD_OK)
         return r;
 
+    if (d.steady_heap > 0)
+        hlod_steady_heap();
     hlod_engine *e = hlod_mem_alloc(&d.allocator, sizeof *e);
     if (!e)
         return HLOD_ERR_NOMEM;

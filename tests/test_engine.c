@@ -23,6 +23,10 @@
 #include <stdatomic.h>
 #include <time.h>
 #include <unistd.h>
+#include <sys/wait.h>
+#if defined(__GLIBC__)
+#include <malloc.h>
+#endif
 
 static char g_dir[256];
 
@@ -1007,6 +1011,69 @@ static void test_two_engines_two_threads(void)
     hlod_store_close(s);
 }
 
+/* steady_heap (README, "Cost model and deadline"): an engine makes glibc
+ * keep an 8 MiB block in its heap and keep it there once freed; with the
+ * setting off the block is mapped and unmapped, as glibc does by default
+ * (that, per draw of a software rasteriser, doubled a still view's frames).
+ * Each case runs in a child of its own, before this process creates any
+ * engine: the setting is made once per process. */
+static int heap_case(int steady, const hlod_store *s)
+{
+#if defined(__GLIBC__) && !defined(__SANITIZE_ADDRESS__) && !defined(__SANITIZE_THREAD__)
+    pid_t pid = fork();
+    if (pid < 0)
+        return -1;
+    if (pid == 0) {
+        hlod_engine_desc d = {0};
+        d.deterministic = 1;
+        d.steady_heap = steady ? 1 : -1;
+        hlod_engine *e = NULL;
+        if (hlod_engine_create(s, &d, &e) != HLOD_OK)
+            _exit(3);
+        size_t big = 8u << 20;
+        char *p = malloc(big);
+        if (!p)
+            _exit(3);
+        memset(p, 1, big);
+        struct mallinfo2 in = mallinfo2();
+        free(p);
+        struct mallinfo2 out = mallinfo2();
+        hlod_engine_destroy(e);
+        int mapped = in.hblkhd >= big;
+        int kept = out.arena >= big && out.fordblks >= big;
+        _exit(mapped ? 1 : kept ? 0 : 2);
+    }
+    int status = 0;
+    if (waitpid(pid, &status, 0) != pid || !WIFEXITED(status))
+        return -1;
+    return WEXITSTATUS(status);
+#else
+    (void)steady;
+    (void)s;
+    return -2;
+#endif
+}
+
+static void test_steady_heap(void)
+{
+    if (getenv("GLIBC_TUNABLES") || getenv("MALLOC_TRIM_THRESHOLD_") ||
+        getenv("MALLOC_MMAP_THRESHOLD_")) {
+        printf("  (skipped: malloc tunables set in the environment)\n");
+        return;
+    }
+    fixture_opts o = {0};
+    uint32_t count = 0;
+    hlod_store *s = make_store("heap.hlod", &o, &count);
+    int on = heap_case(1, s), off = heap_case(0, s);
+    if (on == -2) {
+        printf("  (skipped: not glibc's malloc, or under a sanitizer)\n");
+    } else {
+        CHECKF(on == 0, "steady_heap on: child said %d (1: mapped, 2: given back)", on);
+        CHECKF(off == 1, "steady_heap off: child said %d (0: kept, 2: given back)", off);
+    }
+    hlod_store_close(s);
+}
+
 int main(int argc, char **argv)
 {
     (void)argc;
@@ -1016,6 +1083,7 @@ int main(int argc, char **argv)
         perror("mkdtemp");
         return 1;
     }
+    RUN(test_steady_heap); /* first: no engine may exist in this process yet */
     RUN(test_time_slices_sum);
     RUN(test_estimate_within_target);
     RUN(test_missing_sibling_forces_parent);

@@ -143,7 +143,9 @@ typedef double (*hlod_time_model)(void *user_data, const struct hlod_frame_stats
     X(aim_mean, aim_mean, B, 0, 0, 0, 1, 1,                                                      \
       "1: the paper's control, the mean frame time on target_ms (no margin); 0: the deadline")    \
     X(occlusion, occlusion, B, 1, 0, 0, 1, 1,                                                    \
-      "1: nodes hidden behind this frame's depth are not drawn, charged or refined; 0: off")
+      "1: nodes hidden behind this frame's depth are not drawn, charged or refined; 0: off")      \
+    X(steady_heap, steady_heap, B, 1, 0, 0, 1, 0,                                                \
+      "1: glibc keeps up to 128 MiB freed and maps only blocks over 32 MiB, set once per process; 0: untouched")
 
 #define HLOD_SETTING_KIND_D double
 #define HLOD_SETTING_KIND_U32 uint32_t
