@@ -453,10 +453,23 @@ static int camera_motion(hlod_engine *e, const hlod_camera *cam, double dt, doub
             vel[k] = (cam->position[k] - e->prev_eye[k]) / dt;
     for (int k = 0; k < 3 && e->have_prev; k++)
         moved |= cam->position[k] != e->prev_eye[k];
+    /* the whole camera (a turn on the spot is not still) */
+    int same = e->have_prev && memcmp(e->prev_cam.position, cam->position, sizeof cam->position) == 0 &&
+               memcmp(e->prev_cam.view, cam->view, sizeof cam->view) == 0 &&
+               memcmp(e->prev_cam.proj, cam->proj, sizeof cam->proj) == 0 &&
+               e->prev_cam.width == cam->width && e->prev_cam.height == cam->height &&
+               e->prev_cam.fov_y_deg == cam->fov_y_deg;
+    e->still_run = same ? e->still_run + 1 : 0;
+    e->prev_cam = *cam;
     memcpy(e->prev_eye, cam->position, sizeof e->prev_eye);
     e->have_prev = 1;
     return moved;
 }
+
+/* Frames the whole camera must stay the same before the front holds
+ * (traverse.c, visit; README, "Traversal"): a second at 30 Hz, time for a
+ * still view's wanted nodes to arrive. */
+#define STILL_HOLD 60
 
 /* What the budget keeps for uploads: their cap (upload_budget_ms; uploads
  * predicted to run a quarter past it wait, see residency.c).  Reserved
@@ -542,6 +555,7 @@ hlod_result hlod_engine_frame(hlod_engine *e, const hlod_camera *cam, double dt,
                          .pixel_ms = m->theta[3],
                          .occlusion = e->d.occlusion > 0 && e->d.renderer != NULL,
                          .still = !moved,
+                         .hold = e->d.policy == HLOD_POLICY_LAKHIA && e->still_run >= STILL_HOLD,
                          .sse_pixels = m->sse_pixels,
                          .budget_ms = budget,
                          .share_ms = budget * m->share_gain};

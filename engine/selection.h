@@ -37,6 +37,7 @@ typedef struct hlod_node_frame {
     double extra;           /* what refining it added to the estimate when last refined */
     uint32_t seen;          /* frame the occlusion test last found it visible */
     uint32_t hidden;        /* frame the occlusion test last found it hidden */
+    uint32_t waiting;       /* frame a refinement of it last waited for its children's data */
 } hlod_node_frame;
 
 /* The camera as the selection sees it, in camera-relative doubles. */
@@ -58,6 +59,7 @@ typedef struct hlod_select_in {
     double pixel_ms;        /* ... per pixel of a node's projected box */
     int occlusion;          /* nodes hidden in the last frame are not charged or refined */
     int still;              /* the camera has not moved since the last frame */
+    int hold;               /* lakhia, the camera still for a while: the front holds (visit) */
     double sse_pixels;      /* the SSE policy's threshold */
     double budget_ms;       /* the bound on the front's estimate */
     double share_ms;        /* the roots' shareTime (eq. 4) */

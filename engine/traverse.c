@@ -53,7 +53,7 @@ typedef struct walk {
     hlod_node_frame *fr;
     uint32_t frame;
     double v_time, sse_pixels, draw_ms, pixel_ms;
-    int occlusion, still;
+    int occlusion, still, hold;
 } walk;
 
 /* ---- life ---- */
@@ -443,6 +443,53 @@ static int stand_in(walk *w, const hlod_view *v, front *fr, uint32_t p)
     return 1;
 }
 
+/* The policy's own decision for node p of the front, its children
+ * needing sum_needed of share (ms) and their counters voting cum; *near:
+ * refining is close, so the children are asked for. */
+static int policy_refines(const walk *w, const hlod_view *v, uint32_t p, double share,
+                          double sum_needed, long cum, int *near)
+{
+    const hlod_node_frame *pf = &w->fr[p];
+    switch (w->d->policy) {
+    case HLOD_POLICY_LAKHIA:
+        /* cumHyst < 0 draws the parent; the safety clamp draws it too when
+         * the children clearly do not fit the shared time (c_safety_slack). */
+        *near = sum_needed <= 2 * share;
+        return cum >= 0 && sum_needed <= share * (1 + w->d->c_safety_slack) *
+                                             (pf->refined + 1 == w->frame ? 1 + KEEP_MARGIN : 1);
+    case HLOD_POLICY_NOHYST:
+        *near = sum_needed <= 2 * share;
+        return share > sum_needed;
+    case HLOD_POLICY_SSE: {
+        const hlod_store_node *n = &w->nodes[p];
+        double sse = n->error * v->pixels_per_radian / node_distance(v, n);
+        *near = sse > 0.5 * w->sse_pixels;
+        return sse > w->sse_pixels;
+    }
+    default: /* HLOD_POLICY_FULL */
+        *near = 1;
+        return 1;
+    }
+}
+
+/* A camera that has stood still a while holds its front (README,
+ * "Traversal"): a node refined last frame stays refined, and one drawn
+ * last frame is refined only where the refinement waited for its
+ * children's data last frame; a node new to the front (its parent has
+ * just refined) is decided as usual, and the budget bound still coarsens
+ * a front that no longer fits.  Otherwise the cost model's and the
+ * margin's moves, however gated, reached a still view: 3-80 toggles after
+ * frame 60 of `still` at 33 ms, each a step of the budget past the
+ * counters' switch. */
+static int hold_front(const walk *w, const hlod_node_frame *pf, int refine)
+{
+    if (pf->refined && pf->refined + 1 == w->frame)
+        return 1;
+    if (pf->drawn && pf->drawn + 1 == w->frame)
+        return refine && pf->waiting && pf->waiting + 1 == w->frame;
+    return refine;
+}
+
 /* Decides node p of the front: draw it, or append its visible children to
  * w->s->next.  Returns 0 on allocation failure. */
 static int visit(walk *w, const hlod_view *v, front *fr, uint32_t p)
@@ -520,29 +567,10 @@ static int visit(walk *w, const hlod_view *v, front *fr, uint32_t p)
         }
     }
 
-    int refine, near;
-    switch (pol) {
-    case HLOD_POLICY_LAKHIA:
-        /* cumHyst < 0 draws the parent; the safety clamp draws it too when
-         * the children clearly do not fit the shared time (c_safety_slack). */
-        refine = cum >= 0 && sum_needed <= share * (1 + w->d->c_safety_slack) *
-                                            (pf->refined + 1 == w->frame ? 1 + KEEP_MARGIN : 1);
-        near = sum_needed <= 2 * share;
-        break;
-    case HLOD_POLICY_NOHYST:
-        refine = share > sum_needed;
-        near = sum_needed <= 2 * share;
-        break;
-    case HLOD_POLICY_SSE: {
-        double sse = nodes[p].error * v->pixels_per_radian / node_distance(v, &nodes[p]);
-        refine = sse > w->sse_pixels;
-        near = sse > 0.5 * w->sse_pixels;
-        break;
-    }
-    default: /* HLOD_POLICY_FULL */
-        refine = near = 1;
-        break;
-    }
+    int near, refine = policy_refines(w, v, p, share, sum_needed, cum, &near);
+    if (w->hold)
+        refine = hold_front(w, pf, refine);
+
     /* The frame estimate never exceeds the budget (time-based policies).
      * A new refinement must fit in KEEP_MARGIN less than the budget, one
      * already made may use all of it: the bound itself has hysteresis, so
@@ -582,6 +610,7 @@ static int visit(walk *w, const hlod_view *v, front *fr, uint32_t p)
     if (refine && !all_resident) {
         /* A visible sibling that is not resident forces the parent. */
         w->st->wanted_missing += missing;
+        pf->waiting = w->frame;
         refine = 0;
     }
     if (!refine) {
@@ -604,7 +633,8 @@ hlod_result hlod_select(hlod_selection *s, struct hlod_residency *res, const hlo
     walk ctx = {s,           res,           s->d,        s->st,
                 s->nodes,    s->fr,         in->frame,   in->v_time,
                 in->sse_pixels, in->draw_ms, in->pixel_ms,
-                in->occlusion && s->d->policy != HLOD_POLICY_FULL, in->still};
+                in->occlusion && s->d->policy != HLOD_POLICY_FULL, in->still,
+                in->hold && s->d->policy == HLOD_POLICY_LAKHIA};
     walk *w = &ctx;
     const double share_ms = in->share_ms;
     s->draw.n = s->level.n = s->next.n = 0;

@@ -362,6 +362,80 @@ static void test_still_camera_fixed_point(void)
     hlod_store_close(s);
 }
 
+/* A camera that has stood still 60 frames holds its front (README,
+ * "Traversal"): a budget three times larger refines nothing while it
+ * stays still, one that no longer fits coarsens it, and the first move
+ * refines; a refinement that waits for data still happens when the data
+ * arrives late, after frame 60. */
+static void test_still_front_holds(void)
+{
+    fixture_opts o = {0};
+    hlod_store *s = make_store("hold.hlod", &o, NULL);
+    hlod_engine_desc d = {0};
+    d.deterministic = 1;
+    d.fixed_v_time = 0.02;
+    d.target_ms = 20;
+    hlod_engine *e = NULL;
+    CHECK(hlod_engine_create(s, &d, &e) == HLOD_OK);
+    hlod_camera cam;
+    look(&cam, 100, -50, 30, 220, 50, 0);
+    hlod_frame_stats st;
+    for (int f = 0; f < 120; f++)
+        CHECK(hlod_engine_frame(e, &cam, 1.0 / 30, &st) == HLOD_OK);
+    uint32_t held = st.nodes_drawn;
+    d.target_ms = 60;
+    CHECK(hlod_engine_set(e, &d) == HLOD_OK);
+    uint32_t up = 0, down = 0;
+    for (int f = 0; f < 40; f++) {
+        CHECK(hlod_engine_frame(e, &cam, 1.0 / 30, &st) == HLOD_OK);
+        up += st.toggles_up;
+        down += st.toggles_down;
+    }
+    CHECKF(up == 0 && down == 0 && st.nodes_drawn == held,
+           "still, budget x3: %u up, %u down, %u nodes drawn (held %u)", up, down, st.nodes_drawn,
+           held);
+    d.target_ms = 4;
+    CHECK(hlod_engine_set(e, &d) == HLOD_OK);
+    down = 0;
+    for (int f = 0; f < 10; f++) {
+        CHECK(hlod_engine_frame(e, &cam, 1.0 / 30, &st) == HLOD_OK);
+        down += st.toggles_down;
+    }
+    CHECKF(down > 0 && st.estimated_ms <= st.budget_ms + st.fixed_ms + 1e-9,
+           "still, budget below the front: %u down, estimate %.3f, budget %.3f + %.3f", down,
+           st.estimated_ms, st.budget_ms, st.fixed_ms);
+    d.target_ms = 60;
+    CHECK(hlod_engine_set(e, &d) == HLOD_OK);
+    up = 0;
+    for (int f = 0; f < 20; f++) {
+        hlod_camera moved;
+        look(&moved, 100, -50 + 0.01 * (f + 1), 30, 220, 50, 0);
+        CHECK(hlod_engine_frame(e, &moved, 1.0 / 30, &st) == HLOD_OK);
+        up += st.toggles_up;
+    }
+    CHECKF(up > 0, "moving, budget x3: %u up", up);
+    hlod_engine_destroy(e);
+
+    /* data late: a slow deterministic disk, the camera still from frame 0 */
+    d.target_ms = 60;
+    d.deterministic_load_bytes = 2 << 10;
+    CHECK(hlod_engine_create(s, &d, &e) == HLOD_OK);
+    uint32_t late_up = 0, at60 = 0, missing = 0;
+    for (int f = 0; f < 600; f++) {
+        CHECK(hlod_engine_frame(e, &cam, 1.0 / 30, &st) == HLOD_OK);
+        if (f == 60)
+            at60 = st.nodes_drawn;
+        if (f > 60)
+            late_up += st.toggles_up;
+        missing = st.wanted_missing;
+    }
+    CHECKF(late_up > 0 && st.nodes_drawn > at60 && missing == 0,
+           "late data: %u up after frame 60, %u nodes at 60, %u at 600, %u wanted missing",
+           late_up, at60, st.nodes_drawn, missing);
+    hlod_engine_destroy(e);
+    hlod_store_close(s);
+}
+
 /* Nodes outside the view are neither priced nor loaded. */
 static void test_outside_not_priced(void)
 {
@@ -1089,6 +1163,7 @@ int main(int argc, char **argv)
     RUN(test_missing_sibling_forces_parent);
     RUN(test_hysteresis_settles);
     RUN(test_still_camera_fixed_point);
+    RUN(test_still_front_holds);
     RUN(test_outside_not_priced);
     RUN(test_prefetch_follows_motion);
     RUN(test_budget_random_jumps);
