@@ -467,8 +467,9 @@ static int camera_motion(hlod_engine *e, const hlod_camera *cam, double dt, doub
 }
 
 /* Frames the whole camera must stay the same before the front holds
- * (traverse.c, visit; README, "Traversal"): a second at 30 Hz, time for a
- * still view's wanted nodes to arrive. */
+ * (traverse.c, hold_front; README, "The runtime", Selection): 2 s at
+ * 30 Hz, past the cost model's 45-frame warm-up and time for a still
+ * view's wanted nodes to arrive. */
 #define STILL_HOLD 60
 
 /* What the budget keeps for uploads: their cap (upload_budget_ms; uploads

@@ -472,8 +472,8 @@ static int policy_refines(const walk *w, const hlod_view *v, uint32_t p, double 
     }
 }
 
-/* A camera that has stood still a while holds its front (README,
- * "Traversal"): a node refined last frame stays refined, and one drawn
+/* A camera that has stood still a while holds its front (README, "The
+ * runtime", Selection): a node refined last frame stays refined, and one drawn
  * last frame is refined only where the refinement waited for its
  * children's data last frame; a node new to the front (its parent has
  * just refined) is decided as usual, and the budget bound still coarsens

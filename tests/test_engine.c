@@ -330,20 +330,31 @@ static void test_hysteresis_settles(void)
     hlod_store_close(s);
 }
 
+/* The still-camera tests' engine: the default fixture, a deterministic
+ * machine (v_time 0.02, target 20 ms) and a camera over its first blocks. */
+static hlod_engine *still_engine(const char *name, hlod_store **s, hlod_engine_desc *d,
+                                 hlod_camera *cam)
+{
+    fixture_opts o = {0};
+    *s = make_store(name, &o, NULL);
+    *d = (hlod_engine_desc){0};
+    d->deterministic = 1;
+    d->fixed_v_time = 0.02;
+    d->target_ms = 20;
+    hlod_engine *e = NULL;
+    CHECK(hlod_engine_create(*s, d, &e) == HLOD_OK);
+    look(cam, 100, -50, 30, 220, 50, 0);
+    return e;
+}
+
 /* With the deterministic machine a still camera reaches a fixed selection
  * within a bounded number of frames. */
 static void test_still_camera_fixed_point(void)
 {
-    fixture_opts o = {0};
-    hlod_store *s = make_store("still.hlod", &o, NULL);
-    hlod_engine_desc d = {0};
-    d.deterministic = 1;
-    d.fixed_v_time = 0.02;
-    d.target_ms = 20;
-    hlod_engine *e = NULL;
-    CHECK(hlod_engine_create(s, &d, &e) == HLOD_OK);
+    hlod_store *s;
+    hlod_engine_desc d;
     hlod_camera cam;
-    look(&cam, 100, -50, 30, 220, 50, 0);
+    hlod_engine *e = still_engine("still.hlod", &s, &d, &cam);
     hlod_frame_stats st;
     int last_toggle = -1;
     for (int f = 0; f < 300; f++) {
@@ -362,23 +373,17 @@ static void test_still_camera_fixed_point(void)
     hlod_store_close(s);
 }
 
-/* A camera that has stood still 60 frames holds its front (README,
- * "Traversal"): a budget three times larger refines nothing while it
+/* A camera that has stood still 60 frames holds its front (README, "The
+ * runtime", Selection): a budget three times larger refines nothing while it
  * stays still, one that no longer fits coarsens it, and the first move
  * refines; a refinement that waits for data still happens when the data
  * arrives late, after frame 60. */
 static void test_still_front_holds(void)
 {
-    fixture_opts o = {0};
-    hlod_store *s = make_store("hold.hlod", &o, NULL);
-    hlod_engine_desc d = {0};
-    d.deterministic = 1;
-    d.fixed_v_time = 0.02;
-    d.target_ms = 20;
-    hlod_engine *e = NULL;
-    CHECK(hlod_engine_create(s, &d, &e) == HLOD_OK);
+    hlod_store *s;
+    hlod_engine_desc d;
     hlod_camera cam;
-    look(&cam, 100, -50, 30, 220, 50, 0);
+    hlod_engine *e = still_engine("hold.hlod", &s, &d, &cam);
     hlod_frame_stats st;
     for (int f = 0; f < 120; f++)
         CHECK(hlod_engine_frame(e, &cam, 1.0 / 30, &st) == HLOD_OK);
