@@ -79,6 +79,18 @@ single() {
 
 key() { sed -n "s/.*\"$2\": *\([0-9.]*\).*/\1/p" "$1"; }
 
+# shards_match NAME N ARGS...: the inputs and flags ARGS built in N shards
+# through GNU parallel and merged into $T/NAME-N.hlod (the merge's --json in
+# $T/NAME-N.json), byte-identical to the single build $T/NAME.hlod
+shards_match() {
+    local name=$1 n=$2
+    shift 2
+    parallel --halt now,fail=1 "$BIN/hlod-build" "$@" -o "$T/$name.$n.{}.part" --threads 1 --quiet \
+        --shard "{}/$n" ::: $(seq 1 "$n") &&
+        "$BIN/hlod-merge" "$T/$name.$n".*.part -o "$T/$name-$n.hlod" --quiet --json >"$T/$name-$n.json" &&
+        cmp -s "$T/$name.hlod" "$T/$name-$n.hlod"
+}
+
 QUICK=${HLOD_SHARD_QUICK:-0}
 NS="1 3 8"
 [ "$QUICK" = 1 ] && NS=3
@@ -106,12 +118,10 @@ done
 # no city levels: every block a root, nothing for the merge to build
 # (not under the sanitizers: the plan's one level, no code of its own)
 if [ "$QUICK" != 1 ]; then
-    "$BIN/hlod-build" "$T/small.obj" -o "$T/flat.hlod" --desired-tris 450 --city-levels off --quiet &&
-        parallel --halt now,fail=1 "$BIN/hlod-build" "$T/small.obj" -o "$T/flat.{}.part" --desired-tris 450 \
-            --city-levels off --threads 1 --quiet --shard "{}/3" ::: 1 2 3 &&
-        "$BIN/hlod-merge" "$T"/flat.*.part -o "$T/flat-3.hlod" --quiet --json >"$T/flat.json" &&
-        cmp -s "$T/flat.hlod" "$T/flat-3.hlod" && [ "$(key "$T/flat.json" groups_built)" = 0 ]
-    ok $? "--city-levels off, 3 shards: merge byte-identical, $(key "$T/flat.json" groups_built) groups built"
+    FLAT=("$T/small.obj" --desired-tris 450 --city-levels off)
+    "$BIN/hlod-build" "${FLAT[@]}" -o "$T/flat.hlod" --quiet && shards_match flat 3 "${FLAT[@]}" &&
+        [ "$(key "$T/flat-3.json" groups_built)" = 0 ]
+    ok $? "--city-levels off, 3 shards: merge byte-identical, $(key "$T/flat-3.json" groups_built) groups built"
 fi
 
 # many input files (one per tile, as real city data comes): two cities side
@@ -121,20 +131,14 @@ fi
     "$BIN/hlod-gen-city" --preset small --blocks 6 --tris-per-block 600 --texture-size 64 --seed 3 \
         --origin 300 0 0 -o "$T/tile1.obj" >/dev/null 2>&1 &&
     "$BIN/hlod-build" "$T/tile0.obj" "$T/tile1.obj" -o "$T/tiles.hlod" --desired-tris 450 --quiet &&
-    parallel --halt now,fail=1 "$BIN/hlod-build" "$T/tile0.obj" "$T/tile1.obj" -o "$T/tiles.{}.part" \
-        --desired-tris 450 --threads 1 --quiet --shard "{}/3" ::: 1 2 3 &&
-    "$BIN/hlod-merge" "$T"/tiles.*.part -o "$T/tiles-3.hlod" --quiet &&
-    cmp -s "$T/tiles.hlod" "$T/tiles-3.hlod"
+    shards_match tiles 3 "$T/tile0.obj" "$T/tile1.obj" --desired-tris 450
 ok $? "two input files (two 6-block cities side by side), 3 shards: merge byte-identical"
 
 # a model nobody here made: Khronos' 2CylinderEngine (glTF, 67 blocks of
 # real multi-part geometry; data/fetch-meshes.sh fetches it)
 ENG=${HLOD_SOURCE_DIR:-.}/data/meshes/2CylinderEngine.glb
 "$BIN/hlod-build" "$ENG" -o "$T/engine.hlod" --desired-tris 450 --quiet &&
-    parallel --halt now,fail=1 "$BIN/hlod-build" "$ENG" -o "$T/engine.{}.part" --desired-tris 450 \
-        --threads 1 --quiet --shard "{}/3" ::: 1 2 3 &&
-    "$BIN/hlod-merge" "$T"/engine.*.part -o "$T/engine-3.hlod" --quiet &&
-    cmp -s "$T/engine.hlod" "$T/engine-3.hlod"
+    shards_match engine 3 "$ENG" --desired-tris 450
 ok $? "2CylinderEngine.glb (67 blocks, not generated here), 3 shards: merge byte-identical"
 
 # an OBJ with what the reader handles beyond the generated city (faces
@@ -147,21 +151,14 @@ ok $? "an OBJ of the reader's corner cases (tests/obj_corner_cases.py): single b
 CCN="3 5"
 [ "$QUICK" = 1 ] && CCN=3
 for n in $CCN; do
-    parallel --halt now,fail=1 "$BIN/hlod-build" "$T/cc/corners.obj" -o "$T/cc.$n.{}.part" \
-        --desired-tris 60 --threads 1 --quiet --shard "{}/$n" 2>/dev/null ::: $(seq 1 "$n") &&
-        "$BIN/hlod-merge" "$T"/cc.$n.*.part -o "$T/cc-$n.hlod" --quiet &&
-        cmp -s "$T/cc.hlod" "$T/cc-$n.hlod"
+    shards_match cc "$n" "$T/cc/corners.obj" --desired-tris 60 2>/dev/null
     ok $? "the corner-case OBJ, $n shards (streamed object by object): merge byte-identical"
 done
 
 # a real OBJ nobody here made (assimp's spider: 19 groups, 3 textures,
 # data/fetch-meshes.sh), streamed likewise
 SP=${HLOD_SOURCE_DIR:-.}/data/meshes/spider.obj
-"$BIN/hlod-build" "$SP" -o "$T/spider.hlod" --desired-tris 450 --quiet &&
-    parallel --halt now,fail=1 "$BIN/hlod-build" "$SP" -o "$T/spider.{}.part" --desired-tris 450 \
-        --threads 1 --quiet --shard "{}/3" ::: 1 2 3 &&
-    "$BIN/hlod-merge" "$T"/spider.*.part -o "$T/spider-3.hlod" --quiet &&
-    cmp -s "$T/spider.hlod" "$T/spider-3.hlod"
+"$BIN/hlod-build" "$SP" -o "$T/spider.hlod" --desired-tris 450 --quiet && shards_match spider 3 "$SP" --desired-tris 450
 ok $? "spider.obj (19 blocks, not made here), 3 streamed shards: merge byte-identical"
 
 # ---- refusals ----
