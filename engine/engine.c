@@ -450,9 +450,9 @@ static int camera_motion(hlod_engine *e, const hlod_camera *cam, double dt, doub
     vel[0] = vel[1] = vel[2] = 0;
     if (e->have_prev && dt > 0)
         for (int k = 0; k < 3; k++)
-            vel[k] = (cam->position[k] - e->prev_eye[k]) / dt;
+            vel[k] = (cam->position[k] - e->prev_cam.position[k]) / dt;
     for (int k = 0; k < 3 && e->have_prev; k++)
-        moved |= cam->position[k] != e->prev_eye[k];
+        moved |= cam->position[k] != e->prev_cam.position[k];
     /* the whole camera (a turn on the spot is not still) */
     int same = e->have_prev && memcmp(e->prev_cam.position, cam->position, sizeof cam->position) == 0 &&
                memcmp(e->prev_cam.view, cam->view, sizeof cam->view) == 0 &&
@@ -461,7 +461,6 @@ static int camera_motion(hlod_engine *e, const hlod_camera *cam, double dt, doub
                e->prev_cam.fov_y_deg == cam->fov_y_deg;
     e->still_run = same ? e->still_run + 1 : 0;
     e->prev_cam = *cam;
-    memcpy(e->prev_eye, cam->position, sizeof e->prev_eye);
     e->have_prev = 1;
     return moved;
 }
@@ -556,7 +555,7 @@ hlod_result hlod_engine_frame(hlod_engine *e, const hlod_camera *cam, double dt,
                          .pixel_ms = m->theta[3],
                          .occlusion = e->d.occlusion > 0 && e->d.renderer != NULL,
                          .still = !moved,
-                         .hold = e->d.policy == HLOD_POLICY_LAKHIA && e->still_run >= STILL_HOLD,
+                         .hold = e->still_run >= STILL_HOLD,
                          .sse_pixels = m->sse_pixels,
                          .budget_ms = budget,
                          .share_ms = budget * m->share_gain};

@@ -37,9 +37,8 @@ struct hlod_engine {
     hlod_u32_vec later;         /* scratch: nodes tested before they are drawn */
 
     /* camera motion */
-    double prev_eye[3];
     int have_prev;
-    hlod_camera prev_cam;   /* the last frame's camera, whole */
+    hlod_camera prev_cam;   /* the last frame's camera (when have_prev) */
     uint32_t still_run;     /* frames in a row with the same camera as the last */
     int have_front;         /* last_front_ms is set (a frame was selected) */
     double last_front_ms;   /* the last front's estimate, fixed part included */

@@ -121,8 +121,6 @@ hlod_result hlod_mesh_import(const char *path, const hlod_import_desc *desc, hlo
     hlod_result res = sniff(path, lg, &kind);
     if (res != HLOD_OK)
         return res;
-    char ext[16];
-    io_ext(path, ext, sizeof ext); /* for the message below */
     switch (kind) {
     case K_OBJ: res = io_read_obj(path, lg, out, st); break;
     case K_PLY: res = io_read_ply(path, lg, out, st); break;
@@ -131,9 +129,12 @@ hlod_result hlod_mesh_import(const char *path, const hlod_import_desc *desc, hlo
     case K_TILESET:
         res = io_read_tileset(path, desc ? desc->scratch_dir : NULL, lg, out, st);
         break;
-    default:
+    default: {
+        char ext[16];
+        io_ext(path, ext, sizeof ext);
         hlod_logf(lg, HLOD_LOG_ERROR, "%s: unknown mesh format (extension '%s')", path, ext);
         return HLOD_ERR_UNSUPPORTED;
+    }
     }
     if (res) {
         hlod_mesh_free(out);
