@@ -34,6 +34,7 @@
 #include <GL/glcorearb.h>
 
 #include "gl_render.h"
+#include "texture.h"
 
 /* Every GL function the renderer calls: (typedef, name without "gl"). */
 #define GL_FUNCS(X)                                                  \
@@ -73,7 +74,6 @@
     X(PFNGLACTIVETEXTUREPROC, ActiveTexture)                         \
     X(PFNGLTEXIMAGE2DPROC, TexImage2D)                               \
     X(PFNGLTEXPARAMETERIPROC, TexParameteri)                         \
-    X(PFNGLGENERATEMIPMAPPROC, GenerateMipmap)                       \
     X(PFNGLDELETETEXTURESPROC, DeleteTextures)                       \
     X(PFNGLPIXELSTOREIPROC, PixelStorei)                             \
     X(PFNGLVIEWPORTPROC, Viewport)                                   \
@@ -436,16 +436,34 @@ static void add_section(const gl_table *gl, GLuint attr, GLint size, GLenum type
     *offset += bytes;
 }
 
-/* Texture of 1..4 channels: grey, grey + alpha, RGB, RGBA. */
+/* Texture of 1..4 channels: grey, grey + alpha, RGB, RGBA, with its mip
+ * chain.  The loader thread builds the chain (texture.h); a payload that
+ * comes without one (read on this thread) gets it here.  Each level is then
+ * a plain copy: glGenerateMipmap and an RGB-to-RGBA conversion cost a
+ * software GL 2-9x as much on this thread.  Returns the bytes the driver
+ * holds, or 0 when the chain cannot be allocated. */
 static uint64_t upload_texture(const gl_table *gl, const hlod_store_payload *p, GLuint tex)
 {
     static const GLenum internal[4] = {GL_R8, GL_RG8, GL_RGBA8, GL_RGBA8};
     static const GLenum format[4] = {GL_RED, GL_RG, GL_RGB, GL_RGBA};
-    int c = (int)p->tex_channels - 1;
+    hlod_store_payload own = *p;
+    own.tex_memory = NULL;
+    if (!own.tex_levels && (hlod_texture_prepare(&own) != HLOD_OK || !own.tex_levels))
+        return 0;
+    int c = (int)own.tex_channels - 1;
     gl->BindTexture(GL_TEXTURE_2D, tex);
     gl->PixelStorei(GL_UNPACK_ALIGNMENT, 1);   /* rows are w * channels bytes */
-    gl->TexImage2D(GL_TEXTURE_2D, 0, (GLint)internal[c], (GLsizei)p->tex_width,
-                   (GLsizei)p->tex_height, 0, format[c], GL_UNSIGNED_BYTE, p->pixels);
+    const uint8_t *level = own.pixels;
+    uint32_t w = own.tex_width, h = own.tex_height;
+    for (uint32_t l = 0; l < own.tex_levels; l++) {
+        gl->TexImage2D(GL_TEXTURE_2D, (GLint)l, (GLint)internal[c], (GLsizei)w, (GLsizei)h, 0,
+                       format[c], GL_UNSIGNED_BYTE, level);
+        level += (size_t)w * h * own.tex_channels;
+        w = w > 1 ? w / 2 : 1;
+        h = h > 1 ? h / 2 : 1;
+    }
+    gl->TexParameteri(GL_TEXTURE_2D, GL_TEXTURE_MAX_LEVEL, (GLint)own.tex_levels - 1);
+    free(own.tex_memory);
     if (c <= 1) {   /* grey in red (alpha in green): replicate, as luminance did */
         gl->TexParameteri(GL_TEXTURE_2D, GL_TEXTURE_SWIZZLE_G, GL_RED);
         gl->TexParameteri(GL_TEXTURE_2D, GL_TEXTURE_SWIZZLE_B, GL_RED);
@@ -457,11 +475,10 @@ static uint64_t upload_texture(const gl_table *gl, const hlod_store_payload *p, 
     gl->TexParameteri(GL_TEXTURE_2D, GL_TEXTURE_MAG_FILTER, GL_LINEAR);
     gl->TexParameteri(GL_TEXTURE_2D, GL_TEXTURE_WRAP_S, GL_REPEAT);
     gl->TexParameteri(GL_TEXTURE_2D, GL_TEXTURE_WRAP_T, GL_REPEAT);
-    gl->GenerateMipmap(GL_TEXTURE_2D);
     gl->BindTexture(GL_TEXTURE_2D, 0);
     /* drivers pad RGB8 texels to 4 bytes; the mip chain adds a third */
     uint64_t texel = c == 2 ? 4 : (uint64_t)c + 1;
-    uint64_t base = (uint64_t)p->tex_width * p->tex_height * texel;
+    uint64_t base = (uint64_t)own.tex_width * own.tex_height * texel;
     return base + base / 3;
 }
 
@@ -517,7 +534,13 @@ hlod_result hlod_gpu_upload(hlod_renderer *r, const hlod_store_payload *p, hlod_
     out->bytes = vbo_bytes + ibo_bytes;
     if (textured) {
         gl->GenTextures(1, &out->tex);
-        out->bytes += upload_texture(gl, p, out->tex);
+        uint64_t tex_bytes = upload_texture(gl, p, out->tex);
+        if (!tex_bytes) {
+            take_errors(gl);
+            hlod_gpu_release(r, out);
+            return HLOD_ERR_NOMEM;
+        }
+        out->bytes += tex_bytes;
     }
     out->index_count = p->index_count;
     out->tex_index_count = textured ? 3 * p->tex_tri_count : 0;

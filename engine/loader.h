@@ -44,6 +44,8 @@ typedef struct hlod_loader_desc {
     hlod_read_hook hook;        /* may be NULL */
     void *hook_user;
     hlod_logger logger;
+    int prepare_textures;       /* 1: build each texture's mip chain (texture.h) here,
+                                   off the render thread that uploads it */
 } hlod_loader_desc;
 
 typedef struct hlod_loader_counters {

@@ -267,10 +267,65 @@ static void load_failed(hlod_residency *rs, uint32_t node, hlod_result why)
               "drawn instead", hlod_store_path(rs->store), node, hlod_result_str(why));
 }
 
+/* The measured cost of an upload per byte, in two size classes (a small
+ * upload's fixed part made a big texture look cheap: it then went inline
+ * and missed the deadline) and biased up: it rises half way to a slower
+ * upload and falls a tenth of the way to a faster one, so that it predicts
+ * near the slow end of a software GL's spread (the same 871x871 texture
+ * took 3-20 ms, as its memory was fresh or not). */
+#define UPLOAD_BIG_BYTES (512u << 10)
+
+static double predict_upload(const hlod_residency *rs, size_t bytes)
+{
+    double per = rs->upload_ms_per_byte[bytes >= UPLOAD_BIG_BYTES];
+    if (per == 0) /* the other class until this one is measured */
+        per = rs->upload_ms_per_byte[bytes < UPLOAD_BIG_BYTES];
+    return per * (double)bytes;
+}
+
+static void measured_upload(hlod_residency *rs, size_t bytes, double ms)
+{
+    double *c = &rs->upload_ms_per_byte[bytes >= UPLOAD_BIG_BYTES];
+    double per = ms / (double)bytes;
+    *c = *c == 0 ? per : *c + (per > *c ? 0.5 : 0.1) * (per - *c);
+}
+
 /* Frames an upload predicted to overrun the time budget may wait before
  * it is made anyway (it may be the one node the view needs). */
 #define UPLOAD_STARVE 8
 #define UPLOAD_STARVE_MAX 64
+
+/* An upload too big for up_ms waits, but each one only so long: the first
+ * of the pending list (in its order) that has waited UPLOAD_STARVE frames
+ * and fits the room the last front left under the target, or has waited
+ * UPLOAD_STARVE_MAX frames, is moved to its head; returns 1 when one was.
+ * (A count of frames that uploaded nothing, as before, let a trickle of
+ * small prefetches starve a big texture a refinement waited for: 5-9 nodes
+ * of a still view stayed missing for 500 frames.)  Those past the room go
+ * at most once every UPLOAD_STARVE_MAX frames: each misses the deadline
+ * (on fly, one every 8 frames took deadline_met from 0.997 to 0.983). */
+static int waited_first(hlod_residency *rs, double up_ms, double room_ms)
+{
+    for (size_t k = 0; k < rs->pending_n; k++) {
+        const hlod_load_result *lr = &rs->pending[k];
+        uint32_t age = rs->frame - rs->res[lr->node].arrived;
+        double predicted = predict_upload(rs, lr->payload.bytes);
+        if (rs->res[lr->node].state != HLOD_NODE_QUEUED || lr->result != HLOD_OK ||
+            predicted <= 1.25 * up_ms)
+            continue;
+        int fits = age >= UPLOAD_STARVE && predicted <= room_ms;
+        int forced = age >= UPLOAD_STARVE_MAX && rs->frame - rs->forced_frame >= UPLOAD_STARVE_MAX;
+        if (fits || forced) {
+            hlod_load_result t = *lr;
+            memmove(rs->pending + 1, rs->pending, k * sizeof t);
+            rs->pending[0] = t;
+            if (!fits)
+                rs->forced_frame = rs->frame;
+            return 1;
+        }
+    }
+    return 0;
+}
 
 void hlod_residency_collect(hlod_residency *rs, double up_ms, double room_ms)
 {
@@ -289,6 +344,8 @@ void hlod_residency_collect(hlod_residency *rs, double up_ms, double room_ms)
     size_t got = hlod_loader_collect(rs->loader, rs->pending + rs->pending_n, room);
     if (wait_end(&wp))
         rs->st->render_waits++;
+    for (size_t k = rs->pending_n; k < rs->pending_n + got; k++)
+        rs->res[rs->pending[k].node].arrived = rs->frame;
     rs->pending_n += got;
 
     /* Uploads stop at the byte budget or, measured, at the time budget: a
@@ -307,6 +364,7 @@ void hlod_residency_collect(hlod_residency *rs, double up_ms, double room_ms)
             memmove(rs->pending + first + 1, rs->pending + first, (k - first) * sizeof t);
             rs->pending[first++] = t;
         }
+    const int waited = waited_first(rs, up_ms, room_ms); /* pending[0] goes, whatever its size */
     double t_up = hlod_now_ms();
     uint64_t uploaded = 0;
     size_t keep = 0;
@@ -324,20 +382,14 @@ void hlod_residency_collect(hlod_residency *rs, double up_ms, double room_ms)
             continue;
         }
         /* An upload that the measured cost per byte says would run a
-         * quarter past the time budget waits too (a big texture takes tens of ms on a
-         * software GL, and the frame's deadline counts them), unless
-         * uploads have waited for UPLOAD_STARVE frames: then one goes. */
+         * quarter past the time budget waits too (a big texture takes tens
+         * of ms on a software GL, and the frame's deadline counts them),
+         * unless it is first: the one that waited too long (above). */
         double elapsed = hlod_now_ms() - t_up;
-        double predicted = elapsed + rs->upload_ms_per_byte * (double)lr->payload.bytes;
-        /* a starved upload goes when the frame has room for it (the
-         * last front left room_ms under the target), or after
-         * UPLOAD_STARVE_MAX frames whatever the room: on orbit, a 15-25 ms
-         * texture that went after 8 frames made 67 of 72 deadline misses */
-        int starved = (rs->upload_starved >= UPLOAD_STARVE && predicted <= room_ms) ||
-                      rs->upload_starved >= UPLOAD_STARVE_MAX;
+        double predicted = elapsed + predict_upload(rs, lr->payload.bytes);
         if ((uploaded && (uploaded + lr->payload.bytes > rs->d->upload_budget_bytes ||
                           elapsed >= up_ms || predicted > 1.25 * up_ms)) ||
-            (!uploaded && !starved && predicted > 1.25 * up_ms)) {
+            (!uploaded && !(waited && k == 0) && predicted > 1.25 * up_ms)) {
             rs->pending[keep++] = *lr; /* next frame */
             continue;
         }
@@ -347,18 +399,13 @@ void hlod_residency_collect(hlod_residency *rs, double up_ms, double room_ms)
         double t_one = hlod_now_ms();
         size_t bytes = lr->payload.bytes;
         hlod_result res = make_resident(rs, node, &lr->payload);
-        if (res == HLOD_OK && bytes > 0 && isfinite(up_ms)) {
-            /* per-byte cost, a running mean over about five uploads */
-            double per = (hlod_now_ms() - t_one) / (double)bytes;
-            double old = rs->upload_ms_per_byte;
-            rs->upload_ms_per_byte = old == 0 ? per : 0.8 * old + 0.2 * per;
-        }
+        if (res == HLOD_OK && bytes > 0 && isfinite(up_ms))
+            measured_upload(rs, bytes, hlod_now_ms() - t_one);
         if (res == HLOD_OK)
             rs->st->loads++;
         else
             load_failed(rs, node, res == HLOD_ERR_NOMEM ? HLOD_ERR_IO : res);
     }
-    rs->upload_starved = uploaded || !keep ? 0 : rs->upload_starved + 1;
     rs->pending_n = keep;
 }
 
@@ -558,6 +605,7 @@ hlod_result hlod_residency_init(hlod_residency *rs, const hlod_store *store,
         ld.hook = d->read_hook;
         ld.hook_user = d->read_hook_user;
         ld.logger = d->logger;
+        ld.prepare_textures = d->renderer != NULL;
         r = hlod_loader_create(store, &ld, &rs->loader);
     }
     if (r != HLOD_OK)

@@ -27,6 +27,7 @@ typedef struct hlod_node_res {
     uint32_t needed;        /* frame a refinement last waited for it (it is
                                visible, and its parent would refine into it) */
     uint32_t slot;          /* index in the resident list while resident */
+    uint32_t arrived;       /* frame its read came back (waiting for upload) */
     hlod_gpu_node gpu;      /* when a renderer is attached */
 } hlod_node_res;
 
@@ -59,8 +60,9 @@ typedef struct hlod_residency {
                                    failure, being retried) */
     uint32_t start_failures;    /* failed reads of pinned nodes at start, not yet in a
                                    frame's stats */
-    double upload_ms_per_byte;  /* measured cost of an upload (0: none measured yet) */
-    uint32_t upload_starved;    /* frames in a row that deferred every upload */
+    double upload_ms_per_byte[2]; /* measured cost of an upload, small and big
+                                     (residency.c; 0: none measured yet) */
+    uint32_t forced_frame;      /* frame of the last upload past every budget */
 } hlod_residency;
 
 /* Which resident nodes may go, and in what order: key() returns 0 for a
@@ -124,9 +126,10 @@ static inline const hlod_gpu_node *hlod_residency_gpu(const hlod_residency *r, u
 
 /* Collects finished loads and uploads them within the upload budget:
  * up_ms of uploads this frame (the engine's reserve), the nodes a
- * refinement waits for first.  An upload too big for up_ms that has waited
- * 8 frames goes when it fits in room_ms (what the last front left of the
- * target), and after 64 frames whatever the room.  up_ms is ignored when
+ * refinement waits for first.  An upload too big for up_ms goes first once
+ * it has itself waited 8 frames and fits in room_ms (what the last front
+ * left of the target), or waited 64 frames whatever the room (one such every
+ * 64 frames at most).  up_ms is ignored when
  * deterministic or timed by a model (bytes alone decide). */
 void hlod_residency_collect(hlod_residency *r, double up_ms, double room_ms);
 /* Admits wanted nodes against the budget (evicting in order's order),

@@ -359,6 +359,50 @@ static void generous_target_converges(void)
     hlod_engine_destroy(e);
 }
 
+/* An upload too big for the frame's upload time waits, each one only so
+ * long (residency.h): with an upload budget no upload fits (1 us), each
+ * read goes once it has waited 8 frames and fits the room under the target,
+ * so with a backlog one goes nearly every frame (at least 35% of them: a
+ * loader that is late leaves gaps).  (When the wait was counted
+ * in frames that uploaded nothing, one went every 9th frame, and a trickle
+ * of small uploads starved a big one for good.) */
+static void waited_uploads_go(void)
+{
+    hlod_camera cam;
+    double o[3] = {0, 0, 0};
+    city_camera(&cam, o, 60, 20);
+    hlod_engine_desc d = {0};
+    d.renderer = g_r;
+    d.target_ms = 1000;         /* room under the target for any upload */
+    d.upload_budget_ms = 0.001; /* no upload fits the budget */
+    hlod_engine *e = NULL;
+    CHECK(hlod_engine_create(g_near, &d, &e) == HLOD_OK);
+    hlod_frame_stats st;
+    uint32_t loads = 0, most = 0;
+    int first = -1, last = -1;
+    for (int f = 0; f < 200 && e; f++) {
+        CHECK(hlod_engine_frame(e, &cam, 1.0 / 30, &st) == HLOD_OK);
+        if (f == 0)
+            continue; /* the pinned nodes, read at start */
+        if (st.loads) {
+            loads += st.loads;
+            most = st.loads > most ? st.loads : most;
+            first = first < 0 ? f : first;
+            last = f;
+        }
+        if (f > 40 && st.wanted_missing == 0 && st.queued == 0 && last < f - 20)
+            break;
+    }
+    int span = last - first + 1;
+    fprintf(stderr, "  uploads past a 1 us budget: %u in frames %d-%d (at most %u a frame), "
+            "wanted missing at the end %u\n", loads, first, last, most, st.wanted_missing);
+    CHECKF(loads >= 20, "only %u uploads: nothing to wait for", loads);
+    CHECKF(most == 1, "%u uploads in one frame past the budget", most);
+    CHECKF(loads >= 0.35 * span, "%u uploads in %d frames: the waits were not each upload's own",
+           loads, span);
+    hlod_engine_destroy(e);
+}
+
 /* Occlusion culling never makes a hole: along a street-level walk through
  * the city (much of it hidden behind the nearest buildings), a jump to a
  * view from above and a jump back (the last frame's visibility is then
@@ -479,6 +523,7 @@ int main(void)
         RUN(full_detail_matches_source);
         RUN(far_origin_same_image);
         RUN(generous_target_converges);
+        RUN(waited_uploads_go);
         RUN(solid_blocks_cull_invisibly);
         RUN(occlusion_makes_no_hole);
     }

@@ -14,6 +14,7 @@
 #include "rec_log.h"
 #include "city.h"
 #include "gl_render.h"
+#include "texture.h"
 #include "hlod/engine.h"
 #include "hlod/renderer.h"
 #include "hlod/image.h"
@@ -558,6 +559,102 @@ static void test_texture_checker(void)
     ctx_close(&c);
 }
 
+/* The loader's mip chain (texture.h): level sizes, RGB to RGBA, the 2x2
+ * mean, grey kept grey, idempotent, nothing done without a texture. */
+static void test_texture_chain(void)
+{
+    static const uint32_t dims[][3] = {{116, 116, 7}, {871, 871, 10}, {1, 1, 1}, {5, 1, 3},
+                                       {1, 6, 3}, {655, 1024, 11}};
+    for (size_t d = 0; d < sizeof dims / sizeof dims[0]; d++) {
+        uint32_t w = dims[d][0], h = dims[d][1];
+        uint8_t *pix = malloc((size_t)w * h * 3);
+        for (size_t i = 0; i < (size_t)w * h * 3; i++)
+            pix[i] = (uint8_t)(i * 37 + i / 7);
+        hlod_store_payload p = {.tex_width = w, .tex_height = h, .tex_channels = 3, .pixels = pix};
+        CHECK(hlod_texture_prepare(&p) == HLOD_OK);
+        CHECKF(p.tex_levels == dims[d][2] && p.tex_channels == 4 && p.pixels == p.tex_memory,
+               "%ux%u: %u levels, %u channels", w, h, p.tex_levels, p.tex_channels);
+        CHECK(hlod_texture_chain_bytes(w, h, 4) ==
+              hlod_texture_chain_bytes(w, h, 1) * 4);
+        /* level 0: the texels with alpha 255 */
+        int same = 1;
+        for (size_t i = 0; i < (size_t)w * h && same; i++)
+            same = !memcmp(p.pixels + 4 * i, pix + 3 * i, 3) && p.pixels[4 * i + 3] == 255;
+        CHECKF(same, "%ux%u: level 0 is not the texture", w, h);
+        /* level 1's first texel: the rounded mean of level 0's 2x2 block */
+        if (w > 1 && h > 1) {
+            const uint8_t *l1 = p.pixels + (size_t)w * h * 4;
+            for (int k = 0; k < 4; k++) {
+                int sum = p.pixels[k] + p.pixels[4 + k] + p.pixels[(size_t)w * 4 + k] +
+                          p.pixels[(size_t)w * 4 + 4 + k];
+                CHECKF(l1[k] == (sum + 2) / 4, "%ux%u: level 1 channel %d: %d, want %d", w, h,
+                       k, l1[k], (sum + 2) / 4);
+            }
+        }
+        const uint8_t *before = p.pixels;
+        CHECK(hlod_texture_prepare(&p) == HLOD_OK && p.pixels == before); /* once */
+        hlod_store_payload_free(&p); /* frees the chain (ASan: no leak) */
+        free(pix);
+    }
+    /* grey and grey + alpha keep their channels; a flat texture stays flat */
+    for (uint32_t ch = 1; ch <= 2; ch++) {
+        uint8_t pix[12 * 10 * 2];
+        memset(pix, 77, sizeof pix);
+        hlod_store_payload p = {.tex_width = 12, .tex_height = 10, .tex_channels = ch,
+                                .pixels = pix};
+        CHECK(hlod_texture_prepare(&p) == HLOD_OK && p.tex_channels == ch && p.tex_levels == 4);
+        size_t n = hlod_texture_chain_bytes(12, 10, ch), flat = 1;
+        for (size_t i = 0; i < n; i++)
+            flat &= p.pixels[i] == 77;
+        CHECKF(flat, "%u channels: the chain of a flat texture is not flat", ch);
+        hlod_store_payload_free(&p);
+    }
+    hlod_store_payload none = {.vertex_count = 3};
+    CHECK(hlod_texture_prepare(&none) == HLOD_OK && !none.tex_levels && !none.tex_memory);
+}
+
+/* Minified, a texture samples its mip chain: a 64x64 black-and-white
+ * checker of 1-texel squares drawn 8 pixels wide is mid grey, whether the
+ * loader made the chain or the upload did (the same image), and not the
+ * aliased black or white of level 0 alone. */
+static void test_texture_minified(void)
+{
+    gl_ctx c;
+    if (!ctx_open(&c))
+        return;
+    const double rect[1][4] = {{-0.05, -0.05, 0.05, 0.05}};
+    hlod_mesh m;
+    quad_mesh(&m, 1, rect);
+    hlod_camera cam;
+    top_camera(&cam);
+    uint8_t pix[64 * 64 * 3];
+    for (int y = 0; y < 64; y++)
+        for (int x = 0; x < 64; x++)
+            memset(pix + 3 * (y * 64 + x), (x + y) % 2 ? 255 : 0, 3);
+    hlod_image tex = {64, 64, 3, pix};
+    uint8_t *rgb[2] = {malloc(NPIX * 3), malloc(NPIX * 3)};
+    for (int prepared = 0; prepared < 2; prepared++) {
+        tpay t;
+        tpay_opts o = {.tex = &tex};
+        tpay_from_mesh(&t, &m, &o);
+        if (prepared)
+            CHECK(hlod_texture_prepare(&t.p) == HLOD_OK && t.p.tex_levels == 7);
+        render(&c, &t, 1, &cam, rgb[prepared]);
+        const uint8_t *mid = pixel(rgb[prepared], W / 2, H / 2);
+        CHECKF(abs((int)mid[0] - 128) <= 12 && mid[0] == mid[1] && mid[1] == mid[2],
+               "%s chain: centre %d %d %d, want grey 128", prepared ? "loader's" : "upload's",
+               mid[0], mid[1], mid[2]);
+        free(t.p.tex_memory);
+        t.p.tex_memory = NULL;
+        tpay_free(&t);
+    }
+    CHECK(compare("texture_minified", rgb[0], rgb[1], 99) >= 99);
+    free(rgb[0]);
+    free(rgb[1]);
+    hlod_mesh_free(&m);
+    ctx_close(&c);
+}
+
 /* Untextured triangles use their vertex colour, grey without one; in one
  * payload the first tex_tri_count triangles are textured and the rest are
  * not. */
@@ -1020,9 +1117,9 @@ static gl_is_fn gl_is(const char *name)
     return f;
 }
 
-static void *no_mipmap_proc(const char *name)
+static void *no_teximage_proc(const char *name)
 {
-    if (!strcmp(name, "glGenerateMipmap"))
+    if (!strcmp(name, "glTexImage2D"))
         return NULL;
     return hlod_osmesa_get_proc()(name);
 }
@@ -1108,8 +1205,8 @@ static void test_upload_release(void)
 
     rl.count = 0;
     r2 = (hlod_renderer *)&rl;
-    CHECK(hlod_renderer_create(no_mipmap_proc, &lg, &r2) == HLOD_ERR_UNSUPPORTED);
-    CHECK(r2 == NULL && rl.count == 1 && strstr(rl.last, "glGenerateMipmap"));
+    CHECK(hlod_renderer_create(no_teximage_proc, &lg, &r2) == HLOD_ERR_UNSUPPORTED);
+    CHECK(r2 == NULL && rl.count == 1 && strstr(rl.last, "glTexImage2D"));
     CHECK(hlod_renderer_create(NULL, &lg, &r2) == HLOD_ERR_INVALID_ARG);
     CHECK(hlod_osmesa_read_rgb(c.o, NULL) == HLOD_ERR_INVALID_ARG);
     hlod_osmesa *o2 = NULL;
@@ -1148,6 +1245,8 @@ int main(void)
     RUN(test_clear_color);
     RUN(test_read_orientation);
     RUN(test_texture_checker);
+    RUN(test_texture_chain);
+    RUN(test_texture_minified);
     RUN(test_vertex_colors);
     RUN(test_lighting);
     RUN(test_modes);

@@ -581,6 +581,7 @@ void hlod_store_payload_free(hlod_store_payload *p)
     if (!p)
         return;
     free(p->memory);
+    free(p->tex_memory);
     memset(p, 0, sizeof *p);
 }
 

@@ -379,6 +379,11 @@ typedef struct hlod_store_payload {
     const uint8_t *pixels;      /* w * h * channels or NULL */
     void *memory;
     size_t bytes;
+    /* 0: pixels is the stored texture, one level.  Else the engine's loader
+     * made the mip chain (engine/texture.h): tex_levels levels one after
+     * another from pixels, in tex_memory (its own allocation). */
+    uint32_t tex_levels;
+    void *tex_memory;
 } hlod_store_payload;
 
 void hlod_store_payload_free(hlod_store_payload *p);   /* p may be zeroed */
