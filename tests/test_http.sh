@@ -13,13 +13,15 @@
 # per request through the reader's hook (HLOD_HTTP_LATENCY_MS; the kernel
 # has no netem).  Checks:
 #   - hlod-info --verify URL passes, its JSON equal to the file's (but "file");
-#   - hlod-bench URL on walk-drive and fly's first 1,200 frames (--realtime: frames at the
+#   - hlod-bench URL on walk-drive and fly's first 1,200 frames, each beside
+#     the same run from the file (--realtime: frames at the
 #     viewer's pace of --dt, 320x180, a budget holding the store, so runs
 #     compare by loading, not by eviction churn): exit 0, render_waits 0,
-#     missing_wanted_frames <= 3 x the file's + 20 (a stall, not a speed
+#     missing_wanted_frames <= 3 x the file's + 60 (a stall, not a speed
 #     target: the issue's 1.5 x is a timing figure, measured on the default
-#     city by tests/bench/bench_http.sh; here fly missed 46-48 frames over
-#     HTTP against the file's 19); a pair that misses is run once more
+#     city by tests/bench/bench_http.sh; here fly missed 43-52 frames over
+#     HTTP against the file's 10-11, 40 ms a request being 1.2 frames, and a
+#     stalled loader misses hundreds); a pair that misses is run once more
 #     (wall-clock noise), a render wait too (as test_damaged.sh);
 #   - hlod-view URL under Xvfb: 60 frames, exit 0, the screenshot more
 #     than 30% city (its coverage line);
@@ -108,12 +110,12 @@ if [ ! -x "$NGINX" ]; then
     exit 1
 fi
 
-mkdir -p "$T/www/norange" "$T/www/slow" "$T/www/swap" "$T/logs" "$T/tmp"
+mkdir -p "$T/www/norange" "$T/www/slow" "$T/www/held" "$T/www/swap" "$T/logs" "$T/tmp"
 "$BIN/hlod-gen-city" --preset small -o "$T/city.obj" --quiet &&
     "$BIN/hlod-build" "$T/city.obj" -o "$T/city.hlod" --desired-tris 450 --quiet &&
     "$BIN/hlod-build" "$T/city.obj" -o "$T/other.hlod" --desired-tris 300 --quiet
 ok $? "small city stores built"
-for d in www www/norange www/slow www/swap; do cp "$T/city.hlod" "$T/$d/city.hlod"; done
+for d in www www/norange www/slow www/held www/swap; do cp "$T/city.hlod" "$T/$d/city.hlod"; done
 chmod -R a+rX "$T/www"
 # https: a self-signed certificate for 127.0.0.1 (openssl), served beside
 # the plain port on PORT + 1
@@ -152,6 +154,8 @@ http {
         limit_rate $RATE;
         location /norange/ { max_ranges 0; }
         location /slow/ { limit_rate 16k; }
+        location /held/ { limit_rate 48k; }
+        location /swap/ { limit_rate 48k; }
     }
 }
 EOF
@@ -199,10 +203,18 @@ PATHS=(walk-drive fly)
 # (fly's first 1,200 frames, 40 s in real time: its climb and a stretch of
 # flight; the whole path twice took 150 s of this serial test)
 if [ "$QUICK" = 1 ]; then PATHS=(walk-drive); REAL+=(--frames 200); else REAL+=(--frames 1200); fi
+# The two runs go side by side: each paces its frames in real time at
+# 320x180 and leaves the cores mostly idle, both meet the same machine, and
+# the pair takes one run's time (the test's longest part, 66 s in turn).
 compare() { # P: a file run and a URL run, judged
-    local p=$1 tag=$2
-    bench "$T/city.hlod" "$p" "$T/file-$p" "${REAL[@]}" || return 1
-    bench "$URL/city.hlod" "$p" "$T/http-$p" "${REAL[@]}" || return 1
+    local p=$1 tag=$2 frc
+    bench "$T/city.hlod" "$p" "$T/file-$p" "${REAL[@]}" &
+    local fpid=$!
+    bench "$URL/city.hlod" "$p" "$T/http-$p" "${REAL[@]}"
+    local hrc=$?
+    wait $fpid
+    frc=$?
+    [ $frc -eq 0 ] && [ $hrc -eq 0 ] || return 1
     local fm fb hm hb hw hf ff
     fm=$(key "$T/file-$p" missing_wanted_frames) fb=$(key "$T/file-$p" bytes_read)
     hm=$(key "$T/http-$p" missing_wanted_frames) hb=$(key "$T/http-$p" bytes_read)
@@ -211,12 +223,12 @@ compare() { # P: a file run and a URL run, judged
         "| http missing_wanted_frames=$hm bytes_read=$hb render_waits=$hw loads=$(key "$T/http-$p" loads)" \
         "(file loads=$(key "$T/file-$p" loads)) | $LINK, 40 ms a request"
     perl -e 'my ($fm, $fb, $hm, $hb, $hw, $hf, $ff) = @ARGV;
-        exit !($hf == $ff && $hw == 0 && $hm <= 3 * $fm + 20)' \
+        exit !($hf == $ff && $hw == 0 && $hm <= 3 * $fm + 60)' \
         "$fm" "$fb" "$hm" "$hb" "$hw" "$hf" "$ff"
 }
 for p in "${PATHS[@]}"; do
     compare "$p" "" || compare "$p" " (again)"
-    ok $? "$p over HTTP: every frame, render_waits 0, missing_wanted_frames <= 3 x file + 20 (no stall)"
+    ok $? "$p over HTTP: every frame, render_waits 0, missing_wanted_frames <= 3 x file + 60 (no stall)"
 done
 
 # ---- determinism ----
@@ -308,9 +320,12 @@ last_missing() {
 # the server killed mid-run (SIGKILL: bodies cut, connections reset), back 1 s
 # later: loads go on after the restart, or none was needed (the reads the kill
 # cut were all retried in time and the last frame misses no wanted node; with
-# 12 transfers the walk-drive's 168 nodes can all be in before the restart)
+# 12 transfers the walk-drive's 168 nodes can all be in before the restart).
+# From /held/ (48 KB/s a transfer: walk-drive's 1.2 MB take 2 s or more over
+# 12), so that reads are in flight when it dies: at the full rate the loads
+# were all done before 1.5 s, and the kill met no read.
 kill_run() {
-    bench "$URL/city.hlod" walk-drive "$T/kill" "${FAULT[@]}" &
+    bench "$URL/held/city.hlod" walk-drive "$T/kill" "${FAULT[@]}" &
     local b=$! t0
     t0=$(date +%s%N)
     sleep 1.5
@@ -336,7 +351,8 @@ kill_run() {
 kill_run || kill_run
 ok $? "server killed mid-run and restarted: every frame, render_waits 0, loads go on (or none is missing), no node bad ($(grep -m1 retrying "$T/kill.err" | cut -c1-110))"
 
-# the store replaced on the server mid-run
+# the store replaced on the server mid-run (48 KB/s a transfer, as /held/:
+# reads are still going on at 1.5 s)
 swap_run() {
     cp "$T/city.hlod" "$T/www/swap/city.hlod"
     bench "$URL/swap/city.hlod" walk-drive "$T/swap" "${FAULT[@]}" &
