@@ -129,7 +129,7 @@ static inline const hlod_gpu_node *hlod_residency_gpu(const hlod_residency *r, u
  * refinement waits for first.  An upload too big for up_ms goes first once
  * it has itself waited 8 frames and fits in room_ms (what the last front
  * left of the target), or waited 64 frames whatever the room (one such every
- * 64 frames at most).  up_ms is ignored when
+ * 256 frames at most).  up_ms is ignored when
  * deterministic or timed by a model (bytes alone decide). */
 void hlod_residency_collect(hlod_residency *r, double up_ms, double room_ms);
 /* Admits wanted nodes against the budget (evicting in order's order),
