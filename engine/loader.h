@@ -54,7 +54,8 @@ typedef struct hlod_loader_counters {
     uint64_t reads_failed;
     uint64_t switches;          /* times a read was suspended for a more urgent one */
     uint64_t finish_ns;         /* thread CPU time in hlod_store_read_finish: checksum,
-                                   decoding (packed stores) and validation */
+                                   decoding (packed stores) and validation, and in
+                                   the mip chain when prepare_textures */
     uint64_t busy_ns;           /* thread CPU time of all the loader's work */
     uint64_t cache_hits;        /* payloads taken from the local cache (HLOD_CACHE_DIR):
                                    not in bytes_read */
