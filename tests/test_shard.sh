@@ -27,7 +27,8 @@
 #     in the node table and in the part section, a part cut short, a store
 #     that is not a part; 60 random single-bit flips in a part: no crash
 #     (exit 0 or 1), and an exit 0 only with the single build's bytes;
-#   - a shard killed (SIGKILL) at 6 moments of its run: either no part at
+#   - a shard killed (SIGKILL) at 6 moments of its run (fractions of one
+#     timed build; at least 3 must land before it ends): either no part at
 #     its path (the merge says the shard is missing) or a complete one (the
 #     merge gives the single build's bytes) - never a part the merge takes
 #     wrongly; then that shard rerun alone and merged again: byte-identical;
@@ -36,7 +37,7 @@
 # and N = 3 and the 30-block city with N = 1 only (cut levels 0 and 1), no
 # --city-levels off, the corner-case OBJ with N = 3, then every refusal
 # (which use metis's and N = 8's parts: those are built, not merged), 20
-# bit flips and the shard killed at 3 moments.
+# bit flips and the shard killed at 4 moments.
 # Env: HLOD_BIN_DIR (the tools), HLOD_SOURCE_DIR.
 set -uo pipefail
 BIN=${HLOD_BIN_DIR:-build/bin}
@@ -260,8 +261,16 @@ cp "$P.1.part" "$K/p.1.part"
 cp "$P.3.part" "$K/p.3.part"
 kills=0
 wrong=0
-KILL_AT="0.05 0.2 0.4 0.6 0.9 1.3"
-[ "$QUICK" = 1 ] && KILL_AT="0.05 0.6 1.3"
+# The moments are fractions of one uninterrupted build of the shard timed
+# here, so a faster or slower machine (or build) kills at the same stages;
+# fixed seconds let the last kill land after the build had finished.
+t0=$(date +%s%N)
+"$BIN/hlod-build" "$T/small.obj" -o "$K/p.2.part" --desired-tris 450 --threads 1 --quiet --shard 2/3
+build_ms=$((($(date +%s%N) - t0) / 1000000))
+FRACTIONS="0.02 0.15 0.3 0.45 0.6 0.9"
+[ "$QUICK" = 1 ] && FRACTIONS="0.02 0.25 0.5 0.9"
+KILL_AT=$(for f in $FRACTIONS; do awk -v f="$f" -v ms="$build_ms" 'BEGIN { printf "%.3f ", f * ms / 1000 }'; done)
+echo "  one build of shard 2/3: $build_ms ms; kills at $KILL_AT s"
 for at in $KILL_AT; do
     rm -f "$K/p.2.part"
     "$BIN/hlod-build" "$T/small.obj" -o "$K/p.2.part" --desired-tris 450 --threads 1 --quiet \
