@@ -73,10 +73,12 @@ static double normal_quantile(double q)
 }
 
 /* The margin for a quantile: the larger of the Gaussian one from the
- * median and sigma and, given residuals sorted ascending, their empirical
- * quantile (the machine's tail is heavier than a Gaussian's). */
+ * median and sigma of n residuals and, given nt residuals of the frames
+ * past the warm-up sorted ascending, their empirical quantile (the
+ * machine's tail is heavier than a Gaussian's) once nt holds at least one
+ * frame past it. */
 static double aim_margin(const hlod_engine_desc *d, double median, double sigma,
-                         const double *sorted, uint32_t n)
+                         const double *sorted, uint32_t nt, uint32_t n)
 {
     if (d->deterministic || d->aim_mean > 0)
         return 1;
@@ -86,11 +88,11 @@ static double aim_margin(const hlod_engine_desc *d, double median, double sigma,
     double q = d->deadline_quantile;
     double qz = n < MARGIN_SETTLE ? 1 - 0.1 * (1 - q) : q;
     double l = median + normal_quantile(qz) * sigma;
-    /* (nor is the empirical tail of so few frames the machine's: the
-     * first frames load, upload and warm caches) */
-    if (n >= MARGIN_SETTLE) {
-        uint32_t k = (uint32_t)ceil(q * n);
-        double emp = sorted[k ? (k <= n ? k - 1 : n - 1) : 0];
+    /* (a quantile of fewer frames is their maximum: the one slowest
+     * frame, not the machine's tail) */
+    if (n >= MARGIN_SETTLE && sorted && nt * (1 - q) >= 1) {
+        uint32_t k = (uint32_t)ceil(q * nt);
+        double emp = sorted[k ? (k <= nt ? k - 1 : nt - 1) : 0];
         l = emp > l ? emp : l;
     }
     double m = exp(l);
@@ -108,7 +110,7 @@ void hlod_cost_model_init(hlod_cost_model *m, const hlod_engine_desc *d)
         m->theta[2] = 1e-4;
     }
     m->sigma = PRIOR_SIGMA;
-    m->margin = aim_margin(d, 0, PRIOR_SIGMA, NULL, 0);
+    m->margin = aim_margin(d, 0, PRIOR_SIGMA, NULL, 0, 0);
     m->sse_pixels = d->sse_pixels;
     m->share_gain = 1;
 }
@@ -123,7 +125,7 @@ void hlod_cost_model_set(hlod_cost_model *m, const hlod_engine_desc *old,
         m->theta[2] = d->fixed_v_time;
     }
     if (d->aim_mean != old->aim_mean || d->deadline_quantile != old->deadline_quantile)
-        m->margin = aim_margin(d, 0, m->sigma, NULL, 0);
+        m->margin = aim_margin(d, 0, m->sigma, NULL, 0, 0);
 }
 
 static double dot(const double *t, const double *x)
@@ -172,20 +174,39 @@ static uint32_t residuals(const hlod_cost_model *m, const double *theta, uint32_
     return n;
 }
 
+/* median and 1.4826 x MAD of the n values e; e comes back sorted
+ * ascending */
+static void robust(double *e, uint32_t n, double *med, double *sigma)
+{
+    double dev[HLOD_COST_WINDOW];
+    *med = median(e, n);
+    for (uint32_t k = 0; k < n; k++)
+        dev[k] = fabs(e[k] - *med);
+    *sigma = 1.4826 * median(dev, n);
+}
+
 /* median and 1.4826 x MAD of the newest n residuals under the published
- * model; sorted (if not NULL) gets the residuals in ascending order */
-static uint32_t spread(const hlod_cost_model *m, uint32_t n, double *med, double *sigma,
-                       double *sorted)
+ * model */
+static uint32_t spread(const hlod_cost_model *m, uint32_t n, double *med, double *sigma)
 {
     double e[HLOD_COST_WINDOW];
     n = residuals(m, m->theta, n, e);
-    *med = median(e, n);
-    if (sorted)
-        memcpy(sorted, e, n * sizeof *e);
-    for (uint32_t k = 0; k < n; k++)
-        e[k] = fabs(e[k] - *med);
-    *sigma = 1.4826 * median(e, n);
+    robust(e, n, med, sigma);
     return n;
+}
+
+/* Of the newest n samples, those past the warm-up (the first MARGIN_SETTLE
+ * samples the model saw).  The margin's tail and its miss count read only
+ * these: the first frames compile shaders on first use and fault in cold
+ * pages, and the model is still unfit.  One such frame was the whole
+ * empirical tail of the 45-200 frames that followed: on the still view at
+ * 33 ms, frame 0 at 3.6 x its estimate set the margin to 2.59 at frame 45,
+ * the front fell from 123 nodes to 41, and, the front then being settled,
+ * the margin never shrank again (frames of 9 ms for the rest of the run). */
+static uint32_t past_warmup(const hlod_cost_model *m, uint32_t n)
+{
+    uint64_t after = m->frames > MARGIN_SETTLE ? m->frames - MARGIN_SETTLE : 0;
+    return after < n ? (uint32_t)after : n;
 }
 
 /* Robust loss of theta over the newest SHAPE_W samples: squared log
@@ -300,7 +321,7 @@ void hlod_cost_model_fit(hlod_cost_model *m, const hlod_engine_desc *d, double d
     /* the noise as measured so far */
     double med, sigma = PRIOR_SIGMA;
     if (m->ring_n >= 8)
-        spread(m, m->ring_n, &med, &sigma, NULL);
+        spread(m, m->ring_n, &med, &sigma);
 
     /* scale: a persistent error of the whole model (of a settled front:
      * both halves of its last SETTLED_K frames past SETTLED_ERR, the same
@@ -381,30 +402,32 @@ void hlod_cost_model_fit(hlod_cost_model *m, const hlod_engine_desc *d, double d
      * twice the step and the front is not settled: an estimate that
      * wanders with the noise must not move the budget of a still camera. */
     if (m->ring_n >= MARGIN_MIN) {
-        double sorted[HLOD_COST_WINDOW];
-        uint32_t n = spread(m, m->ring_n, &med, &sigma, sorted);
-        qsort(sorted, n, sizeof *sorted, cmp_double);
+        uint32_t n = spread(m, m->ring_n, &med, &sigma);
         m->sigma = sigma;
-        double want = aim_margin(d, med, sigma, sorted, n);
+        double tail[HLOD_COST_WINDOW];
+        uint32_t nt = residuals(m, m->theta, past_warmup(m, m->ring_n), tail);
+        qsort(tail, nt, sizeof *tail, cmp_double);
+        double want = aim_margin(d, med, sigma, tail, nt, n);
         double step = log(want / m->margin);
         int change;
         if (m->ring_n < MARGIN_SETTLE) {
             change = fabs(step) > 0.02;
         } else {
-            /* misses over the last MISS_W frames: the regime now, not the
-             * loading start that the long window still holds */
+            /* misses over the last MISS_W frames past the warm-up: the
+             * regime now, not the loading start that the long window
+             * still holds */
             double recent[MISS_W], rmed, rsig;
-            uint32_t nr = spread(m, MISS_W, &rmed, &rsig, recent), misses = 0;
+            uint32_t nr = residuals(m, m->theta, past_warmup(m, MISS_W), recent), misses = 0;
             for (uint32_t k = 0; k < nr; k++)
                 misses += recent[k] > log(m->margin);
             double allowed = (1 - d->deadline_quantile) * nr;
             /* four standard deviations of a binomial count over what the
              * quantile allows: an adequate margin almost never passes it */
-            int too_many = misses >= ceil(allowed + 4 * sqrt(allowed) + 2);
+            int too_many = nr && misses >= ceil(allowed + 4 * sqrt(allowed) + 2);
             if (too_many) {
                 /* grow to what the recent frames need, no further */
-                qsort(recent, nr, sizeof *recent, cmp_double);
-                double grow = aim_margin(d, rmed, rsig, recent, nr);
+                robust(recent, nr, &rmed, &rsig);
+                double grow = aim_margin(d, rmed, rsig, recent, nr, n);
                 want = grow > m->margin ? grow : m->margin;
                 step = log(want / m->margin);
             }

@@ -294,6 +294,46 @@ static void margin_meets_the_deadline(void)
     }
 }
 
+/* The first frames of a run (shaders compiled on first use, cold pages)
+ * leave no margin behind: frames 0-3 take 2.5-3.6 x the machine's time,
+ * 40 loading frames vary, then the front settles for 400 frames, as the
+ * still view at 33 ms did.  The margin ends within 25 % of the one the
+ * same run without the slow start gets (the warm-up's spread still counts
+ * in the Gaussian part), and under 1.6.  With the slow frames in the
+ * empirical tail, seed 5 ended at 3.69; in the engine, 2.59: the front fell
+ * to 28 % of the target and stayed. */
+static double cold_start_margin(int cold, uint64_t seed)
+{
+    static const double slow[4] = {3.6, 2.5, 2.2, 3.3};
+    machine m = {{4, 0.02, 1e-4, 1e-6}, 0.06, 1, {seed * 0x9e3779b97f4a7c15ull}};
+    hlod_engine_desc d = desc(33);
+    hlod_cost_model cm;
+    hlod_cost_model_init(&cm, &d);
+    rng r = {seed + 11};
+    for (int f = 0; f < 445; f++) {
+        double dr = 41, c = 18e3, p = 2.8e6;
+        if (f < 45)
+            moving_front(&r, &dr, &c, &p);
+        double ms = machine_ms(&m, dr, c, p);
+        if (cold && f < 4)
+            ms *= slow[f];
+        hlod_cost_model_fit(&cm, &d, dr, c, p, ms);
+    }
+    return cm.margin;
+}
+
+static void cold_start_leaves_no_margin(void)
+{
+    for (uint64_t seed = 1; seed <= 10; seed++) {
+        double warm = cold_start_margin(0, seed), cold = cold_start_margin(1, seed);
+        fprintf(stderr, "  seed %llu: margin %.3f after a cold start, %.3f without\n",
+                (unsigned long long)seed, cold, warm);
+        CHECKF(cold < 1.6 && cold < 1.25 * warm,
+               "seed %llu: margin %.3f after a cold start, %.3f without",
+               (unsigned long long)seed, cold, warm);
+    }
+}
+
 /* Garbage in: non-finite and negative samples are ignored, and nothing
  * published becomes non-finite or negative. */
 static void bad_samples_ignored(void)
@@ -325,6 +365,7 @@ int main(void)
     RUN(persistent_change_followed);
     RUN(settled_error_followed);
     RUN(margin_meets_the_deadline);
+    RUN(cold_start_leaves_no_margin);
     RUN(bad_samples_ignored);
     return check_done();
 }
