@@ -90,7 +90,7 @@ static double aim_margin(const hlod_engine_desc *d, double median, double sigma,
     double l = median + normal_quantile(qz) * sigma;
     /* (a quantile of fewer frames is their maximum: the one slowest
      * frame, not the machine's tail) */
-    if (n >= MARGIN_SETTLE && sorted && nt * (1 - q) >= 1) {
+    if (n >= MARGIN_SETTLE && nt * (1 - q) >= 1) {
         uint32_t k = (uint32_t)ceil(q * nt);
         double emp = sorted[k ? (k <= nt ? k - 1 : nt - 1) : 0];
         l = emp > l ? emp : l;
@@ -402,11 +402,17 @@ void hlod_cost_model_fit(hlod_cost_model *m, const hlod_engine_desc *d, double d
      * twice the step and the front is not settled: an estimate that
      * wanders with the noise must not move the budget of a still camera. */
     if (m->ring_n >= MARGIN_MIN) {
-        uint32_t n = spread(m, m->ring_n, &med, &sigma);
-        m->sigma = sigma;
-        double tail[HLOD_COST_WINDOW];
-        uint32_t nt = residuals(m, m->theta, past_warmup(m, m->ring_n), tail);
+        /* the residuals once, newest first; the margin's tail and the
+         * recent frames are their first past_warmup() (copied before
+         * robust() sorts them) */
+        double e[HLOD_COST_WINDOW], tail[HLOD_COST_WINDOW], recent[MISS_W];
+        uint32_t n = residuals(m, m->theta, m->ring_n, e);
+        uint32_t nt = past_warmup(m, n), nr = past_warmup(m, n < MISS_W ? n : MISS_W);
+        memcpy(tail, e, nt * sizeof *e);
+        memcpy(recent, e, nr * sizeof *e);
         qsort(tail, nt, sizeof *tail, cmp_double);
+        robust(e, n, &med, &sigma);
+        m->sigma = sigma;
         double want = aim_margin(d, med, sigma, tail, nt, n);
         double step = log(want / m->margin);
         int change;
@@ -416,8 +422,8 @@ void hlod_cost_model_fit(hlod_cost_model *m, const hlod_engine_desc *d, double d
             /* misses over the last MISS_W frames past the warm-up: the
              * regime now, not the loading start that the long window
              * still holds */
-            double recent[MISS_W], rmed, rsig;
-            uint32_t nr = residuals(m, m->theta, past_warmup(m, MISS_W), recent), misses = 0;
+            double rmed, rsig;
+            uint32_t misses = 0;
             for (uint32_t k = 0; k < nr; k++)
                 misses += recent[k] > log(m->margin);
             double allowed = (1 - d->deadline_quantile) * nr;
