@@ -269,7 +269,8 @@ t0=$(date +%s%N)
 build_ms=$((($(date +%s%N) - t0) / 1000000))
 FRACTIONS="0.02 0.15 0.3 0.45 0.6 0.9"
 [ "$QUICK" = 1 ] && FRACTIONS="0.02 0.25 0.5 0.9"
-KILL_AT=$(for f in $FRACTIONS; do awk -v f="$f" -v ms="$build_ms" 'BEGIN { printf "%.3f ", f * ms / 1000 }'; done)
+KILL_AT=$(awk -v fs="$FRACTIONS" -v ms="$build_ms" \
+    'BEGIN { n = split(fs, f, " "); for (i = 1; i <= n; i++) printf "%.3f ", f[i] * ms / 1000 }')
 echo "  one build of shard 2/3: $build_ms ms; kills at $KILL_AT s"
 for at in $KILL_AT; do
     rm -f "$K/p.2.part"
