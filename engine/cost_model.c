@@ -291,6 +291,60 @@ static void scale_theta(hlod_cost_model *m, double f)
         m->theta[k] *= f;
 }
 
+/* The deadline margin, from the residuals under the model now
+ * published.  While the window fills it follows the measured spread.
+ * Then it grows only when frames actually miss it more often than the
+ * quantile allows (miss_limit of the window, each a frame's time over
+ * prediction x margin), and shrinks only when the spread has fallen by
+ * twice the step and the front is not settled: an estimate that
+ * wanders with the noise must not move the budget of a still camera. */
+static void update_margin(hlod_cost_model *m, const hlod_engine_desc *d, int settled)
+{
+    double med, sigma;
+    /* the residuals once, newest first; the margin's tail and the
+     * recent frames are their first past_warmup() (copied before
+     * robust() sorts them) */
+    double e[HLOD_COST_WINDOW], tail[HLOD_COST_WINDOW], recent[MISS_W];
+    uint32_t n = residuals(m, m->theta, m->ring_n, e);
+    uint32_t nt = past_warmup(m, n), nr = past_warmup(m, n < MISS_W ? n : MISS_W);
+    memcpy(tail, e, nt * sizeof *e);
+    memcpy(recent, e, nr * sizeof *e);
+    qsort(tail, nt, sizeof *tail, cmp_double);
+    robust(e, n, &med, &sigma);
+    m->sigma = sigma;
+    double want = aim_margin(d, med, sigma, tail, nt, n);
+    double step = log(want / m->margin);
+    int change;
+    if (m->ring_n < MARGIN_SETTLE) {
+        change = fabs(step) > 0.02;
+    } else {
+        /* misses over the last MISS_W frames past the warm-up: the
+         * regime now, not the loading start that the long window
+         * still holds */
+        double rmed, rsig;
+        uint32_t misses = 0;
+        for (uint32_t k = 0; k < nr; k++)
+            misses += recent[k] > log(m->margin);
+        double allowed = (1 - d->deadline_quantile) * nr;
+        /* four standard deviations of a binomial count over what the
+         * quantile allows: an adequate margin almost never passes it */
+        int too_many = nr && misses >= ceil(allowed + 4 * sqrt(allowed) + 2);
+        if (too_many) {
+            /* grow to what the recent frames need, no further */
+            robust(recent, nr, &rmed, &rsig);
+            double grow = aim_margin(d, rmed, rsig, recent, nr, n);
+            want = grow > m->margin ? grow : m->margin;
+            step = log(want / m->margin);
+        }
+        change = (step > MARGIN_STEP && too_many) || (step < -2 * MARGIN_STEP && !settled);
+    }
+    if (change || d->aim_mean > 0) {
+        if (want != m->margin)
+            m->margin_updates++;
+        m->margin = want;
+    }
+}
+
 void hlod_cost_model_fit(hlod_cost_model *m, const hlod_engine_desc *d, double draws,
                          double cost, double pixels, double y)
 {
@@ -394,57 +448,8 @@ void hlod_cost_model_fit(hlod_cost_model *m, const hlod_engine_desc *d, double d
         }
     }
 
-    /* The deadline margin, from the residuals under the model now
-     * published.  While the window fills it follows the measured spread.
-     * Then it grows only when frames actually miss it more often than the
-     * quantile allows (miss_limit of the window, each a frame's time over
-     * prediction x margin), and shrinks only when the spread has fallen by
-     * twice the step and the front is not settled: an estimate that
-     * wanders with the noise must not move the budget of a still camera. */
-    if (m->ring_n >= MARGIN_MIN) {
-        /* the residuals once, newest first; the margin's tail and the
-         * recent frames are their first past_warmup() (copied before
-         * robust() sorts them) */
-        double e[HLOD_COST_WINDOW], tail[HLOD_COST_WINDOW], recent[MISS_W];
-        uint32_t n = residuals(m, m->theta, m->ring_n, e);
-        uint32_t nt = past_warmup(m, n), nr = past_warmup(m, n < MISS_W ? n : MISS_W);
-        memcpy(tail, e, nt * sizeof *e);
-        memcpy(recent, e, nr * sizeof *e);
-        qsort(tail, nt, sizeof *tail, cmp_double);
-        robust(e, n, &med, &sigma);
-        m->sigma = sigma;
-        double want = aim_margin(d, med, sigma, tail, nt, n);
-        double step = log(want / m->margin);
-        int change;
-        if (m->ring_n < MARGIN_SETTLE) {
-            change = fabs(step) > 0.02;
-        } else {
-            /* misses over the last MISS_W frames past the warm-up: the
-             * regime now, not the loading start that the long window
-             * still holds */
-            double rmed, rsig;
-            uint32_t misses = 0;
-            for (uint32_t k = 0; k < nr; k++)
-                misses += recent[k] > log(m->margin);
-            double allowed = (1 - d->deadline_quantile) * nr;
-            /* four standard deviations of a binomial count over what the
-             * quantile allows: an adequate margin almost never passes it */
-            int too_many = nr && misses >= ceil(allowed + 4 * sqrt(allowed) + 2);
-            if (too_many) {
-                /* grow to what the recent frames need, no further */
-                robust(recent, nr, &rmed, &rsig);
-                double grow = aim_margin(d, rmed, rsig, recent, nr, n);
-                want = grow > m->margin ? grow : m->margin;
-                step = log(want / m->margin);
-            }
-            change = (step > MARGIN_STEP && too_many) || (step < -2 * MARGIN_STEP && !settled);
-        }
-        if (change || d->aim_mean > 0) {
-            if (want != m->margin)
-                m->margin_updates++;
-            m->margin = want;
-        }
-    }
+    if (m->ring_n >= MARGIN_MIN)
+        update_margin(m, d, settled);
     if (m->theta[0] > 0.8 * target)
         m->theta[0] = 0.8 * target;
 }
