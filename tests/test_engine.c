@@ -238,6 +238,54 @@ static void test_missing_sibling_forces_parent(void)
     hlod_store_close(s);
 }
 
+/* Siblings of very unequal priority (the cumulative hysteresis, each vote
+ * weighted by its slice).  A camera low over one quadrant, the other three
+ * 40-57 m away, and time for all four children sixteen times over: the far
+ * quadrants' slices (eq. 4, by priority) are half their need, so their
+ * counters fall to -c_hyst_limit.  Summed unweighted as in the paper,
+ * their three votes beat the near one's and the root, 50 m of coarse
+ * ground, is drawn under the camera (as a 430-triangle city group was
+ * drawn over a street camera of the parts city).  Weighted by the slice
+ * each was given, the near quadrant decides and the children stay. */
+static void test_unequal_siblings_refine(void)
+{
+    fixture_opts o = {0};
+    o.roots = 1;
+    o.depth = 1;
+    hlod_store *s = make_store("unequal.hlod", &o, NULL);
+    const hlod_store_node *nodes = hlod_store_nodes(s);
+    hlod_engine_desc d = {0};
+    d.deterministic = 1;
+    d.target_ms = 33;
+    d.fixed_frame_ms = 1;
+    d.fixed_v_time = 0.5 / hlod_node_cost(&nodes[1]); /* 0.5 ms a child */
+    d.deterministic_load_bytes = 1u << 30;
+    hlod_engine *e = NULL;
+    CHECK(hlod_engine_create(s, &d, &e) == HLOD_OK);
+    hlod_camera cam;
+    look(&cam, 10, 10, 1.5, 100, 100, 0);
+    hlod_frame_stats st;
+    uint32_t root_frames = 0, far_low = 0;
+    for (int f = 0; f < 60; f++) {
+        CHECK(hlod_engine_frame(e, &cam, 1.0 / 30, &st) == HLOD_OK);
+        if (f < 20)
+            continue;
+        root_frames += hlod_engine_node_drawn(e, 0);
+        for (uint32_t c = 2; c <= 4; c++)
+            far_low += e->sel.fr[c].hyst <= -0.5 * d.c_hyst_limit;
+    }
+    const hlod_engine_desc *dd = hlod_engine_get_desc(e);
+    fprintf(stderr, "  root drawn in %u of frames 20-59; far counters at or under %g: %u of 120\n",
+            root_frames, -0.5 * dd->c_hyst_limit, far_low);
+    /* the premise: the far siblings do vote against */
+    CHECKF(far_low >= 60, "far quadrants' counters under -limit/2 in only %u of 120", far_low);
+    CHECKF(root_frames == 0, "the root was drawn in %u of frames 20-59", root_frames);
+    for (uint32_t c = 1; c <= 4; c++)
+        CHECK(hlod_engine_node_drawn(e, c));
+    hlod_engine_destroy(e);
+    hlod_store_close(s);
+}
+
 /* One still-camera run for test_hysteresis_settles.  Everything in view is
  * made resident first (hlod_engine_load_all_leaves), so no frame waits for
  * the loader thread and the run is the same whatever the scheduler does:
@@ -1166,6 +1214,7 @@ int main(int argc, char **argv)
     RUN(test_time_slices_sum);
     RUN(test_estimate_within_target);
     RUN(test_missing_sibling_forces_parent);
+    RUN(test_unequal_siblings_refine);
     RUN(test_hysteresis_settles);
     RUN(test_still_camera_fixed_point);
     RUN(test_still_front_holds);

@@ -113,7 +113,7 @@ typedef double (*hlod_time_model)(void *user_data, const struct hlod_frame_stats
     X(c_fore, c_fore, D, 0.25, 0, 0, 1, 1, "foreshorten = 1 + c_fore * (view . avgNormal)")      \
     X(c_hyst_limit, c_hyst_limit, D, 8.0, 1, 0, 1e6, 1, "hyst is clamped to +-c_hyst_limit")     \
     X(c_hyst_switch, c_hyst_switch, D, 2.0, 1, 0, 1e6, 1,                                        \
-      "cumHyst sums trunc(hyst / c_hyst_switch); at most c_hyst_limit")                          \
+      "cumHyst sums trunc(hyst / c_hyst_switch), weighted by slice; switch at most c_hyst_limit") \
     X(c_memory, c_memory, D, 0, 0, 0, HLOD_UNBOUNDED, 1,                                         \
       "bytes per unit of cost; 0: the store's decoded payload bytes / total cost")               \
     X(c_safety_slack, c_safety_slack, D, 0.10, 0, 0, 10, 1,                                      \
