@@ -234,7 +234,10 @@ perl -MJSON::PP -e '
                 return $v[int($q * (@v - 1) + 0.5)]; }
     sub mean_limit { my $fr = frames(shift) or return undef; my @r;
         for my $x (@$fr[60 .. $#$fr]) {
-            push @r, $x->{measured_ms} / $x->{estimated_ms} if $x->{estimated_ms} > 0; }
+            # (a frame that draws nothing, fly\x27s sky, cannot miss: its
+            # estimate is the fixed part, fitted near 0, and r near 1000)
+            push @r, $x->{measured_ms} / $x->{estimated_ms}
+                if $x->{estimated_ms} > 0 && $x->{nodes_drawn} > 0; }
         return undef unless @r;
         my $m = 0; $m += $_ for @r; $m /= @r; my $q = quant(0.98, @r);
         return $q > 0 ? $m / $q : undef; }
