@@ -294,9 +294,10 @@ static void scale_theta(hlod_cost_model *m, double f)
 /* The deadline margin, from the residuals under the model now
  * published.  While the window fills it follows the measured spread.
  * Then it grows only when frames actually miss it more often than the
- * quantile allows (miss_limit of the window, each a frame's time over
- * prediction x margin), and shrinks only when the spread has fallen by
- * twice the step and the front is not settled: an estimate that
+ * quantile allows (over the last MISS_W frames past the warm-up, each a
+ * frame's time over prediction x margin), and shrinks only when the
+ * spread has fallen by twice the step and the front is not settled: an
+ * estimate that
  * wanders with the noise must not move the budget of a still camera. */
 static void update_margin(hlod_cost_model *m, const hlod_engine_desc *d, int settled)
 {

@@ -344,9 +344,26 @@ static void uncount(hlod_engine *e, uint32_t i)
     e->st.occlusion_culled++;
 }
 
+/* A node drawn in place of children the last frame saw (it coarsened):
+ * it stands where they stood, so it occludes as they did.  Left to pass 3,
+ * what they hid was tested against a depth without them and drawn, was
+ * charged the next frame, and the front coarsened elsewhere to pay: on
+ * walk-drive 44-98 seen nodes gone to their parents in one frame flipped
+ * 73-138 hidden nodes to visible, every few frames. */
+static int child_seen(const hlod_engine *e, uint32_t i, uint32_t f)
+{
+    const hlod_node_frame *fr = e->sel.fr;
+    uint32_t c1 = hlod_store_child_end(e->nodes, i);
+    for (uint32_t c = hlod_store_first_child(e->nodes, i); c < c1; c++)
+        if (fr[c].seen + 1 == f)
+            return 1;
+    return 0;
+}
+
 /* Occlusion culling in two passes (README, "Occlusion culling"):
  *   1. draw the nodes that were visible in the last frame (or whose parent
- *      was, and that were not themselves hidden): they are the occluders;
+ *      was, and that were not themselves hidden, or one of whose children
+ *      was: child_seen): they are the occluders;
  *   2. read the depth, build the pyramid, and test every node of the
  *      selection against it; the result is what the next frame's selection
  *      calls hidden;
@@ -354,22 +371,6 @@ static void uncount(hlod_engine *e, uint32_t i)
  * Pass 1's depth is real geometry seen from this camera, so a node hidden
  * behind it is hidden in the final image too: culling never makes a hole.
  * The price is a GPU wait between the passes. */
-/* A node drawn in place of children the last frame saw (it coarsened):
- * it stands where they stood, so it occludes as they did.  Left to pass 3,
- * what they hid was tested against a depth without them and drawn, was
- * charged the next frame, and the front coarsened elsewhere to pay: on
- * walk-drive 44-98 seen nodes gone to their parents in one frame flipped
- * 73-138 hidden nodes to visible, every few frames. */
-static int child_seen(const hlod_engine *e, uint32_t i, uint32_t last)
-{
-    const hlod_node_frame *fr = e->sel.fr;
-    uint32_t c1 = hlod_store_child_end(e->nodes, i);
-    for (uint32_t c = hlod_store_first_child(e->nodes, i); c < c1; c++)
-        if (fr[c].seen == last)
-            return 1;
-    return 0;
-}
-
 static void draw_occluded(hlod_engine *e, const hlod_camera *cam, const hlod_view *view)
 {
     const uint32_t f = e->frame;
@@ -379,7 +380,7 @@ static void draw_occluded(hlod_engine *e, const hlod_camera *cam, const hlod_vie
         uint32_t i = e->sel.draw.v[k], par = e->nodes[i].parent;
         int was_seen = fr[i].seen + 1 == f ||
                        (fr[i].hidden + 1 != f && par != HLOD_STORE_NO_PARENT && fr[par].seen + 1 == f) ||
-                       child_seen(e, i, f - 1);
+                       child_seen(e, i, f);
         if (was_seen) {
             gpu_draw_node(e, cam, i);
             (void)hlod_u32_push(&e->d.allocator, &e->drawn, i); /* only replay reads it */

@@ -511,6 +511,7 @@ static int visit(walk *w, const hlod_view *v, front *fr, uint32_t p)
     const hlod_policy pol = w->d->policy;
     size_t mark = w->s->next.n;
     double sum_pr = 0;
+    uint32_t voters = 0; /* visible children not hidden: they share the slice and vote */
     for (uint32_t c = c0; c < c1; c++) {
         double fv = frustum_vis(w, v, c);
         if (fv < 0)
@@ -525,8 +526,10 @@ static int visit(walk *w, const hlod_view *v, front *fr, uint32_t p)
         }
         if (!hlod_u32_push(&w->d->allocator, &w->s->next, c))
             return 0;
-        if (!is_hidden(w, c))
+        if (!is_hidden(w, c)) {
             sum_pr += cf->priority;
+            voters++;
+        }
     }
     size_t nvis = w->s->next.n - mark;
     if (nvis == 0) {
@@ -547,9 +550,6 @@ static int visit(walk *w, const hlod_view *v, front *fr, uint32_t p)
      * group drawn over a street camera (parts city, walk-drive, 7 dB).
      * Each vote counts by the slice it was given. */
     double cum = 0;
-    uint32_t voters = 0;
-    for (size_t k = mark; k < w->s->next.n; k++)
-        voters += !is_hidden(w, w->s->next.v[k]);
     int all_resident = 1;
     uint32_t missing = 0;
     for (size_t k = mark; k < w->s->next.n; k++) {
