@@ -997,6 +997,38 @@ static void test_residency_needed_first(void)
     hlod_residency_destroy(&rs);
 }
 
+/* With fewer loader slots (max_inflight) than wanted nodes, the nodes a
+ * refinement waits for take them first: admitted in priority order alone,
+ * two prefetches of higher priority took both slots and the need was not
+ * read at all (the still view at 66 ms: wanted nodes missing for 300
+ * frames, deterministic). */
+static void test_residency_needed_admitted_first(void)
+{
+    hlod_engine_desc d = {0};
+    hlod_engine_desc_defaults(&d);
+    d.deterministic = 1;
+    d.deterministic_load_bytes = 1u << 30;
+    d.max_inflight = 2;
+    order_hook h = {0};
+    d.read_hook = record_order;
+    d.read_hook_user = &h;
+    hlod_frame_stats st = {0};
+    hlod_residency rs;
+    CHECK(hlod_residency_init(&rs, g_store, &d, &st) == HLOD_OK);
+    hlod_evict_order keep = {keep_all, NULL};
+    const uint32_t m0 = g_idx[M(0)], m1 = g_idx[M(1)], m2 = g_idx[M(2)];
+    h.n = 0;
+    hlod_residency_begin_frame(&rs, 1);
+    hlod_residency_collect(&rs, INFINITY, 0);
+    CHECK(hlod_residency_want(&rs, m0, 5.0) && hlod_residency_want(&rs, m2, 4.0) &&
+          hlod_residency_need(&rs, m1, 1.0));
+    hlod_residency_schedule(&rs, &keep);
+    CHECKF(h.n == 2 && h.node[0] == m1 && h.node[1] == m0,
+           "read %d nodes: %u %u, want %u then %u", h.n, h.n > 0 ? h.node[0] : 0,
+           h.n > 1 ? h.node[1] : 0, m1, m0);
+    hlod_residency_destroy(&rs);
+}
+
 int main(void)
 {
     const char *tmp = getenv("TMPDIR");
@@ -1026,6 +1058,7 @@ int main(void)
         RUN(test_destroy_in_flight);
         RUN(test_two_loaders);
         RUN(test_residency_needed_first);
+        RUN(test_residency_needed_admitted_first);
     }
     for (int i = 0; i < NODES; i++)
         hlod_store_payload_free(&g_ref[i]);
