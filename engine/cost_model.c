@@ -136,17 +136,26 @@ static double dot(const double *t, const double *x)
     return s;
 }
 
+/* The model's ms for regressors x under theta: a frame that draws nothing
+ * is the fixed part alone, measured (the median of the last such frames)
+ * once one was seen; a front is theta . x. */
+static double model_ms(const hlod_cost_model *m, const double *theta, const double *x)
+{
+    return m->empty_n && x[1] == 0 ? m->fixed_floor : dot(theta, x);
+}
+
 double hlod_cost_model_predict(const hlod_cost_model *m, double draws, double cost,
                                double pixels)
 {
     const double x[HLOD_COST_TERMS] = {1, draws, cost, pixels};
-    return dot(m->theta, x);
+    return model_ms(m, m->theta, x);
 }
 
 /* ln(measured / predicted), both floored at 10 us. */
-static double log_residual(const double *theta, const hlod_cost_sample *s)
+static double log_residual(const hlod_cost_model *m, const double *theta,
+                           const hlod_cost_sample *s)
 {
-    double p = dot(theta, s->x);
+    double p = model_ms(m, theta, s->x);
     return log((s->y > 0.01 ? s->y : 0.01) / (p > 0.01 ? p : 0.01));
 }
 
@@ -169,7 +178,7 @@ static uint32_t residuals(const hlod_cost_model *m, const double *theta, uint32_
         n = m->ring_n;
     for (uint32_t k = 0; k < n; k++) {
         uint32_t i = (m->ring_head + HLOD_COST_WINDOW - 1 - k) % HLOD_COST_WINDOW;
-        out[k] = log_residual(theta, &m->ring[i]);
+        out[k] = log_residual(m, theta, &m->ring[i]);
     }
     return n;
 }
@@ -221,11 +230,13 @@ static double shape_loss(const hlod_cost_model *m, const double *theta)
     return l;
 }
 
-/* Solves the ridge system (A + L) t = b + L prior with t >= 0 (terms that
- * come out negative are held at 0 and the rest solved again).  Returns 0
- * when the system is singular. */
+/* Solves the ridge system (A + L) t = b + L prior with t >= lo (lo: the
+ * fixed part's floor, 0 for the other terms; terms that come out below
+ * their bound are held at it and the rest solved again).  Returns 0 when
+ * the system is singular. */
 static int ridge_solve(const hlod_cost_model *m, const double *prior, double ridge, double *t)
 {
+    const double lo[HLOD_COST_TERMS] = {m->fixed_floor, 0, 0, 0};
     double lam[HLOD_COST_TERMS];
     for (int j = 0; j < HLOD_COST_TERMS; j++) {
         double mean = m->a[0][j] / m->s0; /* a[0][j] = sum of x_j (x_0 = 1) */
@@ -234,7 +245,7 @@ static int ridge_solve(const hlod_cost_model *m, const double *prior, double rid
             lam[j] = 1e-12;
     }
     int active[HLOD_COST_TERMS] = {1, 1, 1, 1};
-    for (int round = 0; round < HLOD_COST_TERMS; round++) {
+    for (int round = 0; round <= HLOD_COST_TERMS; round++) {
         double g[HLOD_COST_TERMS][HLOD_COST_TERMS + 1];
         int idx[HLOD_COST_TERMS], n = 0;
         for (int j = 0; j < HLOD_COST_TERMS; j++)
@@ -245,6 +256,9 @@ static int ridge_solve(const hlod_cost_model *m, const double *prior, double rid
             for (int c = 0; c < n; c++)
                 g[r][c] = m->a[i][idx[c]] + (r == c ? lam[i] : 0);
             g[r][n] = m->b[i] + lam[i] * prior[i];
+            for (int j = 0; j < HLOD_COST_TERMS; j++)
+                if (!active[j])
+                    g[r][n] -= m->a[i][j] * lo[j];
         }
         /* Gaussian elimination with partial pivoting */
         for (int c = 0; c < n; c++) {
@@ -267,20 +281,21 @@ static int ridge_solve(const hlod_cost_model *m, const double *prior, double rid
                     g[r][k] -= f * g[c][k];
             }
         }
-        int negative = 0;
+        int below = 0;
         for (int j = 0; j < HLOD_COST_TERMS; j++)
-            t[j] = 0;
+            t[j] = lo[j];
         for (int r = 0; r < n; r++) {
             t[idx[r]] = g[r][n] / g[r][r];
             if (!isfinite(t[idx[r]]))
                 return 0;
-            if (t[idx[r]] < 0) {
+            if (t[idx[r]] < lo[idx[r]]) {
                 active[idx[r]] = 0;
-                negative = 1;
+                below = 1;
             }
         }
-        if (!negative)
-            return 1;
+        if (below) /* the held terms at their bounds, the rest solved again */
+            continue;
+        return 1;
     }
     return 0;
 }
@@ -352,6 +367,33 @@ static void update_margin(hlod_cost_model *m, const hlod_engine_desc *d, int set
     }
 }
 
+/* A frame that drew nothing measures the fixed part alone: the median of
+ * the last HLOD_COST_EMPTY such frames predicts such frames, and floors
+ * the fixed part of a front.  Without the floor the
+ * fit may put the fixed part in the pixel term (every moving frame covers
+ * 2-3 M pixels, nearly a constant): on fly it was 0.0000 when the camera
+ * turned to the sky, the empty frames (1.7 ms against an estimate of
+ * 0.003 ms) scaled every term by 170 x twice (v_time 0.001 -> 28.9), the
+ * margin went to 4 and the front's estimate to 49 s; the margin took 600
+ * frames to come back to 1.33.  The floor is raised only past 10 % of
+ * it, so a view of the sky does not publish its noise. */
+static void empty_frame(hlod_cost_model *m, double y, double target)
+{
+    double v[HLOD_COST_EMPTY];
+    m->empty[m->empty_head] = y;
+    m->empty_head = (m->empty_head + 1) % HLOD_COST_EMPTY;
+    if (m->empty_n < HLOD_COST_EMPTY)
+        m->empty_n++;
+    memcpy(v, m->empty, m->empty_n * sizeof *v);
+    double floor_ms = median(v, m->empty_n);
+    if (floor_ms > 0.8 * target)
+        floor_ms = 0.8 * target;
+    if (floor_ms > m->fixed_floor * 1.1 || floor_ms < m->fixed_floor / 1.1)
+        m->fixed_floor = floor_ms;
+    if (m->theta[0] < m->fixed_floor)
+        m->theta[0] = m->fixed_floor;
+}
+
 void hlod_cost_model_fit(hlod_cost_model *m, const hlod_engine_desc *d, double draws,
                          double cost, double pixels, double y)
 {
@@ -360,6 +402,8 @@ void hlod_cost_model_fit(hlod_cost_model *m, const hlod_engine_desc *d, double d
         return;
     const double target = d->target_ms;
     hlod_cost_sample s = {{1, draws, cost, pixels}, y};
+    if (draws == 0)
+        empty_frame(m, y, target);
     /* Settled: the same front as the last frame (a still camera whose
      * selection has settled).  Then only missed deadlines move anything. */
     const hlod_cost_sample *last =
@@ -372,11 +416,15 @@ void hlod_cost_model_fit(hlod_cost_model *m, const hlod_engine_desc *d, double d
     m->ring_head = (m->ring_head + 1) % HLOD_COST_WINDOW;
     if (m->ring_n < HLOD_COST_WINDOW)
         m->ring_n++;
-    m->s0 = FORGET * m->s0 + 1;
-    for (int i = 0; i < HLOD_COST_TERMS; i++) {
-        m->b[i] = FORGET * m->b[i] + s.x[i] * y;
-        for (int j = 0; j < HLOD_COST_TERMS; j++)
-            m->a[i][j] = FORGET * m->a[i][j] + s.x[i] * s.x[j];
+    /* (an empty frame stays out of the fit: it is predicted by the floor,
+     * and a front's fixed part may be more than an empty frame's) */
+    if (draws > 0) {
+        m->s0 = FORGET * m->s0 + 1;
+        for (int i = 0; i < HLOD_COST_TERMS; i++) {
+            m->b[i] = FORGET * m->b[i] + s.x[i] * y;
+            for (int j = 0; j < HLOD_COST_TERMS; j++)
+                m->a[i][j] = FORGET * m->a[i][j] + s.x[i] * s.x[j];
+        }
     }
 
     /* the noise as measured so far */
@@ -459,6 +507,8 @@ void hlod_cost_model_fit(hlod_cost_model *m, const hlod_engine_desc *d, double d
         update_margin(m, d, settled);
     if (m->theta[0] > 0.8 * target)
         m->theta[0] = 0.8 * target;
+    if (m->theta[0] < m->fixed_floor)
+        m->theta[0] = m->fixed_floor;
 }
 
 /* Eq. 4 hands each node a fixed share of its parent's slice, and time a

@@ -28,6 +28,7 @@
 
 #define HLOD_COST_TERMS 4    /* fixed, per draw, per unit of cost, per pixel */
 #define HLOD_COST_WINDOW 512 /* frames of residuals for the margin (17 s at 30 Hz) */
+#define HLOD_COST_EMPTY 9    /* frames that drew nothing whose median floors the fixed part */
 
 typedef struct hlod_cost_sample {
     double x[HLOD_COST_TERMS]; /* 1, draws, cost, pixels */
@@ -51,6 +52,9 @@ typedef struct hlod_cost_model {
     uint64_t frames;               /* samples fitted */
     uint64_t shape_at;             /* frames when the shape last changed */
     double sigma;                  /* robust spread of the log residuals (last update) */
+    double empty[HLOD_COST_EMPTY]; /* measured ms of the last frames that drew nothing */
+    uint32_t empty_n, empty_head;
+    double fixed_floor;            /* their median: the fixed part is never below it */
 } hlod_cost_model;
 
 /* Starts from the descriptor: the fixed values when deterministic (no
