@@ -510,8 +510,8 @@ static int visit(walk *w, const hlod_view *v, front *fr, uint32_t p)
 
     const hlod_policy pol = w->d->policy;
     size_t mark = w->s->next.n;
-    double sum_pr = 0;
-    uint32_t voters = 0; /* visible children not hidden: they share the slice and vote */
+    double sum_pr = 0, sum_vote = 0; /* of the children not hidden; of the voters */
+    uint32_t voters = 0; /* visible children, hidden or not: they vote */
     for (uint32_t c = c0; c < c1; c++) {
         double fv = frustum_vis(w, v, c);
         if (fv < 0)
@@ -526,10 +526,10 @@ static int visit(walk *w, const hlod_view *v, front *fr, uint32_t p)
         }
         if (!hlod_u32_push(&w->d->allocator, &w->s->next, c))
             return 0;
-        if (!is_hidden(w, c)) {
+        if (!is_hidden(w, c))
             sum_pr += cf->priority;
-            voters++;
-        }
+        sum_vote += cf->priority;
+        voters++;
     }
     size_t nvis = w->s->next.n - mark;
     if (nvis == 0) {
@@ -556,17 +556,28 @@ static int visit(walk *w, const hlod_view *v, front *fr, uint32_t p)
         uint32_t c = w->s->next.v[k];
         hlod_node_frame *cf = &w->fr[c];
         if (is_hidden(w, c)) {
-            /* no share, no need, no vote: it is drawn as it is */
+            /* No share and no need: it is not drawn.  Its counter holds
+             * and it votes with it: it is still on the front.  (Without its
+             * vote the others decided alone: on walk-drive a parent
+             * refined for a child at +8, that child was hidden the next
+             * frame, the parent coarsened on a sibling at -8, the child,
+             * no longer drawn, was no longer hidden, and its counter had
+             * restarted: refined and coarsened every 3-4 frames.) */
             cf->slice = cf->needed = 0;
+            if (pol == HLOD_POLICY_LAKHIA) {
+                if (cf->hyst_frame + 1 != w->frame)
+                    cf->hyst = 0;
+                cf->hyst_frame = w->frame;
+            }
         } else {
             cf->slice = share * (cf->priority / sum_pr);
             cf->needed = node_needed(w, c);
+            if (pol == HLOD_POLICY_LAKHIA && cf->needed > 0)
+                update_hyst(w, cf);
         }
         sum_needed += cf->needed;
-        if (pol == HLOD_POLICY_LAKHIA && cf->needed > 0) {
-            update_hyst(w, cf);
-            cum += voters * (cf->priority / sum_pr) * trunc(cf->hyst / w->d->c_hyst_switch);
-        }
+        if (pol == HLOD_POLICY_LAKHIA && (cf->needed > 0 || is_hidden(w, c)))
+            cum += voters * (cf->priority / sum_vote) * trunc(cf->hyst / w->d->c_hyst_switch);
         /* A top child (group or hlod_0) that stands down (bad, or pinned
          * and not read yet) with children of its own does not hold p back:
          * they stand in for it when the walk reaches it.  Else one bad

@@ -286,6 +286,72 @@ static void test_unequal_siblings_refine(void)
     hlod_store_close(s);
 }
 
+/* A child hidden by occlusion keeps its counter and its vote.  The
+ * siblings of test_unequal_siblings_refine (the near quadrant at +limit,
+ * the three far ones at -limit), then frames selected with occlusion on
+ * in which the near quadrant, whenever it was drawn, is found hidden
+ * behind nearer geometry (as the occlusion test finds a drawn node), and
+ * a tight slice: 1.5 ms for children that need 0.5 ms each, so that the
+ * far quadrants, given the hidden one's share, climb from -limit a fifth
+ * of a step a frame.  Without its vote the far quadrants decided and
+ * the root was drawn: here in all 40 frames (the near quadrant's counter
+ * restarted from 0 each time it was left out); on walk-drive, where the
+ * hidden child was tested again once drawn, refined and coarsened every
+ * 3-4 frames.  With it the root stays refined. */
+static void test_hidden_child_keeps_vote(void)
+{
+    fixture_opts o = {0};
+    o.roots = 1;
+    o.depth = 1;
+    hlod_store *s = make_store("hidden_vote.hlod", &o, NULL);
+    const hlod_store_node *nodes = hlod_store_nodes(s);
+    hlod_engine_desc d = {0};
+    d.deterministic = 1;
+    d.target_ms = 33;
+    d.fixed_frame_ms = 1;
+    d.fixed_v_time = 0.5 / hlod_node_cost(&nodes[1]); /* 0.5 ms a child */
+    d.deterministic_load_bytes = 1u << 30;
+    hlod_engine *e = NULL;
+    CHECK(hlod_engine_create(s, &d, &e) == HLOD_OK);
+    hlod_camera cam;
+    look(&cam, 10, 10, 1.5, 100, 100, 0);
+    hlod_frame_stats st;
+    for (int f = 0; f < 40; f++)
+        CHECK(hlod_engine_frame(e, &cam, 1.0 / 30, &st) == HLOD_OK);
+    CHECK(!hlod_engine_node_drawn(e, 0) && hlod_engine_node_drawn(e, 1));
+    const double lim = hlod_engine_get_desc(e)->c_hyst_limit;
+    CHECKF(e->sel.fr[1].hyst >= 0.5 * lim && e->sel.fr[2].hyst <= -0.5 * lim,
+           "premise: near counter %g, far %g", e->sel.fr[1].hyst, e->sel.fr[2].hyst);
+    hlod_view view;
+    const double still[3] = {0, 0, 0};
+    hlod_view_init(&view, &cam, still, 0);
+    uint32_t root_frames = 0, toggles = 0;
+    for (int k = 0; k < 40; k++) {
+        uint32_t f = e->frame + 1;
+        if (e->sel.fr[1].drawn + 1 == f)
+            e->sel.fr[1].hidden = f - 1; /* drawn last frame, and found hidden */
+        memset(&e->st, 0, sizeof e->st);
+        hlod_residency_begin_frame(&e->res, f);
+        hlod_select_in in = {.frame = f,
+                             .v_time = e->cost.theta[2],
+                             .occlusion = 1,
+                             .still = 1,
+                             .budget_ms = d.target_ms - e->cost.theta[0],
+                             .share_ms = 1.5};
+        CHECK(hlod_select(&e->sel, &e->res, &view, &in) == HLOD_OK);
+        hlod_residency_end_frame(&e->res);
+        e->frame = f;
+        root_frames += e->sel.fr[0].drawn == f;
+        toggles += e->st.toggles_up + e->st.toggles_down;
+    }
+    fprintf(stderr, "  near quadrant hidden whenever drawn: root drawn in %u of 40 frames, "
+            "%u toggles\n", root_frames, toggles);
+    CHECKF(root_frames == 0 && toggles == 0, "root drawn in %u of 40 frames, %u toggles",
+           root_frames, toggles);
+    hlod_engine_destroy(e);
+    hlod_store_close(s);
+}
+
 /* One still-camera run for test_hysteresis_settles.  Everything in view is
  * made resident first (hlod_engine_load_all_leaves), so no frame waits for
  * the loader thread and the run is the same whatever the scheduler does:
@@ -1215,6 +1281,7 @@ int main(int argc, char **argv)
     RUN(test_estimate_within_target);
     RUN(test_missing_sibling_forces_parent);
     RUN(test_unequal_siblings_refine);
+    RUN(test_hidden_child_keeps_vote);
     RUN(test_hysteresis_settles);
     RUN(test_still_camera_fixed_point);
     RUN(test_still_front_holds);
