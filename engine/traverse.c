@@ -494,6 +494,37 @@ static int hold_front(const walk *w, const hlod_node_frame *pf, int refine)
     return refine;
 }
 
+/* Child c of a node whose slice is share, among visible siblings of total
+ * priority sum_pr not hidden: its slice and timeNeeded (eq. 4), its
+ * counter, and its vote trunc(hyst / c_hyst_switch) (lakhia; 0 without
+ * one).  A hidden child gets no slice and no need (it is not drawn), but
+ * its counter holds and it votes with it: it is still on the front.
+ * (Left out, the others decided alone: on walk-drive a parent refined for
+ * a child at +8, that child was hidden the next frame, the parent
+ * coarsened on a sibling at -8, the child, no longer drawn, was no longer
+ * hidden, and its counter had restarted: refined and coarsened every 3-4
+ * frames.) */
+static double child_vote(walk *w, uint32_t c, double share, double sum_pr)
+{
+    hlod_node_frame *cf = &w->fr[c];
+    const int lakhia = w->d->policy == HLOD_POLICY_LAKHIA;
+    if (is_hidden(w, c)) {
+        cf->slice = cf->needed = 0;
+        if (!lakhia)
+            return 0;
+        if (cf->hyst_frame + 1 != w->frame)
+            cf->hyst = 0;
+        cf->hyst_frame = w->frame;
+    } else {
+        cf->slice = share * (cf->priority / sum_pr);
+        cf->needed = node_needed(w, c);
+        if (!lakhia || !(cf->needed > 0))
+            return 0;
+        update_hyst(w, cf);
+    }
+    return trunc(cf->hyst / w->d->c_hyst_switch);
+}
+
 /* Decides node p of the front: draw it, or append its visible children to
  * w->s->next.  Returns 0 on allocation failure. */
 static int visit(walk *w, const hlod_view *v, front *fr, uint32_t p)
@@ -555,29 +586,10 @@ static int visit(walk *w, const hlod_view *v, front *fr, uint32_t p)
     for (size_t k = mark; k < w->s->next.n; k++) {
         uint32_t c = w->s->next.v[k];
         hlod_node_frame *cf = &w->fr[c];
-        if (is_hidden(w, c)) {
-            /* No share and no need: it is not drawn.  Its counter holds
-             * and it votes with it: it is still on the front.  (Without its
-             * vote the others decided alone: on walk-drive a parent
-             * refined for a child at +8, that child was hidden the next
-             * frame, the parent coarsened on a sibling at -8, the child,
-             * no longer drawn, was no longer hidden, and its counter had
-             * restarted: refined and coarsened every 3-4 frames.) */
-            cf->slice = cf->needed = 0;
-            if (pol == HLOD_POLICY_LAKHIA) {
-                if (cf->hyst_frame + 1 != w->frame)
-                    cf->hyst = 0;
-                cf->hyst_frame = w->frame;
-            }
-        } else {
-            cf->slice = share * (cf->priority / sum_pr);
-            cf->needed = node_needed(w, c);
-            if (pol == HLOD_POLICY_LAKHIA && cf->needed > 0)
-                update_hyst(w, cf);
-        }
+        double vote = child_vote(w, c, share, sum_pr);
         sum_needed += cf->needed;
-        if (pol == HLOD_POLICY_LAKHIA && (cf->needed > 0 || is_hidden(w, c)))
-            cum += voters * (cf->priority / sum_vote) * trunc(cf->hyst / w->d->c_hyst_switch);
+        if (vote != 0)
+            cum += voters * (cf->priority / sum_vote) * vote;
         /* A top child (group or hlod_0) that stands down (bad, or pinned
          * and not read yet) with children of its own does not hold p back:
          * they stand in for it when the walk reaches it.  Else one bad
