@@ -453,6 +453,15 @@ void hlod_cost_model_fit(hlod_cost_model *m, const hlod_engine_desc *d, double d
         int passes = settled ? h[0] * h[1] > 0 && fmin(fabs(h[0]), fabs(h[1])) > SETTLED_ERR &&
                                    fmin(fabs(h[0]), fabs(h[1])) > SCALE_SE * se_half
                              : fabs(mk) > 0.05 && fabs(mk) > SCALE_SE * se;
+        /* A scale is not undone before SCALE_K frames measured after it
+         * can say so: with fronts that the model misses one way and the
+         * other in turn (walk-drive, 250 and 280 nodes every other frame,
+         * errors of -20 % and +20 %), the median of the last SCALE_K
+         * swung with each new frame, and the scale went x1.21, x0.81,
+         * x1.24, x0.84 on four frames in a row, the budget and the front
+         * with it (16 oscillations a frame). */
+        if (passes && (mk > 0 ? 1 : -1) == -m->scale_dir && m->frames - m->scale_at < SCALE_K)
+            passes = 0;
         if (passes) {
             /* The machine changed: the frames seen before the last
              * SCALE_K are rescaled with the model, so the fit and the
@@ -471,6 +480,8 @@ void hlod_cost_model_fit(hlod_cost_model *m, const hlod_engine_desc *d, double d
                     m->b[i] *= f;
             }
             m->scale_updates++;
+            m->scale_at = m->frames;
+            m->scale_dir = mk > 0 ? 1 : -1;
             m->settled_run = 0; /* a settled front is checked again SETTLED_K frames on */
         }
     }

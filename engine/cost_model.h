@@ -51,6 +51,8 @@ typedef struct hlod_cost_model {
     uint32_t settled_run;          /* frames in a row with the same front */
     uint64_t frames;               /* samples fitted */
     uint64_t shape_at;             /* frames when the shape last changed */
+    uint64_t scale_at;             /* frames when the scale last changed */
+    int scale_dir;                 /* and which way: +1 up, -1 down */
     double sigma;                  /* robust spread of the log residuals (last update) */
     double empty[HLOD_COST_EMPTY]; /* measured ms of the last frames that drew nothing */
     uint32_t empty_n, empty_head;
