@@ -238,6 +238,29 @@ static void test_missing_sibling_forces_parent(void)
     hlod_store_close(s);
 }
 
+/* The quadrants of test_unequal_siblings_refine: one root over four
+ * children, deterministic at 0.5 ms a child and 33 ms, the camera 1.5 m
+ * over one quadrant (*d is the engine's descriptor). */
+static hlod_engine *quadrants(const char *name, hlod_store **s, hlod_engine_desc *d,
+                              hlod_camera *cam)
+{
+    fixture_opts o = {0};
+    o.roots = 1;
+    o.depth = 1;
+    *s = make_store(name, &o, NULL);
+    const hlod_store_node *nodes = hlod_store_nodes(*s);
+    memset(d, 0, sizeof *d);
+    d->deterministic = 1;
+    d->target_ms = 33;
+    d->fixed_frame_ms = 1;
+    d->fixed_v_time = 0.5 / hlod_node_cost(&nodes[1]); /* 0.5 ms a child */
+    d->deterministic_load_bytes = 1u << 30;
+    hlod_engine *e = NULL;
+    CHECK(hlod_engine_create(*s, d, &e) == HLOD_OK);
+    look(cam, 10, 10, 1.5, 100, 100, 0);
+    return e;
+}
+
 /* Siblings of very unequal priority (the cumulative hysteresis, each vote
  * weighted by its slice).  A camera low over one quadrant, the other three
  * 40-57 m away, and time for all four children sixteen times over: the far
@@ -249,21 +272,10 @@ static void test_missing_sibling_forces_parent(void)
  * each was given, the near quadrant decides and the children stay. */
 static void test_unequal_siblings_refine(void)
 {
-    fixture_opts o = {0};
-    o.roots = 1;
-    o.depth = 1;
-    hlod_store *s = make_store("unequal.hlod", &o, NULL);
-    const hlod_store_node *nodes = hlod_store_nodes(s);
-    hlod_engine_desc d = {0};
-    d.deterministic = 1;
-    d.target_ms = 33;
-    d.fixed_frame_ms = 1;
-    d.fixed_v_time = 0.5 / hlod_node_cost(&nodes[1]); /* 0.5 ms a child */
-    d.deterministic_load_bytes = 1u << 30;
-    hlod_engine *e = NULL;
-    CHECK(hlod_engine_create(s, &d, &e) == HLOD_OK);
+    hlod_store *s;
+    hlod_engine_desc d;
     hlod_camera cam;
-    look(&cam, 10, 10, 1.5, 100, 100, 0);
+    hlod_engine *e = quadrants("unequal.hlod", &s, &d, &cam);
     hlod_frame_stats st;
     uint32_t root_frames = 0, far_low = 0;
     for (int f = 0; f < 60; f++) {
@@ -300,21 +312,10 @@ static void test_unequal_siblings_refine(void)
  * 3-4 frames.  With it the root stays refined. */
 static void test_hidden_child_keeps_vote(void)
 {
-    fixture_opts o = {0};
-    o.roots = 1;
-    o.depth = 1;
-    hlod_store *s = make_store("hidden_vote.hlod", &o, NULL);
-    const hlod_store_node *nodes = hlod_store_nodes(s);
-    hlod_engine_desc d = {0};
-    d.deterministic = 1;
-    d.target_ms = 33;
-    d.fixed_frame_ms = 1;
-    d.fixed_v_time = 0.5 / hlod_node_cost(&nodes[1]); /* 0.5 ms a child */
-    d.deterministic_load_bytes = 1u << 30;
-    hlod_engine *e = NULL;
-    CHECK(hlod_engine_create(s, &d, &e) == HLOD_OK);
+    hlod_store *s;
+    hlod_engine_desc d;
     hlod_camera cam;
-    look(&cam, 10, 10, 1.5, 100, 100, 0);
+    hlod_engine *e = quadrants("hidden_vote.hlod", &s, &d, &cam);
     hlod_frame_stats st;
     for (int f = 0; f < 40; f++)
         CHECK(hlod_engine_frame(e, &cam, 1.0 / 30, &st) == HLOD_OK);

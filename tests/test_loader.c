@@ -943,19 +943,27 @@ static int keep_all(void *user, uint32_t node, double *key)
     return 0;
 }
 
+/* A deterministic residency whose schedule reads all it posts, recording
+ * the read order in *h. */
+static void ordered_desc(hlod_engine_desc *d, order_hook *h)
+{
+    memset(d, 0, sizeof *d);
+    hlod_engine_desc_defaults(d);
+    d->deterministic = 1;
+    d->deterministic_load_bytes = 1u << 30;
+    d->read_hook = record_order;
+    d->read_hook_user = h;
+}
+
 /* A node a refinement waits for (hlod_residency_need) is read before the
  * prefetch of higher priority, and uploaded before prefetch that arrived
  * first, with one upload a frame (upload_budget_bytes 1). */
 static void test_residency_needed_first(void)
 {
-    hlod_engine_desc d = {0};
-    hlod_engine_desc_defaults(&d);
-    d.deterministic = 1;
-    d.deterministic_load_bytes = 1u << 30; /* a schedule reads all it posts */
-    d.upload_budget_bytes = 1;             /* one upload a frame */
+    hlod_engine_desc d;
     order_hook h = {0};
-    d.read_hook = record_order;
-    d.read_hook_user = &h;
+    ordered_desc(&d, &h);
+    d.upload_budget_bytes = 1; /* one upload a frame */
     hlod_frame_stats st = {0};
     hlod_residency rs;
     CHECK(hlod_residency_init(&rs, g_store, &d, &st) == HLOD_OK);
@@ -1004,14 +1012,10 @@ static void test_residency_needed_first(void)
  * frames, deterministic). */
 static void test_residency_needed_admitted_first(void)
 {
-    hlod_engine_desc d = {0};
-    hlod_engine_desc_defaults(&d);
-    d.deterministic = 1;
-    d.deterministic_load_bytes = 1u << 30;
-    d.max_inflight = 2;
+    hlod_engine_desc d;
     order_hook h = {0};
-    d.read_hook = record_order;
-    d.read_hook_user = &h;
+    ordered_desc(&d, &h);
+    d.max_inflight = 2;
     hlod_frame_stats st = {0};
     hlod_residency rs;
     CHECK(hlod_residency_init(&rs, g_store, &d, &st) == HLOD_OK);
