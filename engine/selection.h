@@ -34,7 +34,8 @@ typedef struct hlod_node_frame {
     uint32_t toggled;       /* frame of the last toggle */
     int8_t toggle_dir;      /* +1 up, -1 down */
     double pix;             /* screen pixels of its projected box (when priced visible) */
-    double extra;           /* what refining it added to the estimate when last refined */
+    double extra;           /* what refining it added to the estimate when last refined (signed) */
+    double sub_extra;       /* extra summed over its subtree's refinements, last frame */
     uint32_t seen;          /* frame the occlusion test last found it visible */
     uint32_t hidden;        /* frame the occlusion test last found it hidden */
     uint32_t waiting;       /* frame a refinement of it last waited for its children's data */
@@ -73,6 +74,7 @@ typedef struct hlod_selection {
     hlod_node_frame *fr;        /* node_count */
     hlod_u32_vec draw;          /* nodes drawn this frame */
     hlod_u32_vec level, next;   /* breadth-first levels */
+    hlod_u32_vec refined;       /* nodes refined this frame, in walk order */
     double reserved, reserving; /* extra of the last frame's refinements; of this frame's */
     uint32_t cap_hits;          /* refinements the budget bound refused this frame */
     uint32_t slice_denied;      /* refinements near but refused by time slices */

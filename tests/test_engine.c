@@ -353,6 +353,75 @@ static void test_hidden_child_keeps_vote(void)
     hlod_store_close(s);
 }
 
+/* One frame selected by hand (no drawing, no fit): budget and share in ms,
+ * the deterministic v_time.  Returns the frame's number. */
+static uint32_t select_by_hand(hlod_engine *e, const hlod_camera *cam, double budget,
+                               double share)
+{
+    hlod_view view;
+    const double still[3] = {0, 0, 0};
+    hlod_view_init(&view, cam, still, 0);
+    uint32_t f = e->frame + 1;
+    memset(&e->st, 0, sizeof e->st);
+    hlod_residency_begin_frame(&e->res, f);
+    hlod_select_in in = {
+        .frame = f, .v_time = e->cost.theta[2], .budget_ms = budget, .share_ms = share};
+    CHECK(hlod_select(&e->sel, &e->res, &view, &in) == HLOD_OK);
+    hlod_residency_end_frame(&e->res);
+    e->frame = f;
+    return f;
+}
+
+/* A refinement the walk will not reach frees what was reserved for it.
+ * Two blocks 110 m apart, each a root over four children, 1 ms a node:
+ * refining a root adds 3 ms.  With a budget of 6 ms a new refinement must
+ * fit 0.85 x 6 = 5.1 ms less what last frame's refinements still hold.
+ * The camera looks at block 0 (refined), then turns to block 1: block 0,
+ * behind the camera, is not visited, and block 1's refinement (4 ms) must
+ * be made in the first frame.  Held for block 0, the 3 ms left 2.1 ms and
+ * block 1 waited a frame, at every turn; on walk (33 ms) such reservations
+ * held a quarter of the budget at the median refusal. */
+static void test_culled_refinement_frees_its_reservation(void)
+{
+    fixture_opts o = {0};
+    o.roots = 2;
+    o.depth = 1;
+    hlod_store *s = make_store("reserve.hlod", &o, NULL);
+    const hlod_store_node *nodes = hlod_store_nodes(s);
+    hlod_engine_desc d;
+    memset(&d, 0, sizeof d);
+    d.deterministic = 1;
+    d.target_ms = 33;
+    d.fixed_frame_ms = 1;
+    d.fixed_v_time = 1.0 / hlod_node_cost(&nodes[hlod_store_first_child(nodes, 0)]);
+    d.deterministic_load_bytes = 1u << 30;
+    hlod_engine *e = NULL;
+    CHECK(hlod_engine_create(s, &d, &e) == HLOD_OK);
+    uint32_t b0 = 0, b1 = 1;
+    CHECK(hlod_store_root_count(s) == 2 && nodes[b0].bbox_max[0] < nodes[b1].bbox_min[0]);
+    hlod_camera both, at0, at1;
+    look(&both, 105, -150, 150, 105, 50, 0);
+    look(&at0, 105, 50, 20, 0, 50, 0);
+    look(&at1, 105, 50, 20, 210, 50, 0);
+    CHECK(hlod_engine_load_all_leaves(e, &both) == HLOD_OK);
+    for (int k = 0; k < 3; k++)
+        select_by_hand(e, &both, 100, 100);
+    CHECKF(e->sel.fr[b0].refined == e->frame && e->sel.fr[b1].refined == e->frame,
+           "premise: both blocks refined with time to spare");
+    for (int k = 0; k < 3; k++)
+        select_by_hand(e, &at0, 6, 6);
+    CHECKF(e->sel.fr[b0].refined == e->frame && e->sel.fr[b1].refined + 3 <= e->frame,
+           "premise: block 0 alone refined");
+    uint32_t f = select_by_hand(e, &at1, 6, 6);
+    fprintf(stderr, "  first frame at block 1: refined %d, %u refusals by the budget\n",
+            e->sel.fr[b1].refined == f, e->sel.cap_hits);
+    CHECKF(e->sel.fr[b1].refined == f && !hlod_engine_node_drawn(e, b1),
+           "block 1 drawn coarse on the first frame (%u refusals by the budget)",
+           e->sel.cap_hits);
+    hlod_engine_destroy(e);
+    hlod_store_close(s);
+}
+
 /* One still-camera run for test_hysteresis_settles.  Everything in view is
  * made resident first (hlod_engine_load_all_leaves), so no frame waits for
  * the loader thread and the run is the same whatever the scheduler does:
@@ -1282,6 +1351,7 @@ int main(int argc, char **argv)
     RUN(test_estimate_within_target);
     RUN(test_missing_sibling_forces_parent);
     RUN(test_unequal_siblings_refine);
+    RUN(test_culled_refinement_frees_its_reservation);
     RUN(test_hidden_child_keeps_vote);
     RUN(test_hysteresis_settles);
     RUN(test_still_camera_fixed_point);
