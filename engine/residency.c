@@ -463,9 +463,42 @@ static int in_pending(const hlod_residency *rs, uint32_t node)
     return 0;
 }
 
-void hlod_residency_schedule(hlod_residency *rs, const hlod_evict_order *order)
+/* Whether node n fits the memory budget beside the reservations, were
+ * the resident set to hold `bytes` and `cost`. */
+static int fits(const hlod_residency *rs, uint64_t bytes, double cost, const hlod_store_node *n)
 {
     const uint64_t budget = rs->d->memory_budget_bytes;
+    return bytes + rs->reserved_bytes + hlod_store_node_memory(n) <= budget &&
+           mem_cost(rs, cost + rs->reserved_cost) + mem_cost(rs, n->cost) <= (double)budget;
+}
+
+/* The victims, from vic[vi] on, to evict so that node n of priority pr
+ * fits: evicting vic[vi, returned index) (those still resident) makes the
+ * room, each of key under pr.  SIZE_MAX when those cannot: then nothing
+ * is evicted.  (Evicting first and finding the node still did not fit
+ * freed room that the next frame read again: on the still view at 66 ms
+ * with memory full, two prefetched nodes evicted each other, one load a
+ * frame from frame 80 to the end, for a need that never fit.) */
+static size_t room_by_evicting(const hlod_residency *rs, const victim *vic, size_t nvic,
+                               size_t vi, double pr, const hlod_store_node *n)
+{
+    uint64_t bytes = rs->resident_bytes;
+    double cost = rs->resident_cost;
+    for (;; vi++) {
+        if (fits(rs, bytes, cost, n))
+            return vi;
+        while (vi < nvic && rs->res[vic[vi].node].state != HLOD_NODE_RESIDENT)
+            vi++;
+        if (vi >= nvic || !(vic[vi].key < pr))
+            return SIZE_MAX;
+        const hlod_store_node *v = &rs->nodes[vic[vi].node];
+        bytes -= hlod_store_node_memory(v);
+        cost -= v->cost;
+    }
+}
+
+void hlod_residency_schedule(hlod_residency *rs, const hlod_evict_order *order)
+{
     hlod_req_vec *want = &rs->want;
     if (want->n > 1) /* want->v is NULL until something was wanted: qsort(NULL) is UB */
         qsort(want->v, want->n, sizeof *want->v, cmp_request);
@@ -502,26 +535,18 @@ void hlod_residency_schedule(hlod_residency *rs, const hlod_evict_order *order)
             continue;
         const hlod_store_node *n = &rs->nodes[node];
         const int top = node < rs->pinned_count; /* admitted whatever the budget, as at start */
-        while (!top) {
-            uint64_t used = rs->resident_bytes + rs->reserved_bytes;
-            double used_c = mem_cost(rs, rs->resident_cost + rs->reserved_cost);
-            if (used + hlod_store_node_memory(n) <= budget && used_c + mem_cost(rs, n->cost) <= (double)budget)
-                break;
+        if (!top && !fits(rs, rs->resident_bytes, rs->resident_cost, n)) {
             if (!vic_built) {
                 vic = victims(rs, order, &nvic);
                 vic_built = 1;
             }
-            while (vi < nvic && rs->res[vic[vi].node].state != HLOD_NODE_RESIDENT)
-                vi++;
-            if (vi >= nvic || !(vic[vi].key < pr))
-                break;
-            evict(rs, vic[vi++].node);
+            size_t upto = room_by_evicting(rs, vic, nvic, vi, pr, n);
+            if (upto == SIZE_MAX)
+                continue; /* does not fit; a smaller one further down may */
+            for (; vi < upto; vi++)
+                if (rs->res[vic[vi].node].state == HLOD_NODE_RESIDENT)
+                    evict(rs, vic[vi].node);
         }
-        uint64_t used = rs->resident_bytes + rs->reserved_bytes;
-        double used_c = mem_cost(rs, rs->resident_cost + rs->reserved_cost);
-        if (!top &&
-            (used + hlod_store_node_memory(n) > budget || used_c + mem_cost(rs, n->cost) > (double)budget))
-            continue; /* does not fit; a smaller one further down may */
         if (!hlod_req_push(&rs->d->allocator, post, node, pr))
             break;
         nr->state = HLOD_NODE_QUEUED;

@@ -1033,6 +1033,61 @@ static void test_residency_needed_admitted_first(void)
     hlod_residency_destroy(&rs);
 }
 
+/* Eviction keys for test_residency_no_eviction_in_vain: M0 1, M1 2, M2 9,
+ * the rest never evicted. */
+static int three_keys(void *user, uint32_t node, double *key)
+{
+    const uint32_t *m = user;
+    for (int i = 0; i < 3; i++)
+        if (node == m[i]) {
+            *key = i == 2 ? 9.0 : i + 1.0;
+            return 1;
+        }
+    return 0;
+}
+
+/* A node that would not fit even with every node of lower key evicted
+ * evicts none of them.  Memory full with M0, M1 (keys 1, 2) and M2 (key 9):
+ * BIG (4 MiB) is wanted at priority 5.  Evicting M0 and M1 frees a few
+ * tens of KiB, not enough; they stay.  (Evicted first and left unused, the
+ * room went to the next frame's reads: on the still view at 66 ms, memory
+ * full, two prefetched nodes evicted each other for a need that never
+ * fit, one load a frame to the end of the run.) */
+static void test_residency_no_eviction_in_vain(void)
+{
+    hlod_engine_desc d;
+    order_hook h = {0};
+    ordered_desc(&d, &h);
+    d.memory_budget_bytes = 1ull << 30;
+    hlod_frame_stats st = {0};
+    hlod_residency rs;
+    CHECK(hlod_residency_init(&rs, g_store, &d, &st) == HLOD_OK);
+    const uint32_t m[3] = {g_idx[M(0)], g_idx[M(1)], g_idx[M(2)]}, big = g_idx[BIG];
+    hlod_evict_order keep = {keep_all, NULL}, keyed = {three_keys, (void *)m};
+    hlod_residency_begin_frame(&rs, 1);
+    hlod_residency_collect(&rs, INFINITY, 0);
+    for (int i = 0; i < 3; i++)
+        CHECK(hlod_residency_want(&rs, m[i], 1.0));
+    hlod_residency_schedule(&rs, &keep);
+    hlod_residency_begin_frame(&rs, 2);
+    hlod_residency_collect(&rs, INFINITY, 0);
+    for (int i = 0; i < 3; i++)
+        CHECK(hlod_residency_state(&rs, m[i]) == HLOD_NODE_RESIDENT);
+    hlod_residency_schedule(&rs, &keep);
+    d.memory_budget_bytes = rs.resident_bytes + 1024; /* full */
+    CHECK(size_of(BIG) > 8 * (size_of(M(0)) + size_of(M(1))));
+    hlod_residency_begin_frame(&rs, 3);
+    hlod_residency_collect(&rs, INFINITY, 0);
+    CHECK(hlod_residency_want(&rs, big, 5.0));
+    hlod_residency_schedule(&rs, &keyed);
+    CHECKF(hlod_residency_state(&rs, m[0]) == HLOD_NODE_RESIDENT &&
+               hlod_residency_state(&rs, m[1]) == HLOD_NODE_RESIDENT,
+           "M0, M1 evicted for a node that did not fit (states %d %d, 2 = resident)",
+           hlod_residency_state(&rs, m[0]), hlod_residency_state(&rs, m[1]));
+    CHECK(hlod_residency_state(&rs, big) == HLOD_NODE_ABSENT && st.evictions == 0);
+    hlod_residency_destroy(&rs);
+}
+
 int main(void)
 {
     const char *tmp = getenv("TMPDIR");
@@ -1063,6 +1118,7 @@ int main(void)
         RUN(test_two_loaders);
         RUN(test_residency_needed_first);
         RUN(test_residency_needed_admitted_first);
+        RUN(test_residency_no_eviction_in_vain);
     }
     for (int i = 0; i < NODES; i++)
         hlod_store_payload_free(&g_ref[i]);
