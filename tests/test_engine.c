@@ -48,6 +48,16 @@ static hlod_store *make_store(const char *name, const fixture_opts *o, uint32_t 
     return s;
 }
 
+/* A store of `roots` blocks (x in [0, 100], [110, 210], ...), each a root
+ * over its four quadrants. */
+static hlod_store *shallow_store(const char *name, uint32_t roots)
+{
+    fixture_opts o = {0};
+    o.roots = roots;
+    o.depth = 1;
+    return make_store(name, &o, NULL);
+}
+
 static void look(hlod_camera *cam, double ex, double ey, double ez, double tx, double ty,
                  double tz)
 {
@@ -199,10 +209,7 @@ static hlod_result fail_one(void *user, uint32_t node, uint64_t offset, size_t b
 
 static void test_missing_sibling_forces_parent(void)
 {
-    fixture_opts o = {0};
-    o.roots = 1;
-    o.depth = 1;
-    hlod_store *s = make_store("missing.hlod", &o, NULL);
+    hlod_store *s = shallow_store("missing.hlod", 1);
     /* node 0 = root, 1..4 its quadrants: make quadrant 2 unreadable */
     g_bad_node = 2;
     hlod_engine_desc d = {0};
@@ -244,10 +251,7 @@ static void test_missing_sibling_forces_parent(void)
 static hlod_engine *quadrants(const char *name, hlod_store **s, hlod_engine_desc *d,
                               hlod_camera *cam)
 {
-    fixture_opts o = {0};
-    o.roots = 1;
-    o.depth = 1;
-    *s = make_store(name, &o, NULL);
+    *s = shallow_store(name, 1);
     const hlod_store_node *nodes = hlod_store_nodes(*s);
     memset(d, 0, sizeof *d);
     d->deterministic = 1;
@@ -383,10 +387,7 @@ static uint32_t select_by_hand(hlod_engine *e, const hlod_camera *cam, double bu
  * held a quarter of the budget at the median refusal. */
 static void test_culled_refinement_frees_its_reservation(void)
 {
-    fixture_opts o = {0};
-    o.roots = 2;
-    o.depth = 1;
-    hlod_store *s = make_store("reserve.hlod", &o, NULL);
+    hlod_store *s = shallow_store("reserve.hlod", 2);
     const hlod_store_node *nodes = hlod_store_nodes(s);
     hlod_engine_desc d;
     memset(&d, 0, sizeof d);
@@ -849,10 +850,7 @@ static hlod_result fail_io(void *user, uint32_t node, uint64_t offset, size_t by
 
 static void test_transient_backoff(void)
 {
-    fixture_opts o = {0};
-    o.roots = 1;
-    o.depth = 1;
-    hlod_store *s = make_store("transient.hlod", &o, NULL);
+    hlod_store *s = shallow_store("transient.hlod", 1);
     hlod_engine_desc d = {0};
     d.deterministic = 1;
     d.fixed_v_time = 1e-6;
