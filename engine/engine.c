@@ -449,12 +449,14 @@ static void draw_frame(hlod_engine *e, const hlod_camera *cam, const hlod_view *
 
 /* Residency evicts what the selection values least: nodes priced this
  * frame by priority, the others before them, oldest first; never one
- * drawn this frame. */
-static int evict_key(void *user, uint32_t node, double *key)
+ * drawn this frame, nor one refined this frame (the front below it stands
+ * on it: evicted for a nearer prefetch, it drew its parent in its place
+ * the next frame, its whole subtree toggled down, and was read again). */
+int hlod_engine_evict_key(void *user, uint32_t node, double *key)
 {
     const hlod_engine *e = user;
     const hlod_node_frame *f = &e->sel.fr[node];
-    if (f->drawn == e->frame)
+    if (f->drawn == e->frame || f->refined == e->frame)
         return 0;
     *key = f->priced == e->frame ? f->priority : -(double)(e->frame - f->priced);
     return 1;
@@ -606,7 +608,7 @@ hlod_result hlod_engine_frame(hlod_engine *e, const hlod_camera *cam, double dt,
     learn(e, measured, upload, budget, moved);
 
     if (e->d.policy != HLOD_POLICY_FULL) {
-        hlod_evict_order order = {evict_key, e};
+        hlod_evict_order order = {hlod_engine_evict_key, e};
         hlod_residency_schedule(&e->res, &order);
     }
     hlod_residency_end_frame(&e->res);

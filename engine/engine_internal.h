@@ -47,4 +47,7 @@ struct hlod_engine {
     hlod_frame_stats st;    /* being filled */
 };
 
+/* The order residency evicts in (hlod_evict_order's key; engine.c). */
+int hlod_engine_evict_key(void *user, uint32_t node, double *key);
+
 #endif

@@ -39,6 +39,8 @@ typedef struct hlod_node_frame {
     uint32_t seen;          /* frame the occlusion test last found it visible */
     uint32_t hidden;        /* frame the occlusion test last found it hidden */
     uint32_t waiting;       /* frame a refinement of it last waited for its children's data */
+    uint32_t capped;        /* frame the budget bound coarsened it while the front was held;
+                             * 0 once refined again */
 } hlod_node_frame;
 
 /* The camera as the selection sees it, in camera-relative doubles. */

@@ -534,19 +534,27 @@ static int policy_refines(const walk *w, const hlod_view *v, uint32_t p, double 
 
 /* A camera that has stood still a while holds its front (README, "The
  * runtime", Selection): a node refined last frame stays refined, and one drawn
- * last frame is refined only where the refinement waited for its
- * children's data last frame; a node new to the front (its parent has
- * just refined) is decided as usual, and the budget bound still coarsens
- * a front that no longer fits.  Otherwise the cost model's and the
- * margin's moves, however gated, reached a still view: 3-80 toggles after
- * frame 60 of `still` at 33 ms, each a step of the budget past the
- * counters' switch. */
+ * last frame stays drawn; a node new to the front (its parent has just
+ * refined) is decided as usual, and the budget bound still coarsens a
+ * front that no longer fits.  Otherwise the cost model's and the margin's
+ * moves, however gated, reached a still view: 3-80 toggles after frame 60
+ * of `still` at 33 ms, each a step of the budget past the counters'
+ * switch.  A node the bound coarsened while the front was held (the
+ * machine slowed) may refine again, as the policy and the bound decide:
+ * else a moment's slowdown left a still view coarse until the camera
+ * moved (a still view of 111 nodes fell to 1 under a parallel build).
+ * With still_refine_late, a drawn node still refines where that
+ * refinement waited for its children's data last frame: data arriving
+ * late refines the still view, at the price of a toggle each (56-201
+ * after frame 60 of `still` at 66 ms on a 2-core machine, whose uploads
+ * had brought the front's data by frame 105-123). */
 static int hold_front(const walk *w, const hlod_node_frame *pf, int refine)
 {
     if (pf->refined && pf->refined + 1 == w->frame)
         return 1;
     if (pf->drawn && pf->drawn + 1 == w->frame)
-        return refine && pf->waiting && pf->waiting + 1 == w->frame;
+        return refine && (pf->capped || (w->d->still_refine_late > 0 && pf->waiting &&
+                                         pf->waiting + 1 == w->frame));
     return refine;
 }
 
@@ -700,6 +708,8 @@ static int visit(walk *w, const hlod_view *v, front *fr, uint32_t p)
         if (refine && fr->est - pf->needed + sum_needed > bound) {
             refine = 0;
             w->s->cap_hits++;
+            if (was_refined && w->hold)
+                pf->capped = w->frame;
         } else if (!refine && near) {
             w->s->slice_denied++;
         }
@@ -726,6 +736,7 @@ static int visit(walk *w, const hlod_view *v, front *fr, uint32_t p)
         return draw_node(w, p);
     }
     fr->est += sum_needed - pf->needed;
+    pf->capped = 0;
     if (pf->drawn && pf->drawn + 1 == w->frame)
         note_toggle(w, p, +1);
     return mark_refined(w, pf, p, sum_needed - pf->needed);
