@@ -534,20 +534,22 @@ static int policy_refines(const walk *w, const hlod_view *v, uint32_t p, double 
 
 /* A camera that has stood still a while holds its front (README, "The
  * runtime", Selection): a node refined last frame stays refined, and one drawn
- * last frame stays drawn; a node new to the front (its parent has just
- * refined) is decided as usual, and the budget bound still coarsens a
- * front that no longer fits.  Otherwise the cost model's and the margin's
+ * last frame stays drawn (but see still_refine_late below); a node new
+ * to the front (its parent has just refined) is decided as usual, and the
+ * budget bound still coarsens a front that no longer fits.  Otherwise the cost model's and the margin's
  * moves, however gated, reached a still view: 3-80 toggles after frame 60
  * of `still` at 33 ms, each a step of the budget past the counters'
  * switch.  A node the bound coarsened while the front was held (the
  * machine slowed) may refine again, as the policy and the bound decide:
  * else a moment's slowdown left a still view coarse until the camera
  * moved (a still view of 111 nodes fell to 1 under a parallel build).
- * With still_refine_late, a drawn node still refines where that
- * refinement waited for its children's data last frame: data arriving
- * late refines the still view, at the price of a toggle each (56-201
- * after frame 60 of `still` at 66 ms on a 2-core machine, whose uploads
- * had brought the front's data by frame 105-123). */
+ * With still_refine_late (the default), a drawn node still refines where
+ * that refinement waited for its children's data last frame: data
+ * arriving late refines the still view, at the price of a toggle each
+ * (56-201 after frame 60 of `still` at 66 ms on a 2-core machine, whose
+ * uploads had brought the front's data by frame 105-123); held whatever
+ * arrives, a still viewer over a slow disk never saw the city sharpen
+ * (test_faults slow_reads). */
 static int hold_front(const walk *w, const hlod_node_frame *pf, int refine)
 {
     if (pf->refined && pf->refined + 1 == w->frame)

@@ -599,7 +599,8 @@ static void test_refined_not_evicted(void)
  * runtime", Selection): a budget three times larger refines nothing while it
  * stays still, one that no longer fits coarsens it, the budget back
  * refines what it coarsened, and the first move refines; data arriving
- * after frame 60 changes nothing (it refines with still_refine_late). */
+ * after frame 60 refines (and changes nothing with still_refine_late
+ * off). */
 static void test_still_front_holds(void)
 {
     hlod_store *s;
@@ -657,12 +658,12 @@ static void test_still_front_holds(void)
     hlod_engine_destroy(e);
 
     /* data late: a slow deterministic disk, the camera still from frame 0.
-     * The held front does not change (it does not wait for the data), and
-     * with still_refine_late it refines as the data arrives. */
+     * The front refines as the data arrives (the default), and with
+     * still_refine_late off (-1 in C) the held front does not change. */
     d.target_ms = 60;
     d.deterministic_load_bytes = 2 << 10;
     for (int late = 0; late < 2; late++) {
-        d.still_refine_late = late;
+        d.still_refine_late = late ? 1 : -1;
         CHECK(hlod_engine_create(s, &d, &e) == HLOD_OK);
         uint32_t late_up = 0, late_down = 0, at60 = 0, missing = 0;
         for (int f = 0; f < 600; f++) {

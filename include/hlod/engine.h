@@ -142,7 +142,7 @@ typedef double (*hlod_time_model)(void *user_data, const struct hlod_frame_stats
       "the fraction of frames to finish within target_ms (the margin follows the measured spread)") \
     X(aim_mean, aim_mean, B, 0, 0, 0, 1, 1,                                                      \
       "1: the paper's control, the mean frame time on target_ms (no margin); 0: the deadline")    \
-    X(still_refine_late, still_refine_late, B, 0, 0, 0, 1, 1,                                    \
+    X(still_refine_late, still_refine_late, B, 1, 0, 0, 1, 1,                                    \
       "1: a still camera's held front still refines where data it waited for arrives late; 0: no") \
     X(occlusion, occlusion, B, 1, 0, 0, 1, 1,                                                    \
       "1: nodes hidden behind this frame's depth are not drawn, charged or refined; 0: off")      \
