@@ -48,6 +48,14 @@ static hlod_store *make_store(const char *name, const fixture_opts *o, uint32_t 
     return s;
 }
 
+/* n frames of camera cam, 1/30 s each; *st (unless NULL) gets the last
+ * one's stats. */
+static void run_frames(hlod_engine *e, const hlod_camera *cam, int n, hlod_frame_stats *st)
+{
+    for (int f = 0; f < n; f++)
+        CHECK(hlod_engine_frame(e, cam, 1.0 / 30, st) == HLOD_OK);
+}
+
 /* A store of `roots` blocks (x in [0, 100], [110, 210], ...), each a root
  * over its four quadrants. */
 static hlod_store *shallow_store(const char *name, uint32_t roots)
@@ -321,8 +329,7 @@ static void test_hidden_child_keeps_vote(void)
     hlod_camera cam;
     hlod_engine *e = quadrants("hidden_vote.hlod", &s, &d, &cam);
     hlod_frame_stats st;
-    for (int f = 0; f < 40; f++)
-        CHECK(hlod_engine_frame(e, &cam, 1.0 / 30, &st) == HLOD_OK);
+    run_frames(e, &cam, 40, &st);
     CHECK(!hlod_engine_node_drawn(e, 0) && hlod_engine_node_drawn(e, 1));
     const double lim = hlod_engine_get_desc(e)->c_hyst_limit;
     CHECKF(e->sel.fr[1].hyst >= 0.5 * lim && e->sel.fr[2].hyst <= -0.5 * lim,
@@ -568,9 +575,7 @@ static void test_refined_not_evicted(void)
     hlod_engine_desc d;
     hlod_camera cam;
     hlod_engine *e = still_engine("refined.hlod", &s, &d, &cam);
-    hlod_frame_stats st;
-    for (int f = 0; f < 40; f++)
-        CHECK(hlod_engine_frame(e, &cam, 1.0 / 30, &st) == HLOD_OK);
+    run_frames(e, &cam, 40, NULL);
     uint32_t refined = 0, drawn = 0, other = 0;
     for (uint32_t i = e->res.pinned_count; i < e->node_count; i++) {
         if (hlod_engine_node_state(e, i) != HLOD_NODE_RESIDENT)
