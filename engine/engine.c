@@ -575,7 +575,9 @@ hlod_result hlod_engine_frame(hlod_engine *e, const hlod_camera *cam, double dt,
                          .pixel_ms = m->theta[3],
                          .occlusion = e->d.occlusion > 0 && e->d.renderer != NULL,
                          .still = !moved,
-                         .hold = e->still_run >= STILL_HOLD,
+                         .hold_since = e->still_run >= STILL_HOLD
+                                           ? e->frame - (e->still_run - STILL_HOLD)
+                                           : 0,
                          .sse_pixels = m->sse_pixels,
                          .budget_ms = budget,
                          .share_ms = budget * m->share_gain};

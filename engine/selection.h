@@ -62,7 +62,8 @@ typedef struct hlod_select_in {
     double pixel_ms;        /* ... per pixel of a node's projected box */
     int occlusion;          /* nodes hidden in the last frame are not charged or refined */
     int still;              /* the camera has not moved since the last frame */
-    int hold;               /* the whole camera still for a while: a lakhia front holds (hold_front) */
+    uint32_t hold_since;    /* frame from which a lakhia front holds, the whole camera still a
+                             * while (hold_front); 0: not held */
     double sse_pixels;      /* the SSE policy's threshold */
     double budget_ms;       /* the bound on the front's estimate */
     double share_ms;        /* the roots' shareTime (eq. 4) */

@@ -57,6 +57,7 @@ typedef struct walk {
     uint32_t frame;
     double v_time, sse_pixels, draw_ms, pixel_ms;
     int occlusion, still, hold;
+    uint32_t hold_since; /* when hold: the frame the front began to hold */
 } walk;
 
 /* ---- life ---- */
@@ -536,11 +537,12 @@ static int policy_refines(const walk *w, const hlod_view *v, uint32_t p, double 
  * runtime", Selection): a node refined last frame stays refined, and one drawn
  * last frame stays drawn (but see still_refine_late below); a node new
  * to the front (its parent has just refined) is decided as usual, and the
- * budget bound still coarsens a front that no longer fits.  Otherwise the cost model's and the margin's
- * moves, however gated, reached a still view: 3-80 toggles after frame 60
- * of `still` at 33 ms, each a step of the budget past the counters'
- * switch.  A node the bound coarsened while the front was held (the
- * machine slowed) may refine again, as the policy and the bound decide:
+ * budget bound still coarsens a front that no longer fits.  Otherwise the
+ * cost model's and the margin's moves, however gated, reached a still
+ * view: 3-80 toggles after frame 60 of `still` at 33 ms, each a step of
+ * the budget past the counters' switch.  A node the bound coarsened during
+ * this hold (the machine slowed) may refine again, as the policy and the
+ * bound decide (one coarsened in an earlier hold holds like the rest):
  * else a moment's slowdown left a still view coarse until the camera
  * moved (a still view of 111 nodes fell to 1 under a parallel build).
  * With still_refine_late (the default), a drawn node still refines where
@@ -552,11 +554,12 @@ static int policy_refines(const walk *w, const hlod_view *v, uint32_t p, double 
  * (test_faults slow_reads). */
 static int hold_front(const walk *w, const hlod_node_frame *pf, int refine)
 {
-    if (pf->refined && pf->refined + 1 == w->frame)
+    if (refined_last(w, pf))
         return 1;
     if (pf->drawn && pf->drawn + 1 == w->frame)
-        return refine && (pf->capped || (w->d->still_refine_late > 0 && pf->waiting &&
-                                         pf->waiting + 1 == w->frame));
+        return refine && (pf->capped >= w->hold_since ||
+                          (w->d->still_refine_late > 0 && pf->waiting &&
+                           pf->waiting + 1 == w->frame));
     return refine;
 }
 
@@ -768,7 +771,7 @@ hlod_result hlod_select(hlod_selection *s, struct hlod_residency *res, const hlo
                 s->nodes,    s->fr,         in->frame,   in->v_time,
                 in->sse_pixels, in->draw_ms, in->pixel_ms,
                 in->occlusion && s->d->policy != HLOD_POLICY_FULL, in->still,
-                in->hold && s->d->policy == HLOD_POLICY_LAKHIA};
+                in->hold_since && s->d->policy == HLOD_POLICY_LAKHIA, in->hold_since};
     walk *w = &ctx;
     const double share_ms = in->share_ms;
     s->draw.n = s->level.n = s->next.n = s->refined.n = 0;

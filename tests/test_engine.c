@@ -565,6 +565,42 @@ static void test_still_camera_fixed_point(void)
     hlod_store_close(s);
 }
 
+/* Only what the bound coarsened during this hold may refine again while
+ * the camera stays still: the front held, coarsened by a budget 5 times
+ * smaller, then a small move, 80 still frames (a new hold) on the small
+ * budget, and the budget back.  The new hold keeps its front (no toggle);
+ * remembered from the first hold, the coarsened nodes refined. */
+static void test_capped_in_an_earlier_hold_holds(void)
+{
+    hlod_store *s;
+    hlod_engine_desc d;
+    hlod_camera cam, moved;
+    hlod_engine *e = still_engine("capped.hlod", &s, &d, &cam);
+    hlod_frame_stats st;
+    run_frames(e, &cam, 120, &st);
+    d.target_ms = 4;
+    CHECK(hlod_engine_set(e, &d) == HLOD_OK);
+    uint32_t down = 0;
+    for (int f = 0; f < 10; f++) {
+        CHECK(hlod_engine_frame(e, &cam, 1.0 / 30, &st) == HLOD_OK);
+        down += st.toggles_down;
+    }
+    CHECKF(down > 0, "premise: the small budget coarsened the held front (%u down)", down);
+    look(&moved, 100, -49.99, 30, 220, 50, 0);
+    run_frames(e, &moved, 80, &st);
+    d.target_ms = 20;
+    CHECK(hlod_engine_set(e, &d) == HLOD_OK);
+    uint32_t toggles = 0;
+    for (int f = 0; f < 20; f++) {
+        CHECK(hlod_engine_frame(e, &moved, 1.0 / 30, &st) == HLOD_OK);
+        toggles += st.toggles_up + st.toggles_down;
+    }
+    fprintf(stderr, "  a new hold, budget back: %u toggles\n", toggles);
+    CHECKF(toggles == 0, "a new hold, budget back: %u toggles", toggles);
+    hlod_engine_destroy(e);
+    hlod_store_close(s);
+}
+
 /* Residency never evicts a node refined this frame: the front below it
  * stands on it.  (Evicted for a nearer prefetch with memory full, it drew
  * its parent in its place the next frame: on orbit, deterministic, 1,211
@@ -1425,6 +1461,7 @@ int main(int argc, char **argv)
     RUN(test_hysteresis_settles);
     RUN(test_still_camera_fixed_point);
     RUN(test_still_front_holds);
+    RUN(test_capped_in_an_earlier_hold_holds);
     RUN(test_refined_not_evicted);
     RUN(test_outside_not_priced);
     RUN(test_prefetch_follows_motion);
