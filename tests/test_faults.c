@@ -295,8 +295,9 @@ static void check_no_stall(const char *what, const tally *t)
     int allowed = t->frames / 100 > 2 ? t->frames / 100 : 2;
     CHECKF(t->unexplained_waits == 0, "%s: %u render waits, %u in frames not preempted", what,
            t->render_waits, t->unexplained_waits);
-    CHECKF(t->unexplained_slow == 0, "%s: %d frames over %.0f ms, neither preempted nor blocked",
-           what, t->unexplained_slow, FRAME_MS);
+    CHECKF(t->unexplained_slow <= span_host_spikes(t->frames),
+           "%s: %d of %d frames over %.0f ms, neither preempted nor blocked", what,
+           t->unexplained_slow, t->frames, FRAME_MS);
     CHECKF(t->slow_frames <= allowed && t->worst_ms < 1000, "%s: %d of %d frames over %.0f ms, "
            "worst %.1f ms", what, t->slow_frames, t->frames, FRAME_MS, t->worst_ms);
     CHECKF(t->nonfinite == 0, "%s: %d frames with non-finite stats", what, t->nonfinite);

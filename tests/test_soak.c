@@ -324,9 +324,10 @@ static void check_soak(const soak *k, const char *what)
            (unsigned long long)k->over_budget);
     CHECKF(k->unexplained_waits == 0, "%s: %d render waits in frames that kept the CPU (%u in all)",
            what, k->unexplained_waits, k->render_waits);
-    CHECKF(k->unexplained_slow == 0,
-           "%s: %d frames over %.0f ms of CPU time, neither preempted nor blocked", what,
-           k->unexplained_slow, FRAME_CPU_MS);
+    CHECKF(k->unexplained_slow <= span_host_spikes(k->frames_ok),
+           "%s: %d frames over %.0f ms of CPU time, neither preempted nor blocked (%d allowed: "
+           "cpu_span.h)", what, k->unexplained_slow, FRAME_CPU_MS,
+           span_host_spikes(k->frames_ok));
     CHECKF(k->slow_frames <= allowed && k->worst_ms < 500, "%s: %d frames over %.0f ms, worst "
            "%.1f ms", what, k->slow_frames, FRAME_MS, k->worst_ms);
     CHECKF(k->nonfinite == 0, "%s: %d frames with non-finite stats", what, k->nonfinite);
