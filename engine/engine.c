@@ -501,6 +501,66 @@ static double upload_reserve(const hlod_engine *e)
     return e->d.upload_budget_ms > 0 ? e->d.upload_budget_ms : 0.1 * e->d.target_ms;
 }
 
+/* Held frames over the target, of the last 16, that show the held front
+ * itself no longer fits the machine (half of them: a burst of slow frames
+ * on a noisy machine misses 1-5 in a row; README, "The runtime",
+ * Selection). */
+#define HOLD_SLOW_MISSES 8
+/* Clean frames in a row (the width of hold.misses) after which inputs
+ * taken in a slowdown give way to the model's again, where those give
+ * more. */
+#define HOLD_RECOVER 32
+
+static void take_hold_inputs(hlod_engine *e, const hlod_select_in *in, int slowed)
+{
+    e->hold.since = in->hold_since;
+    e->hold.taken = e->frame;
+    e->hold.target_ms = e->d.target_ms;
+    e->hold.budget_ms = in->budget_ms;
+    e->hold.share_ms = in->share_ms;
+    e->hold.v_time = in->v_time;
+    e->hold.draw_ms = in->draw_ms;
+    e->hold.pixel_ms = in->pixel_ms;
+    e->hold.misses = 0;
+    e->hold.slowed = slowed;
+}
+
+/* A still camera's hold keeps the budget and the model the selection saw
+ * when it began.  The fit, the margin and the share gain go on learning
+ * from every frame, and on a noisy machine they move with it (the margin
+ * from 1.23 to 1.69 within 400 frames of `still` at 33 ms): where a held
+ * front sat at its bound, each move coarsened it and the next refined it
+ * again (3-14 toggles after frame 60 in a run).  The held inputs give way
+ * when the target changes, when the held frames miss the target
+ * persistently (HOLD_SLOW_MISSES of 16: the machine is slower now), and,
+ * after such a slowdown, once HOLD_RECOVER frames in a row met it and the
+ * model's budget is larger again. */
+static void keep_hold_inputs(hlod_engine *e, hlod_select_in *in)
+{
+    if (!in->hold_since || e->d.policy != HLOD_POLICY_LAKHIA) {
+        e->hold.since = 0;
+        return;
+    }
+    if (e->hold.since != in->hold_since || e->hold.target_ms != e->d.target_ms) {
+        take_hold_inputs(e, in, 0);
+        return;
+    }
+    if (__builtin_popcount(e->hold.misses & 0xffffu) >= HOLD_SLOW_MISSES) {
+        take_hold_inputs(e, in, 1);
+        return;
+    }
+    if (e->hold.slowed && e->frame - e->hold.taken >= HOLD_RECOVER &&
+        e->hold.misses == 0 && in->budget_ms > e->hold.budget_ms) {
+        take_hold_inputs(e, in, 1); /* still after a slowdown: may come back further */
+        return;
+    }
+    in->budget_ms = e->hold.budget_ms;
+    in->share_ms = e->hold.share_ms;
+    in->v_time = e->hold.v_time;
+    in->draw_ms = e->hold.draw_ms;
+    in->pixel_ms = e->hold.pixel_ms;
+}
+
 /* After the frame is drawn and measured: the cost model learns from it. */
 static void learn(hlod_engine *e, double measured, double upload, double budget, int moved)
 {
@@ -581,6 +641,7 @@ hlod_result hlod_engine_frame(hlod_engine *e, const hlod_camera *cam, double dt,
                          .sse_pixels = m->sse_pixels,
                          .budget_ms = budget,
                          .share_ms = budget * m->share_gain};
+    keep_hold_inputs(e, &in);
     t0 = hlod_now_ms();
     hlod_result r = hlod_select(&e->sel, &e->res, &view, &in);
     e->st.traversal_ms = hlod_now_ms() - t0;
@@ -599,7 +660,9 @@ hlod_result hlod_engine_frame(hlod_engine *e, const hlod_camera *cam, double dt,
     e->st.v_time = m->theta[2];
     e->st.fixed_ms = m->theta[0];
     e->st.margin = m->margin;
-    e->st.budget_ms = budget;
+    e->st.budget_ms = in.budget_ms;
+    if (e->hold.since)
+        e->hold.misses = e->hold.misses << 1 | (measured > e->d.target_ms);
     e->st.share_gain = m->share_gain;
     e->st.estimated_ms =
         hlod_cost_model_predict(m, e->st.nodes_drawn, e->st.cost_drawn, e->st.pixels_drawn) +

@@ -40,6 +40,16 @@ struct hlod_engine {
     int have_prev;
     hlod_camera prev_cam;   /* the last frame's camera (when have_prev) */
     uint32_t still_run;     /* frames in a row with the same camera as the last */
+    /* the selection's inputs a still camera's hold keeps (engine.c,
+     * keep_hold_inputs) */
+    struct {
+        uint32_t since;     /* the hold they belong to (hold_since; 0: none) */
+        uint32_t taken;     /* the frame they were taken */
+        double target_ms;   /* the target they were taken at */
+        double budget_ms, share_ms, v_time, draw_ms, pixel_ms;
+        uint32_t misses;    /* a bit a held frame, newest lowest: over the target */
+        int slowed;         /* taken because the held frames missed */
+    } hold;
     int have_front;         /* last_front_ms is set (a frame was selected) */
     double last_front_ms;   /* the last front's estimate, fixed part included */
 
