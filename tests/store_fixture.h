@@ -8,7 +8,8 @@
  * child has the same triangle count as its parent over a quarter of the
  * area (4x the detail).  Node error is the grid spacing (monotone up the
  * tree).  `origin` shifts the whole store, to check that a city at 5e6 m
- * behaves exactly as at the origin.  With `textured` every node carries a
+ * behaves exactly as at the origin.  With `height` every other grid vertex
+ * is raised that far (a box with volume, that an eye can stand inside).  With `textured` every node carries a
  * small checker texture.
  */
 #ifndef HLOD_TESTS_STORE_FIXTURE_H
@@ -25,6 +26,7 @@ typedef struct fixture_opts {
     uint32_t grid;      /* quads per side per node; default 4 */
     double size;        /* block width; default 100 */
     double origin[3];
+    double height; /* corrugation; default 0 (flat) */
     int textured;
 } fixture_opts;
 
@@ -57,7 +59,7 @@ static uint32_t fixture_node(fixture_build *b, double x0, double y0, double side
             uint32_t v = j * (g + 1) + i;
             pos[3 * v] = o->origin[0] + x0 + side * i / g;
             pos[3 * v + 1] = o->origin[1] + y0 + side * j / g;
-            pos[3 * v + 2] = o->origin[2];
+            pos[3 * v + 2] = o->origin[2] + o->height * ((i + j) % 2);
             nrm[3 * v] = nrm[3 * v + 1] = 0;
             nrm[3 * v + 2] = 1;
             uv[2 * v] = (float)i / g;

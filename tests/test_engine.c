@@ -255,6 +255,20 @@ static void test_missing_sibling_forces_parent(void)
     hlod_store_close(s);
 }
 
+/* A deterministic descriptor at 33 ms, 1 ms of frame overhead, nodes like
+ * nodes[child] costing child_ms each, everything loadable at once. */
+static hlod_engine_desc timed_desc(const hlod_store_node *nodes, uint32_t child, double child_ms)
+{
+    hlod_engine_desc d;
+    memset(&d, 0, sizeof d);
+    d.deterministic = 1;
+    d.target_ms = 33;
+    d.fixed_frame_ms = 1;
+    d.fixed_v_time = child_ms / hlod_node_cost(&nodes[child]);
+    d.deterministic_load_bytes = 1u << 30;
+    return d;
+}
+
 /* The quadrants of test_unequal_siblings_refine: one root over four
  * children, deterministic at 0.5 ms a child and 33 ms, the camera 1.5 m
  * over one quadrant (*d is the engine's descriptor). */
@@ -263,12 +277,7 @@ static hlod_engine *quadrants(const char *name, hlod_store **s, hlod_engine_desc
 {
     *s = shallow_store(name, 1);
     const hlod_store_node *nodes = hlod_store_nodes(*s);
-    memset(d, 0, sizeof *d);
-    d->deterministic = 1;
-    d->target_ms = 33;
-    d->fixed_frame_ms = 1;
-    d->fixed_v_time = 0.5 / hlod_node_cost(&nodes[1]); /* 0.5 ms a child */
-    d->deterministic_load_bytes = 1u << 30;
+    *d = timed_desc(nodes, 1, 0.5);
     hlod_engine *e = NULL;
     CHECK(hlod_engine_create(*s, d, &e) == HLOD_OK);
     look(cam, 10, 10, 1.5, 100, 100, 0);
@@ -398,13 +407,7 @@ static void test_culled_refinement_frees_its_reservation(void)
 {
     hlod_store *s = shallow_store("reserve.hlod", 2);
     const hlod_store_node *nodes = hlod_store_nodes(s);
-    hlod_engine_desc d;
-    memset(&d, 0, sizeof d);
-    d.deterministic = 1;
-    d.target_ms = 33;
-    d.fixed_frame_ms = 1;
-    d.fixed_v_time = 1.0 / hlod_node_cost(&nodes[hlod_store_first_child(nodes, 0)]);
-    d.deterministic_load_bytes = 1u << 30;
+    hlod_engine_desc d = timed_desc(nodes, hlod_store_first_child(nodes, 0), 1);
     hlod_engine *e = NULL;
     CHECK(hlod_engine_create(s, &d, &e) == HLOD_OK);
     uint32_t b0 = 0, b1 = 1;
@@ -429,6 +432,78 @@ static void test_culled_refinement_frees_its_reservation(void)
            "block 1 drawn coarse on the first frame (%u refusals by the budget)",
            e->sel.cap_hits);
     hlod_engine_destroy(e);
+    hlod_store_close(s);
+}
+
+/* A node the eye stands inside is refined whenever the budget allows.
+ * Its coarse geometry is then seen from within (the parts city's group
+ * of nine blocks and the ground, drawn around a street camera at 6-7 dB),
+ * and its priority, by the distance to its box, cannot say so.  Two
+ * blocks 110 m apart, each a root over four children, boxes 10 m high,
+ * 1 ms a node; the eye 1.5 m up inside block 1, looking at both.
+ * (a) The slice: a share of 2 ms for a root whose children need 4.  Eye
+ * outside the box (20 m up): the root is drawn, as eq. 4 says, and
+ * (lakhia) the children's counters fall.  Inside: refined at once (before,
+ * never; with the slice alone, after their vote let go: drawn 1 frame).  (b) The bound: a budget of 6 ms with block 0 refined first.
+ * Before, block 1 (needing 5 - 1 + 4 = 8 > 6 ms with block 0 refined)
+ * waited behind block 0's refinement for good; now it is decided first
+ * in its level and block 0, elsewhere, is drawn coarse instead. */
+static void test_eye_inside_refines(void)
+{
+    fixture_opts o = {0};
+    o.roots = 2;
+    o.depth = 1;
+    o.height = 10;
+    hlod_store *s = make_store("eye_inside.hlod", &o, NULL);
+    const hlod_store_node *nodes = hlod_store_nodes(s);
+    for (int pol = HLOD_POLICY_LAKHIA; pol <= HLOD_POLICY_NOHYST; pol++) {
+        const char *name = hlod_policy_name((hlod_policy)pol);
+        hlod_engine_desc d = timed_desc(nodes, hlod_store_first_child(nodes, 1), 1);
+        d.policy = (hlod_policy)pol;
+        hlod_engine *e = NULL;
+        CHECK(hlod_engine_create(s, &d, &e) == HLOD_OK);
+        const uint32_t b0 = 0, b1 = 1;
+        CHECK(nodes[b1].bbox_min[2] < 1.5 && nodes[b1].bbox_max[2] > 1.5);
+        hlod_camera in, above, both;
+        look(&in, 200, 50, 1.5, 160, 50, 0);
+        look(&above, 200, 50, 20, 160, 50, 0);
+        look(&both, 200, 50, 1.5, 0, 50, 0);
+        CHECK(hlod_engine_load_all_leaves(e, &both) == HLOD_OK);
+        uint32_t coarse_above = 0, coarse_in = 0;
+        for (int k = 0; k < 20; k++) {
+            select_by_hand(e, k < 10 ? &above : &in, 100, 2);
+            *(k < 10 ? &coarse_above : &coarse_in) += hlod_engine_node_drawn(e, b1);
+        }
+        fprintf(stderr, "  %s: root drawn at a 2 ms share in %u of 10 frames from above, "
+                "%u of 10 from inside\n", name, coarse_above, coarse_in);
+        CHECKF(coarse_above == 10, "%s: premise: the share binds from above (%u of 10)", name,
+               coarse_above);
+        CHECKF(coarse_in == 0, "%s: root drawn around the eye in %u of 10 frames", name,
+               coarse_in);
+
+        /* (b): both refined, then at 6 ms block 0 alone (first in the
+         * walk), shares ample throughout */
+        look(&above, 105, -60, 60, 105, 50, 0);
+        for (int k = 0; k < 3; k++)
+            select_by_hand(e, &above, 100, 1e4);
+        CHECKF(e->sel.fr[b0].refined == e->frame && e->sel.fr[b1].refined == e->frame,
+               "%s: premise: both blocks refined with time to spare", name);
+        for (int k = 0; k < 3; k++)
+            select_by_hand(e, &above, 6, 1e4);
+        int premise = e->sel.fr[b0].refined == e->frame && e->sel.fr[b1].refined != e->frame;
+        uint32_t in_refined = 0, far_refined = 0;
+        for (int k = 0; k < 5; k++) {
+            uint32_t f = select_by_hand(e, &both, 6, 1e4);
+            in_refined += e->sel.fr[b1].refined == f;
+            far_refined += e->sel.fr[b0].refined == f;
+        }
+        fprintf(stderr, "  %s: at 6 ms, eye in block 1: block 1 refined in %u of 5 frames, "
+                "block 0 in %u\n", name, in_refined, far_refined);
+        CHECKF(premise, "%s: premise: block 0 alone refined at 6 ms", name);
+        CHECKF(in_refined == 5 && far_refined == 0, "%s: block 1 refined %u, block 0 %u of 5",
+               name, in_refined, far_refined);
+        hlod_engine_destroy(e);
+    }
     hlod_store_close(s);
 }
 
@@ -1511,6 +1586,7 @@ int main(int argc, char **argv)
     RUN(test_missing_sibling_forces_parent);
     RUN(test_unequal_siblings_refine);
     RUN(test_culled_refinement_frees_its_reservation);
+    RUN(test_eye_inside_refines);
     RUN(test_hidden_child_keeps_vote);
     RUN(test_hysteresis_settles);
     RUN(test_still_camera_fixed_point);
