@@ -312,6 +312,12 @@ static void scale_theta(hlod_cost_model *m, double f)
         m->theta[k] *= f;
 }
 
+/* The standard error of the median of n residuals of spread sigma. */
+static double median_se(double sigma, double n)
+{
+    return 1.2533 * sigma / sqrt(n);
+}
+
 /* A settled front measured faster than its estimate by more than FAST_ERR
  * in each of its last SCALE_K frames, their median past SCALE_SE standard
  * errors of the measured noise (see the header: noise never does that). */
@@ -324,7 +330,7 @@ static int settled_faster(const hlod_cost_model *m, double sigma)
     for (uint32_t k = 0; k < n; k++)
         if (e[k] > -FAST_ERR)
             return 0;
-    return fabs(median(e, n)) > SCALE_SE * 1.2533 * sigma / sqrt((double)n);
+    return fabs(median(e, n)) > SCALE_SE * median_se(sigma, n);
 }
 
 /* The deadline margin, from the residuals under the model now
@@ -471,8 +477,8 @@ void hlod_cost_model_fit(hlod_cost_model *m, const hlod_engine_desc *d, double d
             }
         }
         double mk = median(e, n);
-        double se = 1.2533 * sigma / sqrt((double)n); /* standard error of a median */
-        double se_half = 1.2533 * sigma / sqrt(SETTLED_K / 2.0);
+        double se = median_se(sigma, n);
+        double se_half = median_se(sigma, SETTLED_K / 2.0);
         int passes = fast      ? 1
                      : settled ? h[0] * h[1] > 0 && fmin(fabs(h[0]), fabs(h[1])) > SETTLED_ERR &&
                                    fmin(fabs(h[0]), fabs(h[1])) > SCALE_SE * se_half
