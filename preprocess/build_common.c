@@ -1,6 +1,7 @@
 /* Pieces every hierarchy builder shares: the tree container, node textures
  * and node errors (see build.h). */
 #include "build.h"
+#include "union_find.h"
 
 #include "hlod/distance.h"
 
@@ -91,25 +92,6 @@ typedef struct rect_key {
     int h, w;           /* content size */
     uint32_t i;         /* rectangle index */
 } rect_key;
-
-static uint32_t uf_find(uint32_t *parent, uint32_t x)
-{
-    while (parent[x] != x) {
-        parent[x] = parent[parent[x]];
-        x = parent[x];
-    }
-    return x;
-}
-
-static void uf_union(uint32_t *parent, uint32_t a, uint32_t b)
-{
-    a = uf_find(parent, a);
-    b = uf_find(parent, b);
-    if (a < b) /* the smaller index is the root: deterministic */
-        parent[b] = a;
-    else if (b < a)
-        parent[a] = b;
-}
 
 static int64_t padded_area(const tex_rect *r, int g)
 {

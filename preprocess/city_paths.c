@@ -24,6 +24,8 @@
  */
 #include "city_paths.h"
 
+#include "atomic_file.h"
+
 #include <assert.h>
 #include <errno.h>
 #include <math.h>
@@ -498,22 +500,11 @@ hlod_result hlod_city_paths_write(const hlod_city_desc *desc, const char *dir,
     char *file = malloc(n);
     if (!file)
         return HLOD_ERR_NOMEM;
-    /* mkdir -p: each prefix ending before a '/', then dir itself. */
-    snprintf(file, n, "%s", dir);
-    for (char *c = file + 1;; c++) {
-        char keep = *c;
-        if (keep != '/' && keep != 0)
-            continue;
-        *c = 0;
-        struct stat st;
-        if (stat(file, &st) != 0 && mkdir(file, 0777) != 0 && errno != EEXIST) {
-            hlod_logf(lg, HLOD_LOG_ERROR, "%s: cannot create folder: %s", file, strerror(errno));
-            free(file);
-            return HLOD_ERR_IO;
-        }
-        *c = keep;
-        if (!keep)
-            break;
+    int e = hlod_mkdir_p(dir, 0777);
+    if (e) {
+        hlod_logf(lg, HLOD_LOG_ERROR, "%s: cannot create folder: %s", dir, strerror(e));
+        free(file);
+        return HLOD_ERR_IO;
     }
     hlod_result r = HLOD_OK;
     for (int i = 0; i < HLOD_CITY_PATH_COUNT && r == HLOD_OK; i++) {

@@ -11,6 +11,8 @@
  */
 #include "part.h"
 
+#include "build_node.h"
+
 #include "atomic_file.h"
 
 #include <errno.h>

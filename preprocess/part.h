@@ -65,17 +65,6 @@ typedef struct hlod_part_key {
     double error;
 } hlod_part_key;
 
-/* build_store.c, shared with the merge */
-hlod_result hlod_build_add_payload(hlod_store_writer *w, const hlod_mesh *m, const hlod_image *tex,
-                                   size_t tex_tris, const uint8_t *colors, const uint8_t rgba[4],
-                                   hlod_store_node *node);
-/* A group node's payload, error, render flags, no block and no parent. */
-hlod_result hlod_build_add_group(hlod_store_writer *w, const hlod_city_item *g,
-                                 hlod_store_node *node);
-void hlod_build_contain(hlod_store_node *all, size_t total);
-size_t hlod_build_group_tris(const hlod_build_desc *d);
-size_t hlod_build_group_size(const hlod_build_desc *d);
-
 /* A checksum of everything a part's bytes depend on besides its shard:
  * the descriptor's build parameters, the input's triangle count and every
  * block's box. */

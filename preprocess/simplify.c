@@ -38,6 +38,7 @@
  * - Vertices and triangles are numbered internally along a Morton curve.
  */
 #include "hlod_clock.h"
+#include "union_find.h"
 #include "hlod/simplify.h"
 
 #include "cluster.h"
@@ -2431,15 +2432,6 @@ static size_t walk_pass(state *s, run *r, float cost_goal, nrec **recs, size_t *
 }
 
 /* ---------- the last resort: parts that cannot shrink further ---------- */
-
-static uint32_t uf_find(uint32_t *parent, uint32_t x)
-{
-    while (parent[x] != x) {
-        parent[x] = parent[parent[x]];
-        x = parent[x];
-    }
-    return x;
-}
 
 /* A uniform grid over the live vertices, about two a cell (counting sort
  * into cells): built once per prune_parts round, queried by both of its

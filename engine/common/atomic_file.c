@@ -141,3 +141,39 @@ void hlod_rm_tree(const char *dir)
 {
     nftw(dir, rm_entry, 16, FTW_DEPTH | FTW_PHYS);
 }
+
+int hlod_mkdir_p(const char *path, unsigned mode)
+{
+    size_t n = strlen(path);
+    char *p = malloc(n + 1);
+    if (!p)
+        return ENOMEM;
+    memcpy(p, path, n + 1);
+    int e = 0;
+    for (char *c = p + 1; n && !e; c++) {
+        char keep = *c;
+        if (keep != '/' && keep != 0)
+            continue;
+        *c = 0;
+        e = mkdir(p, (mode_t)mode) == 0 || errno == EEXIST ? 0 : errno;
+        *c = keep;
+        if (!keep)
+            break;
+    }
+    struct stat st;
+    if (!e)
+        e = stat(p, &st) != 0 ? errno : S_ISDIR(st.st_mode) ? 0 : ENOTDIR;
+    free(p);
+    return e;
+}
+
+int hlod_flush_sync(FILE *fp)
+{
+    return !ferror(fp) && fflush(fp) == 0 && fsync(fileno(fp)) == 0;
+}
+
+int hlod_is_file(const char *path)
+{
+    struct stat st;
+    return stat(path, &st) == 0 && S_ISREG(st.st_mode);
+}

@@ -31,4 +31,16 @@ void hlod_atomic_abort(hlod_atomic_file *f);
  * not followed); best effort, for temporary folders. */
 void hlod_rm_tree(const char *dir);
 
+/* mkdir -p: creates path and every missing folder above it with mode.
+ * 0 when path is then a folder, else an errno (ENOTDIR where a file
+ * stands in the way). */
+int hlod_mkdir_p(const char *path, unsigned mode);
+
+/* Flushes and fsyncs fp without closing it (so that two files are both
+ * on disk before either is renamed): 1 on success. */
+int hlod_flush_sync(FILE *fp);
+
+/* 1 when path names a regular file (after symbolic links). */
+int hlod_is_file(const char *path);
+
 #endif

@@ -12,6 +12,7 @@
  * decode time small.
  */
 #include "payload_codec.h"
+#include "store_node.h"
 
 #include <math.h>
 #include <meshoptimizer.h>

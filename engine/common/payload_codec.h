@@ -58,12 +58,6 @@ hlod_result hlod_payload_unpack(const uint8_t *buf, size_t size, const hlod_stor
                                 uint32_t node, double quant_step, uint8_t **out,
                                 const char *name, const hlod_logger *lg);
 
-/* Whether a payload header's counts (the fields raw and packed headers
- * share) are node n's.  Defined in store_read.c. */
-int hlod_store_counts_agree(const hlod_store_node *n, uint32_t flags, uint32_t vertex_count,
-                            uint32_t index_count, uint32_t tex_tri_count, uint32_t tex_width,
-                            uint32_t tex_height, uint32_t tex_channels);
-
 /* The octahedral normal codec pack and unpack use (exposed for tests). */
 void hlod_oct_encode(const float n[3], int16_t out[2]);
 void hlod_oct_decode(const int16_t in[2], float n[3]);

@@ -37,18 +37,3 @@ void hlod_logf(const hlod_logger *lg, hlod_log_level level, const char *fmt, ...
     lg->func(lg->user_data, level, buf);
 }
 
-/* called from any thread: one fprintf per line keeps lines whole */
-static void stderr_log(void *user, hlod_log_level level, const char *msg)
-{
-    const hlod_log_level *max = user;
-    if (max && level > *max)
-        return;
-    static const char *const tag[] = {"error", "warning", "info", "debug"};
-    fprintf(stderr, "hlod: %s: %s\n", tag[level <= HLOD_LOG_DEBUG ? level : HLOD_LOG_DEBUG], msg);
-}
-
-hlod_logger hlod_stderr_logger(hlod_log_level *max_level)
-{
-    hlod_logger lg = {stderr_log, max_level};
-    return lg;
-}

@@ -28,8 +28,10 @@
 
 #include "hlod/store.h"
 
+#include "atomic_file.h"
 #include "payload_codec.h"
 #include "store_http.h"
+#include "store_node.h"
 
 #include <assert.h>
 #include <dirent.h>
@@ -77,55 +79,6 @@ static void cache_close(struct store_cache *c);
 uint64_t hlod_store_hash(const void *data, size_t size)
 {
     return (uint64_t)XXH3_64bits(data, size);
-}
-
-double hlod_store_cost(uint32_t tex_tris, uint32_t untex_tris, double c_tex)
-{
-    return (double)tex_tris * c_tex + (double)untex_tris * (1.0 - c_tex);
-}
-
-uint64_t hlod_store_payload_size(uint32_t flags, uint32_t vertex_count, uint32_t index_count,
-                                 uint32_t tex_width, uint32_t tex_height, uint32_t tex_channels)
-{
-    if (flags & ~HLOD_NODE_ALL_FLAGS)
-        return 0;
-    int textured = (flags & HLOD_NODE_TEXTURE) != 0;
-    if (textured) {
-        if (!(flags & HLOD_NODE_UVS) || tex_width == 0 || tex_height == 0 ||
-            tex_width > HLOD_STORE_MAX_TEXTURE || tex_height > HLOD_STORE_MAX_TEXTURE ||
-            tex_channels < 1 || tex_channels > 4)
-            return 0;
-    } else if (tex_width || tex_height || tex_channels) {
-        return 0;
-    }
-    /* counts are below 2^32 and the texture below 2^34 bytes: no overflow */
-    uint64_t v = vertex_count;
-    uint64_t size = sizeof(hlod_store_payload_header) + 12 * v + 4 * (uint64_t)index_count;
-    if (flags & HLOD_NODE_NORMALS)
-        size += 12 * v;
-    if (flags & HLOD_NODE_UVS)
-        size += 8 * v;
-    if (flags & HLOD_NODE_COLORS)
-        size += 4 * v;
-    if (textured)
-        size += (uint64_t)tex_width * tex_height * tex_channels;
-    return size;
-}
-
-int hlod_store_counts_agree(const hlod_store_node *n, uint32_t flags, uint32_t vertex_count,
-                            uint32_t index_count, uint32_t tex_tri_count, uint32_t tex_width,
-                            uint32_t tex_height, uint32_t tex_channels)
-{
-    return flags == n->flags && vertex_count == n->vertex_count &&
-           index_count == 3 * (uint64_t)n->tri_count && tex_tri_count == n->tex_tri_count &&
-           tex_width == n->tex_width && tex_height == n->tex_height &&
-           tex_channels == n->tex_channels;
-}
-
-uint64_t hlod_store_node_memory(const hlod_store_node *n)
-{
-    return hlod_store_payload_size(n->flags, n->vertex_count, 3 * n->tri_count, n->tex_width,
-                                   n->tex_height, n->tex_channels);
 }
 
 static int finite3d(const double *v)
@@ -999,27 +952,11 @@ struct store_cache {
     atomic_uint seq;            /* temporary names of this process */
 };
 
-/* mkdir -p: 0, or an errno. */
-static int make_dirs(char *path)
+/* mkdir -p, then the cache folder must be writable: 0, or an errno. */
+static int make_dirs(const char *path)
 {
-    for (char *p = path + 1;; p++) {
-        if (*p != '/' && *p != 0)
-            continue;
-        char c = *p;
-        *p = 0;
-        int e = mkdir(path, 0755) == 0 || errno == EEXIST ? 0 : errno;
-        *p = c;
-        if (e)
-            return e;
-        if (!c)
-            break;
-    }
-    struct stat st;
-    if (stat(path, &st) != 0)
-        return errno;
-    if (!S_ISDIR(st.st_mode))
-        return ENOTDIR;
-    return access(path, W_OK | X_OK) == 0 ? 0 : errno;
+    int e = hlod_mkdir_p(path, 0755);
+    return e ? e : access(path, W_OK | X_OK) == 0 ? 0 : errno;
 }
 
 /* Temporary files left by a process that died mid-write: removed. */

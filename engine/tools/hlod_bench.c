@@ -1461,26 +1461,12 @@ static int run(context *c, hlod_policy policy, const char *dir, const setting *e
 
 /* ---- main ---- */
 
+/* mkdir -p; on failure errno says why. */
 static int make_dir(const char *dir)
 {
-    char buf[4096];
-    snprintf(buf, sizeof buf, "%s", dir);
-    for (char *p = buf + 1; *p; p++)
-        if (*p == '/') {
-            *p = 0;
-            if (mkdir(buf, 0777) != 0 && errno != EEXIST)
-                return -1;
-            *p = '/';
-        }
-    if (mkdir(buf, 0777) != 0 && errno != EEXIST)
-        return -1;
-    return 0;
-}
-
-static int file_exists(const char *p)
-{
-    struct stat sb;
-    return stat(p, &sb) == 0 && S_ISREG(sb.st_mode);
+    int e = hlod_mkdir_p(dir, 0777);
+    errno = e;
+    return e ? -1 : 0;
 }
 
 /* pareto.png and sweep_frame_time.png from DIR/sweep.csv. */
@@ -1572,7 +1558,7 @@ static int open_inputs(context *c)
     const options *o = c->o;
     char path_file[4096];
     snprintf(path_file, sizeof path_file, "%s", o->path);
-    if (!file_exists(path_file) && !strchr(o->path, '/'))
+    if (!hlod_is_file(path_file) && !strchr(o->path, '/'))
         snprintf(path_file, sizeof path_file, "%s/%s.path", o->paths_dir, o->path);
     c->path_name = o->path;
     if (hlod_path_load(path_file, &c->lg, &c->path) != HLOD_OK)

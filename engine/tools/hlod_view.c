@@ -40,6 +40,7 @@
 #define GLFW_INCLUDE_NONE   /* no GL headers outside engine/gl_*.c */
 #include <GLFW/glfw3.h>
 
+#include "atomic_file.h"
 #include "cli.h"
 #include "data_dir.h"
 #include "view_flags.h"
@@ -688,12 +689,6 @@ static int run(viewer *v)
 
 /* ---- main ---- */
 
-static int file_exists(const char *p)
-{
-    struct stat sb;
-    return stat(p, &sb) == 0 && S_ISREG(sb.st_mode);
-}
-
 /* 1 when file's folder exists and is writable: checked at start so a
  * flight is not recorded only to fail at exit. */
 static int folder_writable(const char *file)
@@ -777,7 +772,7 @@ int main(int argc, char **argv)
     if (o.path) {
         char path_file[4096];
         snprintf(path_file, sizeof path_file, "%s", o.path);
-        if (!file_exists(path_file) && !strchr(o.path, '/'))
+        if (!hlod_is_file(path_file) && !strchr(o.path, '/'))
             snprintf(path_file, sizeof path_file, "%s/%s.path", o.paths_dir, o.path);
         if (hlod_path_load(path_file, &v.lg, &v.path) != HLOD_OK)
             return 1;   /* the loader named the file and line */

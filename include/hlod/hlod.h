@@ -60,10 +60,6 @@ void hlod_logf(const hlod_logger *lg, hlod_log_level level, const char *fmt, ...
 #endif
     ;
 
-/* A logger that writes "hlod: error: msg" to stderr; used by the tools.
- * Messages above max_level are dropped. */
-hlod_logger hlod_stderr_logger(hlod_log_level *max_level);
-
 /* Progress callback: done/total in any unit; return non-zero to cancel. */
 typedef int (*hlod_progress_fn)(void *user_data, double done, double total);
 

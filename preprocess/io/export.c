@@ -151,13 +151,6 @@ static void write_obj_body(FILE *fp, const hlod_mesh *m, char **mat_names, const
     }
 }
 
-/* Flush and sync without closing, so that two files are both on disk
- * before either is renamed. */
-static int flush_sync(FILE *fp)
-{
-    return !ferror(fp) && fflush(fp) == 0 && fsync(fileno(fp)) == 0;
-}
-
 hlod_result io_write_obj(const char *path, const hlod_mesh *m, const hlod_logger *lg)
 {
     hlod_atomic_file obj, mtl;
@@ -186,7 +179,7 @@ hlod_result io_write_obj(const char *path, const hlod_mesh *m, const hlod_logger
         mtl_base = mtl_base ? mtl_base + 1 : mtl_path;
         write_obj_body(obj.fp, m, names, mtl_base);
     }
-    if (!flush_sync(obj.fp) || (mtl.fp && !flush_sync(mtl.fp))) {
+    if (!hlod_flush_sync(obj.fp) || (mtl.fp && !hlod_flush_sync(mtl.fp))) {
         hlod_logf(lg, HLOD_LOG_ERROR, "%s: write failed: %s", path, strerror(errno));
         res = HLOD_ERR_IO;
         goto fail;

@@ -283,11 +283,6 @@ static void add_materials(sbuf *j, const hlod_mesh *m, const char *dir, int *oom
     io_strmap_free(&seen);
 }
 
-static int flush_sync(FILE *fp)
-{
-    return !ferror(fp) && fflush(fp) == 0 && fsync(fileno(fp)) == 0;
-}
-
 hlod_result io_write_gltf(const char *path, const hlod_mesh *m, int binary, const hlod_logger *lg)
 {
     writer w;
@@ -383,7 +378,7 @@ hlod_result io_write_gltf(const char *path, const hlod_mesh *m, int binary, cons
         goto done;
     fwrite(j.s, 1, j.len, f.fp);
     fwrite(w.bin.data, 1, w.bin.count, fb.fp);
-    if (!flush_sync(f.fp) || !flush_sync(fb.fp)) {
+    if (!hlod_flush_sync(f.fp) || !hlod_flush_sync(fb.fp)) {
         hlod_logf(lg, HLOD_LOG_ERROR, "%s: write failed: %s", path, strerror(errno));
         res = HLOD_ERR_IO;
         goto done;

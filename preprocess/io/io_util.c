@@ -535,3 +535,20 @@ hlod_result io_finish_file_mesh(const char *path, const hlod_logger *lg, hlod_re
         st->tris_read = out->tri_count;
     return res;
 }
+
+/* A texture that cannot be read makes its material untextured: the mesh
+ * is still worth building, and the warning says what went missing. */
+void io_check_textures(const char *path, hlod_mesh *m, const hlod_logger *lg,
+                       hlod_import_stats *st)
+{
+    for (size_t i = 0; i < m->material_count; i++) {
+        hlod_material *mt = &m->materials[i];
+        if (!mt->texture_path || io_file_exists(mt->texture_path))
+            continue;
+        hlod_logf(lg, HLOD_LOG_WARN, "%s: material %zu (%s): texture %s not found; untextured",
+                  path, i, mt->name ? mt->name : "unnamed", mt->texture_path);
+        free(mt->texture_path);
+        mt->texture_path = NULL;
+        st->missing_textures++;
+    }
+}

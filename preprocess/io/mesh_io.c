@@ -56,23 +56,6 @@ static enum kind detect(const unsigned char *b, size_t n, const char *ext)
     return K_UNKNOWN;
 }
 
-/* A texture that cannot be read makes its material untextured: the mesh
- * is still worth building, and the warning says what went missing. */
-void io_check_textures(const char *path, hlod_mesh *m, const hlod_logger *lg,
-                       hlod_import_stats *st)
-{
-    for (size_t i = 0; i < m->material_count; i++) {
-        hlod_material *mt = &m->materials[i];
-        if (!mt->texture_path || io_file_exists(mt->texture_path))
-            continue;
-        hlod_logf(lg, HLOD_LOG_WARN, "%s: material %zu (%s): texture %s not found; untextured",
-                  path, i, mt->name ? mt->name : "unnamed", mt->texture_path);
-        free(mt->texture_path);
-        mt->texture_path = NULL;
-        st->missing_textures++;
-    }
-}
-
 /* The reader path needs (its first bytes, else its extension) in *k;
  * logs and returns HLOD_ERR_IO when it cannot be read (lg may be NULL). */
 static hlod_result sniff(const char *path, const hlod_logger *lg, enum kind *k)
