@@ -22,7 +22,8 @@ PACKAGES=(
 )
 # npm: Debian's package, unless the installed nodejs brings its own (the
 # NodeSource build does, and conflicts with Debian's npm).  tests/run.sh
-# runs npm ci; the tiles test (tests/test_tiles.sh) needs node >= 20.
+# runs npm ci; the tiles test (tests/test_tiles.sh) needs node >= 18,
+# Debian 12's own (its npm pins allow it: playwright-core 1.61).
 command -v npm >/dev/null 2>&1 || PACKAGES+=(npm)
 
 missing=()

@@ -88,8 +88,8 @@ jget() {
 missing=""
 if ! command -v node >/dev/null; then
     missing=" node (data/setup.sh: nodejs)"
-elif [ "$(node -p 'process.versions.node.split(".")[0]')" -lt 20 ]; then
-    missing=" node >= 20 (this is $(node --version))"
+elif [ "$(node -p 'process.versions.node.split(".")[0]')" -lt 18 ]; then
+    missing=" node >= 18 (this is $(node --version))"
 fi
 for p in gltf-validator meshoptimizer @loaders.gl/core @loaders.gl/3d-tiles @loaders.gl/gltf @loaders.gl/images \
     three 3d-tiles-renderer playwright-core; do
