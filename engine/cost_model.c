@@ -567,12 +567,9 @@ void hlod_cost_model_fit(hlod_cost_model *m, const hlod_engine_desc *d, double d
  *     node gave way, then grow again: a slow cycle of toggles.
  * The budget still bounds the estimate (selection), so the gain moves
  * detail between nodes and never pushes the frame over the target. */
-void hlod_cost_model_adapt_share(hlod_cost_model *m, hlod_policy policy, double est,
-                                 double budget, int moved, uint32_t cap_hits,
-                                 uint32_t slice_denied)
+void hlod_cost_model_adapt_share(hlod_cost_model *m, double est, double budget, int moved,
+                                 uint32_t cap_hits, uint32_t slice_denied)
 {
-    if (policy != HLOD_POLICY_LAKHIA && policy != HLOD_POLICY_NOHYST)
-        return;
     double ratio = budget > 0 ? est / budget : 1;
     double g = m->share_gain;
     if (cap_hits && moved) {

@@ -80,10 +80,10 @@ void hlod_cost_model_fit(hlod_cost_model *m, const hlod_engine_desc *d, double d
 
 /* The roots' share gain after a frame whose estimate was est against
  * budget (both ms); cap_hits and slice_denied are the selection's counts
- * of refinements the budget bound and the time slices refused. */
-void hlod_cost_model_adapt_share(hlod_cost_model *m, hlod_policy policy, double est,
-                                 double budget, int moved, uint32_t cap_hits,
-                                 uint32_t slice_denied);
+ * of refinements the budget bound and the time slices refused.  For the
+ * policies that share time (policy.h, HLOD_PT_SHARE). */
+void hlod_cost_model_adapt_share(hlod_cost_model *m, double est, double budget, int moved,
+                                 uint32_t cap_hits, uint32_t slice_denied);
 
 /* The SSE threshold after a frame that took ratio times the target. */
 void hlod_cost_model_adapt_sse(hlod_cost_model *m, double ratio);

@@ -16,6 +16,8 @@
 #include "engine_internal.h"
 
 #include "hlod_clock.h"
+#include "hold.h"
+#include "policy.h"
 
 #include <assert.h>
 #include <math.h>
@@ -25,23 +27,6 @@
 #include <time.h>
 
 /* ---- descriptor ---- */
-
-static const char *const policy_names[HLOD_POLICY_COUNT] = {"lakhia", "nohyst", "sse", "full"};
-
-const char *hlod_policy_name(hlod_policy p)
-{
-    return (unsigned)p < HLOD_POLICY_COUNT ? policy_names[p] : "unknown";
-}
-
-int hlod_policy_parse(const char *name, hlod_policy *out)
-{
-    for (int i = 0; name && i < HLOD_POLICY_COUNT; i++)
-        if (strcmp(name, policy_names[i]) == 0) {
-            *out = (hlod_policy)i;
-            return 1;
-        }
-    return 0;
-}
 
 /* ---- settings (the table HLOD_ENGINE_SETTINGS in engine.h) ---- */
 
@@ -196,6 +181,8 @@ hlod_result hlod_engine_create(const hlod_store *store, const hlod_engine_desc *
     }
     hlod_cost_model_init(&e->cost, &e->d);
     r = hlod_selection_init(&e->sel, store, &e->d, &e->st);
+    if (r == HLOD_OK && !hlod_occlusion_init(&e->occ, &e->d.allocator, e->node_count))
+        r = HLOD_ERR_NOMEM;
     if (r == HLOD_OK)
         r = hlod_residency_init(&e->res, store, &e->d, &e->st);
     if (r != HLOD_OK) {
@@ -216,6 +203,7 @@ void hlod_engine_destroy(hlod_engine *e)
     hlod_occlusion_free(&e->occ, &e->d.allocator);
     hlod_mem_free(&e->d.allocator, e->drawn.v);
     hlod_mem_free(&e->d.allocator, e->later.v);
+    hlod_mem_free(&e->d.allocator, e->order.v);
     hlod_allocator a = e->d.allocator;
     hlod_mem_free(&a, e);
 }
@@ -286,9 +274,30 @@ static int cmp_draw_key(const void *pa, const void *pb)
     return a->d2 < b->d2 ? -1 : a->d2 > b->d2 ? 1 : (a->node > b->node) - (a->node < b->node);
 }
 
-static void sort_draws(hlod_engine *e, const hlod_camera *cam)
+/* The engine's draw order (e->order): the selection's nodes near to far
+ * from the camera, those the eye stands in or above (flat, below it)
+ * first.  Without memory for it, the selection's own order (still
+ * correct, only slower to draw). */
+static void order_draws(hlod_engine *e, const hlod_camera *cam)
 {
-    size_t n = e->sel.draw.n;
+    const hlod_u32_vec *sel = &e->sel.draw;
+    size_t n = sel->n;
+    e->order.n = 0;
+    if (e->order.cap < n) {
+        uint32_t *v = hlod_mem_realloc(&e->d.allocator, e->order.v, n * sizeof *v);
+        if (!v) {
+            e->order.cap = 0;
+            hlod_mem_free(&e->d.allocator, e->order.v);
+            e->order.v = NULL;
+            e->draw_list = sel;
+            return;
+        }
+        e->order.v = v;
+        e->order.cap = n;
+    }
+    memcpy(e->order.v, sel->v, n * sizeof *sel->v);
+    e->order.n = n;
+    e->draw_list = &e->order;
     if (n < 2)
         return;
     if (e->draw_keys_cap < n) {
@@ -300,7 +309,7 @@ static void sort_draws(hlod_engine *e, const hlod_camera *cam)
     }
     draw_key *keys = e->draw_keys;
     for (size_t k = 0; k < n; k++) {
-        const hlod_store_node *nd = &e->nodes[e->sel.draw.v[k]];
+        const hlod_store_node *nd = &e->nodes[e->order.v[k]];
         double box = 0, centre = 0;
         for (int a = 0; a < 3; a++) {
             double p = cam->position[a], lo = nd->bbox_min[a], hi = nd->bbox_max[a];
@@ -316,11 +325,11 @@ static void sort_draws(hlod_engine *e, const hlod_camera *cam)
         int under = h <= 0.02 * w && nd->bbox_max[2] <= cam->position[2];
         keys[k].inside = !(box > 0) || under;
         keys[k].d2 = box > 0 ? box : centre;
-        keys[k].node = e->sel.draw.v[k];
+        keys[k].node = e->order.v[k];
     }
     qsort(keys, n, sizeof *keys, cmp_draw_key);
     for (size_t k = 0; k < n; k++)
-        e->sel.draw.v[k] = keys[k].node;
+        e->order.v[k] = keys[k].node;
 }
 
 static void gpu_draw_node(hlod_engine *e, const hlod_camera *cam, uint32_t i)
@@ -352,10 +361,9 @@ static void uncount(hlod_engine *e, uint32_t i)
  * 73-138 hidden nodes to visible, every few frames. */
 static int child_seen(const hlod_engine *e, uint32_t i, uint32_t f)
 {
-    const hlod_node_frame *fr = e->sel.fr;
     uint32_t c1 = hlod_store_child_end(e->nodes, i);
     for (uint32_t c = hlod_store_first_child(e->nodes, i); c < c1; c++)
-        if (fr[c].seen + 1 == f)
+        if (hlod_occlusion_seen(&e->occ, c) + 1 == f)
             return 1;
     return 0;
 }
@@ -374,12 +382,14 @@ static int child_seen(const hlod_engine *e, uint32_t i, uint32_t f)
 static void draw_occluded(hlod_engine *e, const hlod_camera *cam, const hlod_view *view)
 {
     const uint32_t f = e->frame;
-    hlod_node_frame *fr = e->sel.fr;
+    hlod_occlusion *o = &e->occ;
     e->later.n = 0;
-    for (size_t k = 0; k < e->sel.draw.n; k++) {
-        uint32_t i = e->sel.draw.v[k], par = e->nodes[i].parent;
-        int was_seen = fr[i].seen + 1 == f ||
-                       (fr[i].hidden + 1 != f && par != HLOD_STORE_NO_PARENT && fr[par].seen + 1 == f) ||
+    const hlod_u32_vec *list = e->draw_list;
+    for (size_t k = 0; k < list->n; k++) {
+        uint32_t i = list->v[k], par = e->nodes[i].parent;
+        int was_seen = hlod_occlusion_seen(o, i) + 1 == f ||
+                       (hlod_occlusion_hidden(o, i) + 1 != f && par != HLOD_STORE_NO_PARENT &&
+                        hlod_occlusion_seen(o, par) + 1 == f) ||
                        child_seen(e, i, f);
         if (was_seen) {
             gpu_draw_node(e, cam, i);
@@ -403,22 +413,19 @@ static void draw_occluded(hlod_engine *e, const hlod_camera *cam, const hlod_vie
              hlod_occlusion_build(&e->occ, &e->d.allocator);
     }
     if (ok)
-        for (size_t k = 0; k < e->sel.draw.n; k++) {
-            uint32_t i = e->sel.draw.v[k];
+        for (size_t k = 0; k < list->n; k++) {
+            uint32_t i = list->v[k];
             double rect[4], z;
             const hlod_store_node *n = &e->nodes[i];
             int vis = !hlod_view_project(view, n->bbox_min, n->bbox_max, rect, &z) ||
-                      hlod_occlusion_visible(&e->occ, rect, z);
+                      hlod_occlusion_visible(o, rect, z);
             e->st.occlusion_tested++;
-            if (vis)
-                fr[i].seen = f;
-            else
-                fr[i].hidden = f;
+            hlod_occlusion_mark(o, i, vis, f);
         }
     double t2 = hlod_now_ms();
     for (size_t k = 0; k < e->later.n; k++) {
         uint32_t i = e->later.v[k];
-        if (ok && fr[i].hidden == f) {
+        if (ok && hlod_occlusion_hidden(o, i) == f) {
             uncount(e, i);
             continue;
         }
@@ -431,14 +438,14 @@ static void draw_occluded(hlod_engine *e, const hlod_camera *cam, const hlod_vie
 static void draw_frame(hlod_engine *e, const hlod_camera *cam, const hlod_view *view)
 {
     hlod_renderer *r = e->d.renderer;
-    sort_draws(e, cam);
+    order_draws(e, cam);
     hlod_gpu_begin(r, cam);
     e->drawn.n = 0;
-    if (e->d.occlusion > 0 && e->d.policy != HLOD_POLICY_FULL) {
+    if (e->d.occlusion > 0 && hlod_policy_has(e->d.policy, HLOD_PT_OCCLUDE)) {
         draw_occluded(e, cam, view);
     } else {
-        for (size_t k = 0; k < e->sel.draw.n; k++)
-            gpu_draw_node(e, cam, e->sel.draw.v[k]);
+        for (size_t k = 0; k < e->draw_list->n; k++)
+            gpu_draw_node(e, cam, e->draw_list->v[k]);
         e->drawn_valid = 0; /* replay draws the selection */
         hlod_gpu_end(r, 1);
         return;
@@ -485,12 +492,6 @@ static int camera_motion(hlod_engine *e, const hlod_camera *cam, double dt, doub
     return moved;
 }
 
-/* Frames the whole camera must stay the same before the front holds
- * (traverse.c, hold_front; README, "The runtime", Selection): 2 s at
- * 30 Hz, past the cost model's 45-frame warm-up and time for a still
- * view's wanted nodes to arrive. */
-#define STILL_HOLD 60
-
 /* What the budget keeps for uploads: their cap (upload_budget_ms; uploads
  * predicted to run a quarter past it wait, see residency.c).  Reserved
  * whether this frame uploads less or more, so that the budget a still
@@ -499,66 +500,6 @@ static int camera_motion(hlod_engine *e, const hlod_camera *cam, double dt, doub
 static double upload_reserve(const hlod_engine *e)
 {
     return e->d.upload_budget_ms > 0 ? e->d.upload_budget_ms : 0.1 * e->d.target_ms;
-}
-
-/* Held frames over the target, of the last 16, that show the held front
- * itself no longer fits the machine (half of them: a burst of slow frames
- * on a noisy machine misses 1-5 in a row; README, "The runtime",
- * Selection). */
-#define HOLD_SLOW_MISSES 8
-/* Clean frames in a row (the width of hold.misses) after which inputs
- * taken in a slowdown give way to the model's again, where those give
- * more. */
-#define HOLD_RECOVER 32
-
-static void take_hold_inputs(hlod_engine *e, const hlod_select_in *in, int slowed)
-{
-    e->hold.since = in->hold_since;
-    e->hold.taken = e->frame;
-    e->hold.target_ms = e->d.target_ms;
-    e->hold.budget_ms = in->budget_ms;
-    e->hold.share_ms = in->share_ms;
-    e->hold.v_time = in->v_time;
-    e->hold.draw_ms = in->draw_ms;
-    e->hold.pixel_ms = in->pixel_ms;
-    e->hold.misses = 0;
-    e->hold.slowed = slowed;
-}
-
-/* A still camera's hold keeps the budget and the model the selection saw
- * when it began.  The fit, the margin and the share gain go on learning
- * from every frame, and on a noisy machine they move with it (the margin
- * from 1.23 to 1.69 within 400 frames of `still` at 33 ms): where a held
- * front sat at its bound, each move coarsened it and the next refined it
- * again (3-14 toggles after frame 60 in a run).  The held inputs give way
- * when the target changes, when the held frames miss the target
- * persistently (HOLD_SLOW_MISSES of 16: the machine is slower now), and,
- * after such a slowdown, once HOLD_RECOVER frames in a row met it and the
- * model's budget is larger again. */
-static void keep_hold_inputs(hlod_engine *e, hlod_select_in *in)
-{
-    if (!in->hold_since || e->d.policy != HLOD_POLICY_LAKHIA) {
-        e->hold.since = 0;
-        return;
-    }
-    if (e->hold.since != in->hold_since || e->hold.target_ms != e->d.target_ms) {
-        take_hold_inputs(e, in, 0);
-        return;
-    }
-    if (__builtin_popcount(e->hold.misses & 0xffffu) >= HOLD_SLOW_MISSES) {
-        take_hold_inputs(e, in, 1);
-        return;
-    }
-    if (e->hold.slowed && e->frame - e->hold.taken >= HOLD_RECOVER &&
-        e->hold.misses == 0 && in->budget_ms > e->hold.budget_ms) {
-        take_hold_inputs(e, in, 1); /* still after a slowdown: may come back further */
-        return;
-    }
-    in->budget_ms = e->hold.budget_ms;
-    in->share_ms = e->hold.share_ms;
-    in->v_time = e->hold.v_time;
-    in->draw_ms = e->hold.draw_ms;
-    in->pixel_ms = e->hold.pixel_ms;
 }
 
 /* After the frame is drawn and measured: the cost model learns from it. */
@@ -571,9 +512,10 @@ static void learn(hlod_engine *e, double measured, double upload, double budget,
     if (!e->d.deterministic)
         hlod_cost_model_fit(m, &e->d, st->nodes_drawn, st->cost_drawn, st->pixels_drawn,
                             measured - upload);
-    hlod_cost_model_adapt_share(m, e->d.policy, front, budget, moved, e->sel.cap_hits,
-                                e->sel.slice_denied);
-    if (e->d.policy == HLOD_POLICY_SSE)
+    if (hlod_policy_has(e->d.policy, HLOD_PT_SHARE))
+        hlod_cost_model_adapt_share(m, front, budget, moved, e->sel.cap_hits,
+                                    e->sel.slice_denied);
+    if (hlod_policy_has(e->d.policy, HLOD_PT_SSE))
         hlod_cost_model_adapt_sse(
             m, (e->d.deterministic ? e->st.estimated_ms : measured) / e->d.target_ms);
 }
@@ -634,14 +576,14 @@ hlod_result hlod_engine_frame(hlod_engine *e, const hlod_camera *cam, double dt,
                          .draw_ms = m->theta[1],
                          .pixel_ms = m->theta[3],
                          .occlusion = e->d.occlusion > 0 && e->d.renderer != NULL,
+                         .occ = &e->occ,
                          .still = !moved,
-                         .hold_since = e->still_run >= STILL_HOLD
-                                           ? e->frame - (e->still_run - STILL_HOLD)
-                                           : 0,
+                         .hold_since = hlod_hold_since(e->still_run, e->frame),
                          .sse_pixels = m->sse_pixels,
                          .budget_ms = budget,
                          .share_ms = budget * m->share_gain};
-    keep_hold_inputs(e, &in);
+    hlod_hold_inputs(&e->hold, hlod_policy_has(e->d.policy, HLOD_PT_HOLD), e->frame,
+                     e->d.target_ms, &in);
     t0 = hlod_now_ms();
     hlod_result r = hlod_select(&e->sel, &e->res, &view, &in);
     e->st.traversal_ms = hlod_now_ms() - t0;
@@ -661,8 +603,7 @@ hlod_result hlod_engine_frame(hlod_engine *e, const hlod_camera *cam, double dt,
     e->st.fixed_ms = m->theta[0];
     e->st.margin = m->margin;
     e->st.budget_ms = in.budget_ms;
-    if (e->hold.since)
-        e->hold.misses = e->hold.misses << 1 | (measured > e->d.target_ms);
+    hlod_hold_measured(&e->hold, measured, e->d.target_ms);
     e->st.share_gain = m->share_gain;
     e->st.estimated_ms =
         hlod_cost_model_predict(m, e->st.nodes_drawn, e->st.cost_drawn, e->st.pixels_drawn) +
@@ -672,7 +613,7 @@ hlod_result hlod_engine_frame(hlod_engine *e, const hlod_camera *cam, double dt,
     e->have_front = 1;
     learn(e, measured, upload, budget, moved);
 
-    if (e->d.policy != HLOD_POLICY_FULL) {
+    if (hlod_policy_has(e->d.policy, HLOD_PT_STREAM)) {
         hlod_evict_order order = {hlod_engine_evict_key, e};
         hlod_residency_schedule(&e->res, &order);
     }
@@ -699,13 +640,15 @@ hlod_result hlod_engine_replay(hlod_engine *e, const hlod_camera *cam, int occlu
          * are drawn last, after the same nodes in the same order, so that
          * only what culling removed can change a pixel, not where a depth
          * tie between two nodes fell in the order */
-        const hlod_u32_vec *list = e->drawn_valid ? &e->drawn : &e->sel.draw;
+        const hlod_u32_vec *list = e->drawn_valid ? &e->drawn
+                                   : e->draw_list  ? e->draw_list
+                                                   : &e->sel.draw;
         hlod_gpu_begin(r, cam);
         for (size_t k = 0; k < list->n; k++)
             gpu_draw_node(e, cam, list->v[k]);
         if (!occlusion && e->drawn_valid)
             for (size_t k = 0; k < e->later.n; k++)
-                if (e->sel.fr[e->later.v[k]].hidden == e->frame)
+                if (hlod_occlusion_hidden(&e->occ, e->later.v[k]) == e->frame)
                     gpu_draw_node(e, cam, e->later.v[k]);
         hlod_gpu_end(r, 1);
     }

@@ -15,6 +15,7 @@
 #define HLOD_ENGINE_INTERNAL_H
 
 #include "cost_model.h"
+#include "hold.h"
 #include "hlod/engine.h"
 #include "occlusion.h"
 #include "residency.h"
@@ -29,9 +30,12 @@ struct hlod_engine {
     hlod_residency res;
     hlod_cost_model cost;
 
+    hlod_u32_vec order;         /* the selection's nodes in draw order (engine.c) */
+    const hlod_u32_vec *draw_list; /* order, or the selection's list without memory for it */
     struct draw_key *draw_keys; /* draw-order sort scratch (engine.c) */
     size_t draw_keys_cap;
-    hlod_occlusion occ;         /* this frame's depth pyramid (occlusion.h) */
+    hlod_occlusion occ;         /* the depth pyramid and each node's last verdicts
+                                   (occlusion.h) */
     hlod_u32_vec drawn;         /* nodes the last frame drew, in draw order */
     int drawn_valid;            /* drawn holds them (occlusion was on) */
     hlod_u32_vec later;         /* scratch: nodes tested before they are drawn */
@@ -40,16 +44,7 @@ struct hlod_engine {
     int have_prev;
     hlod_camera prev_cam;   /* the last frame's camera (when have_prev) */
     uint32_t still_run;     /* frames in a row with the same camera as the last */
-    /* the selection's inputs a still camera's hold keeps (engine.c,
-     * keep_hold_inputs) */
-    struct {
-        uint32_t since;     /* the hold they belong to (hold_since; 0: none) */
-        uint32_t taken;     /* the frame they were taken */
-        double target_ms;   /* the target they were taken at */
-        double budget_ms, share_ms, v_time, draw_ms, pixel_ms;
-        uint32_t misses;    /* a bit a held frame, newest lowest: over the target */
-        int slowed;         /* taken because the held frames missed */
-    } hold;
+    hlod_hold hold;         /* the still camera's hold (hold.h) */
     int have_front;         /* last_front_ms is set (a frame was selected) */
     double last_front_ms;   /* the last front's estimate, fixed part included */
 

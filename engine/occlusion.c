@@ -3,6 +3,7 @@
  */
 #include "occlusion.h"
 
+#include <assert.h>
 #include <math.h>
 #include <string.h>
 
@@ -147,8 +148,20 @@ int hlod_occlusion_visible(const hlod_occlusion *o, const double rect[4], double
     return !(zq > (double)far + (double)o->mask * (1.0 / 1048576.0));
 }
 
+int hlod_occlusion_init(hlod_occlusion *o, const hlod_allocator *a, uint32_t node_count)
+{
+    assert(o && a && !o->stamp);
+    o->stamp = hlod_mem_alloc(a, ((size_t)node_count + 1) * sizeof *o->stamp);
+    if (!o->stamp)
+        return 0;
+    memset(o->stamp, 0, ((size_t)node_count + 1) * sizeof *o->stamp);
+    o->node_count = node_count;
+    return 1;
+}
+
 void hlod_occlusion_free(hlod_occlusion *o, const hlod_allocator *a)
 {
+    hlod_mem_free(a, o->stamp);
     hlod_mem_free(a, o->depth);
     hlod_mem_free(a, o->texels);
     hlod_mem_free(a, o->band);

@@ -10,6 +10,12 @@
  * projection may touch is hidden: each of its fragments would fail the
  * depth test.  The test is conservative (a hidden box may pass), never
  * the other way.
+ *
+ * It also keeps, per node, the frames the test last found it visible and
+ * hidden: the next frame's selection (hidden nodes are not charged or
+ * refined) and drawing order (last frame's visible nodes draw first, as
+ * occluders) read them through hlod_occlusion_seen and
+ * hlod_occlusion_hidden.  Stamps are frame numbers from 1; 0 is never.
  */
 #ifndef HLOD_ENGINE_OCCLUSION_H
 #define HLOD_ENGINE_OCCLUSION_H
@@ -21,7 +27,15 @@
 #define HLOD_OCC_TILE 8
 #define HLOD_OCC_LEVELS 16
 
+/* What the test last found of one node. */
+typedef struct hlod_occ_stamp {
+    uint32_t seen;                  /* frame the test last found it visible */
+    uint32_t hidden;                /* frame the test last found it hidden */
+} hlod_occ_stamp;
+
 typedef struct hlod_occlusion {
+    hlod_occ_stamp *stamp;          /* per node (hlod_occlusion_init) */
+    uint32_t node_count;
     uint32_t *depth;                /* the read-back buffer, width * height */
     size_t depth_cap;
     uint32_t *level[HLOD_OCC_LEVELS];
@@ -35,6 +49,31 @@ typedef struct hlod_occlusion {
     uint32_t stride, mask;          /* their row stride and depth bits */
     size_t band_cap;
 } hlod_occlusion;
+
+/* Makes room for the stamps of node_count nodes, all "never".  0 when
+ * out of memory. */
+int hlod_occlusion_init(hlod_occlusion *o, const hlod_allocator *a, uint32_t node_count);
+
+/* Records the test's verdict on node at frame. */
+static inline void hlod_occlusion_mark(hlod_occlusion *o, uint32_t node, int visible,
+                                       uint32_t frame)
+{
+    if (visible)
+        o->stamp[node].seen = frame;
+    else
+        o->stamp[node].hidden = frame;
+}
+
+/* The frame the test last found node visible; hidden (0: never). */
+static inline uint32_t hlod_occlusion_seen(const hlod_occlusion *o, uint32_t node)
+{
+    return o->stamp[node].seen;
+}
+
+static inline uint32_t hlod_occlusion_hidden(const hlod_occlusion *o, uint32_t node)
+{
+    return o->stamp[node].hidden;
+}
 
 /* The buffer to read width x height depth values into (bottom row
  * first), grown as needed; NULL when out of memory. */

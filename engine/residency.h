@@ -4,7 +4,8 @@
  * only reads bytes (loader.h).
  *
  * The selection asks through hlod_residency_want and reads states through
- * hlod_residency_state; it writes nothing here.  Once a frame the engine
+ * hlod_residency_state, hlod_residency_is_pinned and hlod_residency_is_top;
+ * it reads and writes no field here.  Once a frame the engine
  * collects finished reads (uploads within the upload budget) and schedules
  * the wanted nodes against the memory budget, evicting in the order the
  * caller's hlod_evict_order gives.
@@ -117,6 +118,19 @@ static inline int hlod_residency_need(hlod_residency *r, uint32_t node, double p
 static inline hlod_node_state hlod_residency_state(const hlod_residency *r, uint32_t node)
 {
     return (hlod_node_state)r->res[node].state;
+}
+
+/* Whether node is one of the pinned nodes, kept resident from the start
+ * (residency.c: the top of the tree, or its first levels). */
+static inline int hlod_residency_is_pinned(const hlod_residency *r, uint32_t node)
+{
+    return node < r->pinned_count;
+}
+
+/* Whether node is a top node: a group, or a block's hlod_0. */
+static inline int hlod_residency_is_top(const hlod_residency *r, uint32_t node)
+{
+    return node < r->top_count;
 }
 
 static inline const hlod_gpu_node *hlod_residency_gpu(const hlod_residency *r, uint32_t node)

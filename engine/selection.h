@@ -16,6 +16,7 @@
 #define HLOD_ENGINE_SELECTION_H
 
 #include "alloc.h"
+#include "occlusion.h"
 #include "hlod/camera.h"
 #include "hlod/engine.h"
 
@@ -36,8 +37,6 @@ typedef struct hlod_node_frame {
     double pix;             /* screen pixels of its projected box (when priced visible) */
     double extra;           /* what refining it added to the estimate when last refined (signed) */
     double sub_extra;       /* extra summed over its subtree's refinements, last frame */
-    uint32_t seen;          /* frame the occlusion test last found it visible */
-    uint32_t hidden;        /* frame the occlusion test last found it hidden */
     uint32_t waiting;       /* frame a refinement of it last waited for its children's data */
     uint32_t capped;        /* frame the budget bound coarsened it while the front was held;
                              * 0 once refined again */
@@ -61,6 +60,7 @@ typedef struct hlod_select_in {
     double draw_ms;         /* ... per node drawn */
     double pixel_ms;        /* ... per pixel of a node's projected box */
     int occlusion;          /* nodes hidden in the last frame are not charged or refined */
+    const hlod_occlusion *occ; /* the test's verdicts (occlusion.h); NULL: occlusion off */
     int still;              /* the camera has not moved since the last frame */
     uint32_t hold_since;    /* frame from which a lakhia front holds, the whole camera still a
                              * while (hold_front); 0: not held */

@@ -6,21 +6,8 @@
  * priced (priority = benefit / cost); a node's time slice is its parent's
  * slice shared among the visible siblings by priority (eq. 4), and its
  * timeNeeded is v_time * cost.  For each node p on the current front the
- * policy decides between drawing p and drawing its visible children:
- *
- *   lakhia  hyst_c += (slice_c - needed_c) / needed_c, clamped (outside a
- *           small dead band, see update_hyst);
- *           cumHyst = sum w_c trunc(hyst_c / c_hystSwitch), each vote
- *           weighted by the child's share of the slice (w_c = n_c
- *           priority_c / sum priority over the n_c voting siblings: 1 for
- *           siblings of equal priority, the paper's sum); refine if
- *           cumHyst >= 0 (cumHyst < 0 draws the parent), unless the
- *           safety clamp fires (children's summed timeNeeded over the shared
- *           time by more than c_safety_slack);
- *   nohyst  refine if shareTime > sum timeNeeded (eq. 4 recursion rule);
- *   sse     refine while p's projected geometric error exceeds the pixel
- *           threshold (the threshold is adapted by the engine);
- *   full    refine whenever the children are resident (reference renders).
+ * policy decides between drawing p and drawing its visible children
+ * (policy.c: one function a policy, asked through its row).
  *
  * Whatever the policy: a visible child that is not resident forces the
  * parent (Lakhia III-C), and for the time-based policies the frame estimate
@@ -40,6 +27,8 @@
  */
 #include "selection.h"
 
+#include "hold.h"
+#include "policy.h"
 #include "residency.h"
 
 #include <assert.h>
@@ -58,6 +47,8 @@ typedef struct walk {
     double v_time, sse_pixels, draw_ms, pixel_ms;
     int occlusion, still, hold;
     uint32_t hold_since; /* when hold: the frame the front began to hold */
+    const hlod_policy_row *policy;
+    const hlod_occlusion *occ; /* when occlusion: last frame's verdicts */
 } walk;
 
 /* ---- life ---- */
@@ -263,7 +254,7 @@ static double frustum_vis(const walk *w, const hlod_view *v, uint32_t i)
  * times at 0.05, 163 and 91 at 0.15, 56 and 39 at 0.25; but at 0.25 a new
  * refinement fits only 75 % of the budget, and the mean frame fell to
  * 0.81 of the target when aiming at the mean (test_cost_model_fit). */
-#define KEEP_MARGIN 0.15
+#define KEEP_MARGIN HLOD_KEEP_MARGIN
 
 /* A hidden node whose children are still prefetched: one the occlusion
  * test found visible within this many frames ("just out of sight"). */
@@ -292,7 +283,10 @@ static double node_needed(const walk *w, uint32_t i)
  * refined. */
 static int is_hidden(const walk *w, uint32_t i)
 {
-    return w->occlusion && w->fr[i].hidden && w->fr[i].hidden + 1 == w->frame;
+    if (!w->occlusion)
+        return 0;
+    uint32_t hidden = hlod_occlusion_hidden(w->occ, i);
+    return hidden && hidden + 1 == w->frame;
 }
 
 /* The children of a hidden node that was visible a moment ago are still
@@ -301,8 +295,8 @@ static int is_hidden(const walk *w, uint32_t i)
  * allocation failure. */
 static int prefetch_hidden(walk *w, const hlod_view *v, uint32_t p)
 {
-    const hlod_node_frame *pf = &w->fr[p];
-    if (!pf->seen || w->frame - pf->seen > PREFETCH_HIDDEN_FRAMES)
+    uint32_t seen = hlod_occlusion_seen(w->occ, p);
+    if (!seen || w->frame - seen > PREFETCH_HIDDEN_FRAMES)
         return 1;
     uint32_t c0 = hlod_store_first_child(w->nodes, p), c1 = hlod_store_child_end(w->nodes, p);
     for (uint32_t c = c0; c < c1; c++) {
@@ -450,7 +444,7 @@ static int mark_refined(walk *w, hlod_node_frame *pf, uint32_t p, double extra)
 static int stands_down(const walk *w, uint32_t i)
 {
     hlod_node_state st = hlod_residency_state(w->res, i);
-    return st == HLOD_NODE_BAD || (i < w->res->pinned_count && st != HLOD_NODE_RESIDENT);
+    return st == HLOD_NODE_BAD || (hlod_residency_is_pinned(w->res, i) && st != HLOD_NODE_RESIDENT);
 }
 
 /* Node p stands down: its visible children take its place, whatever the
@@ -496,7 +490,7 @@ static int stand_in(walk *w, const hlod_view *v, front *fr, uint32_t p)
         cf->slice = pf->slice * (cf->priority / sum_pr);
         cf->needed = node_needed(w, w->s->next.v[k]);
         sum_needed += cf->needed;
-        if (w->d->policy == HLOD_POLICY_LAKHIA)
+        if (w->policy->traits & HLOD_PT_HYST)
             update_hyst(w, cf);
     }
     fr->est += sum_needed - pf->needed;
@@ -510,57 +504,16 @@ static int policy_refines(const walk *w, const hlod_view *v, uint32_t p, double 
                           double sum_needed, double cum, int *near)
 {
     const hlod_node_frame *pf = &w->fr[p];
-    switch (w->d->policy) {
-    case HLOD_POLICY_LAKHIA:
-        /* cumHyst < 0 draws the parent (the tolerance: weights of equal
-         * siblings that sum to n only to rounding); the safety clamp draws it too when
-         * the children clearly do not fit the shared time (c_safety_slack). */
-        *near = sum_needed <= 2 * share;
-        return cum >= -1e-9 && sum_needed <= share * (1 + w->d->c_safety_slack) *
-                                             (pf->refined + 1 == w->frame ? 1 + KEEP_MARGIN : 1);
-    case HLOD_POLICY_NOHYST:
-        *near = sum_needed <= 2 * share;
-        return share > sum_needed;
-    case HLOD_POLICY_SSE: {
-        const hlod_store_node *n = &w->nodes[p];
-        double sse = n->error * v->pixels_per_radian / node_distance(v, n);
-        *near = sse > 0.5 * w->sse_pixels;
-        return sse > w->sse_pixels;
-    }
-    default: /* HLOD_POLICY_FULL */
-        *near = 1;
-        return 1;
-    }
-}
-
-/* A camera that has stood still a while holds its front (README, "The
- * runtime", Selection): a node refined last frame stays refined, and one drawn
- * last frame stays drawn (but see still_refine_late below); a node new
- * to the front (its parent has just refined) is decided as usual, and the
- * budget bound still coarsens a front that no longer fits.  Otherwise the
- * cost model's and the margin's moves, however gated, reached a still
- * view: 3-80 toggles after frame 60 of `still` at 33 ms, each a step of
- * the budget past the counters' switch.  A node the bound coarsened during
- * this hold (the machine slowed) may refine again, as the policy and the
- * bound decide (one coarsened in an earlier hold holds like the rest):
- * else a moment's slowdown left a still view coarse until the camera
- * moved (a still view of 111 nodes fell to 1 under a parallel build).
- * With still_refine_late (the default), a drawn node still refines where
- * that refinement waited for its children's data last frame: data
- * arriving late refines the still view, at the price of a toggle each
- * (56-201 after frame 60 of `still` at 66 ms on a 2-core machine, whose
- * uploads had brought the front's data by frame 105-123); held whatever
- * arrives, a still viewer over a slow disk never saw the city sharpen
- * (test_faults slow_reads). */
-static int hold_front(const walk *w, const hlod_node_frame *pf, int refine)
-{
-    if (refined_last(w, pf))
-        return 1;
-    if (pf->drawn && pf->drawn + 1 == w->frame)
-        return refine && (pf->capped >= w->hold_since ||
-                          (w->d->still_refine_late > 0 && pf->waiting &&
-                           pf->waiting + 1 == w->frame));
-    return refine;
+    hlod_policy_in in = {.d = w->d,
+                         .node = &w->nodes[p],
+                         .distance = node_distance(v, &w->nodes[p]),
+                         .pixels_per_radian = v->pixels_per_radian,
+                         .share = share,
+                         .sum_needed = sum_needed,
+                         .cum = cum,
+                         .refined_last = pf->refined + 1 == w->frame,
+                         .sse_pixels = w->sse_pixels};
+    return w->policy->refines(&in, near);
 }
 
 /* Child c of a node whose slice is share, among visible siblings of total
@@ -576,7 +529,7 @@ static int hold_front(const walk *w, const hlod_node_frame *pf, int refine)
 static double child_vote(walk *w, uint32_t c, double share, double sum_pr)
 {
     hlod_node_frame *cf = &w->fr[c];
-    const int lakhia = w->d->policy == HLOD_POLICY_LAKHIA;
+    const int lakhia = (w->policy->traits & HLOD_PT_HYST) != 0;
     if (is_hidden(w, c)) {
         cf->slice = cf->needed = 0;
         if (!lakhia)
@@ -694,7 +647,6 @@ static int visit(walk *w, const hlod_view *v, front *fr, uint32_t p)
         return prefetch_hidden(w, v, p) && draw_node(w, p);
     }
 
-    const hlod_policy pol = w->d->policy;
     size_t mark = w->s->next.n;
     double sum_pr = 0, sum_vote = 0; /* of the children not hidden; of the voters */
     uint32_t voters = 0; /* visible children, hidden or not: they vote */
@@ -739,7 +691,7 @@ static int visit(walk *w, const hlod_view *v, front *fr, uint32_t p)
          * (the coarser node is whole); so does an unpinned hlod_0 not read
          * yet (it is on its way). */
         if (hlod_residency_state(w->res, c) != HLOD_NODE_RESIDENT &&
-            !(c < w->res->top_count && stands_down(w, c) &&
+            !(hlod_residency_is_top(w->res, c) && stands_down(w, c) &&
               hlod_store_first_child(nodes, c) < hlod_store_child_end(nodes, c))) {
             all_resident = 0;
             missing++;
@@ -752,14 +704,15 @@ static int visit(walk *w, const hlod_view *v, front *fr, uint32_t p)
     int near, refine = policy_refines(w, v, p, share, sum_needed, around && cum < 0 ? 0 : cum,
                                       &near);
     if (w->hold)
-        refine = hold_front(w, pf, refine);
+        refine = hlod_hold_front(pf, w->frame, w->hold_since, w->d->still_refine_late > 0,
+                                 refine);
 
     /* The frame estimate never exceeds the budget (time-based policies).
      * A new refinement must fit in KEEP_MARGIN less than the budget, one
      * already made may use all of it: the bound itself has hysteresis, so
      * frame-time noise moving the budget by a few percent does not flip a
      * marginal node every frame. */
-    if (pol == HLOD_POLICY_LAKHIA || pol == HLOD_POLICY_NOHYST) {
+    if (w->policy->traits & HLOD_PT_BUDGET) {
         /* A new refinement also leaves room for the ones the last frame
          * made that this walk has not reached yet: else a node whose
          * counter crossed its switch takes the budget of one refined
@@ -774,7 +727,7 @@ static int visit(walk *w, const hlod_view *v, front *fr, uint32_t p)
             refine = 0;
             w->s->cap_hits++;
             if (was_refined && w->hold)
-                pf->capped = w->frame;
+                hlod_hold_capped(pf, w->frame);
         } else if (!refine && near) {
             w->s->slice_denied++;
         }
@@ -801,7 +754,7 @@ static int visit(walk *w, const hlod_view *v, front *fr, uint32_t p)
         return draw_node(w, p);
     }
     fr->est += sum_needed - pf->needed;
-    pf->capped = 0;
+    hlod_hold_uncap(pf);
     if (pf->drawn && pf->drawn + 1 == w->frame)
         note_toggle(w, p, +1);
     return mark_refined(w, pf, p, sum_needed - pf->needed);
@@ -827,11 +780,12 @@ hlod_result hlod_select(hlod_selection *s, struct hlod_residency *res, const hlo
                         const hlod_select_in *in)
 {
     assert(s && res && v && in);
+    const hlod_policy_row *pol = hlod_policy_row_of(s->d->policy);
     walk ctx = {s,           res,           s->d,        s->st,
                 s->nodes,    s->fr,         in->frame,   in->v_time,
                 in->sse_pixels, in->draw_ms, in->pixel_ms,
-                in->occlusion && s->d->policy != HLOD_POLICY_FULL, in->still,
-                in->hold_since && s->d->policy == HLOD_POLICY_LAKHIA, in->hold_since};
+                in->occlusion && in->occ && (pol->traits & HLOD_PT_OCCLUDE), in->still,
+                in->hold_since && (pol->traits & HLOD_PT_HOLD), in->hold_since, pol, in->occ};
     walk *w = &ctx;
     const double share_ms = in->share_ms;
     s->draw.n = s->level.n = s->next.n = s->refined.n = 0;

@@ -352,12 +352,13 @@ static void test_hidden_child_keeps_vote(void)
     for (int k = 0; k < 40; k++) {
         uint32_t f = e->frame + 1;
         if (e->sel.fr[1].drawn + 1 == f)
-            e->sel.fr[1].hidden = f - 1; /* drawn last frame, and found hidden */
+            hlod_occlusion_mark(&e->occ, 1, 0, f - 1); /* drawn last frame, and found hidden */
         memset(&e->st, 0, sizeof e->st);
         hlod_residency_begin_frame(&e->res, f);
         hlod_select_in in = {.frame = f,
                              .v_time = e->cost.theta[2],
                              .occlusion = 1,
+                             .occ = &e->occ,
                              .still = 1,
                              .budget_ms = d.target_ms - e->cost.theta[0],
                              .share_ms = 1.5};

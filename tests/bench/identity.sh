@@ -7,7 +7,7 @@
 #     default city: about 25 min and 8 GB of disk), cutplane and metis;
 #   - hlod-bench --deterministic on walk-to-fly and walk-drive, all three
 #     policies: every column of frames.csv but the wall-clock ones
-#     (measured_ms, traversal_ms, upload_ms, render_waits) and the image
+#     (measured_ms, traversal_ms, upload_ms, occlusion_ms, render_waits) and the image
 #     ones (not rendered against a reference here).
 #
 #   bash tests/bench/identity.sh OLD_BIN NEW_BIN OUT [--default]
@@ -60,7 +60,7 @@ selection() { # DIR: the selection columns of every frames.csv below it
     local f
     for f in $(find "$1" -name frames.csv | sort); do
         echo "== ${f#$1}"
-        awk -F, 'NR==1{for(i=1;i<=NF;i++) if($i!~/^(measured_ms|traversal_ms|upload_ms|render_waits|psnr|ssim|luma_change|ref_luma_change)$/) keep[i]=1}
+        awk -F, 'NR==1{for(i=1;i<=NF;i++) if($i!~/^(measured_ms|traversal_ms|upload_ms|occlusion_ms|render_waits|psnr|ssim|luma_change|ref_luma_change)$/) keep[i]=1}
         {o="";for(i=1;i<=NF;i++) if(keep[i]) o=o $i ","; print o}' "$f"
     done
 }

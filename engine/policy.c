@@ -1,0 +1,82 @@
+/*
+ * policy.c - the selection policies' table and their decisions
+ * (policy.h; docs/runtime.md, "Policies").
+ *
+ *   lakhia  refine if cumHyst >= 0 (Lakhia, "Hysteresis": the children's
+ *           urgency counters vote), unless the children's summed
+ *           timeNeeded exceeds the shared time by more than
+ *           c_safety_slack (the safety clamp);
+ *   nohyst  refine if shareTime > sum timeNeeded (eq. 4 recursion rule);
+ *   sse     refine while p's projected geometric error exceeds the pixel
+ *           threshold (the threshold is adapted by the cost model);
+ *   full    refine whenever the children are resident (reference renders).
+ */
+#include "policy.h"
+
+#include <assert.h>
+#include <string.h>
+
+/* cumHyst < 0 draws the parent (the tolerance: weights of equal siblings
+ * that sum to n only to rounding); the safety clamp draws it too when the
+ * children clearly do not fit the shared time (c_safety_slack), with
+ * room to keep a refinement made last frame. */
+static int lakhia_refines(const hlod_policy_in *in, int *near)
+{
+    *near = in->sum_needed <= 2 * in->share;
+    return in->cum >= -1e-9 &&
+           in->sum_needed <= in->share * (1 + in->d->c_safety_slack) *
+                                 (in->refined_last ? 1 + HLOD_KEEP_MARGIN : 1);
+}
+
+static int nohyst_refines(const hlod_policy_in *in, int *near)
+{
+    *near = in->sum_needed <= 2 * in->share;
+    return in->share > in->sum_needed;
+}
+
+static int sse_refines(const hlod_policy_in *in, int *near)
+{
+    double sse = in->node->error * in->pixels_per_radian / in->distance;
+    *near = sse > 0.5 * in->sse_pixels;
+    return sse > in->sse_pixels;
+}
+
+static int full_refines(const hlod_policy_in *in, int *near)
+{
+    (void)in;
+    *near = 1;
+    return 1;
+}
+
+static const hlod_policy_row rows[HLOD_POLICY_COUNT] = {
+    [HLOD_POLICY_LAKHIA] = {"lakhia",
+                            HLOD_PT_HYST | HLOD_PT_BUDGET | HLOD_PT_HOLD | HLOD_PT_OCCLUDE |
+                                HLOD_PT_SHARE | HLOD_PT_STREAM,
+                            lakhia_refines},
+    [HLOD_POLICY_NOHYST] = {"nohyst",
+                            HLOD_PT_BUDGET | HLOD_PT_OCCLUDE | HLOD_PT_SHARE | HLOD_PT_STREAM,
+                            nohyst_refines},
+    [HLOD_POLICY_SSE] = {"sse", HLOD_PT_OCCLUDE | HLOD_PT_SSE | HLOD_PT_STREAM, sse_refines},
+    [HLOD_POLICY_FULL] = {"full", 0, full_refines},
+};
+
+const hlod_policy_row *hlod_policy_row_of(hlod_policy p)
+{
+    assert((unsigned)p < HLOD_POLICY_COUNT);
+    return &rows[p];
+}
+
+const char *hlod_policy_name(hlod_policy p)
+{
+    return (unsigned)p < HLOD_POLICY_COUNT ? rows[p].name : "unknown";
+}
+
+int hlod_policy_parse(const char *name, hlod_policy *out)
+{
+    for (int i = 0; name && i < HLOD_POLICY_COUNT; i++)
+        if (strcmp(name, rows[i].name) == 0) {
+            *out = (hlod_policy)i;
+            return 1;
+        }
+    return 0;
+}
