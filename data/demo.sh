@@ -159,7 +159,7 @@ fi
 echo "==> hlod-info $STORE"
 "$ROOT/build/bin/hlod-info" "$STORE" || failed=1
 
-# Fly-throughs (README, "hlod-bench" measurements), headless at 1280x720, 33 ms.
+# Fly-throughs (docs/hlod-bench.md measurements), headless at 1280x720, 33 ms.
 BENCHBIN=$ROOT/build/bin/hlod-bench
 # A full-detail reference frame costs seconds on a software rasteriser (the
 # whole city's leaves in the fly part); every 20th frame (two-thirds of a
@@ -225,8 +225,8 @@ perl -MJSON::PP -e '
                  my @h = split /,/, scalar <$c>; chomp $h[-1]; my @r;
                  while (<$c>) { chomp; my @v = split /,/, $_, -1; my %x; @x{@h} = @v; push @r, \%x; }
                  return \@r; }
-    # The machine\x27s limits, from each run\x27s own frames (README, "Cost
-    # model and deadline"): with r = measured / estimated over frames 60
+    # The machine\x27s limits, from each run\x27s own frames (docs/runtime.md): with r =
+    # measured / estimated over frames 60
     # on, a controller that cannot foresee r and meets 98 % of deadlines
     # averages at most E[r] / q98(r) of the target; and no model predicts a frozen
     # selection (jitter.csv) better than the best constant does.

@@ -22,7 +22,7 @@ void hlod_mem_free(const hlod_allocator *a, void *p);   /* p may be NULL */
 /* Once per process: glibc's malloc keeps freed memory up to 128 MiB
  * (M_TRIM_THRESHOLD) and serves blocks up to 32 MiB from its heap
  * (M_MMAP_THRESHOLD), unless GLIBC_TUNABLES or MALLOC_*_ set them.  See
- * README, "Cost model and deadline": with glibc's sliding defaults, a
+ * docs/runtime.md, "The cost model and deadline margin": with glibc's sliding defaults, a
  * software rasteriser's per-draw buffers were given back and faulted in
  * again every frame once the loader went quiet, and a still view's frames
  * took twice their time. */

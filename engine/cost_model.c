@@ -1,6 +1,6 @@
 /*
  * cost_model.c - the frame cost model, its deadline margin and the gains
- * fitted to it (cost_model.h; README, "Cost model and deadline").
+ * fitted to it (cost_model.h; docs/runtime.md, "The cost model and deadline margin").
  *
  * Why it is built this way.  A two-term fit updated every frame wandered
  * with the machine's noise: a still camera gives the regressors no spread,
@@ -45,6 +45,7 @@
  */
 #include "cost_model.h"
 
+#include <assert.h>
 #include <math.h>
 #include <stdlib.h>
 #include <string.h>
@@ -107,6 +108,7 @@ static double aim_margin(const hlod_engine_desc *d, double median, double sigma,
 
 void hlod_cost_model_init(hlod_cost_model *m, const hlod_engine_desc *d)
 {
+    assert(m && d);
     memset(m, 0, sizeof *m);
     if (d->deterministic) {
         m->theta[0] = d->fixed_frame_ms;
@@ -124,6 +126,7 @@ void hlod_cost_model_init(hlod_cost_model *m, const hlod_engine_desc *d)
 void hlod_cost_model_set(hlod_cost_model *m, const hlod_engine_desc *old,
                          const hlod_engine_desc *d)
 {
+    assert(m && old && d);
     if (d->sse_pixels != old->sse_pixels)
         m->sse_pixels = d->sse_pixels;
     if (d->deterministic) {
@@ -153,6 +156,7 @@ static double model_ms(const hlod_cost_model *m, const double *theta, const doub
 double hlod_cost_model_predict(const hlod_cost_model *m, double draws, double cost,
                                double pixels)
 {
+    assert(m);
     const double x[HLOD_COST_TERMS] = {1, draws, cost, pixels};
     return model_ms(m, m->theta, x);
 }
@@ -421,9 +425,134 @@ static void empty_frame(hlod_cost_model *m, double y, double target)
         m->theta[0] = m->fixed_floor;
 }
 
+/* Record: the frame goes into the window, and into the fit's sums
+ * when it drew something (an empty frame stays out of the fit: it is
+ * predicted by the floor, and a front's fixed part may be more than an
+ * empty frame's).  Returns whether the front is settled: the same as the
+ * last frame's (a still camera whose selection has settled), when only
+ * missed deadlines move anything. */
+static int record(hlod_cost_model *m, const hlod_cost_sample *s)
+{
+    const hlod_cost_sample *last =
+        m->ring_n ? &m->ring[(m->ring_head + HLOD_COST_WINDOW - 1) % HLOD_COST_WINDOW] : NULL;
+    int settled =
+        m->ring_n >= MARGIN_SETTLE && last && memcmp(last->x, s->x, sizeof s->x) == 0;
+    m->settled_run = settled ? m->settled_run + 1 : 0;
+    m->frames++;
+    m->ring[m->ring_head] = *s;
+    m->ring_head = (m->ring_head + 1) % HLOD_COST_WINDOW;
+    if (m->ring_n < HLOD_COST_WINDOW)
+        m->ring_n++;
+    if (s->x[1] > 0) {
+        m->s0 = FORGET * m->s0 + 1;
+        for (int i = 0; i < HLOD_COST_TERMS; i++) {
+            m->b[i] = FORGET * m->b[i] + s->x[i] * s->y;
+            for (int j = 0; j < HLOD_COST_TERMS; j++)
+                m->a[i][j] = FORGET * m->a[i][j] + s->x[i] * s->x[j];
+        }
+    }
+    return settled;
+}
+
+/* Whether the median residual mk of the last k_scale frames (n of
+ * them) shows a persistent error of the whole model: of a settled front,
+ * both halves of its last SETTLED_K frames (medians h) past SETTLED_ERR
+ * the same way (so that the error is there all along and not a step
+ * half-way that a second change would have to finish); or, faster than
+ * its estimate, its last SCALE_K frames (settled_faster); else past 5 %
+ * and the noise. */
+static int scale_passes(const double h[2], uint32_t n, double mk, double sigma, int settled,
+                        int fast)
+{
+    if (fast)
+        return 1;
+    if (!settled)
+        return fabs(mk) > 0.05 && fabs(mk) > SCALE_SE * median_se(sigma, n);
+    double lo = fmin(fabs(h[0]), fabs(h[1]));
+    return h[0] * h[1] > 0 && lo > SETTLED_ERR &&
+           lo > SCALE_SE * median_se(sigma, SETTLED_K / 2.0);
+}
+
+/* The machine changed: the model scales by f.  The frames seen before the
+ * last k_scale are rescaled with it, so the fit and the margin do not see
+ * two machines (nor pull the model back to the old one); the last k_scale
+ * are left as measured, so the next median sees the new machine at
+ * residual 0, not the same change again.  While the window fills it is
+ * the model that was wrong, not the machine: the frames stay as measured. */
+static void rescale(hlod_cost_model *m, double mk, uint32_t k_scale)
+{
+    double f = exp(mk);
+    scale_theta(m, f);
+    if (m->ring_n >= MARGIN_SETTLE) {
+        for (uint32_t k = k_scale; k < m->ring_n; k++)
+            m->ring[(m->ring_head + HLOD_COST_WINDOW - 1 - k) % HLOD_COST_WINDOW].y *= f;
+        for (int i = 0; i < HLOD_COST_TERMS; i++)
+            m->b[i] *= f;
+    }
+    m->scale_updates++;
+    m->scale_at = m->frames;
+    m->scale_dir = mk > 0 ? 1 : -1;
+    m->settled_run = 0; /* a settled front is checked again SETTLED_K frames on */
+}
+
+/* Scale: a persistent error of the whole model rescales it.  A scale is
+ * not undone before SCALE_K frames measured after it can say so: with
+ * fronts that the model misses one way and the other in turn (errors of
+ * -20 % and +20 % every other frame), the median of the last SCALE_K
+ * swung with each new frame, and the scale with it. */
+static void update_scale(hlod_cost_model *m, int settled, double sigma)
+{
+    const int fast = settled && m->settled_run >= SCALE_K && settled_faster(m, sigma);
+    const uint32_t k_scale = settled && !fast ? SETTLED_K : SCALE_K;
+    if (!(m->ring_n >= SCALE_K / 2 + 1 && (!settled || fast || m->settled_run >= SETTLED_K)))
+        return;
+    double e[SETTLED_K > SCALE_K ? SETTLED_K : SCALE_K], h[2] = {0, 0};
+    uint32_t n = residuals(m, m->theta, k_scale, e);
+    if (settled && !fast) /* the halves' medians, before median() reorders e */
+        for (int half = 0; half < 2; half++) {
+            double part[SETTLED_K / 2];
+            memcpy(part, e + half * (SETTLED_K / 2), sizeof part);
+            h[half] = median(part, SETTLED_K / 2);
+        }
+    double mk = median(e, n);
+    int passes = scale_passes(h, n, mk, sigma, settled, fast);
+    if (passes && (mk > 0 ? 1 : -1) == -m->scale_dir && m->frames - m->scale_at < SCALE_K)
+        passes = 0;
+    if (passes)
+        rescale(m, mk, k_scale);
+}
+
+/* Shape: the terms' split changes when the fit explains recent frames
+ * clearly better (30 %).  While the window fills the prior is only the
+ * start guess: it is held weakly, so the first frames' spread (a cold
+ * start loads and refines) fixes the terms, and any improvement is taken.
+ * After the window has filled, one shape change per SHAPE_HOLD frames:
+ * two shapes that each fit the last frames a little better in turn would
+ * otherwise swap back and forth, and the front with them. */
+static void update_shape(hlod_cost_model *m, double target, int settled)
+{
+    double t[HLOD_COST_TERMS];
+    int warm = m->ring_n < MARGIN_SETTLE;
+    if (!(m->ring_n >= 6 && !settled && ridge_solve(m, m->theta, warm ? 0.1 * RIDGE : RIDGE, t)))
+        return;
+    if (t[0] > 0.8 * target)
+        t[0] = 0.8 * target;
+    if (t[2] < 1e-9)
+        t[2] = 1e-9; /* v_time stays positive: the traversal divides by needs */
+    double lp = shape_loss(m, m->theta), lf = shape_loss(m, t);
+    double need = warm ? 1.0 : 0.7;
+    int held = !warm && m->frames - m->shape_at < SHAPE_HOLD && m->shape_updates;
+    if (lf < need * lp && lp > SHAPE_W * 0.02 * 0.02 && !held) {
+        memcpy(m->theta, t, sizeof t);
+        m->shape_updates++;
+        m->shape_at = m->frames;
+    }
+}
+
 void hlod_cost_model_fit(hlod_cost_model *m, const hlod_engine_desc *d, double draws,
                          double cost, double pixels, double y)
 {
+    assert(m && d);
     if (!(isfinite(draws) && isfinite(cost) && isfinite(pixels) && isfinite(y)) || draws < 0 ||
         cost < 0 || pixels < 0 || y < 0)
         return;
@@ -431,119 +560,12 @@ void hlod_cost_model_fit(hlod_cost_model *m, const hlod_engine_desc *d, double d
     hlod_cost_sample s = {{1, draws, cost, pixels}, y};
     if (draws == 0)
         empty_frame(m, y, target);
-    /* Settled: the same front as the last frame (a still camera whose
-     * selection has settled).  Then only missed deadlines move anything. */
-    const hlod_cost_sample *last =
-        m->ring_n ? &m->ring[(m->ring_head + HLOD_COST_WINDOW - 1) % HLOD_COST_WINDOW] : NULL;
-    int settled =
-        m->ring_n >= MARGIN_SETTLE && last && memcmp(last->x, s.x, sizeof s.x) == 0;
-    m->settled_run = settled ? m->settled_run + 1 : 0;
-    m->frames++;
-    m->ring[m->ring_head] = s;
-    m->ring_head = (m->ring_head + 1) % HLOD_COST_WINDOW;
-    if (m->ring_n < HLOD_COST_WINDOW)
-        m->ring_n++;
-    /* (an empty frame stays out of the fit: it is predicted by the floor,
-     * and a front's fixed part may be more than an empty frame's) */
-    if (draws > 0) {
-        m->s0 = FORGET * m->s0 + 1;
-        for (int i = 0; i < HLOD_COST_TERMS; i++) {
-            m->b[i] = FORGET * m->b[i] + s.x[i] * y;
-            for (int j = 0; j < HLOD_COST_TERMS; j++)
-                m->a[i][j] = FORGET * m->a[i][j] + s.x[i] * s.x[j];
-        }
-    }
-
-    /* the noise as measured so far */
-    double med, sigma = PRIOR_SIGMA;
+    int settled = record(m, &s);
+    double med, sigma = PRIOR_SIGMA; /* the noise as measured so far */
     if (m->ring_n >= 8)
         spread(m, m->ring_n, &med, &sigma);
-
-    /* scale: a persistent error of the whole model (of a settled front:
-     * both halves of its last SETTLED_K frames past SETTLED_ERR, the same
-     * way, so that the error is there all along and not a step half-way
-     * that a second change would have to finish; or, faster than its
-     * estimate, its last SCALE_K frames: settled_faster) */
-    const int fast = settled && m->settled_run >= SCALE_K && settled_faster(m, sigma);
-    const uint32_t k_scale = settled && !fast ? SETTLED_K : SCALE_K;
-    if (m->ring_n >= SCALE_K / 2 + 1 && (!settled || fast || m->settled_run >= SETTLED_K)) {
-        double e[SETTLED_K > SCALE_K ? SETTLED_K : SCALE_K], h[2] = {0, 0};
-        uint32_t n = residuals(m, m->theta, k_scale, e);
-        if (settled && !fast) {
-            double part[SETTLED_K / 2];
-            for (int half = 0; half < 2; half++) {
-                memcpy(part, e + half * (SETTLED_K / 2), sizeof part);
-                h[half] = median(part, SETTLED_K / 2);
-            }
-        }
-        double mk = median(e, n);
-        double se = median_se(sigma, n);
-        double se_half = median_se(sigma, SETTLED_K / 2.0);
-        int passes = fast      ? 1
-                     : settled ? h[0] * h[1] > 0 && fmin(fabs(h[0]), fabs(h[1])) > SETTLED_ERR &&
-                                   fmin(fabs(h[0]), fabs(h[1])) > SCALE_SE * se_half
-                             : fabs(mk) > 0.05 && fabs(mk) > SCALE_SE * se;
-        /* A scale is not undone before SCALE_K frames measured after it
-         * can say so: with fronts that the model misses one way and the
-         * other in turn (walk-drive, 250 and 280 nodes every other frame,
-         * errors of -20 % and +20 %), the median of the last SCALE_K
-         * swung with each new frame, and the scale went x1.21, x0.81,
-         * x1.24, x0.84 on four frames in a row, the budget and the front
-         * with it (16 oscillations a frame). */
-        if (passes && (mk > 0 ? 1 : -1) == -m->scale_dir && m->frames - m->scale_at < SCALE_K)
-            passes = 0;
-        if (passes) {
-            /* The machine changed: the frames seen before the last
-             * SCALE_K are rescaled with the model, so the fit and the
-             * margin do not see two machines (nor pull the model back to
-             * the old one).  The last k_scale are left as measured: the
-             * next median then sees the new machine at residual 0, not
-             * the same change again. */
-            double f = exp(mk);
-            scale_theta(m, f);
-            if (m->ring_n >= MARGIN_SETTLE) {
-                /* (while the window fills it is the model that was wrong,
-                 * not the machine that changed: the frames stay as measured) */
-                for (uint32_t k = k_scale; k < m->ring_n; k++)
-                    m->ring[(m->ring_head + HLOD_COST_WINDOW - 1 - k) % HLOD_COST_WINDOW].y *= f;
-                for (int i = 0; i < HLOD_COST_TERMS; i++)
-                    m->b[i] *= f;
-            }
-            m->scale_updates++;
-            m->scale_at = m->frames;
-            m->scale_dir = mk > 0 ? 1 : -1;
-            m->settled_run = 0; /* a settled front is checked again SETTLED_K frames on */
-        }
-    }
-
-    /* shape: the fit explains recent frames clearly better */
-    double t[HLOD_COST_TERMS];
-    /* While the window fills the prior is only the start guess (or a
-     * scale of it): it is held weakly, so the first frames' spread (a cold
-     * start loads and refines) fixes the terms. */
-    int warm = m->ring_n < MARGIN_SETTLE;
-    if (m->ring_n >= 6 && !settled && ridge_solve(m, m->theta, warm ? 0.1 * RIDGE : RIDGE, t)) {
-        if (t[0] > 0.8 * target)
-            t[0] = 0.8 * target;
-        if (t[2] < 1e-9)
-            t[2] = 1e-9; /* v_time stays positive: the traversal divides by needs */
-        /* while the window fills, any improvement is taken: the start
-         * values are guesses, and a scale change alone would keep their
-         * split between the terms */
-        double lp = shape_loss(m, m->theta), lf = shape_loss(m, t);
-        double need = warm ? 1.0 : 0.7;
-        /* and after the window has filled, one shape change per SHAPE_HOLD
-         * frames: two shapes that each fit the last frames a little better
-         * in turn would otherwise swap back and forth, and the front with
-         * them */
-        int held = !warm && m->frames - m->shape_at < SHAPE_HOLD && m->shape_updates;
-        if (lf < need * lp && lp > SHAPE_W * 0.02 * 0.02 && !held) {
-            memcpy(m->theta, t, sizeof t);
-            m->shape_updates++;
-            m->shape_at = m->frames;
-        }
-    }
-
+    update_scale(m, settled, sigma);
+    update_shape(m, target, settled);
     if (m->ring_n >= MARGIN_MIN)
         update_margin(m, d, settled);
     if (m->theta[0] > 0.8 * target)
@@ -570,6 +592,7 @@ void hlod_cost_model_fit(hlod_cost_model *m, const hlod_engine_desc *d, double d
 void hlod_cost_model_adapt_share(hlod_cost_model *m, double est, double budget, int moved,
                                  uint32_t cap_hits, uint32_t slice_denied)
 {
+    assert(m);
     double ratio = budget > 0 ? est / budget : 1;
     double g = m->share_gain;
     if (cap_hits && moved) {
@@ -585,6 +608,7 @@ void hlod_cost_model_adapt_share(hlod_cost_model *m, double est, double budget, 
  * over target, finer when under; the square root damps the response. */
 void hlod_cost_model_adapt_sse(hlod_cost_model *m, double ratio)
 {
+    assert(m);
     if (!(isfinite(ratio) && ratio > 0))
         return;
     double f = sqrt(ratio);

@@ -1,6 +1,6 @@
 /*
  * cost_model.h - what a frame costs, how sure the engine is of it, and the
- * gains fitted to it (README, "Cost model and deadline").
+ * gains fitted to it (docs/runtime.md, "The cost model and deadline margin").
  *
  *   measured_ms = fixed_ms + draw_ms * draws + v_time * cost + pixel_ms * pixels
  *

@@ -1,5 +1,5 @@
 /*
- * engine.c - the engine object and its frame (README, "The runtime").
+ * engine.c - the engine object and its frame (docs/runtime.md).
  *
  * A frame, on the render thread:
  *   1. collect finished loads and upload them (residency.c);
@@ -368,7 +368,7 @@ static int child_seen(const hlod_engine *e, uint32_t i, uint32_t f)
     return 0;
 }
 
-/* Occlusion culling in two passes (README, "Occlusion culling"):
+/* Occlusion culling in two passes (docs/runtime.md, "Occlusion"):
  *   1. draw the nodes that were visible in the last frame (or whose parent
  *      was, and that were not themselves hidden, or one of whose children
  *      was: child_seen): they are the occluders;
@@ -461,6 +461,7 @@ static void draw_frame(hlod_engine *e, const hlod_camera *cam, const hlod_view *
  * the next frame, its whole subtree toggled down, and was read again). */
 int hlod_engine_evict_key(void *user, uint32_t node, double *key)
 {
+    assert(user && key);
     const hlod_engine *e = user;
     const hlod_node_frame *f = &e->sel.fr[node];
     if (f->drawn == e->frame || f->refined == e->frame)
@@ -520,57 +521,59 @@ static void learn(hlod_engine *e, double measured, double upload, double budget,
             m, (e->d.deterministic ? e->st.estimated_ms : measured) / e->d.target_ms);
 }
 
-hlod_result hlod_engine_frame(hlod_engine *e, const hlod_camera *cam, double dt,
-                              hlod_frame_stats *stats)
+/* Inputs: a new frame's stamp and stats, and the camera's motion (its
+ * velocity into vel).  Returns whether the camera moved. */
+static int frame_inputs(hlod_engine *e, const hlod_camera *cam, double dt, double vel[3])
 {
-    if (stats)
-        memset(stats, 0, sizeof *stats);
-    if (!e || !cam)
-        return HLOD_ERR_INVALID_ARG;
-    if (!camera_ok(cam) || !isfinite(dt) || dt < 0) {
-        hlod_logf(&e->d.logger, HLOD_LOG_ERROR,
-                  "engine: frame %u: camera or dt is not finite or out of range; not drawn",
-                  e->frame + 1);
-        return HLOD_ERR_INVALID_ARG;
-    }
-    double t_start = hlod_now_ms();
     e->frame++;
     memset(&e->st, 0, sizeof e->st);
     e->st.frame = e->frame - 1;
     hlod_residency_begin_frame(&e->res, e->frame);
-    double vel[3];
-    int moved = camera_motion(e, cam, dt, vel);
+    return camera_motion(e, cam, dt, vel);
+}
 
+/* Load: finished reads are uploaded within the upload reserve.  A big
+ * upload that has waited may use the room the last front's estimate, with
+ * the deadline margin, left of the target. */
+static void frame_uploads(hlod_engine *e)
+{
     double t0 = hlod_now_ms();
-    /* room for a big upload that has waited: what the last front's
-     * estimate, with the deadline margin, left of the target */
     double room = e->have_front ? 0.8 * (e->d.target_ms - e->cost.margin * e->last_front_ms) : 0;
     hlod_residency_collect(&e->res, upload_reserve(e), room);
     e->st.upload_ms = hlod_now_ms() - t0;
+}
 
-    /* This frame's uploads are done and timed: the selection gets what is
-     * left, and the fit sees the frame without them.  Not when
-     * deterministic (a measured time would make the selection vary), nor
-     * under a time model: its frame time is the whole frame, uploads
-     * included, and a wall-clock upload (a preempted collect) would bias
-     * the budget and the fit of a synthetic machine. */
-    /* The budget bounds the front's estimate: with the margin the
-     * measured spread needs, deadline_quantile of frames finish within the
-     * target (margin 1 when aiming at the mean, as the paper does). */
-    /* The uploads' share is their cap (upload_budget_ms), not this
-     * frame's: with a still camera whose loader keeps prefetching, the
-     * frames that upload and those that do not would otherwise hand the
-     * selection two budgets in turn, and marginal nodes would toggle with
-     * them. */
+/* The uploads this frame's fit leaves out: none when deterministic or
+ * under a time model (its frame time is the whole frame, and a
+ * wall-clock upload would bias a synthetic machine's budget and fit). */
+static double frame_upload_ms(const hlod_engine *e)
+{
+    return e->d.deterministic || e->d.time_model ? 0 : e->st.upload_ms;
+}
+
+/* The budget that bounds the front's estimate: with the margin the
+ * measured spread needs, deadline_quantile of frames finish within the
+ * target (margin 1 when aiming at the mean, as the paper does).  The
+ * uploads' share is their cap (upload_budget_ms), not this frame's: with a
+ * still camera whose loader keeps prefetching, the frames that upload and
+ * those that do not would otherwise hand the selection two budgets in
+ * turn, and marginal nodes would toggle with them.  At least a tenth of
+ * the target. */
+static double frame_budget(const hlod_engine *e)
+{
     const hlod_cost_model *m = &e->cost;
     const double target = e->d.target_ms;
-    const double upload = e->d.deterministic || e->d.time_model ? 0 : e->st.upload_ms;
     const double reserve = e->d.deterministic || e->d.time_model ? 0 : upload_reserve(e);
     double budget = (target - reserve) / m->margin - m->theta[0];
-    if (budget < 0.1 * target)
-        budget = 0.1 * target;
-    hlod_view view;
-    hlod_view_init(&view, cam, vel, e->d.velocity_lookahead_s);
+    return budget < 0.1 * target ? 0.1 * target : budget;
+}
+
+/* What the selection is given: the cost model's terms, the budget and
+ * the roots' share, occlusion's verdicts, and the hold's inputs when the
+ * camera has stood still. */
+static hlod_select_in select_inputs(hlod_engine *e, double budget, int moved)
+{
+    const hlod_cost_model *m = &e->cost;
     hlod_select_in in = {.frame = e->frame,
                          .v_time = m->theta[2],
                          .draw_ms = m->theta[1],
@@ -584,25 +587,19 @@ hlod_result hlod_engine_frame(hlod_engine *e, const hlod_camera *cam, double dt,
                          .share_ms = budget * m->share_gain};
     hlod_hold_inputs(&e->hold, hlod_policy_has(e->d.policy, HLOD_PT_HOLD), e->frame,
                      e->d.target_ms, &in);
-    t0 = hlod_now_ms();
-    hlod_result r = hlod_select(&e->sel, &e->res, &view, &in);
-    e->st.traversal_ms = hlod_now_ms() - t0;
-    if (r != HLOD_OK)
-        return r;
+    return in;
+}
 
-    if (e->d.renderer)
-        draw_frame(e, cam, &view);
-
-    double measured;
-    if (e->d.time_model)
-        measured = e->d.time_model(e->d.time_model_user, &e->st);
-    else
-        measured = hlod_now_ms() - t_start;
+/* Publish: the frame's measured time and the model's view of it go into
+ * the stats; the hold learns whether it met the target. */
+static void publish(hlod_engine *e, const hlod_select_in *in, double measured, double upload)
+{
+    const hlod_cost_model *m = &e->cost;
     e->st.measured_ms = measured;
     e->st.v_time = m->theta[2];
     e->st.fixed_ms = m->theta[0];
     e->st.margin = m->margin;
-    e->st.budget_ms = in.budget_ms;
+    e->st.budget_ms = in->budget_ms;
     hlod_hold_measured(&e->hold, measured, e->d.target_ms);
     e->st.share_gain = m->share_gain;
     e->st.estimated_ms =
@@ -611,13 +608,53 @@ hlod_result hlod_engine_frame(hlod_engine *e, const hlod_camera *cam, double dt,
     e->st.sse_pixels = m->sse_pixels;
     e->last_front_ms = e->st.estimated_ms - upload;
     e->have_front = 1;
-    learn(e, measured, upload, budget, moved);
+}
 
+/* After the frame: residency admits and evicts for what the selection
+ * wanted (policies that stream), and closes the frame. */
+static void frame_residency(hlod_engine *e)
+{
     if (hlod_policy_has(e->d.policy, HLOD_PT_STREAM)) {
         hlod_evict_order order = {hlod_engine_evict_key, e};
         hlod_residency_schedule(&e->res, &order);
     }
     hlod_residency_end_frame(&e->res);
+}
+
+/* The frame in its steps: inputs, load, select, draw, measure and
+ * publish, learn, and residency for the next. */
+hlod_result hlod_engine_frame(hlod_engine *e, const hlod_camera *cam, double dt,
+                              hlod_frame_stats *stats)
+{
+    if (stats)
+        memset(stats, 0, sizeof *stats);
+    if (!e || !cam)
+        return HLOD_ERR_INVALID_ARG;
+    if (!camera_ok(cam) || !isfinite(dt) || dt < 0) {
+        hlod_logf(&e->d.logger, HLOD_LOG_ERROR,
+                  "engine: frame %u: camera or dt is not finite or out of range; not drawn",
+                  e->frame + 1);
+        return HLOD_ERR_INVALID_ARG;
+    }
+    double t_start = hlod_now_ms(), vel[3];
+    int moved = frame_inputs(e, cam, dt, vel);
+    frame_uploads(e);
+    const double upload = frame_upload_ms(e), budget = frame_budget(e);
+    hlod_view view;
+    hlod_view_init(&view, cam, vel, e->d.velocity_lookahead_s);
+    hlod_select_in in = select_inputs(e, budget, moved);
+    double t0 = hlod_now_ms();
+    hlod_result r = hlod_select(&e->sel, &e->res, &view, &in);
+    e->st.traversal_ms = hlod_now_ms() - t0;
+    if (r != HLOD_OK)
+        return r;
+    if (e->d.renderer)
+        draw_frame(e, cam, &view);
+    double measured = e->d.time_model ? e->d.time_model(e->d.time_model_user, &e->st)
+                                      : hlod_now_ms() - t_start;
+    publish(e, &in, measured, upload);
+    learn(e, measured, upload, budget, moved);
+    frame_residency(e);
     if (stats)
         *stats = e->st;
     return HLOD_OK;

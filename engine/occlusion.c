@@ -10,6 +10,7 @@
 uint32_t *hlod_occlusion_buffer(hlod_occlusion *o, const hlod_allocator *a, uint32_t width,
                                 uint32_t height)
 {
+    assert(o && a);
     size_t n = (size_t)width * height;
     if (o->depth_cap < n) {
         uint32_t *p = hlod_mem_realloc(a, o->depth, n * sizeof *p);
@@ -37,6 +38,7 @@ int hlod_occlusion_build(hlod_occlusion *o, const hlod_allocator *a)
 int hlod_occlusion_build_from(hlod_occlusion *o, const hlod_allocator *a, const uint32_t *depth,
                               uint32_t width, uint32_t height, uint32_t stride, uint32_t mask)
 {
+    assert(o && a && depth && stride >= width);
     o->src = depth;
     o->width = width;
     o->height = height;
@@ -119,6 +121,7 @@ int hlod_occlusion_build_from(hlod_occlusion *o, const hlod_allocator *a, const 
 
 int hlod_occlusion_visible(const hlod_occlusion *o, const double rect[4], double zmin)
 {
+    assert(o && rect);
     if (!o->levels || !(zmin >= 0) || !(zmin <= 1))
         return 1;
     if (!(rect[2] >= rect[0] && rect[3] >= rect[1]))

@@ -1,6 +1,5 @@
 /*
- * occlusion.h - a depth pyramid for occlusion culling (README, "Occlusion
- * culling").  Render thread only.
+ * occlusion.h - a depth pyramid for occlusion culling (docs/runtime.md).  Render thread only.
  *
  * Built from a frame's depth buffer (window depth scaled to integers:
  * 32-bit ones as glReadPixels(GL_DEPTH_COMPONENT, GL_UNSIGNED_INT) gives

@@ -1,5 +1,5 @@
 /*
- * residency.c - which nodes are in memory (Lakhia III-D; README, "The runtime").
+ * residency.c - which nodes are in memory (Lakhia III-D; docs/runtime.md).
  *
  * The render thread owns residency; the loader thread only reads bytes
  * (loader.h).  Each frame:
@@ -332,6 +332,7 @@ static int waited_first(hlod_residency *rs, double up_ms, double room_ms)
 
 void hlod_residency_collect(hlod_residency *rs, double up_ms, double room_ms)
 {
+    assert(rs && rs->d);
     /* Drain the loader into our pending list (bounded by max_inflight per
      * call, so a frame never takes an unbounded batch). */
     size_t room = rs->d->max_inflight;
@@ -499,6 +500,7 @@ static size_t room_by_evicting(const hlod_residency *rs, const victim *vic, size
 
 void hlod_residency_schedule(hlod_residency *rs, const hlod_evict_order *order)
 {
+    assert(rs && rs->d && order && order->key);
     hlod_req_vec *want = &rs->want;
     if (want->n > 1) /* want->v is NULL until something was wanted: qsort(NULL) is UB */
         qsort(want->v, want->n, sizeof *want->v, cmp_request);
@@ -621,6 +623,7 @@ static uint32_t pinned_count(const hlod_store *s, uint64_t budget)
 hlod_result hlod_residency_init(hlod_residency *rs, const hlod_store *store,
                                 const hlod_engine_desc *d, hlod_frame_stats *st)
 {
+    assert(rs && store && d && st);
     *rs = (hlod_residency){0};
     rs->store = store;
     rs->nodes = hlod_store_nodes(store);
@@ -681,6 +684,7 @@ void hlod_residency_destroy(hlod_residency *rs)
 
 void hlod_residency_begin_frame(hlod_residency *rs, uint32_t frame)
 {
+    assert(rs && rs->d && frame > rs->frame);
     rs->frame = frame;
     rs->want.n = 0;
     /* Top nodes that could not be read yet (a transient failure) are asked
@@ -693,6 +697,7 @@ void hlod_residency_begin_frame(hlod_residency *rs, uint32_t frame)
 
 void hlod_residency_end_frame(hlod_residency *rs)
 {
+    assert(rs && rs->d);
     hlod_loader_counters lc;
     hlod_loader_get_counters(rs->loader, &lc);
     rs->st->bytes_read += lc.bytes_read - rs->bytes_read_prev;

@@ -1,6 +1,6 @@
 /*
- * residency.h - which nodes are in memory (Lakhia III-D; README, "The
- * runtime": residency).  Render thread only; the loader thread it owns
+ * residency.h - which nodes are in memory (Lakhia III-D; docs/runtime.md: residency). 
+ * Render thread only; the loader thread it owns
  * only reads bytes (loader.h).
  *
  * The selection asks through hlod_residency_want and reads states through

@@ -1,6 +1,6 @@
 /*
- * selection.h - which nodes a frame draws (Lakhia III-C; README, "The
- * runtime": selection).  Render thread only.
+ * selection.h - which nodes a frame draws (Lakhia III-C; docs/runtime.md: selection). 
+ * Render thread only.
  *
  * The selection reads the store's node table and the cost model's
  * published values, remembers per node what it needs between frames

@@ -6,7 +6,7 @@
  * the frame's deadline pays for it.  Done here instead, the upload is a copy
  * per level: on llvmpipe 116x116 went from 0.47 to 0.05 ms, 290x290 from
  * 1.06 to 0.32 ms and 850x850 from 5.0-6.0 to 2.6-2.9 ms of render-thread
- * time (README, "The runtime", Loading).
+ * time (docs/runtime.md, Loading).
  */
 #ifndef HLOD_TEXTURE_H
 #define HLOD_TEXTURE_H

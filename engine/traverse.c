@@ -1,5 +1,5 @@
 /*
- * traverse.c - node selection (Lakhia III-C; README, "The runtime").
+ * traverse.c - node selection (Lakhia III-C; docs/runtime.md).
  *
  * Top-down and breadth-first from the roots (the city's group root, or
  * each block's hlod_0 node without city levels).  Each visible node is
@@ -56,6 +56,7 @@ typedef struct walk {
 hlod_result hlod_selection_init(hlod_selection *s, const hlod_store *store,
                                 const hlod_engine_desc *d, hlod_frame_stats *st)
 {
+    assert(s && store && d && st);
     *s = (hlod_selection){0};
     s->nodes = hlod_store_nodes(store);
     s->node_count = hlod_store_node_count(store);
@@ -130,6 +131,7 @@ void hlod_view_init(hlod_view *v, const hlod_camera *cam, const double velocity[
 int hlod_view_project(const hlod_view *v, const double bmin[3], const double bmax[3],
                       double rect[4], double *zmin)
 {
+    assert(v && bmin && bmax && rect && zmin);
     const double *m = v->vp;
     double x0 = INFINITY, y0 = INFINITY, x1 = -INFINITY, y1 = -INFINITY, z0 = INFINITY;
     for (int c = 0; c < 8; c++) {
@@ -160,6 +162,7 @@ int hlod_view_project(const hlod_view *v, const double bmin[3], const double bma
 
 double hlod_view_pixels(const hlod_view *v, const double lo[3], const double hi[3])
 {
+    assert(v && lo && hi);
     double r[4], z;
     if (!hlod_view_project(v, lo, hi, r, &z))
         return v->width * v->height;
@@ -169,6 +172,7 @@ double hlod_view_pixels(const hlod_view *v, const double lo[3], const double hi[
 
 double hlod_view_outside(const hlod_view *v, const double bmin[3], const double bmax[3])
 {
+    assert(v && bmin && bmax);
     double lo[3], hi[3];
     for (int k = 0; k < 3; k++) {
         lo[k] = bmin[k] - v->eye[k];
@@ -629,13 +633,150 @@ static int gather(walk *w, const hlod_view *v, front *fr, uint32_t p, double *su
     return 1;
 }
 
+/* Node p's children as the walk weighs them: pushed onto w->s->next from
+ * mark, their priorities, needs and votes, and the decision so far. */
+typedef struct family {
+    size_t mark;
+    double sum_pr;      /* priorities of the children not hidden */
+    double sum_vote;    /* priorities of the voters */
+    uint32_t voters;    /* visible children, hidden or not: they vote */
+    double share;       /* p's shareTime for them (eq. 4) */
+    double sum_needed;  /* their summed timeNeeded */
+    double cum;         /* cumHyst: their weighted votes */
+    int around;         /* the eye stands inside p's box */
+    int all_resident;   /* every child that must be resident is */
+    uint32_t missing;   /* those that are not */
+    int refine, near;   /* the decision; refining is close */
+} family;
+
+/* Whether child c, not resident, holds its parent back.  A top child
+ * (group or hlod_0) that stands down (bad, or pinned and not read yet)
+ * with children of its own does not: they stand in for it when the walk
+ * reaches it.  Else one bad hlod_0 under a readable group would hold the
+ * whole group at its coarse level.  Below the top, a bad child still
+ * draws its parent (the coarser node is whole); so does an unpinned
+ * hlod_0 not read yet (it is on its way). */
+static int holds_back(const walk *w, uint32_t c)
+{
+    return hlod_residency_state(w->res, c) != HLOD_NODE_RESIDENT &&
+           !(hlod_residency_is_top(w->res, c) && stands_down(w, c) &&
+             hlod_store_first_child(w->nodes, c) < hlod_store_child_end(w->nodes, c));
+}
+
+/* eq. 4 among the visible siblings: each child's slice, timeNeeded and
+ * vote, summed into f.  Lakhia sums the siblings' votes unweighted:
+ * siblings of like priority, as cutting planes make them.  A city group's
+ * children are not alike (the ground, its box the whole city, beside
+ * blocks a two-hundredth of its priority), and there the far siblings'
+ * slices voted down a parent whose slice was 7 times its children's whole
+ * need.  Each vote counts by the slice it was given. */
+static void weigh_children(walk *w, const hlod_view *v, uint32_t p, family *f)
+{
+    f->share = w->fr[p].slice;
+    f->around = eye_inside(v, &w->nodes[p]);
+    if (f->around)
+        f->share = surround_share(w, f->mark, f->share);
+    f->all_resident = 1;
+    for (size_t k = f->mark; k < w->s->next.n; k++) {
+        uint32_t c = w->s->next.v[k];
+        const hlod_node_frame *cf = &w->fr[c];
+        double vote = child_vote(w, c, f->share, f->sum_pr);
+        f->sum_needed += cf->needed;
+        if (vote != 0)
+            f->cum += f->voters * (cf->priority / f->sum_vote) * vote;
+        if (holds_back(w, c)) {
+            f->all_resident = 0;
+            f->missing++;
+        }
+    }
+}
+
+/* The frame estimate never exceeds the budget (HLOD_PT_BUDGET).  A new
+ * refinement must fit in KEEP_MARGIN less than the budget, one already
+ * made may use all of it: the bound itself has hysteresis, so frame-time
+ * noise moving the budget by a few percent does not flip a marginal node
+ * every frame.  A new refinement also leaves room for the ones the last
+ * frame made that this walk has not reached yet: else a node whose
+ * counter crossed its switch takes the budget of one refined further on,
+ * which then toggles down.  Around the eye a refinement may use the whole
+ * budget, as one already made: it comes first in its level (eye_first),
+ * so the reservations of all the others would stand against it. */
+static void apply_bound(walk *w, const front *fr, hlod_node_frame *pf, int was_refined,
+                        family *f)
+{
+    double held = fr->reserved > 0 ? fr->reserved : 0;
+    double bound =
+        was_refined || f->around ? fr->budget : fr->budget * (1 - KEEP_MARGIN) - held;
+    if (f->refine && fr->est - pf->needed + f->sum_needed > bound) {
+        f->refine = 0;
+        w->s->cap_hits++;
+        if (was_refined && w->hold)
+            hlod_hold_capped(pf, w->frame);
+    } else if (!f->refine && f->near) {
+        w->s->slice_denied++;
+    }
+}
+
+/* The policy decides p (around the eye the children's counters do not
+ * hold it back: their slices split its time by priority, and the far
+ * ones' voted down a group the street camera stood in), then the hold and
+ * the budget bound may overrule it. */
+static void decide(walk *w, const hlod_view *v, const front *fr, uint32_t p, int was_refined,
+                   family *f)
+{
+    hlod_node_frame *pf = &w->fr[p];
+    f->refine = policy_refines(w, v, p, f->share, f->sum_needed,
+                               f->around && f->cum < 0 ? 0 : f->cum, &f->near);
+    if (w->hold)
+        f->refine = hlod_hold_front(pf, w->frame, w->hold_since, w->d->still_refine_late > 0,
+                                    f->refine);
+    if (w->policy->traits & HLOD_PT_BUDGET)
+        apply_bound(w, fr, pf, was_refined, f);
+}
+
+/* Asks for the children that are not resident when refining is near: a
+ * refinement held back only by their read is waited for (read and
+ * uploaded before the prefetch).  0 on allocation failure. */
+static int ask_children(walk *w, const family *f)
+{
+    if (!f->near || f->all_resident)
+        return 1;
+    for (size_t k = f->mark; k < w->s->next.n; k++) {
+        uint32_t c = w->s->next.v[k];
+        if (!(f->refine ? hlod_residency_need : hlod_residency_want)(w->res, c, w->fr[c].priority))
+            return 0;
+    }
+    return 1;
+}
+
+/* Carries out the decision: a visible child that is not resident forces
+ * the parent; else the children replace p on the front.  0 on allocation
+ * failure. */
+static int commit(walk *w, front *fr, uint32_t p, family *f)
+{
+    hlod_node_frame *pf = &w->fr[p];
+    if (f->refine && !f->all_resident) {
+        w->st->wanted_missing += f->missing;
+        pf->waiting = w->frame;
+        f->refine = 0;
+    }
+    if (!f->refine) {
+        release_pushed(w, fr, f->mark);
+        return draw_node(w, p);
+    }
+    fr->est += f->sum_needed - pf->needed;
+    hlod_hold_uncap(pf);
+    if (pf->drawn && pf->drawn + 1 == w->frame)
+        note_toggle(w, p, +1);
+    return mark_refined(w, pf, p, f->sum_needed - pf->needed);
+}
+
 /* Decides node p of the front: draw it, or append its visible children to
  * w->s->next.  Returns 0 on allocation failure. */
 static int visit(walk *w, const hlod_view *v, front *fr, uint32_t p)
 {
-    const hlod_store_node *nodes = w->nodes;
     hlod_node_frame *pf = &w->fr[p];
-    uint32_t c0 = hlod_store_first_child(nodes, p), c1 = hlod_store_child_end(nodes, p);
+    uint32_t c0 = hlod_store_first_child(w->nodes, p), c1 = hlod_store_child_end(w->nodes, p);
     if (stands_down(w, p))
         return stand_in(w, v, fr, p);
     const int was_refined = claim(w, fr, pf);
@@ -646,118 +787,17 @@ static int visit(walk *w, const hlod_view *v, front *fr, uint32_t p)
             release(w, fr, c);
         return prefetch_hidden(w, v, p) && draw_node(w, p);
     }
-
-    size_t mark = w->s->next.n;
-    double sum_pr = 0, sum_vote = 0; /* of the children not hidden; of the voters */
-    uint32_t voters = 0; /* visible children, hidden or not: they vote */
-    if (!gather(w, v, fr, p, &sum_pr, &sum_vote, &voters))
+    family f = {.mark = w->s->next.n};
+    if (!gather(w, v, fr, p, &f.sum_pr, &f.sum_vote, &f.voters))
         return 0;
-    size_t nvis = w->s->next.n - mark;
-    if (nvis == 0) {
+    if (w->s->next.n == f.mark) {
         /* The box meets the frustum but no child's does: nothing of the
          * children would show; drawing p is the safe choice. */
-        w->s->next.n = mark;
         return draw_node(w, p);
     }
-
-    /* eq. 4 among the visible siblings, timeNeeded = v_time * cost. */
-    double share = pf->slice, sum_needed = 0;
-    const int around = eye_inside(v, &nodes[p]);
-    if (around)
-        share = surround_share(w, mark, share);
-    /* Lakhia sums the siblings' votes unweighted: siblings of like
-     * priority, as cutting planes make them.  A city group's children are
-     * not alike: the ground (its box the whole city) beside eight blocks,
-     * one a two-hundredth of another's priority.  There the far siblings'
-     * slices (0.015-0.035 ms against 0.081 needed) voted down a parent
-     * whose slice was 7 times its children's whole need: a 430-triangle
-     * group drawn over a street camera (parts city, walk-drive, 7 dB).
-     * Each vote counts by the slice it was given. */
-    double cum = 0;
-    int all_resident = 1;
-    uint32_t missing = 0;
-    for (size_t k = mark; k < w->s->next.n; k++) {
-        uint32_t c = w->s->next.v[k];
-        hlod_node_frame *cf = &w->fr[c];
-        double vote = child_vote(w, c, share, sum_pr);
-        sum_needed += cf->needed;
-        if (vote != 0)
-            cum += voters * (cf->priority / sum_vote) * vote;
-        /* A top child (group or hlod_0) that stands down (bad, or pinned
-         * and not read yet) with children of its own does not hold p back:
-         * they stand in for it when the walk reaches it.  Else one bad
-         * hlod_0 under a readable group would hold the whole group at its
-         * coarse level.  Below the top, a bad child still draws its parent
-         * (the coarser node is whole); so does an unpinned hlod_0 not read
-         * yet (it is on its way). */
-        if (hlod_residency_state(w->res, c) != HLOD_NODE_RESIDENT &&
-            !(hlod_residency_is_top(w->res, c) && stands_down(w, c) &&
-              hlod_store_first_child(nodes, c) < hlod_store_child_end(nodes, c))) {
-            all_resident = 0;
-            missing++;
-        }
-    }
-
-    /* Around the eye the children's counters do not hold the parent back
-     * (surround_share): their slices split its time by priority, and the
-     * far ones' voted down a group the street camera stood in. */
-    int near, refine = policy_refines(w, v, p, share, sum_needed, around && cum < 0 ? 0 : cum,
-                                      &near);
-    if (w->hold)
-        refine = hlod_hold_front(pf, w->frame, w->hold_since, w->d->still_refine_late > 0,
-                                 refine);
-
-    /* The frame estimate never exceeds the budget (time-based policies).
-     * A new refinement must fit in KEEP_MARGIN less than the budget, one
-     * already made may use all of it: the bound itself has hysteresis, so
-     * frame-time noise moving the budget by a few percent does not flip a
-     * marginal node every frame. */
-    if (w->policy->traits & HLOD_PT_BUDGET) {
-        /* A new refinement also leaves room for the ones the last frame
-         * made that this walk has not reached yet: else a node whose
-         * counter crossed its switch takes the budget of one refined
-         * further on, which then toggles down (a swap with nothing in the
-         * view changed). */
-        double held = fr->reserved > 0 ? fr->reserved : 0;
-        /* Around the eye a refinement may use the whole budget, as one
-         * already made: it comes first in its level (eye_first), so the
-         * reservations of all the others would stand against it. */
-        double bound = was_refined || around ? fr->budget : fr->budget * (1 - KEEP_MARGIN) - held;
-        if (refine && fr->est - pf->needed + sum_needed > bound) {
-            refine = 0;
-            w->s->cap_hits++;
-            if (was_refined && w->hold)
-                hlod_hold_capped(pf, w->frame);
-        } else if (!refine && near) {
-            w->s->slice_denied++;
-        }
-    }
-
-    /* Ask for the children that are not resident when refining is near. */
-    if (near && !all_resident)
-        for (size_t k = mark; k < w->s->next.n; k++) {
-            uint32_t c = w->s->next.v[k];
-            /* a refinement held back only by this read is waited for: it
-             * is read and uploaded before the prefetch */
-            if (!(refine ? hlod_residency_need : hlod_residency_want)(w->res, c, w->fr[c].priority))
-                return 0;
-        }
-
-    if (refine && !all_resident) {
-        /* A visible sibling that is not resident forces the parent. */
-        w->st->wanted_missing += missing;
-        pf->waiting = w->frame;
-        refine = 0;
-    }
-    if (!refine) {
-        release_pushed(w, fr, mark);
-        return draw_node(w, p);
-    }
-    fr->est += sum_needed - pf->needed;
-    hlod_hold_uncap(pf);
-    if (pf->drawn && pf->drawn + 1 == w->frame)
-        note_toggle(w, p, +1);
-    return mark_refined(w, pf, p, sum_needed - pf->needed);
+    weigh_children(w, v, p, &f);
+    decide(w, v, fr, p, was_refined, &f);
+    return ask_children(w, &f) && commit(w, fr, p, &f);
 }
 
 /* Each node refined this frame: sub_extra, the extra of the refinements

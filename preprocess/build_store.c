@@ -1,6 +1,6 @@
 /*
  * build_store.c - the build pipeline behind hlod_build_store
- * (hlod/build_store.h; README, "hlod-build").
+ * (hlod/build_store.h; docs/hlod-build.md).
  *
  * - Blocks: each input object (OBJ o/g, glTF node, a PLY/OFF file) or each
  *   grid cell of SIZE model units (by triangle centroid, x and y: z is up).
@@ -513,7 +513,7 @@ static hlod_result check_desc(const hlod_build_desc *d, const hlod_logger *lg)
     return HLOD_ERR_INVALID_ARG;
 }
 
-/* The packed store's position grid (README, "Store format"): its origin the
+/* The packed store's position grid (docs/store-format.md): its origin the
  * input's box corner, its step the largest power of two at most the box's
  * diagonal / 2^bits.  Both depend only on the input, so a city moved by a
  * whole number of steps quantizes exactly as before. */

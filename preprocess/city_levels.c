@@ -1,5 +1,5 @@
 /*
- * city_levels.c - group nodes above the blocks (README, "City levels").
+ * city_levels.c - group nodes above the blocks (docs/store-format.md).
  *
  * Grouping (the plan, made before any block is built): the blocks are
  * split by the centres of their input boxes, recursively at the median of
@@ -8,7 +8,7 @@
  * groups, with the union of their children's boxes, become the next
  * level's items until one is left: the root.  The plan depends on the
  * input alone, not on what simplification makes of it, so a shard of a
- * sharded build (README, "Sharded builds") knows the whole tree after
+ * sharded build (docs/sharded-builds.md) knows the whole tree after
  * reading the blocks' boxes, and builds whole subtrees of it.
  *
  * A group node:
@@ -475,7 +475,7 @@ static hlod_result city_group(const hlod_city_item *const *kids, size_t n, size_
         r = make_union(kids, n, e, &atlas, &pal, &u, &tex_in);
     if (r == HLOD_OK) {
         hlod_simplify_desc d = {0};
-        d.strict_texture = 1; /* HLOD nodes: no smeared texture (README, "hlod-build") */
+        d.strict_texture = 1; /* HLOD nodes: no smeared texture (docs/hlod-build.md) */
         d.target_tris = target_tris;
         d.logger = lg;
         r = u.tri_count > target_tris ? hlod_simplify(&u, &d, &s, NULL) : hlod_mesh_copy(&s, &u);

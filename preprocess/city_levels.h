@@ -1,5 +1,5 @@
 /*
- * city_levels.h - group nodes above the blocks (README, "City levels").
+ * city_levels.h - group nodes above the blocks (docs/store-format.md).
  * Private to preprocess/.
  *
  * Lakhia's hierarchy has one tree per block, so the coarsest frame draws

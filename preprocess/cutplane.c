@@ -311,7 +311,7 @@ static hlod_result build_node(hlod_btree *t, piece *p, double s, uint32_t parent
         r = hlod_mesh_copy(&node_mesh, &p->m);
     } else {
         hlod_simplify_desc d = {0};
-        d.strict_texture = 1; /* HLOD nodes: no smeared texture (README, "hlod-build") */
+        d.strict_texture = 1; /* HLOD nodes: no smeared texture (docs/hlod-build.md) */
         d.target_tris = (size_t)llround((double)p->m.tri_count / s);
         d.target_tris = d.target_tris ? d.target_tris : 1;
         d.vertex_lock = p->lock;

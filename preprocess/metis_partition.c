@@ -1013,7 +1013,7 @@ static hlod_result node_mesh(builder *b, const leaves *L, uint32_t pi, hlod_mesh
             lock[v] = q != NONE && (L->pmin[q] < pt->leaf_lo || L->pmax[q] >= pt->leaf_hi);
         }
         hlod_simplify_desc d = {0};
-        d.strict_texture = 1; /* HLOD nodes: no smeared texture (README, "hlod-build") */
+        d.strict_texture = 1; /* HLOD nodes: no smeared texture (docs/hlod-build.md) */
         d.target_tris = b->nn;
         d.vertex_lock = lock;
         d.logger = b->lg;

@@ -1,6 +1,6 @@
 /*
  * part.c - part files of a sharded build and their merge (part.h,
- * hlod/build_store.h; README, "Sharded builds").
+ * hlod/build_store.h; docs/sharded-builds.md).
  *
  * The merge (hlod_merge_store) checks that the parts belong together (one
  * build's parameters and plan, every shard once), then writes the single

@@ -1,6 +1,6 @@
 /*
  * part.h - part files of a sharded build and what build_store.c shares
- * with the merge (README, "Sharded builds").  Private to preprocess/.
+ * with the merge (docs/sharded-builds.md).  Private to preprocess/.
  *
  * A part file is shard I of N of one build:
  *

@@ -14,7 +14,7 @@
  * payload and the header at offset 0, validates with the reader's own
  * hlod_store_validate, and only then commits (fsync + rename).
  *
- * Packed stores (desc.quant_step > 0; README "Store format"): add snaps the
+ * Packed stores (desc.quant_step > 0; docs/store-format.md): add snaps the
  * node's origin to the store's position grid, puts every vertex on the grid,
  * orders each triangle range for the vertex cache and the vertices by first
  * use (meshoptimizer; what its codecs expect), derives the node's fields from

@@ -1,6 +1,6 @@
 /*
  * tiles3d.h - 3D Tiles 1.1 out of an hlod store, and back in
- * (README, "3D Tiles").
+ * (docs/3d-tiles.md).
  *
  * Export (hlod-export-3dtiles): tileset.json is our hierarchy, tile for
  * node, refine REPLACE, geometricError = the node's certified error, a box

@@ -2,7 +2,7 @@
  * btree_check.h - the documented bound on a built node's error, shared by
  * the builders' tests (test_cutplane, test_metis).
  *
- * README, "hlod-build": a node's error is a certified upper bound of the
+ * docs/hlod-build.md: a node's error is a certified upper bound of the
  * two-sided Hausdorff distance to the original triangles it stands for,
  * within 25% plus 1e-3 of the node's size, raised to at least each child's.
  * The true distance H lies between a tight certified bound's ends, so the

@@ -1,6 +1,6 @@
 /*
  * test_bad_roots.c - top nodes that cannot be read do not stop the city
- * (issue 18, item 4; README, "The runtime": residency).
+ * (issue 18, item 4; docs/runtime.md: residency).
  *
  * A top node (a group, or a block's hlod_0) whose payload is corrupt on
  * disk, or whose first read fails with an I/O error, used to make

@@ -1,6 +1,6 @@
 /*
- * test_city_levels.c - group nodes above the blocks (README, "City
- * levels"): the store's shape, each group's content (triangles, texture or
+ * test_city_levels.c - group nodes above the blocks (docs/store-format.md): the store's
+ * shape, each group's content (triangles, texture or
  * colours, error, extent) and the runtime's use of them (the top stays
  * resident, the coarsest frame is the root alone).  Generated cities:
  * textured (scan style) and multi-part untextured (parts style), built with
@@ -265,7 +265,7 @@ static uint32_t resident_in(hlod_engine *e, uint32_t first, uint32_t end)
     return n;
 }
 
-/* The pinned set follows the budget (README, "City levels"): every group
+/* The pinned set follows the budget (docs/store-format.md): every group
  * and hlod_0 node when they take at most half of it; else whole depths
  * from the root while they fit that half, and the hlod_0 nodes come and
  * go by priority under the budget like any other node. */

@@ -255,7 +255,7 @@ static int check_frame(const hlod_engine *e, const hlod_store *s, const hlod_fra
                     kids++;
                 }
             /* around the eye the children share at least 1.15 x their
-             * need (traverse.c surround_share, README "The runtime") */
+             * need (traverse.c surround_share, docs/runtime.md) */
             double shared = holds_eye(&n[i], eye) ? fmax(f->slice, 1.15 * need) : f->slice;
             g_sums_checked++;
             EXPECT(kids > 0 && close_to(sum, shared),

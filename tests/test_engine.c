@@ -5,7 +5,7 @@
  * the traversal, hysteresis, cost model and loader run for real; frame time
  * comes from a synthetic machine (hlod_time_model) or from the
  * deterministic mode's fixed v_time.  Each test checks one behaviour of
- * the runtime (README, "The runtime"): time slices, the estimate bound, the missing-sibling
+ * the runtime (docs/runtime.md): time slices, the estimate bound, the missing-sibling
  * rule, hysteresis clamps and settling, pricing only what is near the view,
  * the memory budget under random jumps, load-once when the scene fits,
  * corrupt and failing nodes, a slow disk that must not stall the render
@@ -571,7 +571,7 @@ static uint32_t still_window_toggles(hlod_store *s, hlod_policy policy, double n
 /* Hysteresis counters stay within +-c_hyst_limit, and a still camera
  * settles: with 10 % noise on the machine's frame times from the first
  * frame, nothing toggles after frame 60, in 8 seeds, with either policy.
- * Before the guarded cost model (README, "Cost model and deadline") the
+ * Before the guarded cost model (docs/runtime.md, "The cost model and deadline margin") the
  * fit followed the noise and the counters followed the budget: nohyst
  * toggled in every seed and lakhia at 20 % noise in 3 of 8. */
 static void test_hysteresis_settles(void)
@@ -766,8 +766,8 @@ static void test_refined_not_evicted(void)
     hlod_store_close(s);
 }
 
-/* A camera that has stood still 60 frames holds its front (README, "The
- * runtime", Selection): a budget three times larger refines nothing while it
+/* A camera that has stood still 60 frames holds its front (docs/runtime.md, Selection): a
+ * budget three times larger refines nothing while it
  * stays still, one that no longer fits coarsens it, the budget back
  * refines what it coarsened, and the first move refines; data arriving
  * after frame 60 refines (and changes nothing with still_refine_late
@@ -1509,7 +1509,7 @@ static void test_two_engines_two_threads(void)
     hlod_store_close(s);
 }
 
-/* steady_heap (README, "Cost model and deadline"): an engine makes glibc
+/* steady_heap (docs/runtime.md, "The cost model and deadline margin"): an engine makes glibc
  * keep an 8 MiB block in its heap and keep it there once freed; with the
  * setting off the block is mapped and unmapped, as glibc does by default
  * (that, per draw of a software rasteriser, doubled a still view's frames).

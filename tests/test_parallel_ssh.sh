@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # test_parallel_ssh.sh - a sharded build run by GNU parallel over ssh
-# (--sshlogin) with a shared folder (README, "Sharded builds"; issue 20):
+# (--sshlogin) with a shared folder (docs/sharded-builds.md; issue 20):
 # the test starts its own OpenSSH server (Debian openssh-server) on
 # 127.0.0.1 with a host key, a client key and a config it writes in a
 # temporary folder (no system file is touched), and stops it at the end.

@@ -1,6 +1,6 @@
 /*
  * test_settings.c - the engine's settings table (HLOD_ENGINE_SETTINGS in
- * hlod/engine.h): the README's table lists the same settings with the same
+ * hlod/engine.h): docs/runtime.md's table lists the same settings with the same
  * defaults, ranges, change rule and help; defaults, parsing by name, range
  * checks and hlod_engine_set all follow the table.
  */
@@ -45,17 +45,17 @@ static int cells(char *row, char **cell, int max)
     return n;
 }
 
-static void readme_table_matches(void)
+static void docs_table_matches(void)
 {
     const char *src = getenv("HLOD_SOURCE_DIR");
     char path[1024];
-    snprintf(path, sizeof path, "%s/README.md", src ? src : ".");
+    snprintf(path, sizeof path, "%s/docs/runtime.md", src ? src : ".");
     char *text = check_slurp(path, NULL);
     CHECKF(text, "%s is missing", path);
     if (!text)
         return;
-    char *sec = strstr(text, "\n### Engine settings\n");
-    CHECKF(sec, "README.md has no section \"### Engine settings\"");
+    char *sec = strstr(text, "\n## Engine settings\n");
+    CHECKF(sec, "docs/runtime.md has no section \"## Engine settings\"");
     size_t n;
     const hlod_engine_setting *set = hlod_engine_settings(&n);
     size_t row = 0;
@@ -68,18 +68,18 @@ static void readme_table_matches(void)
             *end = 0;
         char *c[6];
         int nc = cells(line, c, 6);
-        CHECKF(nc == 5, "README row %zu: %d cells", row, nc);
+        CHECKF(nc == 5, "docs row %zu: %d cells", row, nc);
         if (nc == 5 && row < n) {
             const hlod_engine_setting *s = &set[row];
             char key[96], range[96];
             snprintf(key, sizeof key, "`%s`", s->key);
             range_text(s, range, sizeof range);
-            CHECKF(!strcmp(c[0], key), "README row %zu is %s, the table's is %s", row, c[0], key);
-            CHECKF(strtod(c[1], NULL) == s->def, "%s: README default %s, table %.17g", s->key, c[1],
+            CHECKF(!strcmp(c[0], key), "docs row %zu is %s, the table's is %s", row, c[0], key);
+            CHECKF(strtod(c[1], NULL) == s->def, "%s: docs default %s, table %.17g", s->key, c[1],
                    s->def);
-            CHECKF(!strcmp(c[2], range), "%s: README range %s, table %s", s->key, c[2], range);
-            CHECKF(!strcmp(c[3], s->live ? "live" : "restart"), "%s: README says %s", s->key, c[3]);
-            CHECKF(!strcmp(c[4], s->help), "%s: README help \"%s\", table \"%s\"", s->key, c[4],
+            CHECKF(!strcmp(c[2], range), "%s: docs range %s, table %s", s->key, c[2], range);
+            CHECKF(!strcmp(c[3], s->live ? "live" : "restart"), "%s: docs say %s", s->key, c[3]);
+            CHECKF(!strcmp(c[4], s->help), "%s: docs help \"%s\", table \"%s\"", s->key, c[4],
                    s->help);
         }
         row++;
@@ -88,7 +88,7 @@ static void readme_table_matches(void)
         *end = '\n';
         line = end;
     }
-    CHECKF(row == n, "README lists %zu settings, the table %zu", row, n);
+    CHECKF(row == n, "docs/runtime.md lists %zu settings, the table %zu", row, n);
     free(text);
 }
 
@@ -221,7 +221,7 @@ static void ranges_are_checked(void)
 
 int main(void)
 {
-    RUN(readme_table_matches);
+    RUN(docs_table_matches);
     RUN(defaults_and_names);
     RUN(ranges_are_checked);
     return check_done();

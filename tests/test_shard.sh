@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# test_shard.sh - the sharded build (README, "Sharded builds"; issue 20):
+# test_shard.sh - the sharded build (docs/sharded-builds.md; issue 20):
 # hlod-build --shard I/N run through GNU parallel, then hlod-merge.
 #
 # Checks:

@@ -1,6 +1,6 @@
 /*
- * test_slivers.c - no node of a built store smears its texture (README,
- * "hlod-build"): over every face of every inner node, the stretch of the
+ * test_slivers.c - no node of a built store smears its texture (docs/hlod-build.md): over
+ * every face of every inner node, the stretch of the
  * map from texels to the surface (sigma_max / sigma_min of its Jacobian)
  * stays within what the source itself has (the leaves hold the source's
  * triangles), with 5% to spare, or the simplifier's bound of 4 where the

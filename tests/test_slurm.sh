@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # test_slurm.sh - a sharded build as a Slurm job array and a merge job that
-# depends on it (README, "Sharded builds"; issue 20), on a single-node
+# depends on it (docs/sharded-builds.md; issue 20), on a single-node
 # cluster this test starts from Debian's packages (munge, slurmctld,
 # slurmd, slurm-client) in a temporary folder: its own munge key and
 # socket, a slurm.conf it writes (free ports, state, spool and logs in the

@@ -1,6 +1,6 @@
 /*
- * test_store_codec.c - store format 3's packed payloads (README, "Store
- * format"; engine/common/payload_codec.c): what a packed store gives back is
+ * test_store_codec.c - store format 3's packed payloads (docs/store-format.md;
+ * engine/common/payload_codec.c): what a packed store gives back is
  * the raw store's data within each codec's stated error, the same grid point
  * in every node that shares a vertex, and a forged or damaged packed payload
  * is refused (never read past its buffers); version 2 stores are still read

@@ -1,6 +1,6 @@
 /*
  * test_tiles.c - 3D Tiles out and back in (preprocess/tiles3d.h,
- * preprocess/io/tiles_read.c; README, "3D Tiles").
+ * preprocess/io/tiles_read.c; docs/3d-tiles.md).
  *
  * The small city (hlod-gen-city --preset small, hlod-build --desired-tris
  * 450) is built at the origin and at (6e6, 6e6, 300) m, then:

@@ -186,7 +186,7 @@ typedef struct slot {
  * duplicate of an earlier one in its object.  Duplicates count within an
  * object only: a triangle two objects share belongs to both blocks, and an
  * object alone cleans as it does in its file (the sharded build reads one
- * object at a time: README, "Sharded builds"). */
+ * object at a time: docs/sharded-builds.md). */
 static void mark_kept(const hlod_mesh *m, const uint32_t *pid, slot *table, size_t cap,
                       uint8_t *keep, size_t *ndeg, size_t *ndup)
 {

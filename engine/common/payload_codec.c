@@ -1,8 +1,8 @@
 /*
  * payload_codec.c - pack and unpack a node's payload (API: payload_codec.h,
- * layout: hlod/store.h, README "Store format").
+ * layout: hlod/store.h, docs/store-format.md).
  *
- * The choices were measured on the default city (README, "Store format"):
+ * The choices were measured on the default city (docs/store-format.md):
  * geometry goes through meshoptimizer's codecs (Debian libmeshoptimizer),
  * which delta-code each byte column of fixed-size vertices and code
  * triangles against a small FIFO of recent edges and vertices; so the writer

@@ -1,6 +1,6 @@
 /*
  * payload_codec.h - the packed payload layout of store format 3 (store.h,
- * README "Store format"): both directions in one place, so the writer and
+ * docs/store-format.md): both directions in one place, so the writer and
  * the reader cannot drift apart.
  *
  * pack: the writer hands over a node's vertices already on the store's

@@ -1,6 +1,6 @@
 /*
  * build_store.h - meshes in, one HLOD store out: the pipeline of
- * hlod-build as a library call (README, "hlod-build").
+ * hlod-build as a library call (docs/hlod-build.md).
  *
  *     hlod_build_desc d;
  *     hlod_build_desc_defaults(&d);
@@ -48,11 +48,11 @@ typedef struct hlod_build_desc {
     double c_tex;               /* c_tex of Lakhia eq. 1, in [0, 1]; default 0.5 */
     uint64_t seed;              /* every choice's seed; default 1 */
     int city_levels;            /* non-zero (default): group nodes over the
-                                   blocks up to one root (README, "City
-                                   levels"); 0: every block is a root */
+                                   blocks up to one root (docs/store-format.md); 0: every
+                                   block is a root */
     size_t threads;             /* 0 (default): every core */
-    int compress;               /* non-zero (default): packed payloads (README,
-                                   "Store format"); 0: raw payloads */
+    int compress;               /* non-zero (default): packed payloads
+                                   (docs/store-format.md); 0: raw payloads */
     unsigned quant_bits;        /* packed: the position grid's step is the
                                    largest power of two <= the input's
                                    diagonal / 2^quant_bits; 8..24 (a float
@@ -60,7 +60,7 @@ typedef struct hlod_build_desc {
                                    default 24 */
     unsigned jpeg_quality;      /* packed: JPEG quality of textures, 1..100,
                                    default 90; 0 stores textures raw */
-    /* A sharded build (README, "Sharded builds"): shard_count 0 (default)
+    /* A sharded build (docs/sharded-builds.md): shard_count 0 (default)
      * builds the whole store; 1..65536 builds only shard shard_index
      * (1..shard_count) and writes a part file at the output path instead of
      * a store, for hlod_merge_store. */
@@ -95,7 +95,7 @@ hlod_result hlod_build_store(const hlod_build_desc *d, const char *const *inputs
                              const char *out_path, const hlod_logger *lg,
                              hlod_build_report *report);
 
-/* ---- merging a sharded build's parts (README, "Sharded builds") ---- */
+/* ---- merging a sharded build's parts (docs/sharded-builds.md) ---- */
 
 typedef struct hlod_merge_report {
     size_t parts, shards;

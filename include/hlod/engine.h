@@ -1,7 +1,7 @@
 /*
  * engine.h - the runtime: priority traversal with time slicing and urgency
  * hysteresis (Lakhia III-C), a preemptive loader thread (III-D) and an
- * OpenGL renderer.  README, "The runtime", gives every formula and constant.
+ * OpenGL renderer.  docs/runtime.md gives every formula and constant.
  *
  * Usage (render thread, with a GL 3.3 context current when a renderer is
  * given):
@@ -83,8 +83,8 @@ typedef hlod_result (*hlod_read_hook)(void *user_data, uint32_t node, uint64_t o
 struct hlod_frame_stats;
 typedef double (*hlod_time_model)(void *user_data, const struct hlod_frame_stats *frame);
 
-/* The engine's numeric settings, one row each (README, "Engine
- * settings"; a test keeps that table equal to this one):
+/* The engine's numeric settings, one row each (docs/runtime.md; a test keeps that table
+ * equal to this one):
  *
  *   X(key, field, kind, default, lo, lo_open, hi, live, help)
  *
@@ -236,15 +236,15 @@ typedef struct hlod_frame_stats {
                                     (a post or collect call over 5 ms in which the
                                     thread slept: a voluntary context switch, not
                                     a preemption) */
-    /* cost model and deadline (README, "Cost model and deadline") */
+    /* cost model and deadline (docs/runtime.md, "The cost model and deadline margin") */
     double pixels_drawn;         /* screen pixels of the drawn nodes' projected boxes */
     double margin;               /* deadline margin: the front may take (target - uploads) / margin */
-    /* occlusion (README, "Occlusion culling") */
+    /* occlusion (docs/runtime.md, "Occlusion") */
     uint32_t occlusion_hidden;   /* front nodes hidden in the last frame: not charged, not refined */
     uint32_t occlusion_tested;   /* front nodes tested against this frame's depth pyramid */
     uint32_t occlusion_culled;   /* front nodes that test hid: not drawn */
     double occlusion_ms;         /* CPU time of the depth read-back, pyramid and tests */
-    /* loader thread CPU time this frame (README, "Store format") */
+    /* loader thread CPU time this frame (docs/store-format.md) */
     double loader_finish_ms;     /* checksums, decoding and validation of payloads */
     double loader_busy_ms;       /* all its work: reads, hashing, finishing */
     uint32_t cache_hits;         /* payloads the loader took from the local cache

@@ -1,6 +1,6 @@
 /*
  * metrics.h - image error and summary statistics for the benchmarks
- * (README, "hlod-bench"): PSNR and SSIM of a frame against its full-detail reference,
+ * (docs/hlod-bench.md): PSNR and SSIM of a frame against its full-detail reference,
  * the mean absolute luminance change between consecutive frames (the
  * image-space temporal flicker of issue 5), and percentiles, means and a
  * moving average for summary.json and the plots.

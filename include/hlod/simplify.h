@@ -22,7 +22,7 @@
  * at a tetrahedron and the result may hold more than target_tris triangles
  * when nothing valid is left to collapse.  Where whole parts had to go to
  * meet a count target and the mesh has no UVs and no locks, vertex
- * clustering of the input is tried as well (README, "hlod-simplify") and
+ * clustering of the input is tried as well (docs/hlod-simplify.md) and
  * kept when clearly nearer the input; stats->clustered says so.
  *
  * Cost: O(n) per pass, about 10 passes; ~400 bytes per input vertex.

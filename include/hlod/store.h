@@ -28,7 +28,7 @@
  * index, and the ranges tile [root_count, node_count) so every non-root node
  * has exactly one parent.  A child has depth parent.depth + 1.
  *
- * Blocks and city levels (README, "City levels"): every block's hlod_0 node
+ * Blocks and city levels (docs/store-format.md): every block's hlod_0 node
  * lies at depth block_depth, and those block_count nodes are the nodes
  * [top_count - block_count, top_count), block b being node top_count -
  * block_count + b.  A node below them has its block's index in `block`.
@@ -62,7 +62,7 @@
  * nothing.  hlod_store_payload_size() gives it from the counts, and it is
  * also what any payload takes in memory once read (hlod_store_node_memory).
  *
- * Packed payload layout (README, "Store format"):
+ * Packed payload layout (docs/store-format.md):
  *   hlod_store_packed_header (128 bytes), then its sections back to back,
  *   section_bytes[k] bytes each, in this order:
  *   positions  meshopt vertex codec over 12-byte vertices: 3 x uint32 grid
@@ -131,7 +131,7 @@ extern "C" {
 #define HLOD_STORE_METHOD_METIS 2u      /* Okamoto 4.1 */
 
 /* The build parameters, recorded so tools can show how a store was made
- * (README, "hlod-build").  Zero where the method does not use one. */
+ * (docs/hlod-build.md).  Zero where the method does not use one. */
 typedef struct hlod_store_build_info {
     uint32_t method;        /* HLOD_STORE_METHOD_* */
     uint32_t reserved;      /* 0 */
@@ -323,7 +323,7 @@ hlod_result hlod_store_check_header(const hlod_store_header *h, uint64_t file_si
 typedef struct hlod_store hlod_store;
 
 /* Opens and validates a store: path is a file, or an http:// or https://
- * URL read with range requests (README, "Serving a store over HTTP"): the
+ * URL read with range requests (docs/http.md): the
  * header and the node table are fetched once, validated exactly as a
  * file's, and every later request carries If-Range with the validator
  * (ETag, else Last-Modified) of the first, so a store replaced on the

@@ -44,7 +44,7 @@ typedef struct hlod_store_writer_desc {
     hlod_store_build_info build;    /* recorded in the header; build.c_tex
                                        prices every node (eq. 1) */
     uint32_t payload_align;         /* 0: HLOD_STORE_DEFAULT_ALIGN (4096) */
-    /* Packed payloads (store.h, README "Store format") when quant_step > 0:
+    /* Packed payloads (store.h, docs/store-format.md) when quant_step > 0:
      * positions on the grid quant_origin + integer * quant_step (a power of
      * two, model units), meshoptimizer-coded geometry, JPEG textures at
      * jpeg_quality (1..100; 0 keeps textures raw).  quant_step 0: the raw
@@ -99,7 +99,7 @@ hlod_result hlod_store_writer_add(hlod_store_writer *w, const hlod_store_payload
  * fields, its payload offset this store's; parent, first_child, depth,
  * block and error are zeroed as add leaves them.  The two stores must
  * share the payload layout: quant_step, quant_origin and jpeg_quality
- * (hlod-merge copies the payloads of part files, README "Sharded builds"). */
+ * (hlod-merge copies the payloads of part files, docs/sharded-builds.md). */
 hlod_result hlod_store_writer_add_copy(hlod_store_writer *w, const hlod_store_node *src,
                                        const void *bytes, hlod_store_node *node);
 

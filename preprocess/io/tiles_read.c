@@ -1,6 +1,6 @@
 /*
  * tiles_read.c - a 3D Tiles tileset (tileset.json) as an input mesh
- * (mesh_io.h; README, "3D Tiles").
+ * (mesh_io.h; docs/3d-tiles.md).
  *
  * The leaf tiles' glb contents become the mesh, one object per leaf tile
  * (so hlod-build makes one block of each).  Transforms are composed in

@@ -6,7 +6,7 @@
  *
  * STORE is a file or an http(s) URL.  DIR gets tileset.json and tiles/N.glb
  * (one per node), written as DIR.tmp-XXXXXX and renamed into place when
- * complete (preprocess/tiles3d.h; README, "3D Tiles").  --json prints one
+ * complete (preprocess/tiles3d.h; docs/3d-tiles.md).  --json prints one
  * JSON object on stdout; scripts read its keys (tiles, glbs, bytes, ...):
  * keep them stable.
  *

@@ -5,7 +5,7 @@
  *
  * The parts are hlod-build --shard I/N outputs of one build, every I once,
  * in any order.  The store written is byte for byte the one hlod-build
- * writes unsharded (README, "Sharded builds"); the merge is the library's
+ * writes unsharded (docs/sharded-builds.md); the merge is the library's
  * (hlod/build_store.h, preprocess/part.c).
  */
 #include "cli.h"

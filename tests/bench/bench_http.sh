@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # bench_http.sh - a store streamed from nginx against the same store read
-# from the local file, side by side in one run (README, "Serving a store
-# over HTTP").  A benchmark, not a test: as root, in a network namespace of
+# from the local file, side by side in one run (docs/http.md).  A benchmark, not a test: as
+# root, in a network namespace of
 # its own (unshare -n) with a tc tbf of RATE on its loopback, nginx
 # limit_rate RATE per connection, and LATENCY ms added to every request by
 # the reader's hook (HLOD_HTTP_LATENCY_MS).

@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
-# bench_shard.sh - a big city built in shards on this machine (README,
-# "Sharded builds"; issue 20, item 5).  A benchmark, not a test: it takes
+# bench_shard.sh - a big city built in shards on this machine (docs/sharded-builds.md;
+# issue 20, item 5).  A benchmark, not a test: it takes
 # about an hour at the default size.
 #
 #   bash tests/bench/bench_shard.sh [--tiles K] [--blocks-per-tile B]

@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# bench_store_codec.sh - what the packed store format (README, "Store format")
+# bench_store_codec.sh - what the packed store format (docs/store-format.md)
 # costs and saves, measured side by side in one run.  A benchmark, not a test.
 #
 #   bash tests/bench/bench_store_codec.sh CITY.obj OUTDIR [PATHS_DIR] [HLOD_BUILD_FLAGS...]

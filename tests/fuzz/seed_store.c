@@ -9,7 +9,7 @@
  * on a header, a node record or a payload section.  They cover every
  * payload section: normals, UVs, colours, a texture, and the tree rule with
  * several roots and two levels.  The packed-* seeds are format 3's packed
- * payloads (README, "Store format"): every codec stream, a JPEG texture.
+ * payloads (docs/store-format.md): every codec stream, a JPEG texture.
  * The committed one-node, textured-tree and two-roots seeds are format 2's
  * (the reader still reads version 2); --seeds rewrites them as version 3.
  */

@@ -1,17 +1,17 @@
 #!/usr/bin/env bash
 # test_install.sh (ctest cli_install) - the installed library, used the two
-# ways the README shows, and the installed tools.
+# ways docs/library.md shows, and the installed tools.
 #
 # Installs the build tree (HLOD_BUILD_DIR, already built) into a temporary
 # prefix with `cmake --install`, then moves the prefix elsewhere (the CMake
 # package, hlod.pc and the tools must not need the place they were
 # installed to, nor the source or build tree), and checks:
-#   - the README's "Using the library" shows tests/install/example/main.c;
+#   - docs/library.md's "Using the library" shows tests/install/example/main.c;
 #   - the headers, libraries, CMake package, hlod.pc, tools and camera
 #     paths are there, and no installed package file names the source or
 #     build tree or the first prefix;
 #   - the installed hlod-gen-city and hlod-build make a tiny store;
-#   - tests/install/example (the README's example, main.c, and link_all.c,
+#   - tests/install/example (docs/library.md's example, main.c, and link_all.c,
 #     which takes a function of every library) builds with
 #     find_package(hlod) and CMAKE_PREFIX_PATH, and with
 #     `cc ... $(pkg-config --cflags --libs --static hlod)`; each example
@@ -42,12 +42,12 @@ finish() {
 # "nodes N triangles N pixels N" with both counts above zero
 drew() { awk '$1 == "nodes" && $4 > 0 && $6 > 0 { f = 1 } END { exit !f }' "$1"; }
 
-# ---- the README shows the example as it is ----
+# ---- docs/library.md shows the example as it is ----
 readme_code=$(awk '/^## Using the library/ { s = 1 } s && /^```c$/ { c = 1; next }
-    c && /^```$/ { exit } c' "$SRC/README.md")
+    c && /^```$/ { exit } c' "$SRC/docs/library.md")
 main_code=$(sed -n '/^#include <hlod\/engine.h>/,$p' "$SRC/tests/install/example/main.c")
 [ -n "$main_code" ] && [ "$readme_code" = "$main_code" ]
-ok $? "README's 'Using the library' shows tests/install/example/main.c"
+ok $? "docs/library.md's 'Using the library' shows tests/install/example/main.c"
 
 # ---- install, then move the prefix ----
 "$CMAKE" --install "$BUILD" --prefix "$T/first" >"$T/install.log" 2>&1

@@ -1,4 +1,4 @@
-/* The README's example ("Using the library"): renders one frame of a store
+/* docs/library.md's example ("Using the library"): renders one frame of a store
  * headless (OSMesa) from south of it and prints what it drew.  Exit 0 when
  * the frame drew triangles that cover pixels.  Usage: hlod-example STORE */
 #include <hlod/engine.h>
