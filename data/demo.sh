@@ -180,9 +180,14 @@ run_bench() { # name, then extra flags
 # (the machine's jitter: machine_p50_ms, machine_p99_ms) and draws each
 # frame again without occlusion culling to check it changes no pixel.
 OCC=(--occlusion-check)
-run_bench walk-to-fly --path walk-to-fly --target-ms 33 --reference --reference-every "$REF_EVERY" "${OCC[@]}"
+# A few frames of each are kept beside their references for the report
+# (multiples of the reference interval: they cost no extra reference).
+WTF_FRAMES=60,300,640
+WD_FRAMES=100,200,300
+run_bench walk-to-fly --path walk-to-fly --target-ms 33 --reference --reference-every "$REF_EVERY" \
+    --save-frames "$WTF_FRAMES" "${OCC[@]}"
 run_bench walk-drive --path walk-drive --target-ms 33 --reference --reference-every "$REF_EVERY" \
-    --policy lakhia,nohyst,sse "${OCC[@]}"
+    --policy lakhia,nohyst,sse --save-frames "$WD_FRAMES" "${OCC[@]}"
 # Oscillations and toggles of one walk-drive run spread widely here
 # (lakhia 48-377 over 6 runs, nohyst 194-501): three runs of lakhia and
 # nohyst alike (no reference or occlusion check, whose extra draws give the
@@ -486,6 +491,27 @@ perl -MJSON::PP -e '
                $fmt->("top"), $all > 0 && $coarse >= 0.8 * $all);
     }
     $row->("demo under 15 minutes", sprintf("%.1f min", $secs / 60), $secs < 900) if $secs;
+
+    # Saved frames beside their full-detail references: what LOD did to
+    # the city (each file as hlod-bench --save-frames wrote it).
+    my @shots;
+    for my $run (["walk-to-fly", "walk-to-fly"], ["walk-drive/lakhia", "walk-drive, lakhia"],
+                 ["walk-drive/nohyst", "walk-drive, nohyst"], ["walk-drive/sse", "walk-drive, sse"]) {
+        my ($sub, $label) = @$run;
+        opendir(my $dh, "$dir/$sub") or next;
+        for my $f (sort grep { /^frame_\d+\.png$/ } readdir $dh) {
+            (my $ref = $f) =~ s/\.png$/_ref.png/;
+            next unless -f "$dir/$sub/$ref";
+            my ($n) = $f =~ /(\d+)/;
+            push @shots, sprintf "| %s, frame %d | ![frame](%s/%s) | ![reference](%s/%s) |\n",
+                $label, $n, $sub, $f, $sub, $ref;
+        }
+        closedir $dh;
+    }
+    if (@shots) {
+        print $o "\n## Frames\n\nEach saved frame as the engine drew it at 33 ms, beside the full-detail ";
+        print $o "reference of the same camera.\n\n| run | frame | reference |\n|---|---|---|\n", @shots;
+    }
 
     print $o "\nPlots: walk-to-fly/frame_time.png (Lakhia Fig. 9), walk-to-fly/nodes_per_depth.png (Fig. 7), ";
     print $o "walk-drive/*/toggles.png (Fig. 8), */psnr.png, */memory.png, sweep/pareto.png (run time vs error); ";
