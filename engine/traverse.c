@@ -257,7 +257,7 @@ static double frustum_vis(const walk *w, const hlod_view *v, uint32_t i)
  * walk-drive (default city, 33 ms, two runs each) oscillated 255 and 249
  * times at 0.05, 163 and 91 at 0.15, 56 and 39 at 0.25; but at 0.25 a new
  * refinement fits only 75 % of the budget, and the mean frame fell to
- * 0.81 of the target when aiming at the mean (test_cost_model_fit). */
+ * 0.81 of the target when aiming at the mean (test_engine cost_model_fit). */
 #define KEEP_MARGIN HLOD_KEEP_MARGIN
 
 /* A hidden node whose children are still prefetched: one the occlusion

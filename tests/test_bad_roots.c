@@ -268,7 +268,7 @@ static void run_corrupt(const char *name, int group, const uint32_t *bad, int nb
 
 /* Block 1's hlod_0 (node 1) is corrupt: its four children stand in, the
  * other blocks draw their hlod_0. */
-static void test_bad_hlod0(void)
+static void bad_hlod0(void)
 {
     hlod_store *s = corrupt_city("plain.hlod", 0, NULL, 0);
     if (!s)
@@ -283,7 +283,7 @@ static void test_bad_hlod0(void)
 /* Recursively: node 1, its first child c and c's first child g (a leaf)
  * are corrupt.  c's three readable children stand in for c, c's siblings
  * for node 1; under g nothing is readable, so nothing is drawn there. */
-static void test_bad_chain(void)
+static void bad_chain(void)
 {
     hlod_store *s = corrupt_city("plain2.hlod", 0, NULL, 0);
     if (!s)
@@ -299,7 +299,7 @@ static void test_bad_chain(void)
 
 /* The city's group root is corrupt: the four hlod_0 nodes stand in (with
  * a readable root the coarsest frame is the root alone). */
-static void test_bad_group_root(void)
+static void bad_group_root(void)
 {
     uint32_t bad[1] = {0}, want[4] = {1, 2, 3, 4};
     run_corrupt("group.hlod", 1, bad, 1, want, 4);
@@ -307,7 +307,7 @@ static void test_bad_group_root(void)
 
 /* The group root and block 2's hlod_0: blocks 1, 3 and 4 stand in for the
  * root, block 2's children for its hlod_0. */
-static void test_bad_group_and_block(void)
+static void bad_group_and_block(void)
 {
     hlod_store *s = corrupt_city("group2-plain.hlod", 1, NULL, 0);
     if (!s)
@@ -323,7 +323,7 @@ static void test_bad_group_and_block(void)
  * the root refines (node 2's children stand in for it, the other blocks
  * are drawn), where before one bad child pinned the whole group at the
  * root forever. */
-static void test_readable_group_bad_block(void)
+static void readable_group_bad_block(void)
 {
     logrec *lg = calloc(1, sizeof *lg);
     pthread_mutex_init(&lg->mu, NULL);
@@ -379,7 +379,7 @@ static ssize_t flaky_pread(void *user, int fd, void *buf, size_t n, off_t off)
 /* Node 1's read at start fails with EIO: the engine starts, node 1's
  * children stand in while it is missing, it is read again after the
  * backoff (16 frames) and then drawn itself; it never turns bad. */
-static void test_transient_top(void)
+static void transient_top(void)
 {
     logrec *lg = calloc(1, sizeof *lg);
     pthread_mutex_init(&lg->mu, NULL);
@@ -434,12 +434,12 @@ int main(void)
         return 1;
     }
     alarm(300); /* a hang fails the test (SIGALRM) */
-    RUN(test_bad_hlod0);
-    RUN(test_bad_chain);
-    RUN(test_bad_group_root);
-    RUN(test_bad_group_and_block);
-    RUN(test_readable_group_bad_block);
-    RUN(test_transient_top);
+    RUN(bad_hlod0);
+    RUN(bad_chain);
+    RUN(bad_group_root);
+    RUN(bad_group_and_block);
+    RUN(readable_group_bad_block);
+    RUN(transient_top);
     char cmd[300];
     snprintf(cmd, sizeof cmd, "rm -rf '%s'", g_dir);
     if (system(cmd) != 0)

@@ -79,7 +79,7 @@ static const char *tool(void)
 
 /* ---- determinism ---- */
 
-static void test_library_is_deterministic(void)
+static void library_is_deterministic(void)
 {
     char a[512], b[512], fa[600], fb[600];
     hlod_mesh ma = {0}, mb = {0};
@@ -102,7 +102,7 @@ static void test_library_is_deterministic(void)
     hlod_mesh_free(&mb);
 }
 
-static void test_tool_is_deterministic(void)
+static void tool_is_deterministic(void)
 {
     const char *t = tool();
     if (!t) {
@@ -131,7 +131,7 @@ static void test_tool_is_deterministic(void)
 
 /* ---- budget, objects, textures ---- */
 
-static void test_budget_and_objects(void)
+static void budget_and_objects(void)
 {
     char dir[512];
     hlod_mesh m = {0};
@@ -174,7 +174,7 @@ static void test_budget_and_objects(void)
     hlod_mesh_free(&m);
 }
 
-static void test_textures(void)
+static void textures_written(void)
 {
     char dir[512];
     hlod_mesh m = {0};
@@ -209,7 +209,7 @@ static void test_textures(void)
     hlod_mesh_free(&m);
 }
 
-static void test_untextured(void)
+static void untextured_variant(void)
 {
     char dir[512], tex[600];
     hlod_mesh m = {0};
@@ -245,7 +245,7 @@ static void test_untextured(void)
 
 /* ---- exact origin ---- */
 
-static void test_origin_round_trip(void)
+static void origin_round_trip(void)
 {
     const double off[3] = {5e5, 4.1e6, 0};
     char d0[512], d1[512], f0[600], f1[600], g1[600];
@@ -404,7 +404,7 @@ static void extract(const hlod_mesh *m, size_t k, hlod_mesh *out)
     free(map);
 }
 
-static void test_facades_are_closed_and_detailed(void)
+static void facades_are_closed_and_detailed(void)
 {
     char dir[512];
     hlod_mesh m = {0}, blk = {0}, simp = {0};
@@ -496,7 +496,7 @@ static size_t parts_of(const hlod_mesh *m, size_t first, size_t count)
 
 /* Buildings of separate boxes, untextured, within the budget; the
  * simplifier takes a block to its target, the parts merging as they go. */
-static void test_parts_style(void)
+static void parts_style(void)
 {
     hlod_city_desc d = {0};
     CHECK(hlod_city_preset("tiny", &d));
@@ -542,7 +542,7 @@ static void test_parts_style(void)
     hlod_mesh_free(&again);
 }
 
-static void test_bad_descriptions(void)
+static void bad_descriptions(void)
 {
     hlod_mesh m = {0};
     hlod_city_desc d = {0};
@@ -562,7 +562,7 @@ static void test_bad_descriptions(void)
     CHECK(m.tri_count == 0 && m.positions == NULL);
 }
 
-static void test_tool_command_line(void)
+static void tool_command_line(void)
 {
     const char *t = tool();
     if (!t)
@@ -628,16 +628,16 @@ int main(void)
         perror("mkdtemp");
         return 1;
     }
-    RUN(test_library_is_deterministic);
-    RUN(test_tool_is_deterministic);
-    RUN(test_budget_and_objects);
-    RUN(test_textures);
-    RUN(test_untextured);
-    RUN(test_origin_round_trip);
-    RUN(test_facades_are_closed_and_detailed);
-    RUN(test_parts_style);
-    RUN(test_bad_descriptions);
-    RUN(test_tool_command_line);
+    RUN(library_is_deterministic);
+    RUN(tool_is_deterministic);
+    RUN(budget_and_objects);
+    RUN(textures_written);
+    RUN(untextured_variant);
+    RUN(origin_round_trip);
+    RUN(facades_are_closed_and_detailed);
+    RUN(parts_style);
+    RUN(bad_descriptions);
+    RUN(tool_command_line);
     int rc = check_done();
     if (rc == 0) {
         char cmd[512];

@@ -1,6 +1,6 @@
 /*
  * test_degenerate.c - degenerate views and settings (issue 6, "Numerical
- * stress"), beyond test_engine.c's test_degenerate_views.
+ * stress"), beyond test_engine.c's degenerate_views.
  *
  * Cases: the camera (or its velocity look-ahead probe) exactly on a box
  * corner, so the distance to several nodes is 0; back-facing nodes with
@@ -17,7 +17,7 @@
  * drawn nodes resident, counted right and forming a cut (no drawn node
  * below another); the visible roots' slices summing to the shared time and
  * each refined node's children's slices to its own (eq. 4, as in
- * test_engine.c's test_time_slices_sum); and for the time-based policies
+ * test_engine.c's time_slices_sum); and for the time-based policies
  * the estimate within the budget whenever more than the roots is drawn.
  */
 #define _GNU_SOURCE /* RUSAGE_THREAD (cpu_span.h) */
@@ -341,7 +341,7 @@ static hlod_engine_desc det_desc(double v_time, double target)
  * 0 to every node meeting there (clamped to a fraction of the node's
  * size, never 0).  dt = 0 (no velocity) and dt = the smallest denormal
  * (an infinite velocity, whose look-ahead is dropped). */
-static void test_distance_zero(void)
+static void distance_zero(void)
 {
     fixture_opts o = {0};
     hlod_store *s = make_fixture("corners.hlod", &o);
@@ -368,7 +368,7 @@ static void test_distance_zero(void)
 /* Priorities that would be 0 or negative: c_fore = 1 on back-facing nodes
  * (foreshortening 1 + (view . normal) reaches 0), zero-area nodes (benefit
  * 0), zero-cost nodes, zero-size boxes with the camera on them. */
-static void test_zero_priorities(void)
+static void zero_priorities(void)
 {
     hlod_store *s = make_degenerate();
     if (!s)
@@ -417,7 +417,7 @@ static void test_zero_priorities(void)
 
 /* A parent in view, none of its children: the parent is drawn, its
  * children are neither drawn nor asked for. */
-static void test_all_siblings_outside(void)
+static void all_siblings_outside(void)
 {
     hlod_store *s = make_degenerate();
     if (!s)
@@ -506,7 +506,7 @@ static int run_machine(const hlod_store *s, hlod_engine_desc d, fixed_machine *m
 
 /* A target of 1 ms and of 10 s, deterministic and with a machine whose
  * fixed part alone exceeds the 1 ms target. */
-static void test_target_extremes(void)
+static void target_extremes(void)
 {
     fixture_opts o = {0};
     hlod_store *s = make_fixture("targets.hlod", &o);
@@ -528,7 +528,7 @@ static void test_target_extremes(void)
 
 /* c_hyst_switch at 1 and at c_hyst_limit, for limits 1, 8 and 1e6 (the
  * largest check_desc accepts). */
-static void test_hyst_switch_limits(void)
+static void hyst_switch_limits(void)
 {
     fixture_opts o = {0};
     hlod_store *s = make_fixture("hyst.hlod", &o);
@@ -561,11 +561,11 @@ int main(void)
         perror("mkdtemp");
         return 1;
     }
-    RUN(test_distance_zero);
-    RUN(test_zero_priorities);
-    RUN(test_all_siblings_outside);
-    RUN(test_target_extremes);
-    RUN(test_hyst_switch_limits);
+    RUN(distance_zero);
+    RUN(zero_priorities);
+    RUN(all_siblings_outside);
+    RUN(target_extremes);
+    RUN(hyst_switch_limits);
     printf("REPORT degenerate frames=%ld slice_sums=%ld failed_tests=%d\n", g_frames_checked,
            g_sums_checked, check_failed_);
     char cmd[300];

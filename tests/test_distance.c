@@ -69,7 +69,7 @@ static void translate(hlod_mesh *m, double dx, double dy, double dz)
     }
 }
 
-static void test_identical_meshes_are_zero(void)
+static void identical_meshes_are_zero(void)
 {
     hlod_mesh a, b;
     make_terrain(&a, 40, 100.0, 1.0);
@@ -84,7 +84,7 @@ static void test_identical_meshes_are_zero(void)
     hlod_mesh_free(&b);
 }
 
-static void test_offset_square_is_half(void)
+static void offset_square_is_half(void)
 {
     hlod_mesh a, b;
     make_square(&a, 0.0);
@@ -110,7 +110,7 @@ static void make_half_square(hlod_mesh *m)
 
 /* The square's corner (0,1) is 1/sqrt(2) from the half-square's diagonal;
  * every point of the half-square lies on the square. */
-static void test_half_square_max_is_asymmetric(void)
+static void half_square_max_is_asymmetric(void)
 {
     hlod_mesh a, b;
     make_square(&a, 0.0);
@@ -128,7 +128,7 @@ static void test_half_square_max_is_asymmetric(void)
  * (y - x)/sqrt(2) from the diagonal, whose mean over it is 1/(3 sqrt 2)
  * (the centroid has y - x = 1/3).  Over the whole square: 1/(6 sqrt 2).
  * The combined mean weights the sides by area, 1 and 1/2. */
-static void test_half_square_mean_matches_integral(void)
+static void half_square_mean_matches_integral(void)
 {
     hlod_mesh a, b;
     make_square(&a, 0.0);
@@ -143,7 +143,7 @@ static void test_half_square_mean_matches_integral(void)
     hlod_mesh_free(&b);
 }
 
-static void test_translation_invariant(void)
+static void translation_invariant(void)
 {
     hlod_mesh a, b;
     make_terrain(&a, 30, 200.0, 1.0);
@@ -206,7 +206,7 @@ static double brute_closest2(const hlod_dgrid *g, const double p[3])
     return best;
 }
 
-static void test_grid_matches_brute_force(void)
+static void grid_matches_brute_force(void)
 {
     uint64_t rng = 99;
     int mismatches = 0, queries = 0;
@@ -303,7 +303,7 @@ static double ref_tri2(const double p[3], const double *v)
 
 /* hlod_dgrid_tri_dist2 on every path (barycentric, Ericson for slivers,
  * edges for degenerate triangles) agrees with the reference above. */
-static void test_point_triangle_matches_reference(void)
+static void point_triangle_matches_reference(void)
 {
     uint64_t rng = 7;
     hlod_mesh m;
@@ -339,7 +339,7 @@ static void test_point_triangle_matches_reference(void)
     hlod_mesh_free(&m);
 }
 
-static void test_degenerate_triangle_is_its_edges(void)
+static void degenerate_triangle_is_its_edges(void)
 {
     hlod_dgrid_tri t = {.a = {0, 0, 0}, .b = {1, 0, 0}, .c = {2, 0, 0}};
     double p[3] = {1.5, 1, 0}, q[3] = {3, 0, 0}, r[3] = {-1, 0, 2};
@@ -352,7 +352,7 @@ static void test_degenerate_triangle_is_its_edges(void)
 
 /* A collinear triangle sticking out of a square is sampled at its corners
  * and edges (its far corner sets max_ab) but has no area to sample. */
-static void test_degenerate_triangle_in_mesh(void)
+static void degenerate_triangle_in_mesh(void)
 {
     const double pos[] = {0, 0, 0, 1, 0, 0, 1, 1, 0, 0, 1, 0, 2, 0, 0, 3, 0, 0, 4, 0, 0};
     const uint32_t idx[] = {0, 1, 2, 0, 2, 3, 4, 5, 6};
@@ -370,7 +370,7 @@ static void test_degenerate_triangle_in_mesh(void)
 
 /* Each unit square has 4 vertices and 5 distinct edges (the diagonal is
  * shared by both triangles and counted once). */
-static void test_sample_count(void)
+static void sample_count(void)
 {
     hlod_mesh a, b;
     make_square(&a, 0.0);
@@ -384,7 +384,7 @@ static void test_sample_count(void)
     hlod_mesh_free(&b);
 }
 
-static void test_seed_reproducible(void)
+static void seed_reproducible(void)
 {
     hlod_mesh a, b;
     make_terrain(&a, 20, 10.0, 1.0);
@@ -399,7 +399,7 @@ static void test_seed_reproducible(void)
     hlod_mesh_free(&b);
 }
 
-static void test_empty_and_bad_input(void)
+static void empty_and_bad_input(void)
 {
     hlod_mesh a, empty = {0};
     make_square(&a, 0.0);
@@ -420,7 +420,7 @@ static void test_empty_and_bad_input(void)
 }
 
 /* The certified bound brackets the exact answer: a square 0.5 above. */
-static void test_bound_offset_square(void)
+static void bound_offset_square(void)
 {
     hlod_mesh a, b;
     make_square(&a, 0.0);
@@ -437,7 +437,7 @@ static void test_bound_offset_square(void)
  * A -> B peaks at the square's centre, inside a face of A, at
  * 0.5 h / sqrt(h^2 + 1/4).  The bound must find the first exactly and the
  * sampler must agree with the second. */
-static void test_bound_finds_interior_peak(void)
+static void bound_finds_interior_peak(void)
 {
     const double h = 0.2;
     const double pa[] = {0, 0, 0, 1, 0, 0, 1, 1, 0, 0, 1, 0, 0.3, 0.7, 0};
@@ -462,7 +462,7 @@ static void test_bound_finds_interior_peak(void)
  * stays within its tolerance of its own lower bound: at the simplifier's
  * tolerance (1%), and at the builder's (25% and 1e-3 of the size), where
  * most midpoints keep a corner triangle's distance instead of a query. */
-static void test_bound_dominates_sampling(void)
+static void bound_dominates_sampling(void)
 {
     uint64_t rng = 12345;
     for (int it = 0; it < 40; it++) {
@@ -485,7 +485,7 @@ static void test_bound_dominates_sampling(void)
 /* Two triangulations of the same flat square (a fine grid and its two
  * halves): the bound reaches its absolute floor quickly instead of
  * splitting every piece that straddles a grid edge. */
-static void test_bound_coincident_surfaces(void)
+static void bound_coincident_surfaces(void)
 {
     const int n = 24;
     hlod_mesh a = {0}, b;
@@ -514,21 +514,21 @@ static void test_bound_coincident_surfaces(void)
 
 int main(void)
 {
-    RUN(test_identical_meshes_are_zero);
-    RUN(test_offset_square_is_half);
-    RUN(test_half_square_max_is_asymmetric);
-    RUN(test_half_square_mean_matches_integral);
-    RUN(test_translation_invariant);
-    RUN(test_grid_matches_brute_force);
-    RUN(test_point_triangle_matches_reference);
-    RUN(test_degenerate_triangle_is_its_edges);
-    RUN(test_degenerate_triangle_in_mesh);
-    RUN(test_sample_count);
-    RUN(test_seed_reproducible);
-    RUN(test_empty_and_bad_input);
-    RUN(test_bound_offset_square);
-    RUN(test_bound_finds_interior_peak);
-    RUN(test_bound_dominates_sampling);
-    RUN(test_bound_coincident_surfaces);
+    RUN(identical_meshes_are_zero);
+    RUN(offset_square_is_half);
+    RUN(half_square_max_is_asymmetric);
+    RUN(half_square_mean_matches_integral);
+    RUN(translation_invariant);
+    RUN(grid_matches_brute_force);
+    RUN(point_triangle_matches_reference);
+    RUN(degenerate_triangle_is_its_edges);
+    RUN(degenerate_triangle_in_mesh);
+    RUN(sample_count);
+    RUN(seed_reproducible);
+    RUN(empty_and_bad_input);
+    RUN(bound_offset_square);
+    RUN(bound_finds_interior_peak);
+    RUN(bound_dominates_sampling);
+    RUN(bound_coincident_surfaces);
     return check_done();
 }

@@ -123,7 +123,7 @@ static double machine_time(void *user, const hlod_frame_stats *frame)
 
 /* Lakhia eq. 4: the visible roots share the budget, and the children of a
  * refined node share its slice exactly. */
-static void test_time_slices_sum(void)
+static void time_slices_sum(void)
 {
     fixture_opts o = {0};
     uint32_t count = 0;
@@ -174,7 +174,7 @@ static void test_time_slices_sum(void)
 /* The estimate of what is drawn never exceeds the target, for the
  * time-based policies, over random views (v_time such that full detail
  * would need several times the target). */
-static void test_estimate_within_target(void)
+static void estimate_within_target(void)
 {
     uint64_t rng = RNG_SEED;
     fixture_opts o = {0};
@@ -217,7 +217,7 @@ static hlod_result fail_one(void *user, uint32_t node, uint64_t offset, size_t b
     return node == g_bad_node ? HLOD_ERR_CHECKSUM : HLOD_OK;
 }
 
-static void test_missing_sibling_forces_parent(void)
+static void missing_sibling_forces_parent(void)
 {
     hlod_store *s = shallow_store("missing.hlod", 1);
     /* node 0 = root, 1..4 its quadrants: make quadrant 2 unreadable */
@@ -269,7 +269,7 @@ static hlod_engine_desc timed_desc(const hlod_store_node *nodes, uint32_t child,
     return d;
 }
 
-/* The quadrants of test_unequal_siblings_refine: one root over four
+/* The quadrants of unequal_siblings_refine: one root over four
  * children, deterministic at 0.5 ms a child and 33 ms, the camera 1.5 m
  * over one quadrant (*d is the engine's descriptor). */
 static hlod_engine *quadrants(const char *name, hlod_store **s, hlod_engine_desc *d,
@@ -293,7 +293,7 @@ static hlod_engine *quadrants(const char *name, hlod_store **s, hlod_engine_desc
  * ground, is drawn under the camera (as a 430-triangle city group was
  * drawn over a street camera of the parts city).  Weighted by the slice
  * each was given, the near quadrant decides and the children stay. */
-static void test_unequal_siblings_refine(void)
+static void unequal_siblings_refine(void)
 {
     hlod_store *s;
     hlod_engine_desc d;
@@ -322,7 +322,7 @@ static void test_unequal_siblings_refine(void)
 }
 
 /* A child hidden by occlusion keeps its counter and its vote.  The
- * siblings of test_unequal_siblings_refine (the near quadrant at +limit,
+ * siblings of unequal_siblings_refine (the near quadrant at +limit,
  * the three far ones at -limit), then frames selected with occlusion on
  * in which the near quadrant, whenever it was drawn, is found hidden
  * behind nearer geometry (as the occlusion test finds a drawn node), and
@@ -333,7 +333,7 @@ static void test_unequal_siblings_refine(void)
  * restarted from 0 each time it was left out); on walk-drive, where the
  * hidden child was tested again once drawn, refined and coarsened every
  * 3-4 frames.  With it the root stays refined. */
-static void test_hidden_child_keeps_vote(void)
+static void hidden_child_keeps_vote(void)
 {
     hlod_store *s;
     hlod_engine_desc d;
@@ -404,7 +404,7 @@ static uint32_t select_by_hand(hlod_engine *e, const hlod_camera *cam, double bu
  * be made in the first frame.  Held for block 0, the 3 ms left 2.1 ms and
  * block 1 waited a frame, at every turn; on walk (33 ms) such reservations
  * held a quarter of the budget at the median refusal. */
-static void test_culled_refinement_frees_its_reservation(void)
+static void culled_refinement_frees_its_reservation(void)
 {
     hlod_store *s = shallow_store("reserve.hlod", 2);
     const hlod_store_node *nodes = hlod_store_nodes(s);
@@ -449,7 +449,7 @@ static void test_culled_refinement_frees_its_reservation(void)
  * Before, block 1 (needing 5 - 1 + 4 = 8 > 6 ms with block 0 refined)
  * waited behind block 0's refinement for good; now it is decided first
  * in its level and block 0, elsewhere, is drawn coarse instead. */
-static void test_eye_inside_refines(void)
+static void eye_inside_refines(void)
 {
     fixture_opts o = {0};
     o.roots = 2;
@@ -508,7 +508,7 @@ static void test_eye_inside_refines(void)
     hlod_store_close(s);
 }
 
-/* One still-camera run for test_hysteresis_settles.  Everything in view is
+/* One still-camera run for hysteresis_settles.  Everything in view is
  * made resident first (hlod_engine_load_all_leaves), so no frame waits for
  * the loader thread and the run is the same whatever the scheduler does:
  * 200 frames with a machine without noise, then a window of 200 frames
@@ -574,7 +574,7 @@ static uint32_t still_window_toggles(hlod_store *s, hlod_policy policy, double n
  * Before the guarded cost model (docs/runtime.md, "The cost model and deadline margin") the
  * fit followed the noise and the counters followed the budget: nohyst
  * toggled in every seed and lakhia at 20 % noise in 3 of 8. */
-static void test_hysteresis_settles(void)
+static void hysteresis_settles(void)
 {
     fixture_opts o = {0};
     hlod_store *s = make_store("hyst.hlod", &o, NULL);
@@ -619,7 +619,7 @@ static hlod_engine *still_engine(const char *name, hlod_store **s, hlod_engine_d
 
 /* With the deterministic machine a still camera reaches a fixed selection
  * within a bounded number of frames. */
-static void test_still_camera_fixed_point(void)
+static void still_camera_fixed_point(void)
 {
     hlod_store *s;
     hlod_engine_desc d;
@@ -648,7 +648,7 @@ static void test_still_camera_fixed_point(void)
  * smaller, then a small move, 80 still frames (a new hold) on the small
  * budget, and the budget back.  The new hold keeps its front (no toggle);
  * remembered from the first hold, the coarsened nodes refined. */
-static void test_capped_in_an_earlier_hold_holds(void)
+static void capped_in_an_earlier_hold_holds(void)
 {
     hlod_store *s;
     hlod_engine_desc d;
@@ -686,7 +686,7 @@ static void test_capped_in_an_earlier_hold_holds(void)
  * recovery refined it again.)  Slower for good (2 x), the held frames miss
  * and the front coarsens until they meet the target again; the machine
  * back, it refines again. */
-static void test_still_hold_rides_out_bursts(void)
+static void still_hold_rides_out_bursts(void)
 {
     fixture_opts o = {0};
     hlod_store *s = make_store("bursts.hlod", &o, NULL);
@@ -735,7 +735,7 @@ static void test_still_hold_rides_out_bursts(void)
  * stands on it.  (Evicted for a nearer prefetch with memory full, it drew
  * its parent in its place the next frame: on orbit, deterministic, 1,211
  * toggles and 345 oscillations in 400 frames, 763 and 89 without.) */
-static void test_refined_not_evicted(void)
+static void refined_not_evicted(void)
 {
     hlod_store *s;
     hlod_engine_desc d;
@@ -772,7 +772,7 @@ static void test_refined_not_evicted(void)
  * refines what it coarsened, and the first move refines; data arriving
  * after frame 60 refines (and changes nothing with still_refine_late
  * off). */
-static void test_still_front_holds(void)
+static void still_front_holds(void)
 {
     hlod_store *s;
     hlod_engine_desc d;
@@ -864,7 +864,7 @@ static void test_still_front_holds(void)
 }
 
 /* Nodes outside the view are neither priced nor loaded. */
-static void test_outside_not_priced(void)
+static void outside_not_priced(void)
 {
     fixture_opts o = {0};
     o.roots = 8;
@@ -902,7 +902,7 @@ static void test_outside_not_priced(void)
 
 /* Prefetch: with the camera moving, the block it moves toward loads first
  * (distance is measured from the eye advanced by the velocity). */
-static void test_prefetch_follows_motion(void)
+static void prefetch_follows_motion(void)
 {
     fixture_opts o = {0};
     o.roots = 2; /* blocks x in [0, 100] and [110, 210] */
@@ -947,7 +947,7 @@ static void test_prefetch_follows_motion(void)
 /* ---------- residency ---------- */
 
 /* The budget holds at every frame under random jumps (threaded loader). */
-static void test_budget_random_jumps(void)
+static void budget_random_jumps(void)
 {
     uint64_t rng = RNG_SEED;
     fixture_opts o = {0};
@@ -1007,7 +1007,7 @@ static void test_budget_random_jumps(void)
 }
 
 /* A scene that fits the budget is loaded once and never evicted. */
-static void test_fits_loaded_once(void)
+static void fits_loaded_once(void)
 {
     uint64_t rng = RNG_SEED;
     fixture_opts o = {0};
@@ -1038,7 +1038,7 @@ static void test_fits_loaded_once(void)
 }
 
 /* A payload corrupted on disk is marked bad and never drawn. */
-static void test_corrupt_never_drawn(void)
+static void corrupt_never_drawn(void)
 {
     fixture_opts o = {0};
     o.roots = 1;
@@ -1085,7 +1085,7 @@ static hlod_result fail_io(void *user, uint32_t node, uint64_t offset, size_t by
     return HLOD_OK;
 }
 
-static void test_transient_backoff(void)
+static void transient_backoff(void)
 {
     hlod_store *s = shallow_store("transient.hlod", 1);
     hlod_engine_desc d = {0};
@@ -1142,7 +1142,7 @@ static hlod_result slow_disk(void *user, uint32_t node, uint64_t offset, size_t 
     return HLOD_OK;
 }
 
-static void test_slow_disk_no_stall(void)
+static void slow_disk_no_stall(void)
 {
     uint64_t rng = RNG_SEED;
     fixture_opts o = {0};
@@ -1233,7 +1233,7 @@ static void gated_frame(hlod_engine *e, const hlod_camera *cam, gated_disk *g,
  * block.  Its nodes are now the most urgent, and one of them becomes
  * resident before the read in flight completes, though that read had
  * fewer steps left than a whole node takes.  Counted in frames. */
-static void test_urgent_preempts_prefetch(void)
+static void urgent_preempts_prefetch(void)
 {
     fixture_opts o = {0};
     o.roots = 2;  /* blocks x in [0, 100] and [110, 210] */
@@ -1310,7 +1310,7 @@ static void test_urgent_preempts_prefetch(void)
 }
 
 /* A city at x = 5e6 m selects exactly as the same city at the origin. */
-static void test_far_origin_same_selection(void)
+static void far_origin_same_selection(void)
 {
     fixture_opts a = {0}, b = {0};
     b.origin[0] = 5e6;
@@ -1348,7 +1348,7 @@ static void test_far_origin_same_selection(void)
 }
 
 /* Bad input and degenerate views: errors, not NaN. */
-static void test_degenerate_views(void)
+static void degenerate_views(void)
 {
     fixture_opts o = {0};
     hlod_store *s = make_store("degenerate.hlod", &o, NULL);
@@ -1404,7 +1404,7 @@ static void test_degenerate_views(void)
  * frames meet the target; aiming at the mean (the paper), the mean sits
  * within 15 % of it (this small fixture's front moves in steps of 4 % of
  * the target). */
-static void test_cost_model_fit(void)
+static void cost_model_fit(void)
 {
     fixture_opts o = {0};
     o.depth = 4;
@@ -1494,7 +1494,7 @@ static void *twin_main(void *arg)
     return NULL;
 }
 
-static void test_two_engines_two_threads(void)
+static void two_engines_two_threads(void)
 {
     fixture_opts o = {0};
     hlod_store *s = make_store("twins.hlod", &o, NULL);
@@ -1552,7 +1552,7 @@ static int heap_case(int steady, const hlod_store *s)
 #endif
 }
 
-static void test_steady_heap(void)
+static void steady_heap_keeps_blocks(void)
 {
     if (getenv("GLIBC_TUNABLES") || getenv("MALLOC_TRIM_THRESHOLD_") ||
         getenv("MALLOC_MMAP_THRESHOLD_")) {
@@ -1585,33 +1585,33 @@ int main(int argc, char **argv)
      * brings its own malloc, which has no glibc tunables for steady_heap
      * to set: the setting does nothing there and is not tested. */
 #if defined(__GLIBC__) && !defined(__SANITIZE_ADDRESS__) && !defined(__SANITIZE_THREAD__)
-    RUN(test_steady_heap);
+    RUN(steady_heap_keeps_blocks);
 #endif
-    RUN(test_time_slices_sum);
-    RUN(test_estimate_within_target);
-    RUN(test_missing_sibling_forces_parent);
-    RUN(test_unequal_siblings_refine);
-    RUN(test_culled_refinement_frees_its_reservation);
-    RUN(test_eye_inside_refines);
-    RUN(test_hidden_child_keeps_vote);
-    RUN(test_hysteresis_settles);
-    RUN(test_still_camera_fixed_point);
-    RUN(test_still_front_holds);
-    RUN(test_still_hold_rides_out_bursts);
-    RUN(test_capped_in_an_earlier_hold_holds);
-    RUN(test_refined_not_evicted);
-    RUN(test_outside_not_priced);
-    RUN(test_prefetch_follows_motion);
-    RUN(test_budget_random_jumps);
-    RUN(test_fits_loaded_once);
-    RUN(test_corrupt_never_drawn);
-    RUN(test_transient_backoff);
-    RUN(test_slow_disk_no_stall);
-    RUN(test_urgent_preempts_prefetch);
-    RUN(test_far_origin_same_selection);
-    RUN(test_degenerate_views);
-    RUN(test_cost_model_fit);
-    RUN(test_two_engines_two_threads);
+    RUN(time_slices_sum);
+    RUN(estimate_within_target);
+    RUN(missing_sibling_forces_parent);
+    RUN(unequal_siblings_refine);
+    RUN(culled_refinement_frees_its_reservation);
+    RUN(eye_inside_refines);
+    RUN(hidden_child_keeps_vote);
+    RUN(hysteresis_settles);
+    RUN(still_camera_fixed_point);
+    RUN(still_front_holds);
+    RUN(still_hold_rides_out_bursts);
+    RUN(capped_in_an_earlier_hold_holds);
+    RUN(refined_not_evicted);
+    RUN(outside_not_priced);
+    RUN(prefetch_follows_motion);
+    RUN(budget_random_jumps);
+    RUN(fits_loaded_once);
+    RUN(corrupt_never_drawn);
+    RUN(transient_backoff);
+    RUN(slow_disk_no_stall);
+    RUN(urgent_preempts_prefetch);
+    RUN(far_origin_same_selection);
+    RUN(degenerate_views);
+    RUN(cost_model_fit);
+    RUN(two_engines_two_threads);
     char cmd[300];
     snprintf(cmd, sizeof cmd, "rm -rf '%s'", g_dir);
     if (system(cmd) != 0)

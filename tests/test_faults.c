@@ -366,7 +366,7 @@ static void check_backoff(const faults *fx, uint32_t node, const char *what)
 /* HLOD_ERR_IO on every read of two nodes: a depth-1 node of block 1 and a
  * leaf of block 2.  Both are retried with backoff and end bad; their
  * parents stand in; blocks 0 and 3 stream to full detail. */
-static void test_eio_always(void)
+static void eio_always(void)
 {
     logrec *lg = logrec_new();
     faults *fx = faults_new();
@@ -412,7 +412,7 @@ static void test_eio_always(void)
 /* HLOD_ERR_IO on the first 2 tries of three nodes: each loads on its third
  * try after backoffs of 16 and 32 frames, is counted twice in
  * load_failures, logged once, and the scene ends at full detail. */
-static void test_eio_first_tries(void)
+static void eio_first_tries(void)
 {
     logrec *lg = logrec_new();
     faults *fx = faults_new();
@@ -500,7 +500,7 @@ static ssize_t disk_pread(void *user, int fd, void *buf, size_t n, off_t off)
 /* The reader alone: every payload read through a disk that returns random
  * short counts and EINTR equals the plain read; EIO, a read past the end and
  * an over-long count are HLOD_ERR_IO. */
-static void test_reader_short_reads(void)
+static void reader_short_reads(void)
 {
     fixture_opts o = city_opts();
     o.textured = 1;
@@ -559,7 +559,7 @@ static void test_reader_short_reads(void)
 /* The engine over a disk that returns short counts and EINTR everywhere,
  * and EIO for one node: every other node loads (short reads are not
  * failures), the EIO node is retried with backoff and ends bad. */
-static void test_engine_short_reads_and_eio(void)
+static void engine_short_reads_and_eio(void)
 {
     logrec *lg = logrec_new();
     faults *fx = faults_new();
@@ -611,7 +611,7 @@ static void test_engine_short_reads_and_eio(void)
  * city from a cold start side by side in one run, a frame of each in turn,
  * and the disks' speeds are counted in frames: the slow city takes longer
  * to stream in, every frame stays fast, nothing fails. */
-static void test_slow_reads(void)
+static void slow_reads(void)
 {
     fixture_opts o = city_opts();
     hlod_store *s = open_fixture("slow.hlod", &o, NULL);
@@ -678,7 +678,7 @@ static void flip_bit(const char *path, uint64_t offset, int bit)
  * checksums were read and verified): the payload checksum catches them at
  * once, no retry; a node resident before the flip keeps drawing; a flip in
  * the padding between payloads changes nothing. */
-static void test_bit_flips(void)
+static void bit_flips(void)
 {
     logrec *lg = logrec_new();
     faults *fx = faults_new();
@@ -729,7 +729,7 @@ static void test_bit_flips(void)
  * some of 2; payloads are in build order, block after block) fail with
  * transient I/O errors when asked for, are retried with backoff and end
  * bad, their parents drawn instead. */
-static void test_truncated_while_running(void)
+static void truncated_while_running(void)
 {
     logrec *lg = logrec_new();
     faults *fx = faults_new();
@@ -817,7 +817,7 @@ static void test_truncated_while_running(void)
 
 /* Control: the same runs without faults reach full detail with no failure
  * and nothing logged. */
-static void test_control_no_faults(void)
+static void control_no_faults(void)
 {
     logrec *lg = logrec_new();
     faults *fx = faults_new();
@@ -846,14 +846,14 @@ int main(void)
         return 1;
     }
     alarm(540); /* a hang fails the test (SIGALRM) before ctest's timeout */
-    RUN(test_control_no_faults);
-    RUN(test_eio_always);
-    RUN(test_eio_first_tries);
-    RUN(test_reader_short_reads);
-    RUN(test_engine_short_reads_and_eio);
-    RUN(test_slow_reads);
-    RUN(test_bit_flips);
-    RUN(test_truncated_while_running);
+    RUN(control_no_faults);
+    RUN(eio_always);
+    RUN(eio_first_tries);
+    RUN(reader_short_reads);
+    RUN(engine_short_reads_and_eio);
+    RUN(slow_reads);
+    RUN(bit_flips);
+    RUN(truncated_while_running);
     char cmd[300];
     snprintf(cmd, sizeof cmd, "rm -rf '%s'", g_dir);
     if (system(cmd) != 0)

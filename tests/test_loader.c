@@ -9,6 +9,8 @@
  * threaded loaders check the same behaviours with a read hook that sleeps,
  * plus the render thread's guarantees (never blocks, prompt destroy).  A
  * hook records every call so the tests can see which bytes were asked for.
+ * The store is tests/loader_store.h's; residency's order over it is
+ * test_residency.c's.
  * Run under ASan (no leak from a cancelled read or a queued result) and
  * TSan too.
  */
@@ -19,7 +21,7 @@
 #include "hlod/store.h"
 #include "hlod/store_write.h"
 #include "loader.h"
-#include "residency.h"
+#include "loader_store.h"
 
 #include <math.h>
 #include <pthread.h>
@@ -31,6 +33,7 @@
 /* ---------- helpers ---------- */
 
 static char g_dir[512];
+static char g_path[1024];
 
 static const char *tmp_path(const char *name, char *buf, size_t n)
 {
@@ -77,121 +80,6 @@ static int mt_log_count(mt_log *m)
     return n;
 }
 
-/* ---------- the store ---------- */
-
-/* Logical nodes.  R0: BIG, S1, S2; R1: M0..M9. */
-enum { R0, R1, BIG, S1, S2, M0, NODES = M0 + 10 };
-#define M(i) (M0 + (i))
-#define BIG_TEX 1024    /* RGBA: 4 MiB of pixels */
-
-static char g_path[1024];
-static uint32_t g_idx[NODES];           /* logical -> store index */
-static hlod_store *g_store;
-static hlod_store_payload g_ref[NODES]; /* by store index, read with hlod_store_read_node */
-static uint64_t g_size[NODES];          /* payload bytes, by store index */
-
-typedef struct mesh {
-    hlod_store_payload_desc d;
-    double *pos;
-    float *uv;
-    uint8_t *pix;
-    uint32_t *idx;
-} mesh;
-
-/* An nx x ny grid of unit quads at x0, a little wavy; with a tex x tex RGBA
- * texture (and UVs) when tex > 0. */
-static void mesh_make(mesh *m, int nx, int ny, double x0, uint32_t tex)
-{
-    memset(m, 0, sizeof *m);
-    uint32_t v = (uint32_t)((nx + 1) * (ny + 1)), t = (uint32_t)(2 * nx * ny);
-    m->pos = malloc(3 * sizeof(double) * v);
-    m->idx = malloc(3 * sizeof(uint32_t) * t);
-    if (tex)
-        m->uv = malloc(2 * sizeof(float) * v);
-    for (int j = 0; j <= ny; j++)
-        for (int i = 0; i <= nx; i++) {
-            size_t k = (size_t)j * (nx + 1) + i;
-            m->pos[3 * k] = x0 + i;
-            m->pos[3 * k + 1] = j;
-            m->pos[3 * k + 2] = 0.1 * sin(0.7 * i + 1.3 * j + x0);
-            if (m->uv) {
-                m->uv[2 * k] = (float)i / (float)nx;
-                m->uv[2 * k + 1] = (float)j / (float)ny;
-            }
-        }
-    uint32_t n = 0;
-    for (int j = 0; j < ny; j++)
-        for (int i = 0; i < nx; i++) {
-            uint32_t a = (uint32_t)(j * (nx + 1) + i), b = a + 1, c = a + (uint32_t)nx + 1,
-                     d = c + 1;
-            uint32_t q[6] = {a, b, d, a, d, c};
-            memcpy(m->idx + n, q, sizeof q);
-            n += 6;
-        }
-    m->d.vertex_count = v;
-    m->d.positions = m->pos;
-    m->d.origin[0] = x0 + nx / 2.0;
-    m->d.origin[1] = ny / 2.0;
-    m->d.uvs = m->uv;
-    m->d.tri_count = t;
-    m->d.indices = m->idx;
-    if (tex) {
-        size_t bytes = (size_t)tex * tex * 4;
-        m->pix = malloc(bytes);
-        for (size_t i = 0; i < bytes; i++)
-            m->pix[i] = (uint8_t)(i * 7 + (i >> 12));
-        m->d.pixels = m->pix;
-        m->d.tex_width = m->d.tex_height = tex;
-        m->d.tex_channels = 4;
-        m->d.tex_tri_count = t;
-    }
-}
-
-static void mesh_free(mesh *m)
-{
-    free(m->pos);
-    free(m->uv);
-    free(m->pix);
-    free(m->idx);
-    memset(m, 0, sizeof *m);
-}
-
-/* Writes the test store to path; fills g_idx. */
-static hlod_result write_store(const char *path)
-{
-    mesh m[NODES];
-    mesh_make(&m[R0], 4, 4, 0, 0);
-    mesh_make(&m[R1], 4, 4, 100, 0);
-    mesh_make(&m[BIG], 1, 1, 0, BIG_TEX);
-    mesh_make(&m[S1], 3, 3, 10, 0);
-    mesh_make(&m[S2], 3, 4, 20, 0);
-    for (int i = 0; i < 10; i++)
-        mesh_make(&m[M(i)], 20 + i, 20, 100 + 30 * i, 0);
-
-    hlod_store_writer_desc desc = {0};
-    desc.build.method = HLOD_STORE_METHOD_OTHER;
-    desc.build.c_tex = 0.5;
-    hlod_store_writer *w = NULL;
-    hlod_result r = hlod_store_writer_open(path, &desc, &w);
-    hlod_store_node nodes[NODES];
-    for (int i = 0; i < NODES && r == HLOD_OK; i++)
-        r = hlod_store_writer_add(w, &m[i].d, &nodes[i]);
-    if (r == HLOD_OK) {
-        for (int i = 0; i < NODES; i++) {
-            int root = i == R0 || i == R1;
-            nodes[i].parent = root ? HLOD_STORE_NO_PARENT : i < M0 ? (uint32_t)R0 : (uint32_t)R1;
-            nodes[i].block = i == R1 ? 1 : 0;
-            nodes[i].error = root ? 2.0 : 1.0;
-        }
-        r = hlod_store_writer_finish(w, nodes, NODES, g_idx);
-    } else {
-        hlod_store_writer_abort(w);
-    }
-    for (int i = 0; i < NODES; i++)
-        mesh_free(&m[i]);
-    return r;
-}
-
 static int same_payload(const hlod_store_payload *a, const hlod_store_payload *b)
 {
 #define SAME_PTR(f) ((a->f == NULL) == (b->f == NULL) && \
@@ -205,12 +93,6 @@ static int same_payload(const hlod_store_payload *a, const hlod_store_payload *b
            SAME_PTR(positions) && SAME_PTR(normals) && SAME_PTR(uvs) && SAME_PTR(colors) &&
            SAME_PTR(indices) && SAME_PTR(pixels);
 #undef SAME_PTR
-}
-
-/* Payload bytes of logical nodes. */
-static uint64_t size_of(int logical)
-{
-    return g_size[g_idx[logical]];
 }
 
 /* ---------- the hook ---------- */
@@ -364,7 +246,7 @@ static hlod_loader_counters counters(hlod_loader *l)
 
 /* Every requested node arrives, in list order, as hlod_store_read_node
  * reads it; the pump budget is exact; nothing is read twice. */
-static void test_sync_order_and_payloads(void)
+static void sync_order_and_payloads(void)
 {
     hook_ctx h;
     hook_init(&h);
@@ -404,7 +286,7 @@ static void test_sync_order_and_payloads(void)
 
 /* A new list with an urgent node first suspends the current read; the
  * suspended read resumes where it stopped. */
-static void test_sync_preempt_resumes(void)
+static void sync_preempt_resumes(void)
 {
     hook_ctx h;
     hook_init(&h);
@@ -436,7 +318,7 @@ static void test_sync_preempt_resumes(void)
 
 /* At most 8 reads wait suspended: opening a tenth read cancels the least
  * urgent, which later starts over; the others resume. */
-static void test_sync_suspend_limit(void)
+static void sync_suspend_limit(void)
 {
     hook_ctx h;
     hook_init(&h);
@@ -476,7 +358,7 @@ static void test_sync_suspend_limit(void)
 
 /* A node dropped from the list is never delivered; its partial read is
  * freed, and posting it again reads it from the start. */
-static void test_drop_cancels(void)
+static void drop_cancels(void)
 {
     /* synchronous: exact byte counts */
     hook_ctx h;
@@ -541,7 +423,7 @@ static void test_drop_cancels(void)
 
 /* A flipped payload byte arrives as HLOD_ERR_CHECKSUM, never as OK, and is
  * logged once per node. */
-static void test_corrupt_payload(void)
+static void corrupt_payload(void)
 {
     char path[1024];
     tmp_path("corrupt.hlod", path, sizeof path);
@@ -620,7 +502,7 @@ static void test_corrupt_payload(void)
 
 /* A hook failure arrives with the hook's code; the loader does not retry it
  * until a list posted after the failure was collected asks again. */
-static void test_hook_failure_not_retried(void)
+static void hook_failure_not_retried(void)
 {
     hook_ctx h;
     hook_init(&h);
@@ -688,7 +570,7 @@ static void test_hook_failure_not_retried(void)
 }
 
 /* Bad arguments, an out-of-range node in a list, defaults. */
-static void test_bad_args(void)
+static void bad_args(void)
 {
     hlod_loader_desc d = {0};
     hlod_loader *l = (hlod_loader *)&d;     /* any non-NULL value: create must clear it */
@@ -739,7 +621,7 @@ static void test_bad_args(void)
 
 /* A big low-priority read is overtaken by an urgent small node; the big one
  * then completes without re-reading a byte. */
-static void test_threaded_preempt(void)
+static void threaded_preempt(void)
 {
     hook_ctx h;
     hook_init(&h);
@@ -780,7 +662,7 @@ static void test_threaded_preempt(void)
 /* While the loader sits in a 400 ms hook, 1000 post + collect pairs each
  * return at once (a call that waited for the hook would take up to 400 ms;
  * the bound on the slowest call sits far above any scheduler delay). */
-static void test_render_never_blocks(void)
+static void render_never_blocks(void)
 {
     hook_ctx h;
     hook_init(&h);
@@ -831,7 +713,7 @@ static void test_render_never_blocks(void)
 
 /* Destroy with a read in flight (and a result queued) returns after the
  * current hook, not after the read; ASan checks nothing leaks. */
-static void test_destroy_in_flight(void)
+static void destroy_in_flight(void)
 {
     hook_ctx h;
     hook_init(&h);
@@ -899,7 +781,7 @@ static void *two_thread(void *arg)
 }
 
 /* Two loaders on one store, on two threads, each deliver everything. */
-static void test_two_loaders(void)
+static void two_loaders(void)
 {
     two_job jobs[2];
     memset(jobs, 0, sizeof jobs);
@@ -920,174 +802,6 @@ static void test_two_loaders(void)
     }
 }
 
-/* ---------- residency's order ---------- */
-
-/* Records the first node each read asks for, in order (synchronous). */
-typedef struct order_hook {
-    uint32_t node[NODES];
-    int n;
-} order_hook;
-
-static hlod_result record_order(void *user, uint32_t node, uint64_t offset, size_t bytes)
-{
-    order_hook *h = user;
-    (void)bytes;
-    if (offset == 0 && h->n < NODES) /* offset within the payload */
-        h->node[h->n++] = node;
-    return HLOD_OK;
-}
-
-static int keep_all(void *user, uint32_t node, double *key)
-{
-    (void)user, (void)node, (void)key;
-    return 0;
-}
-
-/* A deterministic residency whose schedule reads all it posts, recording
- * the read order in *h. */
-static void ordered_desc(hlod_engine_desc *d, order_hook *h)
-{
-    memset(d, 0, sizeof *d);
-    hlod_engine_desc_defaults(d);
-    d->deterministic = 1;
-    d->deterministic_load_bytes = 1u << 30;
-    d->read_hook = record_order;
-    d->read_hook_user = h;
-}
-
-/* A node a refinement waits for (hlod_residency_need) is read before the
- * prefetch of higher priority, and uploaded before prefetch that arrived
- * first, with one upload a frame (upload_budget_bytes 1). */
-static void test_residency_needed_first(void)
-{
-    hlod_engine_desc d;
-    order_hook h = {0};
-    ordered_desc(&d, &h);
-    d.upload_budget_bytes = 1; /* one upload a frame */
-    hlod_frame_stats st = {0};
-    hlod_residency rs;
-    CHECK(hlod_residency_init(&rs, g_store, &d, &st) == HLOD_OK);
-    hlod_evict_order keep = {keep_all, NULL};
-    const uint32_t m0 = g_idx[M(0)], m1 = g_idx[M(1)], m2 = g_idx[M(2)], m3 = g_idx[M(3)];
-    h.n = 0;
-    /* frame 1: two prefetches, one need of the lowest priority */
-    hlod_residency_begin_frame(&rs, 1);
-    hlod_residency_collect(&rs, INFINITY, 0);
-    CHECK(hlod_residency_want(&rs, m0, 5.0) && hlod_residency_need(&rs, m1, 1.0) &&
-          hlod_residency_want(&rs, m2, 4.0));
-    hlod_residency_schedule(&rs, &keep);
-    CHECKF(h.n == 3 && h.node[0] == m1 && h.node[1] == m0 && h.node[2] == m2,
-           "read order %u %u %u (n %d), want %u %u %u", h.n > 0 ? h.node[0] : 0,
-           h.n > 1 ? h.node[1] : 0, h.n > 2 ? h.node[2] : 0, h.n, m1, m0, m2);
-    /* frame 2: the needed one is uploaded first */
-    hlod_residency_begin_frame(&rs, 2);
-    hlod_residency_collect(&rs, INFINITY, 0);
-    CHECK(hlod_residency_state(&rs, m1) == HLOD_NODE_RESIDENT &&
-          hlod_residency_state(&rs, m0) == HLOD_NODE_QUEUED &&
-          hlod_residency_state(&rs, m2) == HLOD_NODE_QUEUED);
-    /* m2 and m3 are read in priority order after m0 waits; then m3 turns
-     * needed: the next upload is m3, though m0 and m2 arrived first */
-    CHECK(hlod_residency_want(&rs, m0, 5.0) && hlod_residency_want(&rs, m2, 4.0) &&
-          hlod_residency_want(&rs, m3, 3.0));
-    hlod_residency_schedule(&rs, &keep);
-    hlod_residency_begin_frame(&rs, 3);
-    CHECK(hlod_residency_need(&rs, m3, 3.0));
-    hlod_residency_collect(&rs, INFINITY, 0);
-    CHECKF(hlod_residency_state(&rs, m3) == HLOD_NODE_RESIDENT &&
-               hlod_residency_state(&rs, m0) != HLOD_NODE_RESIDENT &&
-               hlod_residency_state(&rs, m2) != HLOD_NODE_RESIDENT,
-           "frame 3 uploaded m0 %d m2 %d m3 %d (2 = resident)", hlod_residency_state(&rs, m0),
-           hlod_residency_state(&rs, m2), hlod_residency_state(&rs, m3));
-    /* the rest follow, one a frame, in arrival order */
-    hlod_residency_begin_frame(&rs, 4);
-    hlod_residency_collect(&rs, INFINITY, 0);
-    CHECK(hlod_residency_state(&rs, m0) == HLOD_NODE_RESIDENT);
-    hlod_residency_destroy(&rs);
-}
-
-/* With fewer loader slots (max_inflight) than wanted nodes, the nodes a
- * refinement waits for take them first: admitted in priority order alone,
- * two prefetches of higher priority took both slots and the need was not
- * read at all (the still view at 66 ms: wanted nodes missing for 300
- * frames, deterministic). */
-static void test_residency_needed_admitted_first(void)
-{
-    hlod_engine_desc d;
-    order_hook h = {0};
-    ordered_desc(&d, &h);
-    d.max_inflight = 2;
-    hlod_frame_stats st = {0};
-    hlod_residency rs;
-    CHECK(hlod_residency_init(&rs, g_store, &d, &st) == HLOD_OK);
-    hlod_evict_order keep = {keep_all, NULL};
-    const uint32_t m0 = g_idx[M(0)], m1 = g_idx[M(1)], m2 = g_idx[M(2)];
-    h.n = 0;
-    hlod_residency_begin_frame(&rs, 1);
-    hlod_residency_collect(&rs, INFINITY, 0);
-    CHECK(hlod_residency_want(&rs, m0, 5.0) && hlod_residency_want(&rs, m2, 4.0) &&
-          hlod_residency_need(&rs, m1, 1.0));
-    hlod_residency_schedule(&rs, &keep);
-    CHECKF(h.n == 2 && h.node[0] == m1 && h.node[1] == m0,
-           "read %d nodes: %u %u, want %u then %u", h.n, h.n > 0 ? h.node[0] : 0,
-           h.n > 1 ? h.node[1] : 0, m1, m0);
-    hlod_residency_destroy(&rs);
-}
-
-/* Eviction keys for test_residency_no_eviction_in_vain: M0 1, M1 2, M2 9,
- * the rest never evicted. */
-static int three_keys(void *user, uint32_t node, double *key)
-{
-    const uint32_t *m = user;
-    for (int i = 0; i < 3; i++)
-        if (node == m[i]) {
-            *key = i == 2 ? 9.0 : i + 1.0;
-            return 1;
-        }
-    return 0;
-}
-
-/* A node that would not fit even with every node of lower key evicted
- * evicts none of them.  Memory full with M0, M1 (keys 1, 2) and M2 (key 9):
- * BIG (4 MiB) is wanted at priority 5.  Evicting M0 and M1 frees a few
- * tens of KiB, not enough; they stay.  (Evicted first and left unused, the
- * room went to the next frame's reads: on the still view at 66 ms, memory
- * full, two prefetched nodes evicted each other for a need that never
- * fit, one load a frame to the end of the run.) */
-static void test_residency_no_eviction_in_vain(void)
-{
-    hlod_engine_desc d;
-    order_hook h = {0};
-    ordered_desc(&d, &h);
-    d.memory_budget_bytes = 1ull << 30;
-    hlod_frame_stats st = {0};
-    hlod_residency rs;
-    CHECK(hlod_residency_init(&rs, g_store, &d, &st) == HLOD_OK);
-    const uint32_t m[3] = {g_idx[M(0)], g_idx[M(1)], g_idx[M(2)]}, big = g_idx[BIG];
-    hlod_evict_order keep = {keep_all, NULL}, keyed = {three_keys, (void *)m};
-    hlod_residency_begin_frame(&rs, 1);
-    hlod_residency_collect(&rs, INFINITY, 0);
-    for (int i = 0; i < 3; i++)
-        CHECK(hlod_residency_want(&rs, m[i], 1.0));
-    hlod_residency_schedule(&rs, &keep);
-    hlod_residency_begin_frame(&rs, 2);
-    hlod_residency_collect(&rs, INFINITY, 0);
-    for (int i = 0; i < 3; i++)
-        CHECK(hlod_residency_state(&rs, m[i]) == HLOD_NODE_RESIDENT);
-    hlod_residency_schedule(&rs, &keep);
-    d.memory_budget_bytes = rs.resident_bytes + 1024; /* full */
-    CHECK(size_of(BIG) > 8 * (size_of(M(0)) + size_of(M(1))));
-    hlod_residency_begin_frame(&rs, 3);
-    hlod_residency_collect(&rs, INFINITY, 0);
-    CHECK(hlod_residency_want(&rs, big, 5.0));
-    hlod_residency_schedule(&rs, &keyed);
-    CHECKF(hlod_residency_state(&rs, m[0]) == HLOD_NODE_RESIDENT &&
-               hlod_residency_state(&rs, m[1]) == HLOD_NODE_RESIDENT,
-           "M0, M1 evicted for a node that did not fit (states %d %d, 2 = resident)",
-           hlod_residency_state(&rs, m[0]), hlod_residency_state(&rs, m[1]));
-    CHECK(hlod_residency_state(&rs, big) == HLOD_NODE_ABSENT && st.evictions == 0);
-    hlod_residency_destroy(&rs);
-}
-
 int main(void)
 {
     const char *tmp = getenv("TMPDIR");
@@ -1097,33 +811,23 @@ int main(void)
         return 1;
     }
     tmp_path("loader.hlod", g_path, sizeof g_path);
-    int ok = write_store(g_path) == HLOD_OK && hlod_store_open(g_path, NULL, &g_store) == HLOD_OK;
-    for (int i = 0; ok && i < NODES; i++) {
-        g_size[i] = hlod_store_nodes(g_store)[i].payload_size;
-        ok = hlod_store_read_node(g_store, (uint32_t)i, 0, &g_ref[i]) == HLOD_OK;
-    }
+    int ok = loader_store_open(g_path);
     CHECK(ok);
     if (ok) {
         CHECK(size_of(BIG) > (4u << 20) && size_of(M(0)) > 8 * 1024 && size_of(S1) < 4096);
-        RUN(test_sync_order_and_payloads);
-        RUN(test_sync_preempt_resumes);
-        RUN(test_sync_suspend_limit);
-        RUN(test_drop_cancels);
-        RUN(test_corrupt_payload);
-        RUN(test_hook_failure_not_retried);
-        RUN(test_bad_args);
-        RUN(test_threaded_preempt);
-        RUN(test_render_never_blocks);
-        RUN(test_destroy_in_flight);
-        RUN(test_two_loaders);
-        RUN(test_residency_needed_first);
-        RUN(test_residency_needed_admitted_first);
-        RUN(test_residency_no_eviction_in_vain);
+        RUN(sync_order_and_payloads);
+        RUN(sync_preempt_resumes);
+        RUN(sync_suspend_limit);
+        RUN(drop_cancels);
+        RUN(corrupt_payload);
+        RUN(hook_failure_not_retried);
+        RUN(bad_args);
+        RUN(threaded_preempt);
+        RUN(render_never_blocks);
+        RUN(destroy_in_flight);
+        RUN(two_loaders);
     }
-    for (int i = 0; i < NODES; i++)
-        hlod_store_payload_free(&g_ref[i]);
-    hlod_store_close(g_store);
-    unlink(g_path);
+    loader_store_close(g_path);
     rmdir(g_dir);
     return check_done() || !ok;
 }

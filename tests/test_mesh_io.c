@@ -167,7 +167,7 @@ static void write_prec_obj(const char *path)
     write_text(path, text);
 }
 
-static void test_obj_keeps_double_precision(void)
+static void obj_keeps_double_precision(void)
 {
     char p[256];
     write_prec_obj(tpath("prec.obj", p));
@@ -178,7 +178,7 @@ static void test_obj_keeps_double_precision(void)
     hlod_mesh_free(&m);
 }
 
-static void test_float_path_would_lose_precision(void)
+static void float_path_would_lose_precision(void)
 {
     /* The premise: y = 4100000.13 is 0.12 m from the nearest float. */
     CHECK(fabs((double)(float)prec_val(0, 1) - prec_val(0, 1)) > 0.1);
@@ -253,7 +253,7 @@ static size_t make_binary_ply(uint8_t *buf, int big, int use_float)
     return (size_t)(p - buf);
 }
 
-static void test_binary_ply_keeps_double_precision(void)
+static void binary_ply_keeps_double_precision(void)
 {
     uint8_t buf[1024];
     char p[256];
@@ -269,7 +269,7 @@ static void test_binary_ply_keeps_double_precision(void)
     }
 }
 
-static void test_float_ply_reads_exact_floats(void)
+static void float_ply_reads_exact_floats(void)
 {
     uint8_t buf[1024];
     char p[256];
@@ -285,7 +285,7 @@ static void test_float_ply_reads_exact_floats(void)
     hlod_mesh_free(&m);
 }
 
-static void test_ascii_ply_keeps_double_precision(void)
+static void ascii_ply_keeps_double_precision(void)
 {
     char text[1024], p[256];
     int n = sprintf(text, "ply\r\nformat ascii 1.0\r\nelement vertex 4\r\nproperty double x\r\n"
@@ -303,7 +303,7 @@ static void test_ascii_ply_keeps_double_precision(void)
     hlod_mesh_free(&m);
 }
 
-static void test_off_keeps_double_precision(void)
+static void off_keeps_double_precision(void)
 {
     char text[1024], p[256];
     int n = sprintf(text, "OFF\n# precision test\n4 1 0\n");
@@ -319,7 +319,7 @@ static void test_off_keeps_double_precision(void)
     hlod_mesh_free(&m);
 }
 
-static void test_number_parser_is_exact(void)
+static void number_parser_is_exact(void)
 {
     /* Fast path, slow path, exponents, signs, tiny and huge values. */
     static const char *const nums[] = {
@@ -451,7 +451,7 @@ static void check_geometry_equal(const hlod_mesh *a, const hlod_mesh *b, int uv_
     }
 }
 
-static void test_obj_round_trip(void)
+static void obj_round_trip(void)
 {
     char tex[256], p[256], mtl[256];
     write_text(tpath("wall.png", tex), "not decoded during import");
@@ -487,7 +487,7 @@ static void test_obj_round_trip(void)
     hlod_mesh_free(&b);
 }
 
-static void test_ply_round_trip(void)
+static void ply_round_trip(void)
 {
     char p[256];
     hlod_mesh a = {0}, b = {0};
@@ -500,7 +500,7 @@ static void test_ply_round_trip(void)
     hlod_mesh_free(&b);
 }
 
-static void test_off_round_trip(void)
+static void off_round_trip(void)
 {
     char p[256];
     hlod_mesh a = {0}, b = {0};
@@ -574,17 +574,17 @@ static void check_gltf_round_trip(const char *name)
     hlod_mesh_free(&b);
 }
 
-static void test_gltf_round_trip(void)
+static void gltf_round_trip(void)
 {
     check_gltf_round_trip("rt.gltf");
 }
 
-static void test_glb_round_trip(void)
+static void glb_round_trip(void)
 {
     check_gltf_round_trip("rt.glb");
 }
 
-static void test_gltf_keeps_object_centre_in_double(void)
+static void gltf_keeps_object_centre_in_double(void)
 {
     /* The node translation is written with 17 digits, so a reader that
      * keeps doubles gets the object centre exactly. */
@@ -622,7 +622,7 @@ static void expect_error(const char *name, const char *text, hlod_result want,
     CHECK(m.tri_count == 0 && m.positions == NULL);
 }
 
-static void test_missing_file_is_io_error(void)
+static void missing_file_is_io_error(void)
 {
     char p[256];
     hlod_mesh m = {0};
@@ -633,7 +633,7 @@ static void test_missing_file_is_io_error(void)
     CHECK(logged(&r, HLOD_LOG_ERROR, tmpdir, NULL));
 }
 
-static void test_nan_coordinate_is_nan_error(void)
+static void nan_coordinate_is_nan_error(void)
 {
     expect_error("nan.obj", "v 0 0 0\nv 1 0 0\nv nan 1 0\nf 1 2 3\n", HLOD_ERR_NAN, "vertex 3");
     expect_error("inf.off", "OFF\n3 1 0\n0 0 0\n1 0 inf\n0 1 0\n3 0 1 2\n", HLOD_ERR_NAN,
@@ -653,7 +653,7 @@ static void test_nan_coordinate_is_nan_error(void)
     CHECK(logged(&r, HLOD_LOG_ERROR, p, "vertex 2"));
 }
 
-static void test_index_out_of_range_is_range_error(void)
+static void index_out_of_range_is_range_error(void)
 {
     expect_error("range.obj", "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\nf 1 2 9\n",
                  HLOD_ERR_INDEX_RANGE, "face 2");
@@ -668,7 +668,7 @@ static void test_index_out_of_range_is_range_error(void)
                  HLOD_ERR_INDEX_RANGE, "face 0");
 }
 
-static void test_empty_mesh_is_empty_error(void)
+static void empty_mesh_is_empty_error(void)
 {
     expect_error("empty.obj", "# nothing\nv 0 0 0\nv 1 0 0\n", HLOD_ERR_EMPTY, "no faces");
     expect_error("empty.off", "OFF\n3 0 0\n0 0 0\n1 0 0\n0 1 0\n", HLOD_ERR_EMPTY, "no faces");
@@ -681,7 +681,7 @@ static void test_empty_mesh_is_empty_error(void)
                  "degenerate");
 }
 
-static void test_malformed_header_is_format_error(void)
+static void malformed_header_is_format_error(void)
 {
     expect_error("badfmt.ply", "ply\nformat binary_middle_endian 1.0\nend_header\n",
                  HLOD_ERR_FORMAT, "line 2");
@@ -702,7 +702,7 @@ static void test_malformed_header_is_format_error(void)
     expect_error("unknown.xyz123", "hello\n", HLOD_ERR_UNSUPPORTED, "unknown mesh format");
 }
 
-static void test_every_truncated_binary_ply_fails_cleanly(void)
+static void every_truncated_binary_ply_fails_cleanly(void)
 {
     uint8_t buf[1024];
     size_t n = make_binary_ply(buf, 0, 0);
@@ -731,7 +731,7 @@ static void test_every_truncated_binary_ply_fails_cleanly(void)
     hlod_mesh_free(&m);
 }
 
-static void test_every_truncated_ascii_file_fails_or_reads(void)
+static void every_truncated_ascii_file_fails_or_reads(void)
 {
     /* Text truncated at a line end can be a shorter valid file; what must
      * never happen is a crash, an "ok" with the wrong count, or silence. */
@@ -757,7 +757,7 @@ static void test_every_truncated_ascii_file_fails_or_reads(void)
     }
 }
 
-static void test_off_variants_read_normals_colours_and_uvs(void)
+static void off_variants_read_normals_colours_and_uvs(void)
 {
     char p[256];
     write_text(tpath("v.off", p), "CNOFF # colours and normals\n3 1 0\n"
@@ -777,7 +777,7 @@ static void test_off_variants_read_normals_colours_and_uvs(void)
 
 /* A tiny fuzzer: random byte edits of small valid files must give either a
  * mesh or an error that was logged, and never crash (run under ASan). */
-static void test_mutated_files_never_crash(void)
+static void mutated_files_never_crash(void)
 {
     uint8_t ply[1024];
     size_t ply_n = make_binary_ply(ply, 0, 0);
@@ -830,7 +830,7 @@ static void test_mutated_files_never_crash(void)
 
 /* ---- materials and cleanup ---- */
 
-static void test_missing_texture_warns_and_untextures(void)
+static void missing_texture_warns_and_untextures(void)
 {
     char p[256], mtl[256];
     write_text(tpath("tex.mtl", mtl), "newmtl a\nKd 1 0 0\nmap_Kd -s 1 1 1 missing tex.png\n"
@@ -852,7 +852,7 @@ static void test_missing_texture_warns_and_untextures(void)
     hlod_mesh_free(&m);
 }
 
-static void test_texture_resolves_against_mtl_folder(void)
+static void texture_resolves_against_mtl_folder(void)
 {
     char sub[256], p[256], tex[256], mtl[256];
     tpath("sub", sub);
@@ -870,7 +870,7 @@ static void test_texture_resolves_against_mtl_folder(void)
     hlod_mesh_free(&m);
 }
 
-static void test_obj_faces_forms_and_groups(void)
+static void obj_faces_forms_and_groups(void)
 {
     char p[256];
     write_text(tpath("forms.obj", p),
@@ -897,7 +897,7 @@ static void test_obj_faces_forms_and_groups(void)
     hlod_mesh_free(&m);
 }
 
-static void test_degenerate_and_duplicate_triangles_dropped(void)
+static void degenerate_and_duplicate_triangles_dropped(void)
 {
     char p[256];
     write_text(tpath("dups.obj", p),
@@ -926,7 +926,7 @@ static void test_degenerate_and_duplicate_triangles_dropped(void)
     hlod_mesh_free(&m);
 }
 
-static void test_clean_keeps_objects_and_materials_consistent(void)
+static void clean_keeps_objects_and_materials_consistent(void)
 {
     hlod_mesh m = {0};
     CHECK(hlod_mesh_alloc(&m, 4, 6, HLOD_MESH_MATERIALS) == HLOD_OK);
@@ -1014,7 +1014,7 @@ static hlod_result check_object(void *user, const hlod_obj_info *info, const hlo
     return HLOD_OK;
 }
 
-static void test_obj_stream_matches_import(void)
+static void obj_stream_matches_import(void)
 {
     char p[128], mtl[128];
     write_text(tpath("stream.mtl", mtl), "newmtl red\nKd 1 0 0\nnewmtl blue\nKd 0 0 1\n");
@@ -1067,7 +1067,7 @@ static void test_obj_stream_matches_import(void)
     hlod_mesh_free(&s.whole);
 }
 
-static void test_validate_reports_bad_ranges(void)
+static void validate_reports_bad_ranges(void)
 {
     hlod_mesh m = {0};
     CHECK(hlod_mesh_alloc(&m, 3, 1, HLOD_MESH_MATERIALS) == HLOD_OK);
@@ -1098,7 +1098,7 @@ static void test_validate_reports_bad_ranges(void)
 
 /* ---- atomic export ---- */
 
-static void test_export_to_unwritable_path_leaves_nothing(void)
+static void export_to_unwritable_path_leaves_nothing(void)
 {
     hlod_mesh m = {0};
     make_rich_mesh(&m, NULL);
@@ -1115,7 +1115,7 @@ static void test_export_to_unwritable_path_leaves_nothing(void)
     hlod_mesh_free(&m);
 }
 
-static void test_failed_export_leaves_no_partial_file(void)
+static void failed_export_leaves_no_partial_file(void)
 {
     char p[256], blocker[256], dir[256];
     hlod_mesh m = {0};
@@ -1170,7 +1170,7 @@ static void check_real(const char *rel, size_t verts, size_t tris, hlod_mesh *m,
     CHECK(st->tris_read == tris);
 }
 
-static void test_real_off_meshes(void)
+static void real_off_meshes(void)
 {
     static const struct {
         const char *path;
@@ -1188,7 +1188,7 @@ static void test_real_off_meshes(void)
     }
 }
 
-static void test_real_textured_obj(void)
+static void real_textured_obj(void)
 {
     hlod_mesh m = {0};
     hlod_import_stats st;
@@ -1205,7 +1205,7 @@ static void test_real_textured_obj(void)
     hlod_mesh_free(&m);
 }
 
-static void test_real_gltf2_textured(void)
+static void real_gltf2_textured(void)
 {
     hlod_mesh m = {0};
     hlod_import_stats st;
@@ -1227,7 +1227,7 @@ static void test_real_gltf2_textured(void)
     hlod_mesh_free(&m);
 }
 
-static void test_real_glb_embedded_texture_falls_back(void)
+static void real_glb_embedded_texture_falls_back(void)
 {
     hlod_mesh m = {0};
     hlod_import_stats st;
@@ -1241,7 +1241,7 @@ static void test_real_glb_embedded_texture_falls_back(void)
     hlod_mesh_free(&m);
 }
 
-static void test_real_ply_meshes(void)
+static void real_ply_meshes(void)
 {
     hlod_mesh m = {0};
     hlod_import_stats st;
@@ -1257,7 +1257,7 @@ static void test_real_ply_meshes(void)
 
 /* ---- texture images (image.h) ---- */
 
-static void test_image_probe_and_read_real_texture(void)
+static void image_probe_and_read_real_texture(void)
 {
     char p[512];
     check_src_path("data/meshes/SpiderTex.jpg", p, sizeof p);
@@ -1275,7 +1275,7 @@ static void test_image_probe_and_read_real_texture(void)
     hlod_image_free(&img);
 }
 
-static void test_image_png_round_trip_is_exact(void)
+static void image_png_round_trip_is_exact(void)
 {
     hlod_image a = {7, 5, 4, malloc(7 * 5 * 4)}, b = {0};
     for (int i = 0; i < 7 * 5 * 4; i++)
@@ -1290,7 +1290,7 @@ static void test_image_png_round_trip_is_exact(void)
     hlod_image_free(&b);
 }
 
-static void test_image_errors_name_the_file(void)
+static void image_errors_name_the_file(void)
 {
     hlod_image img = {0};
     recorder r = {0};
@@ -1309,7 +1309,7 @@ static void test_image_errors_name_the_file(void)
     hlod_image_free(&one);
 }
 
-static void test_image_resize_keeps_flat_colour(void)
+static void image_resize_keeps_flat_colour(void)
 {
     hlod_image a = {16, 8, 3, malloc(16 * 8 * 3)}, b = {0};
     for (int i = 0; i < 16 * 8; i++) {
@@ -1342,7 +1342,7 @@ static double area_mean(const hlod_image *src, int ch, double x0, double x1, dou
     return sum / area;
 }
 
-static void test_image_shrink_averages_covered_area(void)
+static void image_shrink_averages_covered_area(void)
 {
     /* noise, so any misplaced or mis-weighted texel shows */
     int sizes[][4] = {{64, 48, 32, 24}, {97, 61, 40, 17}, {50, 50, 7, 3}, {9, 5, 9, 2}, {33, 1, 4, 1}};
@@ -1379,47 +1379,47 @@ int main(void)
         perror("mkdtemp");
         return 1;
     }
-    RUN(test_obj_keeps_double_precision);
-    RUN(test_float_path_would_lose_precision);
-    RUN(test_binary_ply_keeps_double_precision);
-    RUN(test_float_ply_reads_exact_floats);
-    RUN(test_ascii_ply_keeps_double_precision);
-    RUN(test_off_keeps_double_precision);
-    RUN(test_number_parser_is_exact);
-    RUN(test_obj_round_trip);
-    RUN(test_ply_round_trip);
-    RUN(test_off_round_trip);
-    RUN(test_gltf_round_trip);
-    RUN(test_glb_round_trip);
-    RUN(test_gltf_keeps_object_centre_in_double);
-    RUN(test_missing_file_is_io_error);
-    RUN(test_nan_coordinate_is_nan_error);
-    RUN(test_index_out_of_range_is_range_error);
-    RUN(test_empty_mesh_is_empty_error);
-    RUN(test_malformed_header_is_format_error);
-    RUN(test_every_truncated_binary_ply_fails_cleanly);
-    RUN(test_every_truncated_ascii_file_fails_or_reads);
-    RUN(test_off_variants_read_normals_colours_and_uvs);
-    RUN(test_mutated_files_never_crash);
-    RUN(test_missing_texture_warns_and_untextures);
-    RUN(test_texture_resolves_against_mtl_folder);
-    RUN(test_obj_faces_forms_and_groups);
-    RUN(test_degenerate_and_duplicate_triangles_dropped);
-    RUN(test_clean_keeps_objects_and_materials_consistent);
-    RUN(test_validate_reports_bad_ranges);
-    RUN(test_export_to_unwritable_path_leaves_nothing);
-    RUN(test_failed_export_leaves_no_partial_file);
-    RUN(test_real_off_meshes);
-    RUN(test_real_textured_obj);
-    RUN(test_real_gltf2_textured);
-    RUN(test_real_glb_embedded_texture_falls_back);
-    RUN(test_real_ply_meshes);
-    RUN(test_image_probe_and_read_real_texture);
-    RUN(test_image_png_round_trip_is_exact);
-    RUN(test_obj_stream_matches_import);
-    RUN(test_image_errors_name_the_file);
-    RUN(test_image_resize_keeps_flat_colour);
-    RUN(test_image_shrink_averages_covered_area);
+    RUN(obj_keeps_double_precision);
+    RUN(float_path_would_lose_precision);
+    RUN(binary_ply_keeps_double_precision);
+    RUN(float_ply_reads_exact_floats);
+    RUN(ascii_ply_keeps_double_precision);
+    RUN(off_keeps_double_precision);
+    RUN(number_parser_is_exact);
+    RUN(obj_round_trip);
+    RUN(ply_round_trip);
+    RUN(off_round_trip);
+    RUN(gltf_round_trip);
+    RUN(glb_round_trip);
+    RUN(gltf_keeps_object_centre_in_double);
+    RUN(missing_file_is_io_error);
+    RUN(nan_coordinate_is_nan_error);
+    RUN(index_out_of_range_is_range_error);
+    RUN(empty_mesh_is_empty_error);
+    RUN(malformed_header_is_format_error);
+    RUN(every_truncated_binary_ply_fails_cleanly);
+    RUN(every_truncated_ascii_file_fails_or_reads);
+    RUN(off_variants_read_normals_colours_and_uvs);
+    RUN(mutated_files_never_crash);
+    RUN(missing_texture_warns_and_untextures);
+    RUN(texture_resolves_against_mtl_folder);
+    RUN(obj_faces_forms_and_groups);
+    RUN(degenerate_and_duplicate_triangles_dropped);
+    RUN(clean_keeps_objects_and_materials_consistent);
+    RUN(validate_reports_bad_ranges);
+    RUN(export_to_unwritable_path_leaves_nothing);
+    RUN(failed_export_leaves_no_partial_file);
+    RUN(real_off_meshes);
+    RUN(real_textured_obj);
+    RUN(real_gltf2_textured);
+    RUN(real_glb_embedded_texture_falls_back);
+    RUN(real_ply_meshes);
+    RUN(image_probe_and_read_real_texture);
+    RUN(image_png_round_trip_is_exact);
+    RUN(obj_stream_matches_import);
+    RUN(image_errors_name_the_file);
+    RUN(image_resize_keeps_flat_colour);
+    RUN(image_shrink_averages_covered_area);
     remove_tree(tmpdir);
     return check_done();
 }

@@ -47,7 +47,7 @@ static uint8_t *test_card(uint32_t w, uint32_t h)
 
 /* ---------- PSNR ---------- */
 
-static void test_psnr_hand_values(void)
+static void psnr_hand_values(void)
 {
     double v = 0;
     uint8_t *a = image(2, 1, 0), *b = image(2, 1, 0);
@@ -113,7 +113,7 @@ static double ssim_direct(const uint8_t *a, const uint8_t *b, int w, int h)
     return total / ((double)(w - 10) * (h - 10));
 }
 
-static void test_ssim_identical_is_one(void)
+static void ssim_identical_is_one(void)
 {
     uint8_t *a = test_card(64, 48);
     double v = 0;
@@ -124,7 +124,7 @@ static void test_ssim_identical_is_one(void)
     free(c);
 }
 
-static void test_ssim_constant_images_hand_value(void)
+static void ssim_constant_images_hand_value(void)
 {
     /* No variance: SSIM = (2 * 100 * 110 + C1) / (100^2 + 110^2 + C1),
      * C1 = (0.01 * 255)^2 = 6.5025. */
@@ -136,7 +136,7 @@ static void test_ssim_constant_images_hand_value(void)
     free(b);
 }
 
-static void test_ssim_matches_direct_windows(void)
+static void ssim_matches_direct_windows(void)
 {
     const uint32_t w = 37, h = 23;
     uint8_t *a = malloc(w * h * 3), *b = malloc(w * h * 3);
@@ -153,7 +153,7 @@ static void test_ssim_matches_direct_windows(void)
     free(b);
 }
 
-static void test_ssim_symmetric_and_ordered(void)
+static void ssim_symmetric_and_ordered(void)
 {
     const uint32_t w = 96, h = 64;
     size_t n = (size_t)w * h * 3;
@@ -198,7 +198,7 @@ static void test_ssim_symmetric_and_ordered(void)
 
 /* ---------- luminance change ---------- */
 
-static void test_luma_change(void)
+static void luma_change(void)
 {
     uint8_t a[6] = {0, 0, 0, 50, 50, 50}, b[6] = {10, 20, 30, 50, 50, 50};
     double v = -1;
@@ -213,7 +213,7 @@ static void test_luma_change(void)
 
 /* ---------- statistics ---------- */
 
-static void test_percentiles_hand_values(void)
+static void percentiles_hand_values(void)
 {
     /* Sorted: 15 20 35 40 50; rank x = p / 100 * 4. */
     const double v[] = {40, NAN, 15, 50, 35, 20};
@@ -244,7 +244,7 @@ static void test_percentiles_hand_values(void)
     CHECK(hlod_stats_percentile_sorted(s, 0, 50) != hlod_stats_percentile_sorted(s, 0, 50));
 }
 
-static void test_mean_min_max(void)
+static void mean_min_max(void)
 {
     const double v[] = {3, NAN, -1, 10};
     CHECK(hlod_stats_mean(v, 4) == 4);
@@ -253,7 +253,7 @@ static void test_mean_min_max(void)
     CHECK(isnan(hlod_stats_max(v, 0)));
 }
 
-static void test_moving_average(void)
+static void moving_average(void)
 {
     const double v[] = {1, 2, 3, 4, 5, 6};
     const double want[] = {1, 1.5, 2, 3, 4, 5};
@@ -290,14 +290,14 @@ static void test_moving_average(void)
 
 int main(void)
 {
-    RUN(test_psnr_hand_values);
-    RUN(test_ssim_identical_is_one);
-    RUN(test_ssim_constant_images_hand_value);
-    RUN(test_ssim_matches_direct_windows);
-    RUN(test_ssim_symmetric_and_ordered);
-    RUN(test_luma_change);
-    RUN(test_percentiles_hand_values);
-    RUN(test_mean_min_max);
-    RUN(test_moving_average);
+    RUN(psnr_hand_values);
+    RUN(ssim_identical_is_one);
+    RUN(ssim_constant_images_hand_value);
+    RUN(ssim_matches_direct_windows);
+    RUN(ssim_symmetric_and_ordered);
+    RUN(luma_change);
+    RUN(percentiles_hand_values);
+    RUN(mean_min_max);
+    RUN(moving_average);
     return check_done();
 }

@@ -60,7 +60,7 @@ static double dist3(const double a[3], const double b[3])
 
 /* ---------- parsing ---------- */
 
-static void test_parse_good(void)
+static void parse_good(void)
 {
     const char *text = "# a camera path\n"
                        "\n"
@@ -98,7 +98,7 @@ typedef struct bad_case {
     const char *message;
 } bad_case;
 
-static void test_parse_errors(void)
+static void parse_errors(void)
 {
     static const bad_case cases[] = {
         {"0 0 0 0 1 1 1\n1 2 3\n", HLOD_ERR_FORMAT,
@@ -196,7 +196,7 @@ static hlod_result parse_round_trip(const char *text, size_t len)
 /* Every truncation of a valid file, and deterministic byte mutations: no
  * crash (ASan), no leak, and the invariants above (meshoptimizer's
  * decodeIndexMemorySafe pattern). */
-static void test_parse_truncations_and_mutations(void)
+static void parse_truncations_and_mutations(void)
 {
     const char *good = "# path\n0 1 2 3 4 5 6 # c\n0.25 1e-300 -0 3 4 5 6\n"
                        "7 1e12 -1e12 5e6 4 5 6\r\n1e9 1 1 1 0 0 0\n";
@@ -248,7 +248,7 @@ static const hlod_path_key CURVY[] = {
 };
 #define NCURVY (sizeof CURVY / sizeof CURVY[0])
 
-static void test_eval_hits_keyframes(void)
+static void eval_hits_keyframes(void)
 {
     hlod_path p = make_path(CURVY, NCURVY);
     for (size_t i = 0; i < NCURVY; i++) {
@@ -267,7 +267,7 @@ static void test_eval_hits_keyframes(void)
     hlod_path_free(&p);
 }
 
-static void test_eval_linear_motion_exact(void)
+static void eval_linear_motion_exact(void)
 {
     /* Constant velocity with uneven keyframe spacing: the Catmull-Rom
      * tangents are exact, so the spline is the straight line. */
@@ -291,7 +291,7 @@ static void test_eval_linear_motion_exact(void)
     hlod_path_free(&p);
 }
 
-static void test_eval_c1_continuity(void)
+static void eval_c1_continuity(void)
 {
     hlod_path p = make_path(CURVY, NCURVY);
     const double e = 1e-6;
@@ -324,7 +324,7 @@ static void test_eval_c1_continuity(void)
     hlod_path_free(&p);
 }
 
-static void test_eval_clamps(void)
+static void eval_clamps(void)
 {
     hlod_path p = make_path(CURVY, NCURVY);
     double eye[3], at[3];
@@ -354,7 +354,7 @@ static void test_eval_clamps(void)
     hlod_path_free(&p);
 }
 
-static void test_frame_count(void)
+static void frame_count(void)
 {
     hlod_path_key k[2] = {{0, {0, 0, 0}, {1, 0, 0}}, {399.0 / 30, {1, 0, 0}, {2, 0, 0}}};
     hlod_path p = make_path(k, 2);
@@ -378,7 +378,7 @@ static void test_frame_count(void)
     CHECK(hlod_path_frame_count(&empty, 1.0 / 30) == 0);
 }
 
-static void test_append_validates(void)
+static void append_validates(void)
 {
     hlod_path p = {0};
     double e[3] = {0, 0, 0}, a[3] = {1, 0, 0}, nan3[3] = {0, NAN, 0};
@@ -404,7 +404,7 @@ static void test_append_validates(void)
     hlod_path_free(&p);
 }
 
-static void test_write_round_trip(void)
+static void write_round_trip(void)
 {
     hlod_path p = {0};
     const double awkward[] = {0.1, 1.0 / 3, 1e-300, 5e6 + 0.123456789, -4.1e6 - 1e-7,
@@ -464,7 +464,7 @@ static void preset_desc(const char *preset, hlod_city_desc *d)
     CHECK(hlod_city_preset(preset, d));
 }
 
-static void test_city_paths_match_committed_files(void)
+static void city_paths_match_committed_files(void)
 {
     for (int pi = 0; pi < 2; pi++) {
         hlod_city_desc d;
@@ -503,7 +503,7 @@ static void test_city_paths_match_committed_files(void)
 }
 
 /* hlod-gen-city --paths writes the same files (when the tool is built). */
-static void test_city_paths_tool(void)
+static void city_paths_tool(void)
 {
     const char *bin = getenv("HLOD_BIN_DIR");
     char tool[512];
@@ -763,7 +763,7 @@ static void check_paths_against(const char *preset, const city_geom *g, const do
     }
 }
 
-static void test_city_paths_fit_the_geometry(void)
+static void city_paths_fit_the_geometry(void)
 {
     const double zero[3] = {0, 0, 0}, far[3] = {500000, 4100000, 12};
     city_geom g;
@@ -788,19 +788,19 @@ int main(void)
         perror("mkdtemp");
         return 1;
     }
-    RUN(test_parse_good);
-    RUN(test_parse_errors);
-    RUN(test_parse_truncations_and_mutations);
-    RUN(test_eval_hits_keyframes);
-    RUN(test_eval_linear_motion_exact);
-    RUN(test_eval_c1_continuity);
-    RUN(test_eval_clamps);
-    RUN(test_frame_count);
-    RUN(test_append_validates);
-    RUN(test_write_round_trip);
-    RUN(test_city_paths_match_committed_files);
-    RUN(test_city_paths_tool);
-    RUN(test_city_paths_fit_the_geometry);
+    RUN(parse_good);
+    RUN(parse_errors);
+    RUN(parse_truncations_and_mutations);
+    RUN(eval_hits_keyframes);
+    RUN(eval_linear_motion_exact);
+    RUN(eval_c1_continuity);
+    RUN(eval_clamps);
+    RUN(frame_count);
+    RUN(append_validates);
+    RUN(write_round_trip);
+    RUN(city_paths_match_committed_files);
+    RUN(city_paths_tool);
+    RUN(city_paths_fit_the_geometry);
     char cmd[600];
     snprintf(cmd, sizeof cmd, "rm -rf '%s'", g_dir);
     if (system(cmd) != 0)

@@ -379,7 +379,7 @@ static int all_zero(const void *p, size_t n)
 /* The look-at point lands at the screen centre, up is up, right is right,
  * near and far map to -1 and 1, the rotation is orthonormal; every invalid
  * input is rejected with a zeroed camera. */
-static void test_camera_look_at(void)
+static void camera_look_at(void)
 {
     const double shifts[2][3] = {{0, 0, 0}, {5e5, 4.1e6, 0}};
     for (int s = 0; s < 2; s++) {
@@ -466,7 +466,7 @@ static void test_camera_look_at(void)
 /* ---------- rendering ---------- */
 
 /* Nothing drawn: every pixel is the clear colour. */
-static void test_clear_color(void)
+static void clear_color(void)
 {
     gl_ctx c;
     if (!ctx_open(&c))
@@ -488,7 +488,7 @@ static void test_clear_color(void)
 
 /* A red quad over the top half of the view shows in the top rows of the
  * image read back (read_rgb flips GL's bottom-up rows). */
-static void test_read_orientation(void)
+static void read_orientation(void)
 {
     gl_ctx c;
     if (!ctx_open(&c))
@@ -516,7 +516,7 @@ static void test_read_orientation(void)
 
 /* A 2x2 texture (rows top first) on a quad with OBJ-convention UVs (v = 0
  * at the bottom) appears upright and unmirrored, for 1 to 4 channels. */
-static void test_texture_checker(void)
+static void texture_checker(void)
 {
     gl_ctx c;
     if (!ctx_open(&c))
@@ -561,7 +561,7 @@ static void test_texture_checker(void)
 
 /* The loader's mip chain (texture.h): level sizes, RGB to RGBA, the 2x2
  * mean, grey kept grey, idempotent, nothing done without a texture. */
-static void test_texture_chain(void)
+static void texture_chain(void)
 {
     static const uint32_t dims[][3] = {{116, 116, 7}, {871, 871, 10}, {1, 1, 1}, {5, 1, 3},
                                        {1, 6, 3}, {655, 1024, 11}};
@@ -617,7 +617,7 @@ static void test_texture_chain(void)
  * checker of 1-texel squares drawn 8 pixels wide is mid grey, whether the
  * loader made the chain or the upload did (the same image), and not the
  * aliased black or white of level 0 alone. */
-static void test_texture_minified(void)
+static void minified_texture(void)
 {
     gl_ctx c;
     if (!ctx_open(&c))
@@ -658,7 +658,7 @@ static void test_texture_minified(void)
 /* Untextured triangles use their vertex colour, grey without one; in one
  * payload the first tex_tri_count triangles are textured and the rest are
  * not. */
-static void test_vertex_colors(void)
+static void vertex_colors(void)
 {
     gl_ctx c;
     if (!ctx_open(&c))
@@ -708,7 +708,7 @@ static void test_vertex_colors(void)
 /* A unit cube without colours seen from a corner: its three visible faces
  * get three clearly different grey levels (lighting from normals), with
  * payload normals and with face normals from derivatives. */
-static void test_lighting(void)
+static void lighting_from_normals(void)
 {
     gl_ctx c;
     if (!ctx_open(&c))
@@ -776,7 +776,7 @@ static void test_lighting(void)
 }
 
 /* Depth-colour mode colours levels differently; wireframe draws edges only. */
-static void test_modes(void)
+static void modes(void)
 {
     gl_ctx c;
     if (!ctx_open(&c))
@@ -824,7 +824,7 @@ static void test_modes(void)
 }
 
 /* Real meshes render: not blank, a plausible share of the view, shaded. */
-static void test_real_meshes(void)
+static void real_meshes(void)
 {
     gl_ctx c;
     if (!ctx_open(&c))
@@ -930,7 +930,7 @@ static void city_camera(const city *ct, hlod_camera *cam, const double shift[3])
 
 /* The city with every origin and the camera moved to (5e5, 4.1e6, 0)
  * renders the same image: offsets are taken in double. */
-static void test_far_origin(void)
+static void far_origin(void)
 {
     gl_ctx c;
     if (!ctx_open(&c))
@@ -982,7 +982,7 @@ static void test_far_origin(void)
 
 /* A mesh split into two payloads with their own origins renders like the
  * mesh in one payload. */
-static void test_split_node(void)
+static void split_node(void)
 {
     gl_ctx c;
     if (!ctx_open(&c))
@@ -1043,7 +1043,7 @@ static void test_split_node(void)
 
 /* Two contexts one after the other, and two renderers in one context,
  * render the same image; a renderer outlives its sibling's destruction. */
-static void test_two_renderers(void)
+static void two_renderers(void)
 {
     hlod_mesh m;
     if (!load_mesh("data/meshes/fandisk.off", &m))
@@ -1127,7 +1127,7 @@ static void *no_teximage_proc(const char *name)
 /* Uploads report their bytes and release everything (ASan/LSan watch the
  * loop); bad payloads are refused with a zeroed node; a missing GL
  * function or an oversized texture is reported, not crashed on. */
-static void test_upload_release(void)
+static void upload_release(void)
 {
     gl_ctx c;
     if (!ctx_open(&c))
@@ -1241,20 +1241,20 @@ int main(void)
         perror("mkdtemp");
         return 1;
     }
-    RUN(test_camera_look_at);
-    RUN(test_clear_color);
-    RUN(test_read_orientation);
-    RUN(test_texture_checker);
-    RUN(test_texture_chain);
-    RUN(test_texture_minified);
-    RUN(test_vertex_colors);
-    RUN(test_lighting);
-    RUN(test_modes);
-    RUN(test_real_meshes);
-    RUN(test_far_origin);
-    RUN(test_split_node);
-    RUN(test_two_renderers);
-    RUN(test_upload_release);
+    RUN(camera_look_at);
+    RUN(clear_color);
+    RUN(read_orientation);
+    RUN(texture_checker);
+    RUN(texture_chain);
+    RUN(minified_texture);
+    RUN(vertex_colors);
+    RUN(lighting_from_normals);
+    RUN(modes);
+    RUN(real_meshes);
+    RUN(far_origin);
+    RUN(split_node);
+    RUN(two_renderers);
+    RUN(upload_release);
     clear_dir();
     rmdir(g_dir);
     return check_done();

@@ -343,7 +343,7 @@ static void check_soak(const soak *k, const char *what)
 
 static hlod_store *g_store;
 
-static void test_soak_one_engine(void)
+static void soak_one_engine(void)
 {
     soak k = {0};
     k.store = g_store;
@@ -384,7 +384,7 @@ static void test_soak_one_engine(void)
 
 /* Two engines over one store, each in its own thread, each with its own
  * camera: both stay within their budgets and correct. */
-static void test_soak_two_engines(void)
+static void soak_two_engines(void)
 {
     soak a = {0}, b = {0};
     a.store = b.store = g_store;
@@ -424,8 +424,8 @@ int main(void)
     CHECK(fixture_write(path, &o, NULL) == HLOD_OK);
     CHECK(hlod_store_open(path, NULL, &g_store) == HLOD_OK);
     if (g_store) {
-        RUN(test_soak_one_engine);
-        RUN(test_soak_two_engines);
+        RUN(soak_one_engine);
+        RUN(soak_two_engines);
     }
     hlod_store_close(g_store);
     char cmd[300];

@@ -291,7 +291,7 @@ static void compare_payload(const synth *m, const hlod_store_payload *p)
                      (size_t)d->tex_width * d->tex_height * d->tex_channels) == 0);
 }
 
-static void test_round_trip(void)
+static void round_trip(void)
 {
     test_store ts;
     char path[1024];
@@ -391,7 +391,7 @@ out:
 
 /* Reads resume where they stopped, interleaved with another node's read,
  * and never read a byte twice. */
-static void test_incremental_interleaved(void)
+static void incremental_interleaved(void)
 {
     test_store ts;
     char path[1024];
@@ -449,7 +449,7 @@ out:
 /* ---------- corruption ---------- */
 
 /* Every truncation is refused at open, naming the problem. */
-static void test_every_truncation(void)
+static void every_truncation(void)
 {
     test_store ts;
     char path[1024], cut[1024];
@@ -502,7 +502,7 @@ static void test_every_truncation(void)
 
 /* Every bit of the header and the node table, and a bit in every payload
  * byte, flipped one at a time. */
-static void test_bit_flips(void)
+static void bit_flips(void)
 {
     test_store ts;
     char path[1024];
@@ -660,7 +660,7 @@ typedef struct forge_case {
     const char *msg;    /* expected in the log line */
 } forge_case;
 
-static void test_forged_tables(void)
+static void forged_tables(void)
 {
     static const forge_case cases[] = {
         {"payload past the end", f_offset_past_end, HLOD_ERR_FORMAT, "outside the file"},
@@ -801,7 +801,7 @@ out:
     clear_dir();
 }
 
-static void test_not_a_store(void)
+static void not_a_store(void)
 {
     char path[1024];
     tmp_path("junk.hlod", path, sizeof path);
@@ -823,7 +823,7 @@ static void test_not_a_store(void)
 
 /* ---------- writer failures ---------- */
 
-static void test_abort_leaves_nothing(void)
+static void abort_leaves_nothing(void)
 {
     test_store ts;
     make_meshes(&ts);
@@ -935,7 +935,7 @@ static void *add_thread(void *arg)
 }
 
 /* Four threads add payloads concurrently; the store reads back intact. */
-static void test_concurrent_writer(void)
+static void concurrent_writer(void)
 {
     enum { COPIES = 6, THREADS = 4, N = NODES * COPIES };
     test_store ts;
@@ -1028,7 +1028,7 @@ static void *read_thread(void *arg)
 
 /* Two readers with their own stores and two sharing one, on one file,
  * read identical payloads. */
-static void test_concurrent_readers(void)
+static void concurrent_readers(void)
 {
     test_store ts;
     char path[1024];
@@ -1089,7 +1089,7 @@ static int run_info(const char *args, char *out, size_t n_out, char *err, size_t
     return st != -1 && WIFEXITED(st) ? WEXITSTATUS(st) : -1;
 }
 
-static void test_info_tool(void)
+static void info_tool(void)
 {
     test_store ts;
     char path[1024], args[2048];
@@ -1150,16 +1150,16 @@ int main(void)
         perror("mkdtemp");
         return 1;
     }
-    RUN(test_round_trip);
-    RUN(test_incremental_interleaved);
-    RUN(test_every_truncation);
-    RUN(test_bit_flips);
-    RUN(test_forged_tables);
-    RUN(test_not_a_store);
-    RUN(test_abort_leaves_nothing);
-    RUN(test_concurrent_writer);
-    RUN(test_concurrent_readers);
-    RUN(test_info_tool);
+    RUN(round_trip);
+    RUN(incremental_interleaved);
+    RUN(every_truncation);
+    RUN(bit_flips);
+    RUN(forged_tables);
+    RUN(not_a_store);
+    RUN(abort_leaves_nothing);
+    RUN(concurrent_writer);
+    RUN(concurrent_readers);
+    RUN(info_tool);
     clear_dir();
     rmdir(g_dir);
     return check_done();

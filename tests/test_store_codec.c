@@ -183,7 +183,7 @@ static double image_psnr(const uint8_t *a, const uint8_t *b, size_t n)
 
 /* Every vertex, normal, UV, colour and the texture come back within the
  * codec's error; triangle ranges (textured first) and the grid sharing. */
-static void test_round_trip_within_error(void)
+static void round_trip_within_error(void)
 {
     static grid_mesh a, b;
     char path[512];
@@ -273,7 +273,7 @@ static void test_round_trip_within_error(void)
 
 /* A city at 5e6 packs to the same payload bytes as at the origin when the
  * grid moves with it by whole steps. */
-static void test_far_city_same_bytes(void)
+static void far_city_same_bytes(void)
 {
     static grid_mesh a, b;
     char p0[512], p1[512];
@@ -380,7 +380,7 @@ static void m_uv_nan(uint8_t *p, size_t n)
     memcpy(p + 56, &nan, 4);
 }
 
-static void test_forged_payloads_refused(void)
+static void forged_payloads_refused(void)
 {
     static grid_mesh a, b;
     char path[512];
@@ -419,7 +419,7 @@ static void set_version(const char *path, uint32_t version)
 
 /* A raw store is byte for byte a version 2 store but for the version: read
  * as version 2, exactly; version 1 is refused with "rebuild". */
-static void test_versions(void)
+static void versions(void)
 {
     static grid_mesh a, b;
     char path[512];
@@ -446,7 +446,7 @@ static void test_versions(void)
 }
 
 /* Octahedral normals: every direction within 1e-4 rad, the poles exact. */
-static void test_oct(void)
+static void oct(void)
 {
     double worst = 0;
     for (int i = 0; i < 2000; i++) {
@@ -471,11 +471,11 @@ int main(void)
     snprintf(g_dir, sizeof g_dir, "/tmp/hlod_test_codec_XXXXXX");
     if (!mkdtemp(g_dir))
         return 1;
-    RUN(test_oct);
-    RUN(test_round_trip_within_error);
-    RUN(test_far_city_same_bytes);
-    RUN(test_forged_payloads_refused);
-    RUN(test_versions);
+    RUN(oct);
+    RUN(round_trip_within_error);
+    RUN(far_city_same_bytes);
+    RUN(forged_payloads_refused);
+    RUN(versions);
     char cmd[300];
     snprintf(cmd, sizeof cmd, "rm -rf '%s'", g_dir);
     if (system(cmd) != 0)
