@@ -22,7 +22,7 @@
  */
 #define _GNU_SOURCE /* RUSAGE_THREAD (cpu_span.h) */
 #include "check.h"
-#include "engine_internal.h"
+#include "inspect.h"
 #include "engine_check.h"
 #include "store_fixture.h"
 
@@ -184,29 +184,42 @@ static void frame(hlod_engine *e, const hlod_camera *cam, int f, tally *t)
     double cost = 0;
     uint64_t tris = 0;
     int bad = 0;
-    for (size_t k = 0; k < e->sel.draw.n; k++) {
-        uint32_t i = e->sel.draw.v[k];
+    size_t ns;
+    const uint32_t *sel = hlod_inspect_selected(e, &ns);
+    const hlod_store_node *nodes = hlod_store_nodes(hlod_inspect_store(e));
+    for (size_t k = 0; k < ns; k++) {
+        uint32_t i = sel[k];
         bad |= hlod_engine_node_state(e, i) != HLOD_NODE_RESIDENT;
-        cost += e->nodes[i].cost;
-        tris += e->nodes[i].tri_count;
+        cost += nodes[i].cost;
+        tris += nodes[i].tri_count;
     }
     t->bad_drawn += bad;
-    t->miscounted += st.nodes_drawn != e->sel.draw.n || st.tris_drawn != tris ||
+    t->miscounted += st.nodes_drawn != ns || st.tris_drawn != tris ||
                      fabs(st.cost_drawn - cost) > 1e-9 * (1 + cost);
     sleep_us(1000); /* the loader thread runs between frames */
+}
+
+/* The number of nodes the last frame selected. */
+static size_t n_selected(const hlod_engine *e)
+{
+    size_t n;
+    (void)hlod_inspect_selected(e, &n);
+    return n;
 }
 
 /* The draw list is exactly want[0..n) (in any order); when not, says so
  * under what's name (unless what is NULL). */
 static int draws_exactly(const hlod_engine *e, const uint32_t *want, int n, const char *what)
 {
-    int ok = (int)e->sel.draw.n == n;
+    size_t ns;
+    const uint32_t *sel = hlod_inspect_selected(e, &ns);
+    int ok = (int)ns == n;
     for (int k = 0; k < n; k++)
         ok &= hlod_engine_node_drawn(e, want[k]);
     if (!ok && what) {
         fprintf(stderr, "%s: drawn:", what);
-        for (size_t k = 0; k < e->sel.draw.n; k++)
-            fprintf(stderr, " %u", e->sel.draw.v[k]);
+        for (size_t k = 0; k < ns; k++)
+            fprintf(stderr, " %u", sel[k]);
         fprintf(stderr, "; want:");
         for (int k = 0; k < n; k++)
             fprintf(stderr, " %d", (int)want[k]);
@@ -258,7 +271,7 @@ static void run_corrupt(const char *name, int group, const uint32_t *bad, int nb
         }
         check_run(name, &t, (uint32_t)nbad);
         printf("REPORT bad_roots store=%s bad=%u drawn=%zu frames=%d render_waits=%u\n", name,
-               t.bad_nodes, e->sel.draw.n, FRAMES, t.render_waits);
+               t.bad_nodes, n_selected(e), FRAMES, t.render_waits);
         hlod_engine_destroy(e);
     }
     hlod_store_close(s);
@@ -342,11 +355,13 @@ static void readable_group_bad_block(void)
             frame(e, &cam, f, &t);
         const hlod_store_node *n = hlod_store_nodes(s);
         int under2 = 0;   /* drawn nodes in block 2's subtree */
-        for (size_t k = 0; k < e->sel.draw.n; k++)
-            under2 += n[e->sel.draw.v[k]].block == n[2].block;
+        size_t ns;
+        const uint32_t *sel = hlod_inspect_selected(e, &ns);
+        for (size_t k = 0; k < ns; k++)
+            under2 += n[sel[k]].block == n[2].block;
         CHECKF(!hlod_engine_node_drawn(e, 0) && !hlod_engine_node_drawn(e, 2) && under2 > 0,
                "root drawn %d, bad node 2 drawn %d, %d nodes of block 2 drawn (of %zu)",
-               hlod_engine_node_drawn(e, 0), hlod_engine_node_drawn(e, 2), under2, e->sel.draw.n);
+               hlod_engine_node_drawn(e, 0), hlod_engine_node_drawn(e, 2), under2, ns);
         CHECK(hlod_engine_node_state(e, 2) == HLOD_NODE_BAD && t.bad_drawn == 0 &&
               t.miscounted == 0);
         hlod_engine_destroy(e);

@@ -8,7 +8,7 @@
  * group levels.
  */
 #include "check.h"
-#include "engine_internal.h"
+#include "inspect.h"
 #include "hlod/build_store.h"
 #include "hlod/engine.h"
 #include "hlod/mesh_io.h"

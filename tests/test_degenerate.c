@@ -22,7 +22,7 @@
  */
 #define _GNU_SOURCE /* RUSAGE_THREAD (cpu_span.h) */
 #include "check.h"
-#include "engine_internal.h"
+#include "inspect.h"
 #include "engine_check.h"
 #include "store_fixture.h"
 
@@ -203,8 +203,9 @@ static int check_frame(const hlod_engine *e, const hlod_store *s, const hlod_fra
     int bad = 0;
     const hlod_store_node *n = hlod_store_nodes(s);
     const uint32_t count = hlod_store_node_count(s);
-    const double lim = e->d.c_hyst_limit;
-    const uint32_t fr = e->frame;
+    const hlod_engine_desc *d = hlod_engine_get_desc(e);
+    const double lim = d->c_hyst_limit;
+    const uint32_t fr = hlod_inspect_frame(e);
     g_frames_checked++;
 #define EXPECT(cond, ...)                                                        \
     do {                                                                         \
@@ -224,7 +225,7 @@ static int check_frame(const hlod_engine *e, const hlod_store *s, const hlod_fra
         per_depth += st->nodes_per_depth[k];
     double root_sum = 0;
     for (uint32_t i = 0; i < count; i++) {
-        const hlod_node_frame *f = &e->sel.fr[i];
+        const hlod_node_look look = hlod_inspect_node(e, i), *f = &look;
         EXPECT(isfinite(f->hyst) && isfinite(f->slice) && isfinite(f->needed) &&
                    isfinite(f->priority), "node %u: hyst %g slice %g need %g priority %g", i,
                f->hyst, f->slice, f->needed, f->priority);
@@ -243,15 +244,15 @@ static int check_frame(const hlod_engine *e, const hlod_store *s, const hlod_fra
                 EXPECT(!hlod_engine_node_drawn(e, a), "node %u drawn with its ancestor %u", i,
                        a);
         }
-        if (i < e->root_count && f->priced == fr)
+        if (i < hlod_store_root_count(s) && f->priced == fr)
             root_sum += f->slice;
         if (f->refined == fr) {
             double sum = 0, need = 0;
             int kids = 0;
             for (uint32_t c = n[i].first_child; c < n[i + 1].first_child; c++)
-                if (e->sel.fr[c].drawn == fr || e->sel.fr[c].refined == fr) {
-                    sum += e->sel.fr[c].slice;
-                    need += e->sel.fr[c].needed;
+                if (hlod_inspect_node(e, c).drawn == fr || hlod_inspect_node(e, c).refined == fr) {
+                    sum += hlod_inspect_node(e, c).slice;
+                    need += hlod_inspect_node(e, c).needed;
                     kids++;
                 }
             /* around the eye the children share at least 1.15 x their
@@ -269,10 +270,10 @@ static int check_frame(const hlod_engine *e, const hlod_store *s, const hlod_fra
         EXPECT(close_to(root_sum, st->budget_ms * st->share_gain),
                "roots' slices %.17g, shared time %.17g", root_sum,
                st->budget_ms * st->share_gain);
-    hlod_policy pol = e->d.policy;
+    hlod_policy pol = d->policy;
     if ((pol == HLOD_POLICY_LAKHIA || pol == HLOD_POLICY_NOHYST) &&
         st->nodes_per_depth[0] != st->nodes_drawn)
-        EXPECT(st->estimated_ms - st->fixed_ms - (e->d.deterministic ? 0 : st->upload_ms) <=
+        EXPECT(st->estimated_ms - st->fixed_ms - (d->deterministic ? 0 : st->upload_ms) <=
                    st->budget_ms * (1 + 1e-9),
                "estimate %g - fixed %g - uploads %g over the budget %g", st->estimated_ms,
                st->fixed_ms, st->upload_ms, st->budget_ms);
@@ -406,7 +407,8 @@ static void zero_priorities(void)
             hlod_frame_stats st;
             CHECK(hlod_engine_frame(e, &cam, 1.0 / 30, &st) == HLOD_OK);
             for (int i = 0; i < DN; i++)
-                priced[i] |= e->sel.fr[i].priced == e->frame && e->sel.fr[i].priority > 0;
+                priced[i] |= hlod_inspect_node(e, (uint32_t)i).priced == hlod_inspect_frame(e) &&
+                             hlod_inspect_node(e, (uint32_t)i).priority > 0;
         }
     }
     for (int i = 0; i < DN; i++)

@@ -13,7 +13,8 @@
  */
 #define _GNU_SOURCE /* RUSAGE_THREAD (cpu_span.h) */
 #include "check.h"
-#include "engine_internal.h"
+#include "inspect.h"
+#include "selection.h" /* hlod_node_cost */
 #include "engine_check.h"
 #include "hlod/metrics.h"
 #include "store_fixture.h"
@@ -26,6 +27,17 @@
 #include <sys/wait.h>
 #if defined(__GLIBC__)
 #include <malloc.h>
+
+/* The engine as inspect.h shows it. */
+static hlod_node_look node_look(const hlod_engine *e, uint32_t node)
+{
+    return hlod_inspect_node(e, node);
+}
+
+static uint32_t last_frame(const hlod_engine *e)
+{
+    return hlod_inspect_frame(e);
+}
 #endif
 
 static char g_dir[256];
@@ -146,23 +158,24 @@ static void time_slices_sum(void)
     for (uint32_t r = 0; r < hlod_store_root_count(s); r++) {
         double slice;
         hlod_engine_node_debug(e, r, NULL, &slice, NULL, NULL);
-        if (e->sel.fr[r].priced == e->frame)
+        if (node_look(e, r).priced == last_frame(e))
             root_sum += slice;
     }
     double share = st.budget_ms * st.share_gain;
     CHECKF(fabs(root_sum - share) <= 1e-9 * share, "roots %g share %g", root_sum, share);
     for (uint32_t p = 0; p < count; p++) {
-        if (e->sel.fr[p].refined != e->frame)
+        if (node_look(e, p).refined != last_frame(e))
             continue;
         double sum = 0;
         int n = 0;
         for (uint32_t c = nodes[p].first_child; c < nodes[p + 1].first_child; c++)
-            if (e->sel.fr[c].drawn == e->frame || e->sel.fr[c].refined == e->frame) {
-                sum += e->sel.fr[c].slice;
+            if (node_look(e, c).drawn == last_frame(e) ||
+                node_look(e, c).refined == last_frame(e)) {
+                sum += node_look(e, c).slice;
                 n++;
             }
-        CHECKF(fabs(sum - e->sel.fr[p].slice) <= 1e-9 * e->sel.fr[p].slice, "node %u: %g vs %g", p, sum,
-               e->sel.fr[p].slice);
+        CHECKF(fabs(sum - node_look(e, p).slice) <= 1e-9 * node_look(e, p).slice,
+               "node %u: %g vs %g", p, sum, node_look(e, p).slice);
         refined_seen += n > 0;
     }
     CHECK(refined_seen > 0);
@@ -307,7 +320,7 @@ static void unequal_siblings_refine(void)
             continue;
         root_frames += hlod_engine_node_drawn(e, 0);
         for (uint32_t c = 2; c <= 4; c++)
-            far_low += e->sel.fr[c].hyst <= -0.5 * d.c_hyst_limit;
+            far_low += node_look(e, c).hyst <= -0.5 * d.c_hyst_limit;
     }
     const hlod_engine_desc *dd = hlod_engine_get_desc(e);
     fprintf(stderr, "  root drawn in %u of frames 20-59; far counters at or under %g: %u of 120\n",
@@ -343,30 +356,21 @@ static void hidden_child_keeps_vote(void)
     run_frames(e, &cam, 40, &st);
     CHECK(!hlod_engine_node_drawn(e, 0) && hlod_engine_node_drawn(e, 1));
     const double lim = hlod_engine_get_desc(e)->c_hyst_limit;
-    CHECKF(e->sel.fr[1].hyst >= 0.5 * lim && e->sel.fr[2].hyst <= -0.5 * lim,
-           "premise: near counter %g, far %g", e->sel.fr[1].hyst, e->sel.fr[2].hyst);
-    hlod_view view;
-    const double still[3] = {0, 0, 0};
-    hlod_view_init(&view, &cam, still, 0);
+    CHECKF(node_look(e, 1).hyst >= 0.5 * lim && node_look(e, 2).hyst <= -0.5 * lim,
+           "premise: near counter %g, far %g", node_look(e, 1).hyst, node_look(e, 2).hyst);
     uint32_t root_frames = 0, toggles = 0;
     for (int k = 0; k < 40; k++) {
-        uint32_t f = e->frame + 1;
-        if (e->sel.fr[1].drawn + 1 == f)
-            hlod_occlusion_mark(&e->occ, 1, 0, f - 1); /* drawn last frame, and found hidden */
-        memset(&e->st, 0, sizeof e->st);
-        hlod_residency_begin_frame(&e->res, f);
-        hlod_select_in in = {.frame = f,
-                             .v_time = e->cost.theta[2],
-                             .occlusion = 1,
-                             .occ = &e->occ,
-                             .still = 1,
-                             .budget_ms = d.target_ms - e->cost.theta[0],
-                             .share_ms = 1.5};
-        CHECK(hlod_select(&e->sel, &e->res, &view, &in) == HLOD_OK);
-        hlod_residency_end_frame(&e->res);
-        e->frame = f;
-        root_frames += e->sel.fr[0].drawn == f;
-        toggles += e->st.toggles_up + e->st.toggles_down;
+        uint32_t f = last_frame(e) + 1;
+        if (node_look(e, 1).drawn + 1 == f)
+            hlod_inspect_hide(e, 1, f - 1); /* drawn last frame, and found hidden */
+        hlod_hand_frame hf = {.cam = &cam,
+                              .budget_ms = d.target_ms - hlod_inspect_model(e).theta[0],
+                              .share_ms = 1.5,
+                              .occlusion = 1,
+                              .still = 1};
+        CHECK(hlod_inspect_select(e, &hf, &st) == HLOD_OK);
+        root_frames += node_look(e, 0).drawn == f;
+        toggles += st.toggles_up + st.toggles_down;
     }
     fprintf(stderr, "  near quadrant hidden whenever drawn: root drawn in %u of 40 frames, "
             "%u toggles\n", root_frames, toggles);
@@ -381,18 +385,9 @@ static void hidden_child_keeps_vote(void)
 static uint32_t select_by_hand(hlod_engine *e, const hlod_camera *cam, double budget,
                                double share)
 {
-    hlod_view view;
-    const double still[3] = {0, 0, 0};
-    hlod_view_init(&view, cam, still, 0);
-    uint32_t f = e->frame + 1;
-    memset(&e->st, 0, sizeof e->st);
-    hlod_residency_begin_frame(&e->res, f);
-    hlod_select_in in = {
-        .frame = f, .v_time = e->cost.theta[2], .budget_ms = budget, .share_ms = share};
-    CHECK(hlod_select(&e->sel, &e->res, &view, &in) == HLOD_OK);
-    hlod_residency_end_frame(&e->res);
-    e->frame = f;
-    return f;
+    hlod_hand_frame hf = {.cam = cam, .budget_ms = budget, .share_ms = share};
+    CHECK(hlod_inspect_select(e, &hf, NULL) == HLOD_OK);
+    return last_frame(e);
 }
 
 /* A refinement the walk will not reach frees what was reserved for it.
@@ -420,18 +415,19 @@ static void culled_refinement_frees_its_reservation(void)
     CHECK(hlod_engine_load_all_leaves(e, &both) == HLOD_OK);
     for (int k = 0; k < 3; k++)
         select_by_hand(e, &both, 100, 100);
-    CHECKF(e->sel.fr[b0].refined == e->frame && e->sel.fr[b1].refined == e->frame,
+    CHECKF(node_look(e, b0).refined == last_frame(e) && node_look(e, b1).refined == last_frame(e),
            "premise: both blocks refined with time to spare");
     for (int k = 0; k < 3; k++)
         select_by_hand(e, &at0, 6, 6);
-    CHECKF(e->sel.fr[b0].refined == e->frame && e->sel.fr[b1].refined + 3 <= e->frame,
+    CHECKF(node_look(e, b0).refined == last_frame(e) &&
+               node_look(e, b1).refined + 3 <= last_frame(e),
            "premise: block 0 alone refined");
     uint32_t f = select_by_hand(e, &at1, 6, 6);
     fprintf(stderr, "  first frame at block 1: refined %d, %u refusals by the budget\n",
-            e->sel.fr[b1].refined == f, e->sel.cap_hits);
-    CHECKF(e->sel.fr[b1].refined == f && !hlod_engine_node_drawn(e, b1),
+            node_look(e, b1).refined == f, hlod_inspect_cap_hits(e));
+    CHECKF(node_look(e, b1).refined == f && !hlod_engine_node_drawn(e, b1),
            "block 1 drawn coarse on the first frame (%u refusals by the budget)",
-           e->sel.cap_hits);
+           hlod_inspect_cap_hits(e));
     hlod_engine_destroy(e);
     hlod_store_close(s);
 }
@@ -445,10 +441,10 @@ static void culled_refinement_frees_its_reservation(void)
  * (a) The slice: a share of 2 ms for a root whose children need 4.  Eye
  * outside the box (20 m up): the root is drawn, as eq. 4 says, and
  * (lakhia) the children's counters fall.  Inside: refined at once (before,
- * never; with the slice alone, after their vote let go: drawn 1 frame).  (b) The bound: a budget of 6 ms with block 0 refined first.
- * Before, block 1 (needing 5 - 1 + 4 = 8 > 6 ms with block 0 refined)
- * waited behind block 0's refinement for good; now it is decided first
- * in its level and block 0, elsewhere, is drawn coarse instead. */
+ * never; with the slice alone, after their vote let go: drawn 1 frame).  (b) The bound: a budget of
+ * 6 ms with block 0 refined first. Before, block 1 (needing 5 - 1 + 4 = 8 > 6 ms with block 0
+ * refined) waited behind block 0's refinement for good; now it is decided first in its level and
+ * block 0, elsewhere, is drawn coarse instead. */
 static void eye_inside_refines(void)
 {
     fixture_opts o = {0};
@@ -487,16 +483,18 @@ static void eye_inside_refines(void)
         look(&above, 105, -60, 60, 105, 50, 0);
         for (int k = 0; k < 3; k++)
             select_by_hand(e, &above, 100, 1e4);
-        CHECKF(e->sel.fr[b0].refined == e->frame && e->sel.fr[b1].refined == e->frame,
+        CHECKF(node_look(e, b0).refined == last_frame(e) &&
+                   node_look(e, b1).refined == last_frame(e),
                "%s: premise: both blocks refined with time to spare", name);
         for (int k = 0; k < 3; k++)
             select_by_hand(e, &above, 6, 1e4);
-        int premise = e->sel.fr[b0].refined == e->frame && e->sel.fr[b1].refined != e->frame;
+        int premise =
+            node_look(e, b0).refined == last_frame(e) && node_look(e, b1).refined != last_frame(e);
         uint32_t in_refined = 0, far_refined = 0;
         for (int k = 0; k < 5; k++) {
             uint32_t f = select_by_hand(e, &both, 6, 1e4);
-            in_refined += e->sel.fr[b1].refined == f;
-            far_refined += e->sel.fr[b0].refined == f;
+            in_refined += node_look(e, b1).refined == f;
+            far_refined += node_look(e, b0).refined == f;
         }
         fprintf(stderr, "  %s: at 6 ms, eye in block 1: block 1 refined in %u of 5 frames, "
                 "block 0 in %u\n", name, in_refined, far_refined);
@@ -547,13 +545,19 @@ static uint32_t still_window_toggles(hlod_store *s, hlod_policy policy, double n
             lo = st.measured_ms < lo ? st.measured_ms : lo;
             hi = st.measured_ms > hi ? st.measured_ms : hi;
         }
-        if (getenv("HLOD_TEST_VERBOSE") && (st.toggles_up + st.toggles_down || getenv("HLOD_TEST_ALL")))
-            fprintf(stderr, "  %s f %d: up %u down %u gain %.3f est %.3f budget %.3f fixed %.3f "
-                    "v %.5f meas %.2f draw %.4f pix %.3g m %.3f n %u c %.0f p %.0f u %u/%u/%u\n", hlod_policy_name(policy), f, st.toggles_up,
-                    st.toggles_down, st.share_gain, st.estimated_ms, st.budget_ms, st.fixed_ms,
-                    st.v_time, st.measured_ms, e->cost.theta[1], e->cost.theta[3], st.margin, st.nodes_drawn, st.cost_drawn, st.pixels_drawn, e->cost.scale_updates, e->cost.shape_updates, e->cost.margin_updates);
+        if (getenv("HLOD_TEST_VERBOSE") &&
+            (st.toggles_up + st.toggles_down || getenv("HLOD_TEST_ALL")))
+            fprintf(stderr,
+                    "  %s f %d: up %u down %u gain %.3f est %.3f budget %.3f fixed %.3f "
+                    "v %.5f meas %.2f draw %.4f pix %.3g m %.3f n %u c %.0f p %.0f u %u/%u/%u\n",
+                    hlod_policy_name(policy), f, st.toggles_up, st.toggles_down, st.share_gain,
+                    st.estimated_ms, st.budget_ms, st.fixed_ms, st.v_time, st.measured_ms,
+                    hlod_inspect_model(e).theta[1], hlod_inspect_model(e).theta[3], st.margin,
+                    st.nodes_drawn, st.cost_drawn, st.pixels_drawn,
+                    hlod_inspect_model(e).scale_updates, hlod_inspect_model(e).shape_updates,
+                    hlod_inspect_model(e).margin_updates);
         for (uint32_t i = 0; i < hlod_store_node_count(s); i++)
-            out_of_range += e->sel.fr[i].hyst < -lim || e->sel.fr[i].hyst > lim;
+            out_of_range += node_look(e, i).hyst < -lim || node_look(e, i).hyst > lim;
     }
     CHECKF(loads == 0, "%s: %u loads after everything in view was resident",
            hlod_policy_name(policy), loads);
@@ -725,7 +729,8 @@ static void still_hold_rides_out_bursts(void)
                (unsigned long long)seeds[k], toggles);
         CHECKF(down > 0 && met >= 90, "seed %llu: 2 x slower: %u down, %d of 100 frames met",
                (unsigned long long)seeds[k], down, met);
-        CHECKF(up > 0, "seed %llu: the machine back, nothing refined", (unsigned long long)seeds[k]);
+        CHECKF(up > 0, "seed %llu: the machine back, nothing refined",
+               (unsigned long long)seeds[k]);
         hlod_engine_destroy(e);
     }
     hlod_store_close(s);
@@ -743,22 +748,23 @@ static void refined_not_evicted(void)
     hlod_engine *e = still_engine("refined.hlod", &s, &d, &cam);
     run_frames(e, &cam, 40, NULL);
     uint32_t refined = 0, drawn = 0, other = 0;
-    for (uint32_t i = e->res.pinned_count; i < e->node_count; i++) {
+    for (uint32_t i = hlod_inspect_pinned_count(e); i < hlod_store_node_count(s); i++) {
         if (hlod_engine_node_state(e, i) != HLOD_NODE_RESIDENT)
             continue;
         double key = 0;
-        int evictable = hlod_engine_evict_key(e, i, &key);
-        if (e->sel.fr[i].refined == e->frame) {
+        int evictable = hlod_inspect_evictable(e, i, &key);
+        if (node_look(e, i).refined == last_frame(e)) {
             refined++;
             CHECKF(!evictable, "node %u, refined this frame, may be evicted (key %g)", i, key);
-        } else if (e->sel.fr[i].drawn == e->frame) {
+        } else if (node_look(e, i).drawn == last_frame(e)) {
             drawn++;
             CHECKF(!evictable, "node %u, drawn this frame, may be evicted", i);
         } else {
             other += evictable;
         }
     }
-    fprintf(stderr, "  resident below the pinned nodes: %u refined, %u drawn, %u others evictable\n",
+    fprintf(stderr,
+            "  resident below the pinned nodes: %u refined, %u drawn, %u others evictable\n",
             refined, drawn, other);
     CHECKF(refined > 0 && drawn > 0, "premise: %u refined, %u drawn below the pinned nodes",
            refined, drawn);
@@ -926,7 +932,8 @@ static void prefetch_follows_motion(void)
             double x = 105 + dir * 2.0 * f; /* 60 m/s along x */
             look(&cam, x, 50, 150, x, 50.5, 0);
             CHECK(hlod_engine_frame(e, &cam, 1.0 / 30, &st) == HLOD_OK);
-            for (uint32_t i = hlod_store_root_count(s); i < hlod_store_node_count(s) && i < 64; i++) {
+            for (uint32_t i = hlod_store_root_count(s); i < hlod_store_node_count(s) && i < 64;
+                 i++) {
                 int now = hlod_engine_node_state(e, i) == HLOD_NODE_RESIDENT;
                 if (now && !was[i] && f >= 2 && seen < 3) {
                     seen++;
@@ -973,7 +980,7 @@ static void budget_random_jumps(void)
         CHECK(hlod_engine_frame(e, &cam, 1.0 / 30, &st) == HLOD_OK);
         loads += st.loads;
         evictions += st.evictions;
-        if (st.resident_bytes + e->res.reserved_bytes > d.memory_budget_bytes ||
+        if (st.resident_bytes + hlod_inspect_reserved_bytes(e) > d.memory_budget_bytes ||
             st.resident_cost > (double)d.memory_budget_bytes * (1 + 1e-9))
             over++;
         if (st.resident_bytes > peak)
@@ -1383,8 +1390,8 @@ static void degenerate_views(void)
             CHECK(stats_finite(&st));
         }
         for (uint32_t i = 0; i < hlod_store_node_count(s); i++)
-            CHECK(isfinite(e->sel.fr[i].hyst) && isfinite(e->sel.fr[i].slice) &&
-                  isfinite(e->sel.fr[i].priority));
+            CHECK(isfinite(node_look(e, i).hyst) && isfinite(node_look(e, i).slice) &&
+                  isfinite(node_look(e, i).priority));
         /* a NaN camera is rejected, not drawn */
         cam.position[0] = NAN;
         CHECK(hlod_engine_frame(e, &cam, 1.0 / 30, &st) == HLOD_ERR_INVALID_ARG);

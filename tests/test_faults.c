@@ -31,7 +31,7 @@
  */
 #define _GNU_SOURCE /* RUSAGE_THREAD */
 #include "check.h"
-#include "engine_internal.h"
+#include "inspect.h"
 #include "engine_check.h"
 #include "store_fixture.h"
 

@@ -28,7 +28,7 @@
  */
 #include "hlod_clock.h"
 #include "check.h"
-#include "engine_internal.h"
+#include "inspect.h"
 #include "hlod/renderer.h"
 #include "hlod/image.h"
 #include "hlod/metrics.h"

@@ -23,7 +23,7 @@
  */
 #define _GNU_SOURCE /* RUSAGE_THREAD */
 #include "check.h"
-#include "engine_internal.h"
+#include "inspect.h"
 #include "engine_check.h"
 #include "store_fixture.h"
 
@@ -295,7 +295,7 @@ static void *soak_main(void *arg)
         k->nonfinite += !stats_finite(&st);
         k->drew_outside += away && st.nodes_drawn > 0;
         /* reserved_bytes is the engine's own (this thread's) field */
-        uint64_t used = st.resident_bytes + e->res.reserved_bytes;
+        uint64_t used = st.resident_bytes + hlod_inspect_reserved_bytes(e);
         k->over_budget += st.resident_bytes > k->budget || used > k->budget ||
                           st.resident_cost > (double)k->budget * (1 + 1e-9);
         if (st.resident_bytes > k->peak_resident)

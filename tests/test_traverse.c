@@ -1,0 +1,241 @@
+/*
+ * test_traverse.c - the selection alone (engine/selection.h, traverse.c;
+ * docs/runtime.md): no engine, no cost model, no renderer.  A fixture
+ * residency (deterministic, every node read synchronously, or all but
+ * one) and one block of tests/store_fixture.h: a root over four
+ * quadrants, each quadrant's timeNeeded 1 ms (v_time = 1 / its cost).
+ * Each test hands hlod_select the budget and the shared time by hand and
+ * checks which nodes it draws.
+ */
+#include "check.h"
+#include "residency.h"
+#include "selection.h"
+#include "store_fixture.h"
+
+#include <math.h>
+#include <stdio.h>
+#include <unistd.h>
+
+static char g_dir[512];
+static hlod_store *g_store;
+
+/* The selection and the residency under test, and what they share. */
+typedef struct rig {
+    hlod_engine_desc d;
+    hlod_frame_stats st;
+    hlod_residency res;
+    hlod_selection sel;
+    hlod_view view;
+    uint32_t frame;
+    double v_time;      /* ms per unit of cost: each quadrant needs 1 ms */
+} rig;
+
+/* A rig for policy pol, every node resident but `missing` (UINT32_MAX:
+ * none). */
+static int rig_init(rig *r, hlod_policy pol, uint32_t missing)
+{
+    memset(r, 0, sizeof *r);
+    hlod_engine_desc_defaults(&r->d);
+    r->d.deterministic = 1;
+    r->d.policy = pol;
+    r->d.deterministic_load_bytes = 1u << 30;
+    if (hlod_residency_init(&r->res, g_store, &r->d, &r->st) != HLOD_OK)
+        return 0;
+    if (hlod_selection_init(&r->sel, g_store, &r->d, &r->st) != HLOD_OK)
+        return 0;
+    for (uint32_t i = 0; i < hlod_store_node_count(g_store); i++)
+        if (i != missing && hlod_residency_state(&r->res, i) != HLOD_NODE_RESIDENT &&
+            hlod_residency_load_now(&r->res, i) != HLOD_OK)
+            return 0;
+    r->v_time = 1.0 / hlod_node_cost(&hlod_store_nodes(g_store)[1]);
+    hlod_camera cam;
+    /* straight above the block's centre: the quadrants alike in priority */
+    const double eye[3] = {50, 50, 150}, at[3] = {50, 50, 0}, up[3] = {0, 1, 0};
+    if (hlod_camera_look_at(&cam, eye, at, up, 60, 0.5, 1e5, 1280, 720) != HLOD_OK)
+        return 0;
+    const double still[3] = {0, 0, 0};
+    hlod_view_init(&r->view, &cam, still, 0);
+    return 1;
+}
+
+static void rig_free(rig *r)
+{
+    hlod_selection_free(&r->sel);
+    hlod_residency_destroy(&r->res);
+}
+
+/* One frame: budget and shared time in ms; the camera moves (no still
+ * bonus) unless still. */
+static void select_frame(rig *r, double budget, double share, double sse_pixels)
+{
+    r->frame++;
+    memset(&r->st, 0, sizeof r->st);
+    hlod_residency_begin_frame(&r->res, r->frame);
+    hlod_select_in in = {.frame = r->frame,
+                         .v_time = r->v_time,
+                         .sse_pixels = sse_pixels,
+                         .budget_ms = budget,
+                         .share_ms = share};
+    CHECK(hlod_select(&r->sel, &r->res, &r->view, &in) == HLOD_OK);
+    hlod_residency_end_frame(&r->res);
+}
+
+/* Whether the frame drew exactly the root (0), or exactly its four
+ * quadrants (1). */
+static int drew_root(const rig *r)
+{
+    return r->sel.draw.n == 1 && r->sel.draw.v[0] == 0;
+}
+
+static int drew_quadrants(const rig *r)
+{
+    if (r->sel.draw.n != 4)
+        return 0;
+    int seen = 0;
+    for (size_t k = 0; k < 4; k++)
+        seen |= r->sel.draw.v[k] >= 1 && r->sel.draw.v[k] <= 4 ? 1 << r->sel.draw.v[k] : 0;
+    return seen == 0x1e;
+}
+
+/* nohyst (eq. 4's recursion rule): the quadrants, needing 4 ms together,
+ * are drawn when the root's shared time exceeds that, and not below it;
+ * their slices share the root's time by priority, alike for quadrants
+ * seen alike, more for the nearest from the side. */
+static void nohyst_shares_time_by_eq4(void)
+{
+    rig r;
+    CHECK(rig_init(&r, HLOD_POLICY_NOHYST, UINT32_MAX));
+    select_frame(&r, 100, 3.9, 2);
+    CHECKF(drew_root(&r), "share 3.9 ms for 4 ms of children: %zu nodes drawn", r.sel.draw.n);
+    select_frame(&r, 100, 4.1, 2);
+    CHECKF(drew_quadrants(&r), "share 4.1 ms: %zu nodes drawn", r.sel.draw.n);
+    double sum = 0;
+    for (uint32_t c = 1; c <= 4; c++) {
+        const hlod_node_frame *f = &r.sel.fr[c];
+        CHECKF(fabs(f->needed - 1) < 1e-9, "quadrant %u needs %g ms", c, f->needed);
+        CHECKF(fabs(f->slice - 4.1 / 4) < 1e-9, "quadrant %u: slice %g", c, f->slice);
+        sum += f->slice;
+    }
+    CHECKF(fabs(sum - 4.1) < 1e-9, "the quadrants' slices sum to %g, not 4.1", sum);
+    /* from the side, the near quadrants' priorities and slices are larger */
+    hlod_camera cam;
+    const double eye[3] = {50, -100, 80}, at[3] = {50, 50, 0}, up[3] = {0, 0, 1};
+    CHECK(hlod_camera_look_at(&cam, eye, at, up, 60, 0.5, 1e5, 1280, 720) == HLOD_OK);
+    const double still[3] = {0, 0, 0};
+    hlod_view_init(&r.view, &cam, still, 0);
+    select_frame(&r, 100, 8, 2);
+    const hlod_node_frame *fr = r.sel.fr;
+    /* quadrants 1 and 2 lie at y < 50, nearer the eye at y = -100 */
+    CHECKF(fr[1].slice > fr[3].slice && fr[2].slice > fr[4].slice &&
+               fabs(fr[1].slice + fr[2].slice + fr[3].slice + fr[4].slice - 8) < 1e-9,
+           "slices %g %g %g %g", fr[1].slice, fr[2].slice, fr[3].slice, fr[4].slice);
+    rig_free(&r);
+}
+
+/* The budget bound: with time enough to share but a budget the quadrants
+ * do not fit (a new refinement must leave 15 % of it free), the root is
+ * drawn and the refusal counted; with room, the quadrants. */
+static void budget_bound_draws_parent(void)
+{
+    rig r;
+    CHECK(rig_init(&r, HLOD_POLICY_NOHYST, UINT32_MAX));
+    select_frame(&r, 4.5, 100, 2);
+    CHECKF(drew_root(&r) && r.sel.cap_hits == 1, "budget 4.5 ms (bound 3.8): %zu drawn, %u refused",
+           r.sel.draw.n, r.sel.cap_hits);
+    rig_free(&r);
+    CHECK(rig_init(&r, HLOD_POLICY_NOHYST, UINT32_MAX));
+    select_frame(&r, 5, 100, 2);
+    CHECKF(drew_quadrants(&r) && r.sel.cap_hits == 0, "budget 5 ms: %zu drawn, %u refused",
+           r.sel.draw.n, r.sel.cap_hits);
+    rig_free(&r);
+}
+
+/* A visible quadrant that is not resident forces the root, whatever the
+ * time, and is asked for as a refinement's need. */
+static void missing_child_forces_parent(void)
+{
+    rig r;
+    CHECK(rig_init(&r, HLOD_POLICY_NOHYST, 3));
+    CHECK(hlod_residency_state(&r.res, 3) == HLOD_NODE_ABSENT);
+    select_frame(&r, 100, 100, 2);
+    CHECKF(drew_root(&r) && r.st.wanted_missing == 1, "%zu drawn, %u wanted missing",
+           r.sel.draw.n, r.st.wanted_missing);
+    CHECK(r.res.res[3].needed == r.frame); /* asked for as what the refinement waits for */
+    rig_free(&r);
+}
+
+/* full refines wherever the children are resident; sse while the node's
+ * projected error exceeds the threshold. */
+static void full_and_sse_decide_alone(void)
+{
+    rig r;
+    CHECK(rig_init(&r, HLOD_POLICY_FULL, UINT32_MAX));
+    select_frame(&r, 0.001, 0.001, 2);
+    CHECKF(drew_quadrants(&r), "full, no time at all: %zu drawn", r.sel.draw.n);
+    rig_free(&r);
+    CHECK(rig_init(&r, HLOD_POLICY_SSE, UINT32_MAX));
+    select_frame(&r, 100, 100, 1e4);
+    CHECKF(drew_root(&r), "sse at 1e4 px: %zu drawn", r.sel.draw.n);
+    select_frame(&r, 0.001, 0.001, 1);
+    CHECKF(drew_quadrants(&r), "sse at 1 px, no time: %zu drawn", r.sel.draw.n);
+    rig_free(&r);
+}
+
+/* lakhia's urgency hysteresis: refined with time to spare, the quadrants
+ * stay drawn for a while when the time falls under their need (each
+ * counter must run down past -c_hyst_switch first), and the root comes
+ * back once they have; the safety clamp draws the root at once when the
+ * time is far short. */
+static void lakhia_counters_delay_the_switch(void)
+{
+    rig r;
+    CHECK(rig_init(&r, HLOD_POLICY_LAKHIA, UINT32_MAX));
+    for (int k = 0; k < 3; k++)
+        select_frame(&r, 100, 8, 2); /* slices 2 ms for 1: counters +1 a frame */
+    CHECKF(drew_quadrants(&r) && fabs(r.sel.fr[1].hyst - 3) < 1e-9, "counter %g after 3 frames",
+           r.sel.fr[1].hyst);
+    int frames = 0;
+    do {
+        select_frame(&r, 100, 3.5, 2); /* slices 0.875 ms: counters -0.125 a frame */
+        frames++;
+    } while (drew_quadrants(&r) && frames < 100);
+    /* from +3 down to -2, where trunc(hyst / 2) votes -1: 40 frames */
+    CHECKF(drew_root(&r) && frames >= 38 && frames <= 42, "root back after %d short frames",
+           frames);
+    printf("     root back after %d frames of 3.5 ms for 4 ms\n", frames);
+    rig_free(&r);
+    CHECK(rig_init(&r, HLOD_POLICY_LAKHIA, UINT32_MAX));
+    for (int k = 0; k < 3; k++)
+        select_frame(&r, 100, 8, 2);
+    select_frame(&r, 100, 2, 2); /* half the need: the clamp */
+    CHECKF(drew_root(&r), "share 2 ms for 4 ms: %zu drawn", r.sel.draw.n);
+    rig_free(&r);
+}
+
+int main(void)
+{
+    const char *tmp = getenv("TMPDIR");
+    char path[1024];
+    snprintf(g_dir, sizeof g_dir, "%s/hlod-test-traverse.XXXXXX", tmp && *tmp ? tmp : "/tmp");
+    if (!mkdtemp(g_dir)) {
+        perror("mkdtemp");
+        return 1;
+    }
+    snprintf(path, sizeof path, "%s/traverse.hlod", g_dir);
+    fixture_opts o = {.roots = 1, .depth = 1};
+    uint32_t count = 0;
+    int ok = fixture_write(path, &o, &count) == HLOD_OK && count == 5 &&
+             hlod_store_open(path, NULL, &g_store) == HLOD_OK;
+    CHECK(ok);
+    if (ok) {
+        RUN(nohyst_shares_time_by_eq4);
+        RUN(budget_bound_draws_parent);
+        RUN(missing_child_forces_parent);
+        RUN(full_and_sse_decide_alone);
+        RUN(lakhia_counters_delay_the_switch);
+    }
+    hlod_store_close(g_store);
+    unlink(path);
+    rmdir(g_dir);
+    return check_done() || !ok;
+}
