@@ -4,20 +4,28 @@
 #   - hlod-simplify on every test mesh at 10% and 1%;
 #   - hlod-gen-city --preset small and tiny (meshes, textures, paths);
 #   - hlod-build stores of the small city (and with --default the 7M
-#     default city: about 25 min and 8 GB of disk), cutplane and metis;
+#     default city: about 25 min and 8 GB of disk; with --parts the
+#     demo's second city, the same size as separate boxes at 500 km,
+#     4,100 km), cutplane and metis;
 #   - hlod-bench --deterministic on walk-to-fly and walk-drive, all three
 #     policies: every column of frames.csv but the wall-clock ones
 #     (measured_ms, traversal_ms, upload_ms, occlusion_ms, render_waits) and the image
 #     ones (not rendered against a reference here).
 #
-#   bash tests/bench/identity.sh OLD_BIN NEW_BIN OUT [--default]
+#   bash tests/bench/identity.sh OLD_BIN NEW_BIN OUT [--default] [--parts]
 #
 # OLD_BIN and NEW_BIN are build/bin folders (copy one aside before
 # rebuilding).  Prints "same X" or "DIFF X" per output; exit 1 on any DIFF.
 set -eu
 OLD=$1 NEW=$2 OUT=$3
 CITIES="small"
-[ "${4:-}" = --default ] && CITIES="small default"
+for a in "${@:4}"; do
+    case $a in
+    --default) CITIES="$CITIES default" ;;
+    --parts) CITIES="$CITIES parts" ;; # the default city's size as separate boxes, far out
+    *) echo "identity.sh: unknown option $a" >&2; exit 2 ;;
+    esac
+done
 ROOT=$(cd "$(dirname "$0")/../.." && pwd)
 M=$ROOT/data/meshes
 mkdir -p "$OUT"
@@ -39,11 +47,16 @@ make_outputs() { # BIN DIR
         local C=$OUT/city-$c
         if [ ! -f "$C/city.obj" ]; then # the input, made once by OLD
             mkdir -p "$C"
-            "$OLD/hlod-gen-city" --preset $c -o "$C/city.obj" --paths "$C/paths" --quiet
+            if [ $c = parts ]; then
+                "$OLD/hlod-gen-city" --preset default --style parts --seed 2 \
+                    --origin 500000 4100000 0 -o "$C/city.obj" --paths "$C/paths" --quiet
+            else
+                "$OLD/hlod-gen-city" --preset $c -o "$C/city.obj" --paths "$C/paths" --quiet
+            fi
         fi
         for meth in cutplane metis; do
             extra=""
-            [ $c = default ] && [ $meth = cutplane ] && extra="--desired-tris 450"
+            [ $c != small ] && [ $meth = cutplane ] && extra="--desired-tris 450"
             "$B/hlod-build" "$C/city.obj" -o "$D/city/$c-$meth.hlod" --method $meth --threads 1 \
                 --quiet $extra
             for p in walk-to-fly walk-drive; do
