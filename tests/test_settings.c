@@ -104,14 +104,18 @@ static void defaults_and_names(void)
           d.memory_budget_bytes == 512ull << 20 && d.fixed_v_time == 1e-4 && d.c_memory == 0);
     for (size_t i = 0; i < n; i++) {
         hlod_engine_desc e = {0};
-        double v = set[i].lo_open || set[i].lo < 1 ? 1 : set[i].lo;
+        /* a value other than the default (a switch: the other state) */
+        double v = set[i].kind[0] == 'B' ? !set[i].def : set[i].def == 1 ? 2 : 1;
         CHECKF(hlod_engine_desc_set(&e, set[i].key, v) == HLOD_OK, "%s", set[i].key);
-        hlod_engine_desc f = e;
+        /* a set field is not overwritten by the defaults: set, then
+         * defaults, is defaults, then set; and differs from defaults */
+        hlod_engine_desc f = e, g = {0}, plain = {0};
         hlod_engine_desc_defaults(&f);
-        /* a set field is not overwritten by the defaults */
-        hlod_engine_desc g = {0};
-        CHECKF(hlod_engine_desc_set(&g, set[i].key, v) == HLOD_OK && memcmp(&e, &g, sizeof e) == 0,
-               "%s", set[i].key);
+        hlod_engine_desc_defaults(&g);
+        hlod_engine_desc_defaults(&plain);
+        CHECKF(hlod_engine_desc_set(&g, set[i].key, v) == HLOD_OK &&
+                   memcmp(&f, &g, sizeof f) == 0 && memcmp(&f, &plain, sizeof f) != 0,
+               "%s = %g: the defaults overwrote it", set[i].key, v);
         int is_count = set[i].kind[0] == 'U' || set[i].kind[0] == 'B';
         CHECKF((hlod_engine_desc_set(&e, set[i].key, 1.5) == HLOD_OK) == !is_count, "%s 1.5",
                set[i].key);
@@ -125,8 +129,11 @@ static void defaults_and_names(void)
     CHECK(hlod_engine_desc_set(&d, "fixed_v_time", 1) == HLOD_ERR_INVALID_ARG); /* keys, not fields */
 }
 
-/* Each setting's range is enforced by create and set: just outside its
- * bounds is refused, the bounds themselves are taken. */
+/* Each setting's range is enforced by create and set: just outside each
+ * finite bound is refused, the bound itself (or, open, just inside it) is
+ * taken.  A bound whose outside cannot be asked for (a count below 0, or
+ * 0, which means the default) is counted as such. */
+static int g_outside, g_inside, g_unreachable;
 static void ranges_are_checked(void)
 {
     char path[256];
@@ -147,7 +154,6 @@ static void ranges_are_checked(void)
     const hlod_engine_setting *set = hlod_engine_settings(&n);
     for (size_t i = 0; i < n && e; i++) {
         const hlod_engine_setting *s = &set[i];
-        double bad[2] = {s->lo_open ? s->lo : s->lo - 1, s->hi * 2 + 1};
         if (s->kind[0] == 'B') {
             /* a switch takes 0 and 1 and nothing else */
             hlod_engine_desc d = base;
@@ -164,20 +170,54 @@ static void ranges_are_checked(void)
             continue;
         }
         for (int b = 0; b < 2; b++) {
-            if (isinf(bad[b]) || (s->kind[0] == 'U' && bad[b] < 0))
-                continue; /* no such bound, or not representable */
-            if (bad[b] == 0)
-                continue; /* zero means the default */
+            double bound = b ? s->hi : s->lo, open = b ? 0 : s->lo_open;
+            if (isinf(bound))
+                continue; /* no such bound */
+            /* just outside: the bound itself when open, else a step past
+             * it (a count's step is 1, a double's a relative 1e-9) */
+            double step = s->kind[0] == 'U' ? 1 : fmax(1e-9, fabs(bound) * 1e-9);
+            double out = open ? bound : b ? bound + step : bound - step;
+            if (out == 0 && s->kind[0] == 'D')
+                out = -step; /* 0 is the default: a double below it is outside too */
+            if ((s->kind[0] == 'U' && out < 0) || out == 0) {
+                g_unreachable++; /* a count below 0, or 0 (the default): cannot be asked */
+                printf("     %s: %s bound %g cannot be passed\n", s->key, b ? "upper" : "lower",
+                       bound);
+            } else {
+                hlod_engine_desc d = base;
+                CHECK(hlod_engine_desc_set(&d, s->key, out) == HLOD_OK);
+                hlod_engine *x = NULL;
+                CHECKF(hlod_engine_create(st, &d, &x) == HLOD_ERR_INVALID_ARG && !x,
+                       "%s = %.17g created", s->key, out);
+                hlod_engine_destroy(x);
+                if (s->live)
+                    CHECKF(hlod_engine_set(e, &d) == HLOD_ERR_INVALID_ARG, "%s = %.17g set",
+                           s->key, out);
+                g_outside++;
+            }
+            /* the bound itself (closed) or a step inside it (open; 0 is
+             * the default, so a closed 0 is tried as a step above) */
+            double in = open || bound == 0 ? (b ? bound - step : bound + step) : bound;
             hlod_engine_desc d = base;
-            CHECK(hlod_engine_desc_set(&d, s->key, bad[b]) == HLOD_OK);
+            CHECK(hlod_engine_desc_set(&d, s->key, in) == HLOD_OK);
+            if (!strcmp(s->key, "c_hyst_switch"))
+                d.c_hyst_limit = in; /* it may not exceed the limit */
+            if (!strcmp(s->key, "c_hyst_limit"))
+                d.c_hyst_switch = in;
+            if (!strcmp(s->key, "fixed_ms"))
+                d.target_ms = in + 1; /* it must stay under the target */
             hlod_engine *x = NULL;
-            CHECKF(hlod_engine_create(st, &d, &x) == HLOD_ERR_INVALID_ARG && !x, "%s = %g created",
-                   s->key, bad[b]);
+            int made = hlod_engine_create(st, &d, &x) == HLOD_OK;
+            CHECKF(made, "%s = %.17g refused", s->key, in);
             hlod_engine_destroy(x);
-            if (s->live)
-                CHECKF(hlod_engine_set(e, &d) == HLOD_ERR_INVALID_ARG, "%s = %g set", s->key, bad[b]);
+            if (s->live && made)
+                CHECKF(hlod_engine_set(e, &d) == HLOD_OK, "%s = %.17g not set", s->key, in);
+            g_inside++;
         }
     }
+    printf("     %d bounds refused just outside, %d taken at or just inside, %d whose outside "
+           "cannot be asked for\n", g_outside, g_inside, g_unreachable);
+    CHECK(g_outside + g_unreachable == g_inside && g_outside >= 17);
     /* an unbounded side takes any finite value (old limits were only
      * "finite"), and no value is NaN or infinite */
     for (size_t i = 0; i < n && e; i++) {
