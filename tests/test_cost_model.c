@@ -213,7 +213,9 @@ static void stall_burst_grows_margin_little(void)
         double plain = burst_run(seed, 0), burst = burst_run(seed, 1);
         fprintf(stderr, "  seed %llu: largest margin %.3f with the stalls, %.3f without\n",
                 (unsigned long long)seed, burst, plain);
-        CHECKF(burst <= 1.15 * plain,
+        /* the margin grows to the tail (1.45 x one frame in 16), and the
+         * stalls add little to it */
+        CHECKF(plain >= 1.3 && burst >= plain && burst <= 1.15 * plain,
                "seed %llu: largest margin %.3f with the stalls, %.3f without",
                (unsigned long long)seed, burst, plain);
     }
@@ -247,8 +249,8 @@ static void persistent_change_followed(void)
                 followed = f + 1;
         }
         fprintf(stderr, "  x%.2f: followed after %d frames\n", factors[step], followed);
-        CHECKF(followed > 0 && followed <= 8, "x%.2f: followed after %d frames", factors[step],
-               followed);
+        CHECKF(followed >= 4 && followed <= 6, "x%.2f: followed after %d frames (4-6 promised)",
+               factors[step], followed);
     }
 }
 
@@ -296,7 +298,7 @@ static void settled_error_followed(void)
         uint32_t moves[2];
         settled_follow(seed, front, factors, 2, followed, moves);
         for (int step = 0; step < 2; step++)
-            CHECKF(followed[step] > 0 && followed[step] <= 32 + 8 && moves[step] == 1,
+            CHECKF(followed[step] >= 14 && followed[step] <= 29 && moves[step] == 1,
                    "seed %llu x%.2f: followed after %d frames, %u model changes",
                    (unsigned long long)seed, factors[step], followed[step], moves[step]);
     }
@@ -317,7 +319,7 @@ static void settled_fast_front_followed(void)
         int followed;
         uint32_t moves;
         settled_follow(seed, front, &factor, 1, &followed, &moves);
-        CHECKF(followed > 0 && followed <= 12 && moves == 1,
+        CHECKF(followed == 7 && moves == 1,
                "seed %llu: a settled front 3 x faster followed after %d frames, %u model changes",
                (unsigned long long)seed, followed, moves);
     }
@@ -497,8 +499,84 @@ static void alternating_error_no_flip_flop(void)
         uint32_t during = cm.scale_updates - before;
         fprintf(stderr, "  seed %llu: %u scale changes in the 40 alternating frames, %u undone "
                 "within 7 frames\n", (unsigned long long)seed, during, reversals);
-        CHECKF(reversals == 0, "seed %llu: %u scale changes undone within 7 frames (%u in all)",
+        CHECKF(reversals == 0 && during >= 2,
+               "seed %llu: %u scale changes undone within 7 frames (%u in all)",
                (unsigned long long)seed, reversals, during);
+    }
+}
+
+/* The shape (the terms' split) changes at most once per 64 frames once
+ * the window is full: a machine whose split swings every 20 frames
+ * between two (per-draw time 4 x, per-cost time / 4, at equal total on
+ * the mean front) gets shape changes, and never two within 64 frames. */
+static void shape_changes_at_most_once_per_64_frames(void)
+{
+    for (uint64_t seed = 1; seed <= 4; seed++) {
+        machine m = {{6, 0.01, 5e-5, 2e-6}, 0.02, 0, {seed * 0x9e3779b97f4a7c15ull}};
+        const machine a = m;
+        hlod_engine_desc d = desc(33);
+        hlod_cost_model cm;
+        hlod_cost_model_init(&cm, &d);
+        rng r = {seed + 5};
+        uint32_t n = 0, closest = UINT32_MAX;
+        int last = -1;
+        for (int f = 0; f < 1000; f++) {
+            if (f >= 100 && f % 20 == 0) {
+                int swung = (f / 20) % 2;
+                m.t[1] = swung ? 4 * a.t[1] : a.t[1];
+                m.t[2] = swung ? a.t[2] / 4 : a.t[2];
+            }
+            double dr, c, p;
+            moving_front(&r, &dr, &c, &p);
+            uint32_t before = cm.shape_updates;
+            hlod_cost_model_fit(&cm, &d, dr, c, p, machine_ms(&m, dr, c, p));
+            if (f >= 45 && cm.shape_updates != before) {
+                if (last >= 0 && (uint32_t)(f - last) < closest)
+                    closest = (uint32_t)(f - last);
+                last = f;
+                n++;
+            }
+        }
+        fprintf(stderr, "  seed %llu: %u shape changes after frame 45, the closest %u frames "
+                "apart\n", (unsigned long long)seed, n, closest);
+        CHECKF(n >= 2 && closest >= 64, "seed %llu: %u shape changes, two %u frames apart",
+               (unsigned long long)seed, n, closest);
+    }
+}
+
+/* The margin shrinks only when the margin wanted is more than 0.1 below
+ * it in log (9.5 %), so each step down is at least that: a machine with
+ * 20 % noise for 400 frames, then 3 %, on a moving front. */
+static void margin_shrinks_in_log_steps_over_0_1(void)
+{
+    for (uint64_t seed = 1; seed <= 4; seed++) {
+        machine m = {{6, 0.01, 5e-5, 2e-6}, 0.20, 0, {seed * 0x2545f4914f6cdd1dull}};
+        hlod_engine_desc d = desc(33);
+        hlod_cost_model cm;
+        hlod_cost_model_init(&cm, &d);
+        rng r = {seed + 9};
+        uint32_t downs = 0;
+        double smallest = INFINITY, high = 0;
+        for (int f = 0; f < 1400; f++) {
+            if (f == 400)
+                m.sigma = 0.03;
+            double dr, c, p;
+            moving_front(&r, &dr, &c, &p);
+            double before = cm.margin;
+            hlod_cost_model_fit(&cm, &d, dr, c, p, machine_ms(&m, dr, c, p));
+            if (f == 399)
+                high = cm.margin;
+            if (f >= 45 && cm.margin < before) {
+                downs++;
+                smallest = fmin(smallest, 1 - cm.margin / before);
+            }
+        }
+        fprintf(stderr, "  seed %llu: margin %.3f at frame 400, %.3f at the end, %u steps down, "
+                "the smallest %.1f %%\n", (unsigned long long)seed, high, cm.margin, downs,
+                100 * smallest);
+        CHECKF(downs >= 1 && smallest > 1 - exp(-0.1) && cm.margin < 0.85 * high,
+               "seed %llu: %u steps down, the smallest %.1f %%, margin %.3f from %.3f",
+               (unsigned long long)seed, downs, 100 * smallest, cm.margin, high);
     }
 }
 
@@ -538,6 +616,8 @@ int main(void)
     RUN(cold_start_leaves_no_margin);
     RUN(sky_frames_keep_the_model);
     RUN(alternating_error_no_flip_flop);
+    RUN(shape_changes_at_most_once_per_64_frames);
+    RUN(margin_shrinks_in_log_steps_over_0_1);
     RUN(bad_samples_ignored);
     return check_done();
 }
