@@ -50,7 +50,8 @@ static hlod_store *build(const char *style, int levels, const char *out)
 }
 
 /* Every group: non-leaf, at most C_levelFactor^2 children, at most 1.1 x
- * C_desiredTri triangles, an error at least each child's, and a box that
+ * C_desiredTri triangles and at least half of it (or all its children's
+ * where they hold fewer), an error at least each child's, and a box that
  * covers its children's within its error (simplification may not lose
  * whole children at the edge of the group).  Returns the groups. */
 static uint32_t check_groups(hlod_store *s, const char *name, int textured)
@@ -63,8 +64,14 @@ static uint32_t check_groups(hlod_store *s, const char *name, int textured)
     for (uint32_t g = 0; g < groups; g++) {
         uint32_t c0 = hlod_store_first_child(n, g), c1 = hlod_store_child_end(n, g);
         CHECKF(c1 > c0 && c1 - c0 <= 4, "%s: group %u has %u children", name, g, c1 - c0);
-        CHECKF(n[g].tri_count <= DESIRED * 11 / 10, "%s: group %u holds %u triangles", name, g,
-               n[g].tri_count);
+        uint64_t kids = 0; /* what the group simplifies */
+        for (uint32_t c = c0; c < c1; c++)
+            kids += n[c].tri_count;
+        uint64_t lo = kids < DESIRED / 2 ? kids : DESIRED / 2;
+        CHECKF(n[g].tri_count <= DESIRED * 11 / 10 && n[g].tri_count >= lo,
+               "%s: group %u holds %u triangles (%llu to %u; its children %llu)", name, g,
+               n[g].tri_count, (unsigned long long)lo, DESIRED * 11 / 10,
+               (unsigned long long)kids);
         CHECKF(n[g].block == HLOD_STORE_NO_BLOCK && n[g].error > 0, "%s: group %u: block %u, error %g",
                name, g, n[g].block, n[g].error);
         CHECKF(textured ? n[g].tex_tri_count == n[g].tri_count && (n[g].flags & HLOD_NODE_TEXTURE)
