@@ -105,10 +105,17 @@ static void check_mesh(const char *rel, int closed, int multipart)
         d.measure_error = 1;
         hlod_simplify_stats st;
         CHECK(hlod_simplify(&m, &d, &o, &st) == HLOD_OK);
-        /* The target is reached within 2% (RELAX stages, then whole
-         * parts that cannot shrink go), unless the caller's locks forbid:
-         * none here. */
-        CHECKF((double)o.tri_count <= 1.02 * (double)d.target_tris && !strcmp(st.stop_reason, "target"),
+        /* The target is reached within 2% (or one collapse, two
+         * triangles), either side (RELAX stages, then whole parts that
+         * cannot shrink go), unless the caller's locks forbid: none here;
+         * the clustering last resort may land 5 % under. */
+        fprintf(stderr, "  %s %.2f: %zu triangles for a target of %zu%s\n", rel, ratios[r],
+                o.tri_count, d.target_tris, st.clustered ? " (clustered)" : "");
+        double under = st.clustered ? 0.95 : 0.98, lo = under * (double)d.target_tris;
+        if (lo > (double)d.target_tris - 2)
+            lo = (double)d.target_tris - 2; /* one collapse takes two */
+        CHECKF((double)o.tri_count <= 1.02 * (double)d.target_tris &&
+                   (double)o.tri_count >= lo && !strcmp(st.stop_reason, "target"),
                "%s %.2f: stopped at %zu triangles for a target of %zu: %s", rel, ratios[r],
                o.tri_count, d.target_tris, st.stop_reason);
         edge_stats out = edges(&o);
