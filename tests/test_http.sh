@@ -180,8 +180,14 @@ URL=http://127.0.0.1:$PORT
 export HLOD_HTTP_LATENCY_MS=40
 
 # key DIR K: a number from DIR/summary.json
-key() { perl -MJSON::PP -e 'local $/; my $j = JSON::PP->new->decode(<STDIN>);
-    print defined $j->{$ARGV[0]} ? $j->{$ARGV[0]} : "missing"' "$2" <"$1/summary.json" 2>/dev/null; }
+# key DIR KEY: KEY of DIR/summary.json; NaN when the file or the key is
+# missing, so that every numeric check on it fails (NaN compares false)
+key() {
+    local v
+    v=$(perl -MJSON::PP -e 'local $/; my $j = JSON::PP->new->decode(<STDIN>);
+        print defined $j->{$ARGV[0]} ? $j->{$ARGV[0]} : "NaN"' "$2" <"$1/summary.json" 2>/dev/null)
+    echo "${v:-NaN}"
+}
 # bench STORE PATH OUT ARGS...: stderr in OUT.err
 bench() {
     local s=$1 p=$2 o=$3
