@@ -138,7 +138,10 @@ for seed in $(seq 1 "$SEEDS"); do
 done
 echo "REPORT damaged seeds=$SEEDS flips=$FLIPS runs=$runs frames=$frames_total crashes=$crashes" \
     "render_wait_runs=$waits reruns=$reruns bad_nodes_total=$bad_total seeds_with_bad_top=$top_seeds"
-[ "$SEEDS" -lt 1 ] || [ "$bad_total" -gt 0 ]
+[ "$SEEDS" -ge 1 ] && [ "$bad_total" -gt 0 ]
 ok $? "some bad nodes were reported ($bad_total over $SEEDS seeds)"
+# the top-node rule (bad_nodes at least the corrupt top nodes) was tried
+[ "$top_seeds" -gt 0 ]
+ok $? "some seeds damaged top nodes ($top_seeds of $SEEDS), so the top-node rule was tried"
 echo "$pass passed, $fail failed"
 [ "$fail" -eq 0 ]
