@@ -18,6 +18,7 @@
 #include "hlod_clock.h"
 #include "hold.h"
 #include "policy.h"
+#include "sleeps.h"
 
 #include <assert.h>
 #include <math.h>
@@ -637,6 +638,7 @@ hlod_result hlod_engine_frame(hlod_engine *e, const hlod_camera *cam, double dt,
         return HLOD_ERR_INVALID_ARG;
     }
     double t_start = hlod_now_ms(), vel[3];
+    const long slept0 = hlod_sleeps_now(), excused0 = hlod_sleeps_excused();
     int moved = frame_inputs(e, cam, dt, vel);
     frame_uploads(e);
     const double upload = frame_upload_ms(e), budget = frame_budget(e);
@@ -648,13 +650,20 @@ hlod_result hlod_engine_frame(hlod_engine *e, const hlod_camera *cam, double dt,
     e->st.traversal_ms = hlod_now_ms() - t0;
     if (r != HLOD_OK)
         return r;
-    if (e->d.renderer)
+    if (e->d.renderer) {
+        long x = hlod_excuse_begin(); /* GL may wait for the driver's threads */
         draw_frame(e, cam, &view);
+        hlod_excuse_end(x);
+    }
     double measured = e->d.time_model ? e->d.time_model(e->d.time_model_user, &e->st)
                                       : hlod_now_ms() - t_start;
     publish(e, &in, measured, upload);
     learn(e, measured, upload, budget, moved);
     frame_residency(e);
+    /* the render thread slept outside GL, synchronous reads and the
+     * logger: it waited (sleeps.h) */
+    long slept = hlod_sleeps_now() - slept0 - (hlod_sleeps_excused() - excused0);
+    e->st.render_waits = slept > 0 ? (uint32_t)slept : 0;
     if (stats)
         *stats = e->st;
     return HLOD_OK;

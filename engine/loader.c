@@ -36,6 +36,14 @@
  * Every list of n requests yields at most n results, so when the loader
  * takes a list it reserves queue room for the results still queued plus n:
  * queueing a result never allocates and never fails.
+ *
+ * Payloads the render thread is done with come back to be freed here
+ * (hlod_loader_discard): freed on the render thread, a block the loader
+ * allocated takes the loader's malloc arena lock, and the render thread
+ * slept on it while the loader allocated.  The render thread gathers them
+ * in its own list (trash); post hands that list over (garbage, under mu)
+ * once the loader has taken the last one, and the loader frees them
+ * outside the lock (freeing).
  */
 #define _GNU_SOURCE /* syscall(SYS_gettid): the loader thread's own nice value */
 #include "loader.h"
@@ -106,6 +114,16 @@ struct hlod_loader {
     /* render thread only */
     hlod_load_request *post_buf;
     size_t post_cap;
+    void **trash;               /* payload blocks to free, not yet handed over */
+    size_t trash_n, trash_cap;
+
+    /* shared, under mu: handed over by post, taken by the loader */
+    void **garbage;
+    size_t garbage_n, garbage_cap;
+    atomic_int garbage_ready;   /* garbage_n > 0: the loader's cheap check */
+    /* the loader's: what it frees now */
+    void **freeing;
+    size_t freeing_n, freeing_cap;
 
     /* the loader's own */
     hlod_load_request *list;
@@ -657,6 +675,25 @@ static uint64_t http_pump(hlod_loader *l, uint64_t max_bytes)
     return bytes;
 }
 
+/* loader thread: frees the payload blocks the render thread handed over */
+static void free_garbage(hlod_loader *l)
+{
+    pthread_mutex_lock(&l->mu);
+    void **g = l->garbage;
+    size_t g_cap = l->garbage_cap;
+    l->freeing_n = l->garbage_n;
+    l->garbage = l->freeing;
+    l->garbage_cap = l->freeing_cap;
+    l->garbage_n = 0;
+    atomic_store_explicit(&l->garbage_ready, 0, memory_order_relaxed);
+    l->freeing = g;
+    l->freeing_cap = g_cap;
+    pthread_mutex_unlock(&l->mu);
+    for (size_t i = 0; i < l->freeing_n; i++)
+        free(l->freeing[i]);
+    l->freeing_n = 0;
+}
+
 /* loader thread over HTTP: assign transfers, run them; waits for a post
  * when the list is done. */
 static void http_main(hlod_loader *l)
@@ -670,6 +707,8 @@ static void http_main(hlod_loader *l)
         if (active) /* no wait after cache hits: the next requests may be hits too */
             http_collect(l, hits ? 0 : LOADER_HTTP_POLL_MS);
         atomic_fetch_add_explicit(&l->busy_ns, thread_cpu_ns() - t0, memory_order_relaxed);
+        if (atomic_load_explicit(&l->garbage_ready, memory_order_relaxed))
+            free_garbage(l);
         if (active || hits)
             continue;
         pthread_mutex_lock(&l->mu);
@@ -698,6 +737,8 @@ static void *loader_main(void *arg)
         uint64_t t0 = thread_cpu_ns();
         int worked = work(l, UINT64_MAX, &bytes);
         atomic_fetch_add_explicit(&l->busy_ns, thread_cpu_ns() - t0, memory_order_relaxed);
+        if (atomic_load_explicit(&l->garbage_ready, memory_order_relaxed))
+            free_garbage(l);
         if (worked)
             continue;
         /* post bumps the version under mu, so a post between the work and
@@ -810,6 +851,13 @@ void hlod_loader_destroy(hlod_loader *l)
     free(l->inbox);
     free(l->spare);
     free(l->post_buf);
+    for (size_t i = 0; i < l->trash_n; i++)
+        free(l->trash[i]);
+    for (size_t i = 0; i < l->garbage_n; i++)
+        free(l->garbage[i]);
+    free(l->trash);
+    free(l->garbage);
+    free(l->freeing);
     free(l->list);
     free(l->sent);
     free(l->nodes);
@@ -853,6 +901,17 @@ int hlod_loader_post(hlod_loader *l, const hlod_load_request *reqs, size_t n)
     l->inbox_n = n;
     l->inbox_cap = give_cap;
     l->inbox_seen = l->collected;
+    if (l->trash_n && !l->garbage_n) { /* the loader took the last: hand this over */
+        void **g = l->garbage;
+        size_t g_cap = l->garbage_cap;
+        l->garbage = l->trash;
+        l->garbage_cap = l->trash_cap;
+        l->garbage_n = l->trash_n;
+        l->trash = g;
+        l->trash_cap = g_cap;
+        l->trash_n = 0;
+        atomic_store_explicit(&l->garbage_ready, 1, memory_order_relaxed);
+    }
     atomic_fetch_add(&l->version, 1);
     pthread_mutex_unlock(&l->mu);
     pthread_cond_signal(&l->wake);
@@ -883,6 +942,32 @@ size_t hlod_loader_collect(hlod_loader *l, hlod_load_result *out, size_t max)
         l->res_head = l->res_n = 0;
     pthread_mutex_unlock(&l->mu);
     return k;
+}
+
+/* called from the render thread */
+void hlod_loader_discard(hlod_loader *l, hlod_store_payload *p)
+{
+    if (!p)
+        return;
+    if (!l || !l->has_thread) {
+        hlod_store_payload_free(p); /* synchronous: this thread allocated it */
+        return;
+    }
+    if (l->trash_cap < l->trash_n + 2) {
+        size_t cap = grow_cap(l->trash_cap, l->trash_n + 2);
+        void **a = realloc(l->trash, cap * sizeof *a);
+        if (!a) {
+            hlod_store_payload_free(p); /* no room to defer: free it here */
+            return;
+        }
+        l->trash = a;
+        l->trash_cap = cap;
+    }
+    if (p->memory)
+        l->trash[l->trash_n++] = p->memory;
+    if (p->tex_memory)
+        l->trash[l->trash_n++] = p->tex_memory;
+    memset(p, 0, sizeof *p);
 }
 
 /* called from the render thread (synchronous mode) */

@@ -76,6 +76,11 @@ int hlod_loader_post(hlod_loader *l, const hlod_load_request *reqs, size_t n);
  * payloads.  Render thread. */
 size_t hlod_loader_collect(hlod_loader *l, hlod_load_result *out, size_t max);
 
+/* Hands back a payload the caller is done with (zeroed): the loader
+ * thread frees it, so the render thread never takes the loader's malloc
+ * arena lock; synchronous loaders free it at once.  Render thread. */
+void hlod_loader_discard(hlod_loader *l, hlod_store_payload *p);
+
 /* Synchronous mode: reads up to max_bytes in priority order (finishing
  * reads into the result queue).  Returns the bytes read.  In threaded mode
  * it does nothing and returns 0. */

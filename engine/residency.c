@@ -29,48 +29,19 @@
  * passed, admitted whatever the budget, and meanwhile, or for good when it
  * is bad, the traversal draws its children in its place (traverse.c).
  */
-#define _GNU_SOURCE /* RUSAGE_THREAD */
 #include "residency.h"
 
 #include "hlod_clock.h"
+#include "sleeps.h"
 
 #include <assert.h>
 #include <math.h>
 #include <stdlib.h>
 #include <string.h>
-#include <sys/resource.h>
 #include <time.h>
 
 #define MAX_TRANSIENT_FAILURES 4
 #define KEEP_UNWANTED_FRAMES 8  /* a queued node not wanted for this long is dropped */
-#define WAIT_MS 5.0             /* a post/collect call this slow counts as a wait... */
-
-/* ...when the render thread slept in it (a voluntary context switch: it
- * blocked on a lock or I/O).  A call that only lost the CPU to another
- * thread (an involuntary switch) waited for the scheduler, not for the
- * loader; on 2 cores under load that is common and says nothing. */
-typedef struct wait_probe {
-    double t0;
-    long nvcsw;
-} wait_probe;
-
-static long voluntary_switches(void)
-{
-    struct rusage ru;
-    return getrusage(RUSAGE_THREAD, &ru) == 0 ? ru.ru_nvcsw : 0;
-}
-
-static wait_probe wait_begin(void)
-{
-    wait_probe w = {hlod_now_ms(), voluntary_switches()};
-    return w;
-}
-
-static int wait_end(const wait_probe *w)
-{
-    return hlod_now_ms() - w->t0 > WAIT_MS && voluntary_switches() != w->nvcsw;
-}
-
 static double mem_cost(const hlod_residency *rs, double cost)
 {
     return rs->d->c_memory * cost;
@@ -79,21 +50,32 @@ static double mem_cost(const hlod_residency *rs, double cost)
 /* ---- resident set ---- */
 
 /* Takes ownership of p (freed here). */
+/* GL's release of a node's buffers (excused: sleeps.h). */
+static void gpu_release(hlod_residency *rs, hlod_gpu_node *g)
+{
+    long x = hlod_excuse_begin();
+    hlod_gpu_release(rs->d->renderer, g);
+    hlod_excuse_end(x);
+}
+
 static hlod_result make_resident(hlod_residency *rs, uint32_t node, hlod_store_payload *p)
 {
     hlod_node_res *nr = &rs->res[node];
     assert(nr->state != HLOD_NODE_RESIDENT);
     hlod_result res = HLOD_OK;
-    if (rs->d->renderer)
+    if (rs->d->renderer) {
+        long x = hlod_excuse_begin(); /* GL may wait for the driver's threads */
         res = hlod_gpu_upload(rs->d->renderer, p, &nr->gpu);
-    hlod_store_payload_free(p);
+        hlod_excuse_end(x);
+    }
+    hlod_loader_discard(rs->loader, p); /* freed on the loader thread */
     if (res != HLOD_OK)
         return res;
     if (rs->nodes[node].render_flags & HLOD_RENDER_SOLID)
         nr->gpu.flags |= HLOD_GPU_CULL;
     if (!hlod_u32_push(&rs->d->allocator, &rs->resident, node)) {
         if (rs->d->renderer)
-            hlod_gpu_release(rs->d->renderer, &nr->gpu);
+            gpu_release(rs, &nr->gpu);
         return HLOD_ERR_NOMEM;
     }
     nr->state = HLOD_NODE_RESIDENT;
@@ -111,7 +93,7 @@ static void evict(hlod_residency *rs, uint32_t node)
     hlod_node_res *nr = &rs->res[node];
     assert(nr->state == HLOD_NODE_RESIDENT && node >= rs->pinned_count);
     if (rs->d->renderer)
-        hlod_gpu_release(rs->d->renderer, &nr->gpu);
+        gpu_release(rs, &nr->gpu);
     uint32_t last = rs->resident.v[rs->resident.n - 1];
     rs->resident.v[nr->slot] = last;
     rs->res[last].slot = nr->slot;
@@ -344,10 +326,7 @@ void hlod_residency_collect(hlod_residency *rs, double up_ms, double room_ms)
         rs->pending = p;
         rs->pending_cap = cap;
     }
-    wait_probe wp = wait_begin();
     size_t got = hlod_loader_collect(rs->loader, rs->pending + rs->pending_n, room);
-    if (wait_end(&wp))
-        rs->st->render_waits++;
     for (size_t k = rs->pending_n; k < rs->pending_n + got; k++)
         rs->res[rs->pending[k].node].arrived = rs->frame;
     rs->pending_n += got;
@@ -377,7 +356,7 @@ void hlod_residency_collect(hlod_residency *rs, double up_ms, double room_ms)
         hlod_node_res *nr = &rs->res[lr->node];
         if (nr->state != HLOD_NODE_QUEUED) {
             /* dropped while in flight: nothing was reserved any more */
-            hlod_store_payload_free(&lr->payload);
+            hlod_loader_discard(rs->loader, &lr->payload);
             continue;
         }
         if (lr->result != HLOD_OK) {
@@ -585,13 +564,13 @@ void hlod_residency_schedule(hlod_residency *rs, const hlod_evict_order *order)
             post->v[first++] = t;
         }
 
-    wait_probe wp = wait_begin();
     hlod_loader_post(rs->loader, post->v, post->n); /* busy: the same list goes next frame */
-    if (wait_end(&wp))
-        rs->st->render_waits++;
     rs->st->queued = (uint32_t)post->n;
-    if (rs->d->deterministic)
+    if (rs->d->deterministic) { /* the synchronous read is this thread's by design */
+        long x = hlod_excuse_begin();
         hlod_loader_pump(rs->loader, rs->d->deterministic_load_bytes);
+        hlod_excuse_end(x);
+    }
 }
 
 /* ---- life and frame ---- */

@@ -1,19 +1,21 @@
 /*
  * cpu_span.h - the one excuse a wall-clock bound in a test may take: the
- * thread did not keep the CPU.
+ * scheduler preempted the thread.
  *
- * Tests that bound a call or a frame on the wall clock (the render thread
- * never waits on the loader, a frame stays short) run while ctest runs
- * other tests on the machine's two cores, and on a virtual machine whose
- * host may take the CPU away.  Such a bound judges only spans in which the
- * thread kept the CPU, decided here for every test the same way:
- *   - the scheduler did not preempt it (no involuntary context switch);
- *   - the host did not steal it (its CPU time is at least half the wall
- *     time: steal time shows no switch in the guest);
- *   - under ThreadSanitizer, it did not block voluntarily: the runtime
- *     wraps every sync operation, trylocks included, in internal mutexes.
- *     Elsewhere a voluntary block is the code's own and is not excused.
- * Include after defining _GNU_SOURCE (RUSAGE_THREAD).
+ * Whether the render thread waited is not a wall-clock question: the
+ * engine counts the times it slept outside GL, synchronous reads and the
+ * logger (hlod_frame_stats.render_waits, engine/common/sleeps.h), and a
+ * test asserts that count is 0 in every frame, with no excuse.  Only under
+ * ThreadSanitizer is it not judged (span_judges_waits): the runtime wraps
+ * every sync operation, trylocks included, in internal mutexes that sleep.
+ *
+ * Tests that bound a frame's time on the wall clock run while ctest runs
+ * other tests on the machine's two cores.  Such a bound judges only spans
+ * the scheduler did not preempt (no involuntary context switch; under
+ * ThreadSanitizer, no voluntary one either), and requires that a quarter
+ * of the spans at least were judged (span_judged_enough).  A host that takes the vCPU away shows
+ * no switch here (these VMs report no steal time): span_host_spikes allows
+ * for it.  Include after defining _GNU_SOURCE (RUSAGE_THREAD).
  */
 #ifndef HLOD_CPU_SPAN_H
 #define HLOD_CPU_SPAN_H
@@ -70,12 +72,6 @@ static inline void span_stop(cpu_span *s)
     s->inv = ru.ru_nivcsw - s->inv0;
 }
 
-/* Did the thread run for most of a wall-clock interval? */
-static inline int ran_most_of(double wall_ms, double cpu_ms)
-{
-    return cpu_ms >= 0.5 * wall_ms;
-}
-
 /* How many spans that kept the CPU may still be slow for no cause in the
  * code.  These virtual machines report no steal time (the steal column of
  * /proc/stat stays 0), so while the host runs something else the guest's
@@ -94,7 +90,22 @@ static inline int span_host_spikes(int spans)
 /* The shared predicate: a wall-clock bound judges this span. */
 static inline int span_kept_cpu(const cpu_span *s)
 {
-    return s->inv == 0 && ran_most_of(s->wall_ms, s->cpu_ms) && !(HLOD_TEST_TSAN && s->vol);
+    return s->inv == 0 && !(HLOD_TEST_TSAN && s->vol);
+}
+
+/* Whether render_waits is judged in this build (not under TSan). */
+static inline int span_judges_waits(void)
+{
+    return !HLOD_TEST_TSAN;
+}
+
+/* Whether enough of n spans were judged (judged of them kept the CPU) for
+ * a bound on them to mean something: a quarter.  Beside a make -j4 on two
+ * cores, test_faults' frames (a few ms each, drawn by llvmpipe) kept the
+ * CPU in 101 and 103 of 320; test_soak's (0.2 ms) in 54,895 of 58,194. */
+static inline int span_judged_enough(int judged, int n)
+{
+    return n > 0 && 4 * judged >= n;
 }
 
 #endif

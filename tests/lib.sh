@@ -29,3 +29,16 @@ free_port() {
     done
     echo 0
 }
+
+# waits_ok N FRAMES: a run's render_waits N over FRAMES frames is allowed:
+# 0, or under the sanitizers (HLOD_SANITIZED=1) 1 + FRAMES / 200, their
+# allocator's locks (docs/testing.md).  A missing or non-numeric N fails.
+waits_ok() {
+    case $1 in '' | *[!0-9]*) return 1 ;; esac
+    case $2 in '' | *[!0-9]*) return 1 ;; esac
+    if [ "${HLOD_SANITIZED:-0}" = 1 ]; then
+        [ "$1" -le $((1 + $2 / 200)) ]
+    else
+        [ "$1" -eq 0 ]
+    fi
+}

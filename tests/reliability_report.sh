@@ -178,7 +178,7 @@ while read -r line; do
         checked="asserted <= 2048 KiB"
         [ "$(kv "$line" rss_checked)" = 1 ] || checked="not asserted under a sanitizer; LSan checks leaks"
         row soak "  RSS drift" "$(kv "$line" rss_warm_kb) KiB at 25% -> $(kv "$line" rss_end_kb) KiB at 100%: $(kv "$line" rss_drift_kb) KiB ($checked)" "$r"
-        row soak "  render waits" "$(kv "$line" render_waits) counted, $(kv "$line" preempted_waits) of them in frames the scheduler preempted; $(kv "$line" blocked_frames) frames blocked (longest $(kv "$line" worst_blocked_ms) ms)" "$r"
+        row soak "  render waits" "$(kv "$line" render_waits) counted by the engine, $(kv "$line" preempted_frames) frames preempted (not judged); $(kv "$line" blocked_frames) frames blocked (longest $(kv "$line" worst_blocked_ms) ms)" "$r"
     fi
 done < <(grep '^REPORT soak' "$OUT/test_soak.out" 2>/dev/null)
 grep -q '^REPORT soak' "$OUT/test_soak.out" 2>/dev/null || row soak - "no output" "$(res test_soak)"

@@ -12,13 +12,14 @@
 # render_waits 0 and a bad_nodes key in summary.json, mark bad only nodes
 # whose payload is corrupt (hlod-info --verify lists them), log each bad
 # node once, and count every corrupt top node (group or hlod_0: all are read
-# at start) among its bad nodes.  A run reporting render waits is run once
-# more: render_waits is timed on the wall clock and a preempted process can
-# count one, but a render thread that blocks on the loader does so again.
+# at start) among its bad nodes.  render_waits is the engine's count of the
+# times the render thread slept (not a wall-clock figure): 0, with no
+# second try; under the sanitizers (HLOD_SANITIZED=1) their allocator's
+# locks are allowed one sleep in 200 frames (docs/testing.md).
 #
 # HLOD_DAMAGED_SEEDS (default 20) sets the number of seeds; the sanitizer
 # build runs fewer (CMakeLists.txt).  A seed's six runs go two at a time
-# (HLOD_DAMAGED_JOBS); the reruns one at a time.  Prints one line per seed and a total.
+# (HLOD_DAMAGED_JOBS).  Prints one line per seed and a total.
 set -u
 BIN=${HLOD_BIN_DIR:-build/bin}
 SRC=${HLOD_SOURCE_DIR:-.}
@@ -76,7 +77,8 @@ for p in "${PATHS[@]}"; do
 done
 ok $clean_ok "undamaged store: every path runs, bad_nodes 0 (frames: $(for p in "${PATHS[@]}"; do printf '%s=%s ' "$p" "${FRAMES[$p]}"; done))"
 
-runs=0 crashes=0 waits=0 reruns=0 frames_total=0 bad_total=0 top_seeds=0
+runs=0 crashes=0 waits=0 frames_total=0 bad_total=0 top_seeds=0 slept=0
+SANITIZED=${HLOD_SANITIZED:-0}
 for seed in $(seq 1 "$SEEDS"); do
     S=$T/seed.hlod
     flip "$T/city.hlod" "$S" "$seed" || { ok 1 "seed $seed: flip"; continue; }
@@ -109,14 +111,11 @@ for seed in $(seq 1 "$SEEDS"); do
             problems="$problems $p:sanitizer"
         fi
         w=$(key "$O" render_waits)
-        if [ "$w" != 0 ]; then
-            reruns=$((reruns + 1))
-            rm -rf "$O"
-            bench "$S" "$p" "$O"
-            w=$(key "$O" render_waits)
-        fi
-        [ "$w" = 0 ] || { waits=$((waits + 1)); problems="$problems $p:render_waits=$w"; }
         f=$(key "$O" frames)
+        case $w in '' | *[!0-9]*) w=missing ;; *) slept=$((slept + w)) ;; esac
+        # (under the sanitizers the total is judged at the end)
+        [ "$w" = 0 ] || { [ "$SANITIZED" = 1 ] && [ "$w" != missing ]; } ||
+            { waits=$((waits + 1)); problems="$problems $p:render_waits=$w"; }
         b=$(key "$O" bad_nodes)
         frames_total=$((frames_total + ${f//[!0-9]/0}))
         [ "$f" = "${FRAMES[$p]}" ] || problems="$problems $p:frames=$f/${FRAMES[$p]}"
@@ -137,7 +136,11 @@ for seed in $(seq 1 "$SEEDS"); do
     ok $? "seed $seed: every path ran to its end, exit 0, render_waits 0, bad nodes counted${problems:+ (problems:$problems)}"
 done
 echo "REPORT damaged seeds=$SEEDS flips=$FLIPS runs=$runs frames=$frames_total crashes=$crashes" \
-    "render_wait_runs=$waits reruns=$reruns bad_nodes_total=$bad_total seeds_with_bad_top=$top_seeds"
+    "render_wait_runs=$waits render_waits=$slept bad_nodes_total=$bad_total seeds_with_bad_top=$top_seeds"
+if [ "$SANITIZED" = 1 ]; then # their allocator's locks (lib.sh, waits_ok)
+    waits_ok "$slept" "$frames_total"
+    ok $? "the render thread slept $slept times in $frames_total frames (sanitizers: 1 + 1 in 200 allowed)"
+fi
 [ "$SEEDS" -ge 1 ] && [ "$bad_total" -gt 0 ]
 ok $? "some bad nodes were reported ($bad_total over $SEEDS seeds)"
 # the top-node rule (bad_nodes at least the corrupt top nodes) was tried

@@ -1168,21 +1168,15 @@ static void slow_disk_no_stall(void)
     CHECK(hlod_engine_create(s, &d, &e) == HLOD_OK);
     hlod_camera cam;
     hlod_frame_stats st;
-    uint32_t loads = 0, waits = 0, all_waits = 0;
+    uint32_t loads = 0, waits = 0;
     int f;
     for (f = 0; f < 400; f++) {
         if (f % 10 == 0)
             random_camera(&cam, 0, 0, &rng);
-        cpu_span sp;
-        span_start(&sp);
         CHECK(hlod_engine_frame(e, &cam, 1.0 / 30, &st) == HLOD_OK);
-        span_stop(&sp);
         atomic_fetch_add(&sd.frames_done, 1);
         loads += st.loads;
-        /* a wait is a 5 ms post or collect on the wall clock: it counts
-         * only in a frame that kept the CPU (cpu_span.h) */
-        waits += span_kept_cpu(&sp) ? st.render_waits : 0;
-        all_waits += st.render_waits;
+        waits += st.render_waits; /* the engine's count of the thread's sleeps */
         sleep_us(1000);
     }
     /* let a read still held finish before the engine goes */
@@ -1192,7 +1186,8 @@ static void slow_disk_no_stall(void)
     fprintf(stderr, "  %d frames, each read held for %d frames: %u reads, %u timed out, %u loads\n",
             f, SLOW_FRAMES, reads, timeouts, loads);
     CHECKF(timeouts == 0, "%u reads waited on a frame() that never finished", timeouts);
-    CHECKF(waits == 0, "%u render waits in frames that kept the CPU (%u in all)", waits, all_waits);
+    if (span_judges_waits())
+        CHECKF(waits == 0, "the render thread slept %u times", waits);
     CHECK(loads > 3); /* the loader got through some */
     hlod_store_close(s);
 }

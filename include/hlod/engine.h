@@ -232,10 +232,11 @@ typedef struct hlod_frame_stats {
     uint32_t load_failures;      /* reads that failed this frame */
     uint32_t bad_nodes;          /* nodes marked bad so far */
     uint32_t queued;             /* requests handed to the loader */
-    uint32_t render_waits;       /* render thread blocked on the loader: must be 0
-                                    (a post or collect call over 5 ms in which the
-                                    thread slept: a voluntary context switch, not
-                                    a preemption) */
+    uint32_t render_waits;       /* times the render thread slept in this frame
+                                    (voluntary context switches) outside GL, a
+                                    deterministic run's synchronous reads and the
+                                    logger: it blocked, on the loader or anything
+                                    else; must be 0.  A preemption is not a wait */
     /* cost model and deadline (docs/runtime.md, "The cost model and deadline margin") */
     double pixels_drawn;         /* screen pixels of the drawn nodes' projected boxes */
     double margin;               /* deadline margin: the front may take (target - uploads) / margin */
