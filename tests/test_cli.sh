@@ -1,5 +1,6 @@
 #!/usr/bin/env bash
-# test_cli.sh - command-line behaviour of bin/hlod-simplify (ctest: cli_simplify).
+# test_cli.sh - command-line behaviour of bin/hlod-simplify and
+# bin/hlod-export-3dtiles (ctest: cli_simplify).
 #
 # Checks exit codes (exactly 1 for a file that cannot be read or written, 2
 # for a bad command line: a crash, 134 or 139, is neither), error messages naming the file or flag, the --json
@@ -154,6 +155,53 @@ else fail "failing export (rc=$rc): $(cat "$T/badext.err")"; fi
 
 if no_stray_files "$T"; then pass "no temporary files left behind"
 else fail "temporary files left: $(ls "$T" | grep '\.tmp-')"; fi
+
+# ---- hlod-export-3dtiles: its exit codes (docs/hlod-export-3dtiles.md) ----
+X=$BIN/hlod-export-3dtiles
+xrun() { # NAME ARGS...: like run, for the exporter
+    local name=$1
+    shift
+    "$X" "$@" >"$T/$name.out" 2>"$T/$name.err" </dev/null
+    rc=$?
+}
+"$BIN/hlod-gen-city" --preset tiny -o "$T/tiny.obj" --quiet &&
+    "$BIN/hlod-build" "$T/tiny.obj" -o "$T/tiny.hlod" --desired-tris 300 --quiet
+[ -f "$T/tiny.hlod" ] && pass "a tiny store to export" || fail "a tiny store to export"
+xrun x-ok "$T/tiny.hlod" -o "$T/tiles" --json
+if [ $rc -eq 0 ] && [ -f "$T/tiles/tileset.json" ] && [ "$(json_get "$T/x-ok.out" tiles)" -gt 1 ]
+then pass "export: exit 0, tileset.json and a JSON record"
+else fail "export (rc=$rc): $(cat "$T/x-ok.err")"; fi
+xrun x-exists "$T/tiny.hlod" -o "$T/tiles"
+if [ $rc -eq 1 ] && grep -q 'tiles: exists (--force replaces it)' "$T/x-exists.err" &&
+    [ -f "$T/tiles/tileset.json" ]
+then pass "export over an existing folder without --force: exit 1, the folder kept"
+else fail "export over an existing folder (rc=$rc): $(cat "$T/x-exists.err")"; fi
+xrun x-missing "$T/no-such.hlod" -o "$T/tiles2"
+if [ $rc -eq 1 ] && grep -q 'no-such.hlod' "$T/x-missing.err" && [ ! -e "$T/tiles2" ]
+then pass "export of a missing store: exit 1, names it, writes nothing"
+else fail "export of a missing store (rc=$rc): $(cat "$T/x-missing.err")"; fi
+: >"$T/x-file"
+xrun x-notdir "$T/tiny.hlod" -o "$T/x-file" --force
+if [ $rc -eq 1 ] && grep -q 'exists and is not a folder' "$T/x-notdir.err" && [ ! -s "$T/x-file" ]
+then pass "export onto a file, even with --force: exit 1, the file kept"
+else fail "export onto a file (rc=$rc): $(cat "$T/x-notdir.err")"; fi
+for bad in "--meshopt sometimes" "--jpeg-quality 101" "--jpeg-quality 0" "--threads 65" \
+    "--no-such-flag" "-o"; do
+    # shellcheck disable=SC2086 # the words are the flags
+    xrun x-bad "$T/tiny.hlod" -o "$T/tiles3" $bad
+    flag=${bad%% *}
+    if [ $rc -eq 2 ] && grep -q -- "$flag" "$T/x-bad.err" && [ ! -e "$T/tiles3" ]
+    then pass "export $bad: exit 2, names $flag"
+    else fail "export $bad (rc=$rc): $(cat "$T/x-bad.err")"; fi
+done
+xrun x-noout "$T/tiny.hlod"
+if [ $rc -eq 2 ] && grep -q -- '-o' "$T/x-noout.err"
+then pass "export without -o: exit 2"
+else fail "export without -o (rc=$rc): $(cat "$T/x-noout.err")"; fi
+xrun x-two "$T/tiny.hlod" "$T/tiny.hlod" -o "$T/tiles4"
+if [ $rc -eq 2 ] && [ ! -e "$T/tiles4" ]
+then pass "export of two stores: exit 2"
+else fail "export of two stores (rc=$rc): $(cat "$T/x-two.err")"; fi
 
 echo "$passed passed, $failed failed"
 [ $failed -eq 0 ]
