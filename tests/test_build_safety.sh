@@ -3,7 +3,7 @@
 # build_safety).
 #
 # 1. Killed: hlod-build runs on a tiny city and is sent SIGKILL after a
-#    random 0.05-2 s, KILLS times (default 10), alternately over an existing
+#    random 0.05-2 s, KILLS times (default 3), alternately over an existing
 #    store and into an empty place.  Afterwards the output path must hold
 #    either the old store, byte for byte, or the complete new one (byte for
 #    byte the store an uninterrupted run writes), or nothing when there was
@@ -19,16 +19,17 @@
 #    temporary file.
 #
 #    Then WKILLS (default 4) runs under strace, every pwrite delayed, are
-#    killed inside the write (checked), leaving the old store or nothing.
+#    killed at a byte written (a random 10-90 % of the store, checked still
+#    inside the write), leaving the old store or nothing.
 #
 # Environment: HLOD_BIN_DIR (default build/bin), HLOD_SOURCE_DIR (default .),
-# KILLS (10), WKILLS (4), SEED (random seed of the kill times, default 6),
+# KILLS (3), WKILLS (4), SEED (random seed of the kill points, default 6),
 # HLOD_TEST_STRICT (a skip fails).
 set -uo pipefail
 
 SRC=${HLOD_SOURCE_DIR:-.}
 BIN=${HLOD_BIN_DIR:-$SRC/build/bin}
-KILLS=${KILLS:-10}
+KILLS=${KILLS:-3}
 RANDOM=${SEED:-6}
 
 T=$(mktemp -d "${TMPDIR:-/tmp}/hlod-test-build-safety.XXXXXX")
@@ -147,13 +148,15 @@ echo "     $KILLS runs: $((KILLS - finished_early)) killed, $finished_early fini
 # The store is written in about 40 ms of a 0.6 s build, so the random
 # kills above mostly land before or after it.  Here strace delays every
 # pwrite by 30 ms (the write then takes about a second), and each run is
-# killed a random 0-800 ms after its temporary file appeared, checked to
-# be still there (not renamed) at the kill: every kill lands inside the
-# write.  The output must then be the old store, or nothing.
+# killed once its temporary file holds a random 10-90 % of the store's
+# bytes, checked to be still there (not renamed) at the kill: every kill
+# lands inside the write.  The output must then be the old store, or
+# nothing.
 W=$T/killw
 mkdir -p "$W"
 OUTW=$W/out.hlod
 WKILLS=${WKILLS:-4}
+full=$(wc -c <"$T/new.hlod")
 mid=0
 for i in $(seq 1 "$WKILLS"); do
     with_old=$((i % 2))
@@ -168,8 +171,13 @@ for i in $(seq 1 "$WKILLS"); do
         [ -n "$tmp" ] && break
         sleep 0.01
     done
-    ms=$((RANDOM % 801))
-    sleep "0.$(printf '%03d' "$ms")"
+    # the gate: a byte written, not a clock.  The kill waits until the
+    # temporary file holds `at` bytes, 10-90 % of the store's (its header
+    # is written last), so it lands inside the write whatever the machine.
+    at=$((full * (10 + RANDOM % 81) / 100))
+    while [ -n "$tmp" ] && [ -e "$tmp" ] && [ "$(stat -c %s "$tmp" 2>/dev/null || echo 0)" -lt "$at" ]; do
+        sleep 0.005
+    done
     inside=0
     [ -n "$tmp" ] && [ -e "$tmp" ] && inside=1
     pkill -KILL -P "$spid" hlod-build 2>/dev/null
@@ -180,7 +188,7 @@ for i in $(seq 1 "$WKILLS"); do
     else state=OTHER; fi
     verdict=refused
     [ -n "$tmp" ] && [ -e "$tmp" ] && "$BIN/hlod-info" "$tmp" --verify >/dev/null 2>&1 && verdict=accepted
-    label="write run $i, killed ${ms} ms into the write"
+    label="write run $i, killed at byte $at of $full"
     if [ $inside -eq 1 ] && [ "$verdict" = refused ] &&
         { { [ $with_old -eq 1 ] && [ $state = old ]; } || { [ $with_old -eq 0 ] && [ $state = none ]; }; }; then
         pass "$label: output is $state, the partial temporary file is refused"
@@ -199,7 +207,9 @@ printf 'held' >"$D/out.hlod.tmp-HELD01"
 touch -d '2 minutes ago' "$D"/out.hlod.tmp-*
 # the holder says when it holds the lock (no fixed sleep: a loaded machine
 # may start it late)
-flock "$D/out.hlod.tmp-HELD01" sh -c 'touch "$1"; exec sleep 60' sh "$D/held" &
+# (its output goes nowhere: a sleep left holding the test's stdout kept
+# ctest waiting for it, 60 s)
+flock "$D/out.hlod.tmp-HELD01" sh -c 'touch "$1"; exec sleep 60' sh "$D/held" >/dev/null 2>&1 &
 holder=$!
 for _ in $(seq 1 3000); do
     [ -e "$D/held" ] && break
@@ -210,6 +220,7 @@ if flock -n "$D/out.hlod.tmp-HELD01" true; then fail "the lock holder does not h
 printf 'young' >"$D/out.hlod.tmp-YOUNG1"
 "${BUILD_NEW[@]}" -o "$OUT" 2>"$D/err"
 rc=$?
+pkill -KILL -P "$holder" 2>/dev/null # the sleep under flock
 kill "$holder" 2>/dev/null
 wait "$holder" 2>/dev/null
 left=$(cd "$D" && ls out.hlod.tmp-* 2>/dev/null | tr '\n' ' ')
