@@ -91,6 +91,12 @@ static void check_store(const char *path)
             hlod_store_payload_free(&p);
         }
         CHECKF(faces > 0, "%s: no textured %s", path, pass ? "inner node" : "leaf");
+        /* the bound follows the source, so the source is bounded too: the
+         * generator maps its facades at most 5.09:1; a source far worse
+         * would let any inner face pass */
+        if (pass == 0)
+            CHECKF(source <= 6, "%s: the source's worst face stretches %.3g:1 (at most 6 expected)",
+                   path, source);
         if (pass == 1) {
             fprintf(stderr, "  %s: %u inner faces, worst stretch %.2f (node %u, depth %u); "
                     "source's worst %.2f\n", path, faces, worst, worst_node, n[worst_node].depth, source);
