@@ -62,6 +62,12 @@ int hlod_inspect_evictable(const hlod_engine *e, uint32_t node, double *key)
     return hlod_engine_evict_key((void *)e, node, key);
 }
 
+int hlod_inspect_loader_idle(const hlod_engine *e)
+{
+    assert(e);
+    return hlod_loader_idle(e->res.loader);
+}
+
 uint32_t hlod_inspect_pinned_count(const hlod_engine *e)
 {
     assert(e);

@@ -42,6 +42,8 @@ hlod_model_look hlod_inspect_model(const hlod_engine *e);
 uint64_t hlod_inspect_reserved_bytes(const hlod_engine *e);
 /* Whether residency may evict node now, and its key (lower goes first). */
 int hlod_inspect_evictable(const hlod_engine *e, uint32_t node, double *key);
+/* Whether the loader has done all it was last given (inspect.c). */
+int hlod_inspect_loader_idle(const hlod_engine *e);
 /* Nodes [0, n) stay resident from the start. */
 uint32_t hlod_inspect_pinned_count(const hlod_engine *e);
 

@@ -145,6 +145,7 @@ struct hlod_loader {
     uint64_t pushed;            /* results queued so far */
 
     atomic_uint_fast64_t version; /* lists posted so far */
+    atomic_uint_fast64_t idle_at; /* + 1: the version the loader last went idle at (0: never) */
     atomic_int stop;
     atomic_uint_fast64_t bytes_read, reads_done, reads_failed, switches;
     atomic_uint_fast64_t finish_ns, busy_ns, cache_hits;
@@ -712,8 +713,10 @@ static void http_main(hlod_loader *l)
         if (active || hits)
             continue;
         pthread_mutex_lock(&l->mu);
-        while (!atomic_load(&l->stop) && atomic_load(&l->version) == l->list_version)
+        while (!atomic_load(&l->stop) && atomic_load(&l->version) == l->list_version) {
+            atomic_store(&l->idle_at, l->list_version + 1);
             pthread_cond_wait(&l->wake, &l->mu);
+        }
         pthread_mutex_unlock(&l->mu);
     }
 }
@@ -744,8 +747,10 @@ static void *loader_main(void *arg)
         /* post bumps the version under mu, so a post between the work and
          * this check is seen here, and one after it signals the wait */
         pthread_mutex_lock(&l->mu);
-        while (!atomic_load(&l->stop) && atomic_load(&l->version) == l->list_version)
+        while (!atomic_load(&l->stop) && atomic_load(&l->version) == l->list_version) {
+            atomic_store(&l->idle_at, l->list_version + 1);
             pthread_cond_wait(&l->wake, &l->mu);
+        }
         pthread_mutex_unlock(&l->mu);
     }
     return NULL;
@@ -983,6 +988,15 @@ uint64_t hlod_loader_pump(hlod_loader *l, uint64_t max_bytes)
         ;
     atomic_fetch_add_explicit(&l->busy_ns, thread_cpu_ns() - t0, memory_order_relaxed);
     return bytes;
+}
+
+/* any thread */
+int hlod_loader_idle(const hlod_loader *l)
+{
+    if (!l || !l->has_thread)
+        return 1;
+    return atomic_load((atomic_uint_fast64_t *)&l->idle_at) ==
+           atomic_load((atomic_uint_fast64_t *)&l->version) + 1;
 }
 
 /* any thread */

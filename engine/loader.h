@@ -76,6 +76,11 @@ int hlod_loader_post(hlod_loader *l, const hlod_load_request *reqs, size_t n);
  * payloads.  Render thread. */
 size_t hlod_loader_collect(hlod_loader *l, hlod_load_result *out, size_t max);
 
+/* 1 when the loader has done all it was last given and waits for a new
+ * list (a synchronous loader: always).  For tests that step the loader
+ * with their frames.  Any thread. */
+int hlod_loader_idle(const hlod_loader *l);
+
 /* Hands back a payload the caller is done with (zeroed): the loader
  * thread frees it, so the render thread never takes the loader's malloc
  * arena lock; synchronous loaders free it at once.  Render thread. */
