@@ -34,7 +34,8 @@
 
 #define MAXN 128
 #define FRAMES 60
-#define SETTLED 30 /* frames from this one on: the stand-ins are loaded */
+#define SETTLED 30 /* frames from this one on: the stand-ins are loaded (each
+                      frame waits for the loader to finish its list) */
 
 static char g_dir[256];
 
@@ -162,6 +163,7 @@ typedef struct tally {
     uint32_t bad_nodes, render_waits;
     int bad_drawn, miscounted; /* frames drawing a bad node; frames whose totals
                                   are not the draw list's */
+    int stalled;               /* frames after which the loader was not done in 10 s */
 } tally;
 
 /* One frame; the stats are checked against the draw list. */
@@ -191,7 +193,13 @@ static void frame(hlod_engine *e, const hlod_camera *cam, int f, tally *t)
     t->bad_drawn += bad;
     t->miscounted += st.nodes_drawn != ns || st.tris_drawn != tris ||
                      fabs(st.cost_drawn - cost) > 1e-9 * (1 + cost);
-    sleep_us(1000); /* the loader thread runs between frames */
+    /* the gate: the next frame starts once the loader has read all it was
+     * given (10 s at most), so by frame SETTLED the stand-ins are read on
+     * any machine */
+    double t0 = now_ms();
+    while (!hlod_inspect_loader_idle(e) && now_ms() - t0 < 10000)
+        sleep_us(200);
+    t->stalled += !hlod_inspect_loader_idle(e);
 }
 
 /* The number of nodes the last frame selected. */
@@ -231,6 +239,8 @@ static void check_run(const char *what, const tally *t, uint32_t nbad)
     CHECKF(t->bad_drawn == 0, "%s: %d frames drew a node that is not resident", what, t->bad_drawn);
     CHECKF(t->miscounted == 0, "%s: %d frames' drawn totals are not their draw list's", what,
            t->miscounted);
+    CHECKF(t->stalled == 0, "%s: the loader was not done within 10 s after %d frames", what,
+           t->stalled);
     if (span_judges_waits())
         CHECKF(t->render_waits == 0, "%s: the render thread slept %u times", what,
                t->render_waits);
