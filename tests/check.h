@@ -63,6 +63,26 @@ static inline int check_strict(void)
     return s && *s && strcmp(s, "0") != 0;
 }
 
+/* The ThreadSanitizer build exists to find races: a test program there
+ * runs what spawns threads (RUN) and leaves single-threaded work, which
+ * the plain and ASan builds run, out (RUN_UNTHREADED: not run, and not
+ * reported as a skip). */
+#if defined(__SANITIZE_THREAD__)
+#define CHECK_TSAN 1
+#elif defined(__has_feature)
+#if __has_feature(thread_sanitizer)
+#define CHECK_TSAN 1
+#endif
+#endif
+#ifndef CHECK_TSAN
+#define CHECK_TSAN 0
+#endif
+#define RUN_UNTHREADED(fn)                                                            \
+    do {                                                                              \
+        if (!CHECK_TSAN)                                                              \
+            RUN(fn);                                                                  \
+    } while (0)
+
 #define RUN(fn)                                                                       \
     do {                                                                              \
         int before_ = check_failures_;                                                \

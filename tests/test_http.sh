@@ -330,11 +330,31 @@ last_missing() {
 # From /held/ (48 KB/s a transfer: walk-drive's 1.2 MB take 2 s or more over
 # 12), so that reads are in flight when it dies: at the full rate the loads
 # were all done before 1.5 s, and the kill met no read.
+# served REGEX: the requests nginx has finished for URLs matching REGEX
+served() {
+    local n
+    n=$(grep -cE "GET $1 HTTP[^\"]*\" 206" "$T/logs/access.log" 2>/dev/null)
+    echo "${n:-0}"
+}
+# wait_served REGEX N: until nginx has finished N such requests (30 s at most)
+wait_served() {
+    local i
+    for i in $(seq 1 3000); do
+        [ "$(served "$1")" -ge "$2" ] && return 0
+        sleep 0.01
+    done
+    return 1
+}
 kill_run() {
+    local before
+    before=$(served '/held/city.hlod')
     bench "$URL/held/city.hlod" walk-drive "$T/kill" "${FAULT[@]}" &
     local b=$! t0
     t0=$(date +%s%N)
-    sleep 1.5
+    # the gate: the open's two reads (header, node table) and a first
+    # payload served; the other payloads (1.2 MB at 48 KB/s a transfer)
+    # are then in flight
+    wait_served '/held/city.hlod' $((before + 3)) || echo "nginx served less than 3 requests"
     stop_nginx KILL
     local t_kill=$((($(date +%s%N) - t0) / 1000000))
     sleep 1
@@ -354,27 +374,29 @@ kill_run() {
         [ "$(key "$T/kill" bad_nodes)" = 0 ] &&
         grep -q "retrying" "$T/kill.err" && grep -q "the server answers again" "$T/kill.err"
 }
-kill_run || kill_run
+kill_run
 ok $? "server killed mid-run and restarted: every frame, render_waits 0, loads go on (or none is missing), no node bad ($(grep -m1 retrying "$T/kill.err" | cut -c1-110))"
 
 # the store replaced on the server mid-run (48 KB/s a transfer, as /held/:
-# reads are still going on at 1.5 s)
+# reads are still going on once three requests were served)
 swap_run() {
     cp "$T/city.hlod" "$T/www/swap/city.hlod"
+    local before
+    before=$(served '/swap/city.hlod')
     bench "$URL/swap/city.hlod" walk-drive "$T/swap" "${FAULT[@]}" &
     local b=$!
-    sleep 1.5
+    wait_served '/swap/city.hlod' $((before + 3)) || echo "nginx served less than 3 requests"
     cp "$T/other.hlod" "$T/www/swap/new.hlod" && chmod a+r "$T/www/swap/new.hlod" &&
         mv "$T/www/swap/new.hlod" "$T/www/swap/city.hlod"
     wait $b && fault_ok "$T/swap" && grep -q "the store changed on the server (ETag" "$T/swap.err" &&
         ! grep -q "checksum mismatch" "$T/swap.err"
 }
-swap_run || swap_run
+swap_run
 ok $? "store replaced mid-run: every frame, render_waits 0, $(grep -m1 -o 'the store changed on the server (ETag [^)]*)' "$T/swap.err"), no checksum mismatch, bad_nodes $(key "$T/swap" bad_nodes)"
 
 # a slow trickle: 16 KB/s a connection
 slow_run() { bench "$URL/slow/city.hlod" walk-drive "$T/slow" "${FAULT[@]}" && fault_ok "$T/slow"; }
-slow_run || slow_run
+slow_run
 ok $? "slow trickle (16 KB/s): every frame, render_waits 0 (loads $(key "$T/slow" loads), missing_wanted_frames $(key "$T/slow" missing_wanted_frames))"
 
 # ---- faults nginx cannot make: tests/http_fault_server.py ----

@@ -687,18 +687,18 @@ static void large_coordinates_same_shape(void)
 int main(void)
 {
     build_block35();
-    RUN(leaves_hold_exactly_the_original_triangles);
-    RUN(tree_shape_and_triangle_counts);
-    RUN(errors_bound_subtrees_and_grow_upwards);
-    RUN(boundaries_never_crack);
-    RUN(same_seed_same_tree);
+    RUN_UNTHREADED(leaves_hold_exactly_the_original_triangles);
+    RUN_UNTHREADED(tree_shape_and_triangle_counts);
+    RUN_UNTHREADED(errors_bound_subtrees_and_grow_upwards);
+    RUN_UNTHREADED(boundaries_never_crack);
+    RUN_UNTHREADED(same_seed_same_tree);
     RUN(threads_build_the_same_tree);
-    RUN(a_tiny_block_is_one_leaf);
-    RUN(one_part_stays_one_leaf);
-    RUN(a_disconnected_block_splits_by_components);
-    RUN(bad_blocks_are_rejected);
-    RUN(untextured_block);
-    RUN(large_coordinates_same_shape);
+    RUN_UNTHREADED(a_tiny_block_is_one_leaf);
+    RUN_UNTHREADED(one_part_stays_one_leaf);
+    RUN_UNTHREADED(a_disconnected_block_splits_by_components);
+    RUN_UNTHREADED(bad_blocks_are_rejected);
+    RUN_UNTHREADED(untextured_block);
+    RUN_UNTHREADED(large_coordinates_same_shape);
     hlod_btree_free(&tree35);
     hlod_image_free(&tex35);
     hlod_mesh_free(&block35);
