@@ -1507,8 +1507,9 @@ static uint8_t *image_rgb(const hlod_image *img)
 }
 
 /* --compare A B: one JSON line with psnr, ssim (null under 11 pixels a
- * side), differing_pixels, width, height.  0, or 1 when an image cannot be
- * read or the sizes differ. */
+ * side), differing_pixels, far_pixels (a channel off by more than 64 of
+ * 255: a hole, not a rasteriser's rounding), width, height.  0, or 1 when
+ * an image cannot be read or the sizes differ. */
 static int compare_images(const char *a, const char *b, const hlod_logger *lg)
 {
     hlod_image ia = {0}, ib = {0};
@@ -1529,17 +1530,23 @@ static int compare_images(const char *a, const char *b, const hlod_logger *lg)
     }
     uint32_t w = (uint32_t)ia.width, h = (uint32_t)ia.height;
     double psnr = NAN, ssim = NAN;
-    long long differ = 0;
+    long long differ = 0, far = 0;
     hlod_psnr_rgb8(ra, rb, w, h, &psnr);
     if (w >= HLOD_SSIM_WINDOW && h >= HLOD_SSIM_WINDOW)
         hlod_ssim_rgb8(ra, rb, w, h, &ssim);
-    for (size_t i = 0; i < (size_t)w * h; i++)
+    for (size_t i = 0; i < (size_t)w * h; i++) {
         differ += memcmp(ra + 3 * i, rb + 3 * i, 3) != 0;
+        int off = 0;
+        for (int k = 0; k < 3; k++)
+            off |= abs((int)ra[3 * i + k] - (int)rb[3 * i + k]) > 64;
+        far += off;
+    }
     hlod_json j;
     hlod_json_begin(&j, stdout);
     hlod_json_double(&j, "psnr", psnr);
     hlod_json_double(&j, "ssim", ssim);
     hlod_json_int(&j, "differing_pixels", differ);
+    hlod_json_int(&j, "far_pixels", far);
     hlod_json_int(&j, "width", w);
     hlod_json_int(&j, "height", h);
     rc = hlod_json_end(&j) == 0 ? 0 : 1;
