@@ -27,8 +27,8 @@
 #     in the node table and in the part section, a part cut short, a store
 #     that is not a part; 60 random single-bit flips in a part: no crash
 #     (exit 0 or 1), and an exit 0 only with the single build's bytes;
-#   - a shard killed (SIGKILL) at 5 gates of its run (2 % of one build's
-#     time, before any output; then 0, 20, 45 and 70 % of the part's bytes
+#   - a shard killed (SIGKILL) at 4 gates of its run (2 % of one build's
+#     time, before any output; then 0, 20 and 40 % of the part's bytes
 #     written; each must land before it ends): either no part at its path
 #     (the merge says the shard is missing) or a complete one (the merge
 #     gives the single build's bytes) - never a part the merge takes
@@ -38,7 +38,7 @@
 # and N = 3 and the 30-block city with N = 1 only (cut levels 0 and 1), no
 # --city-levels off, the corner-case OBJ with N = 3, then every refusal
 # (which use metis's and N = 8's parts: those are built, not merged), 20
-# bit flips and the shard killed at 3 gates.
+# bit flips and the shard killed at 2 gates.
 # Env: HLOD_BIN_DIR (the tools), HLOD_SOURCE_DIR.
 set -uo pipefail
 BIN=${HLOD_BIN_DIR:-build/bin}
@@ -275,14 +275,15 @@ full=$(wc -c <"$K/p.2.part")
 t0=$(date +%s%N)
 "$BIN/hlod-build" "$T/small.obj" -o "$K/p.2.part" --desired-tris 450 --threads 1 --quiet --shard 2/3
 build_ms=$((($(date +%s%N) - t0) / 1000000))
-GATES="time 0 20 45 70" # the first: 2 % of the time; the others: % of the part's bytes written
-[ "$QUICK" = 1 ] && GATES="time 20 70"
-written() { # bytes of the build's output files so far
-    local n=0 f
-    for f in "$K"/p.2.part.*; do
-        [ -f "$f" ] && n=$((n + $(stat -c %s "$f" 2>/dev/null || echo 0)))
-    done
-    echo $n
+# (the shard's store is 86 % of its part, the blocks' payloads stream into
+# it over most of the build, and the group nodes and the part come in a
+# burst at the end: a gate past 40 % could fall in the burst, which a
+# poll on a loaded machine misses; 70 % did so once under ASan beside a
+# make -j4)
+GATES="time 0 20 40" # the first: 2 % of the time; the others: % of the part's bytes written
+[ "$QUICK" = 1 ] && GATES="time 20"
+written() { # bytes of the build's output files so far (one stat a poll)
+    stat -c %s "$K"/p.2.part.* 2>/dev/null | awk '{ n += $1 } END { print n + 0 }'
 }
 echo "  shard 2/3: $build_ms ms, a part of $full bytes; kills at: $GATES"
 runs=0
