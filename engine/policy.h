@@ -21,7 +21,8 @@ enum {
     HLOD_PT_HOLD = 1u << 2,    /* a still camera's front holds (hold.h) */
     HLOD_PT_OCCLUDE = 1u << 3, /* occlusion culling runs when the engine has it on */
     HLOD_PT_SHARE = 1u << 4,   /* the cost model adapts the share gain */
-    HLOD_PT_SSE = 1u << 5,     /* the cost model adapts the SSE threshold */
+    HLOD_PT_SSE = 1u << 5,     /* screen-space error: the cost model adapts the SSE
+                                  threshold, and the decision reads the distance */
     HLOD_PT_STREAM = 1u << 6,  /* residency admits and evicts by priority each frame */
 };
 
@@ -29,7 +30,8 @@ enum {
 typedef struct hlod_policy_in {
     const hlod_engine_desc *d;
     const hlod_store_node *node; /* p */
-    double distance;       /* from the look-ahead probe to p's box (hlod_node_distance) */
+    double distance;       /* from the look-ahead probe to p's box; filled for
+                              HLOD_PT_SSE policies only (0 otherwise) */
     double pixels_per_radian; /* the view's, for screen-space error */
     double share;          /* p's shareTime for its visible children, ms (eq. 4) */
     double sum_needed;     /* their summed timeNeeded, ms */

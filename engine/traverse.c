@@ -510,7 +510,10 @@ static int policy_refines(const walk *w, const hlod_view *v, uint32_t p, double 
     const hlod_node_frame *pf = &w->fr[p];
     hlod_policy_in in = {.d = w->d,
                          .node = &w->nodes[p],
-                         .distance = node_distance(v, &w->nodes[p]),
+                         /* (a square root a node: only for the policy that reads it) */
+                         .distance = w->policy->traits & HLOD_PT_SSE
+                                         ? node_distance(v, &w->nodes[p])
+                                         : 0,
                          .pixels_per_radian = v->pixels_per_radian,
                          .share = share,
                          .sum_needed = sum_needed,
