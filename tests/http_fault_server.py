@@ -9,7 +9,7 @@ ETag and Last-Modified, If-Range (a validator that does not match: 200 with
 the whole file), keep-alive connections, GET and HEAD.
 
 The first folder of a URL names the fault its payload requests get:
-/416/city.hlod, /truncate/city.hlod and /reset/city.hlod serve ROOT/city.hlod
+/416/city.hlod, /truncate/city.hlod, /reset/city.hlod and /stall/city.hlod serve ROOT/city.hlod
 with that fault (/416-2/city.hlod too: anything after a '-' names a run
 counted apart, so a test can run a kind again), any other path without
 faults.  Faults hit payload requests
@@ -22,7 +22,10 @@ request (--every N, counted for each such folder apart) gets:
   truncate  a 206 whose Content-Length is the range's, then half the body,
             then an orderly close (FIN): a truncated body;
   reset     an abrupt reset (SO_LINGER 0, close: RST), alternately right
-            after the request and after the headers and half the body.
+            after the request and after the headers and half the body;
+  stall     a 206 whose Content-Length is the range's, then half the body,
+            then nothing: the connection is held open until the client
+            drops it (or 60 s), as a server that hangs mid-transfer.
 Faults stop after --max K of them, and --for S seconds after the first
 payload request, whichever comes first (for each folder apart).  Each fault is
 one line in --log (flushed at once): 'fault N KIND bytes=A-B at T' (T: Unix
@@ -41,7 +44,8 @@ import threading
 import time
 
 HEADER_SIZE = 256
-KINDS = ("416", "truncate", "reset")
+KINDS = ("416", "truncate", "reset", "stall")
+STALL_S = 60.0  # a stalled response's connection is held at most this long
 
 
 class State:
@@ -191,6 +195,19 @@ class Handler(http.server.BaseHTTPRequestHandler):
             self.close_connection = True  # FIN after half the body
         elif kind == "reset":
             self.reset()
+        elif kind == "stall":
+            self.stall()
+
+    def stall(self):
+        """Sends nothing more until the client closes (or STALL_S)."""
+        self.wfile.flush()
+        self.connection.settimeout(STALL_S)
+        try:
+            while self.connection.recv(4096):
+                pass  # a client that sends more is still waiting
+        except OSError:
+            pass
+        self.close_connection = True
 
     def reset(self):
         """Closes the connection with an RST (SO_LINGER 0), no FIN first."""

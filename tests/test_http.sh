@@ -19,10 +19,9 @@
 #     compare by loading, not by eviction churn): exit 0, render_waits 0,
 #     missing_wanted_frames <= 3 x the file's + 60 (a stall, not a speed
 #     target: the issue's 1.5 x is a timing figure, measured on the default
-#     city by tests/bench/bench_http.sh; here fly missed 43-52 frames over
-#     HTTP against the file's 10-11, 40 ms a request being 1.2 frames, and a
-#     stalled loader misses hundreds); a pair that misses is run once more
-#     (wall-clock noise), a render wait too (as test_damaged.sh);
+#     city by tests/bench/bench_http.sh; here walk-drive missed 19-40
+#     frames over HTTP against the file's 8-22 in ten runs, 40 ms a request
+#     being 1.2 frames, and a stalled loader misses hundreds); run once;
 #   - hlod-view URL under Xvfb: 60 frames, exit 0, the screenshot more
 #     than 30% city (its coverage line);
 #   - https (nginx ssl on PORT + 1, a self-signed certificate): refused
@@ -51,6 +50,11 @@
 #     "the server answers again" last; loads after the last fault, or no
 #     wanted node missing at the end), no load failure (each fault retried
 #     inside the reader), no node bad;
+#   - a stall (half the body, then nothing, on every 3rd payload request,
+#     12 of them) with the low-speed floor cut to 1 s (HLOD_HTTP_LOW_SPEED_S):
+#     each dropped as "too slow" and retried, recovered as above;
+#   - retries running out (a second server refusing every payload request):
+#     ranges given up after 6 tries, nodes bad after 4 failed loads each;
 #   - HLOD_CACHE_DIR: walk-drive twice (--target-ms 1000: the SSE alone
 #     selects, so both runs want the same nodes): the second takes
 #     cache_hits > 0 from the cache and reads <= 0.2 x the first's bytes;
@@ -234,7 +238,7 @@ compare() { # P: a file run and a URL run, judged
         "$fm" "$fb" "$hm" "$hb" "$hw" "$hf" "$ff"
 }
 for p in "${PATHS[@]}"; do
-    compare "$p" "" || compare "$p" " (again)"
+    compare "$p" ""
     ok $? "$p over HTTP: every frame, render_waits 0, missing_wanted_frames <= 3 x file + 60 (no stall)"
 done
 
@@ -428,16 +432,16 @@ done
 ok $? "fault server started ($PY tests/http_fault_server.py): $(head -c 200 "$T/fault-server.err")"
 FURL=http://127.0.0.1:$(cat "$T/fault.port" 2>/dev/null)
 touch "$T/faults.log"
-FAULT120=(--realtime --width 320 --height 180 --memory-mb 64 --frames 120)
+FAULTRT=(--realtime --width 320 --height 180 --memory-mb 64)
 # last_missing DIR: wanted_missing of DIR's last frame
 # server_fault RUN: walk-drive from FURL/RUN/city.hlod, RUN's faults judged
 # as the kill's (frames from (last fault - start) / 33 + 10 on are after
 # it): loads go on after the faults, or none was needed (the faulted reads
 # were all retried in time and the last frame misses no wanted node)
-server_fault() {
-    local run=$1 t0 rc n last f after tail miss
+server_fault() { # RUN [FRAMES]
+    local run=$1 frames=${2:-120} t0 rc n last f after tail miss
     t0=$(date +%s%3N)
-    bench "$FURL/$run/city.hlod" walk-drive "$T/f$run" "${FAULT120[@]}"
+    bench "$FURL/$run/city.hlod" walk-drive "$T/f$run" "${FAULTRT[@]}" --frames "$frames"
     rc=$?
     n=$(grep -c " $run " "$T/faults.log")
     last=$(grep " $run " "$T/faults.log" | tail -1 | awk '{ print $NF }')
@@ -449,7 +453,7 @@ server_fault() {
         "loads=$(key "$T/f$run" loads) load_failures=$(key "$T/f$run" load_failures) bad_nodes=$(key "$T/f$run" bad_nodes)" \
         "render_waits=$(key "$T/f$run" render_waits) last frame's wanted_missing=$miss;" \
         "$(grep -c retrying "$T/f$run.err") retrying lines, the last state: $tail"
-    [ $rc -eq 0 ] && fault_ok "$T/f$run" 120 && [ "$n" -eq 12 ] && { [ "$after" -gt 0 ] || [ "$miss" = 0 ]; } &&
+    [ $rc -eq 0 ] && fault_ok "$T/f$run" "$frames" && [ "$n" -eq 12 ] && { [ "$after" -gt 0 ] || [ "$miss" = 0 ]; } &&
         [ "$(key "$T/f$run" bad_nodes)" = 0 ] && [ "$(key "$T/f$run" load_failures)" = 0 ] &&
         [ "$tail" = "the server answers again" ]
 }
@@ -459,6 +463,14 @@ for k in "${KINDS[@]}"; do
     server_fault "$k"
     ok $? "$k from the server on every 3rd payload request, 12 of them: every frame, render_waits 0, retried inside the reader (no load failure), recovered, no node bad ($(grep -m1 retrying "$T/f$k.err" | sed 's/^.*city.hlod: //' | cut -c1-90))"
 done
+# a server that hangs mid-transfer (half the body, then nothing): the
+# low-speed floor (64 B/s, here for 1 s through HLOD_HTTP_LOW_SPEED_S, 15 s
+# by default) drops the transfer and retries it; without the floor each
+# stalled range would hang its transfer for the server's 60 s
+if [ "$QUICK" != 1 ]; then
+    HLOD_HTTP_LOW_SPEED_S=1 server_fault stall 240 && grep -q "too slow" "$T/fstall.err"
+    ok $? "a stall (half the body, then nothing) on every 3rd payload request, 12 of them: dropped by the low-speed floor ($(grep -c 'too slow' "$T/fstall.err") 'too slow' lines), retried, recovered, every frame, render_waits 0, no node bad"
+fi
 
 # ---- retries running out: every payload request refused ----
 # A second fault server answers every payload request with a 416: each

@@ -45,6 +45,7 @@ struct hlod_http {
     char last_modified[128];
     struct curl_slist *hdrs;    /* If-Range, once there is a validator */
     _Atomic double latency_ms;  /* test hook */
+    long low_speed_s;           /* HTTP_LOW_SPEED_S, or the test hook's */
     pthread_mutex_t mu;         /* the pool only, never across I/O */
     CURL *pool[HTTP_POOL];
     int pool_n;
@@ -207,7 +208,7 @@ static CURL *new_easy(xfer *x)
     curl_easy_setopt(e, CURLOPT_MAXREDIRS, 5L);
     curl_easy_setopt(e, CURLOPT_CONNECTTIMEOUT_MS, HTTP_CONNECT_TIMEOUT_MS);
     curl_easy_setopt(e, CURLOPT_LOW_SPEED_LIMIT, HTTP_LOW_SPEED_BYTES);
-    curl_easy_setopt(e, CURLOPT_LOW_SPEED_TIME, HTTP_LOW_SPEED_S);
+    curl_easy_setopt(e, CURLOPT_LOW_SPEED_TIME, x->h->low_speed_s);
     curl_easy_setopt(e, CURLOPT_TCP_KEEPALIVE, 1L);
     curl_easy_setopt(e, CURLOPT_USERAGENT, "hlod");
     if (x->h->cainfo)
@@ -506,6 +507,11 @@ hlod_result hlod_http_open(const char *url, const hlod_logger *lg, void *probe, 
     }
     const char *lat = getenv("HLOD_HTTP_LATENCY_MS");
     atomic_init(&h->latency_ms, lat ? atof(lat) : 0.0);
+    /* test hook: a shorter floor, 1 to 15 s, so a test drops a stalled
+     * transfer in seconds (another value keeps 15) */
+    const char *slow = getenv("HLOD_HTTP_LOW_SPEED_S");
+    long ls = slow ? strtol(slow, NULL, 10) : 0;
+    h->low_speed_s = ls >= 1 && ls <= HTTP_LOW_SPEED_S ? ls : HTTP_LOW_SPEED_S;
     atomic_init(&h->changed, 0);
     atomic_init(&h->down, 0);
     hlod_result r = blocking_get(h, 1, 0, probe, probe_len, got);
