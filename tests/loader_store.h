@@ -8,6 +8,7 @@
 #define HLOD_LOADER_STORE_H
 
 #include "hlod/store.h"
+#include "grid_quads.h"
 #include "hlod/store_write.h"
 
 #include <math.h>
@@ -55,15 +56,7 @@ static void mesh_make(mesh *m, int nx, int ny, double x0, uint32_t tex)
                 m->uv[2 * k + 1] = (float)j / (float)ny;
             }
         }
-    uint32_t n = 0;
-    for (int j = 0; j < ny; j++)
-        for (int i = 0; i < nx; i++) {
-            uint32_t a = (uint32_t)(j * (nx + 1) + i), b = a + 1, c = a + (uint32_t)nx + 1,
-                     d = c + 1;
-            uint32_t q[6] = {a, b, d, a, d, c};
-            memcpy(m->idx + n, q, sizeof q);
-            n += 6;
-        }
+    grid_quads(m->idx, (uint32_t)nx, (uint32_t)ny);
     m->d.vertex_count = v;
     m->d.positions = m->pos;
     m->d.origin[0] = x0 + nx / 2.0;

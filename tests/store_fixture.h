@@ -16,6 +16,7 @@
 #define HLOD_TESTS_STORE_FIXTURE_H
 
 #include "hlod/store_write.h"
+#include "grid_quads.h"
 
 #include <stdlib.h>
 #include <string.h>
@@ -69,14 +70,7 @@ static uint32_t fixture_node(fixture_build *b, double x0, double y0, double side
             col[4 * v + 2] = 200;
             col[4 * v + 3] = 255;
         }
-    uint32_t t = 0;
-    for (uint32_t j = 0; j < g; j++)
-        for (uint32_t i = 0; i < g; i++) {
-            uint32_t a = j * (g + 1) + i, bb = a + 1, c = a + g + 1, d = c + 1;
-            uint32_t q[6] = {a, bb, d, a, d, c};
-            memcpy(idx + 3 * t, q, sizeof q);
-            t += 2;
-        }
+    grid_quads(idx, g, g);
     hlod_store_payload_desc d = {0};
     d.vertex_count = nv;
     d.positions = pos;

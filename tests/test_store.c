@@ -11,6 +11,7 @@
  * crash the reader.
  */
 #include "check.h"
+#include "grid_quads.h"
 #include "rec_log.h"
 #include "hlod/store.h"
 #include "hlod/store_write.h"
@@ -133,15 +134,7 @@ static void synth_make(synth *s, int nx, int ny, const double base[3], double sc
                 for (int c = 0; c < 4; c++)
                     s->col[4 * k + c] = (uint8_t)(17 * k + 31 * c);
         }
-    uint32_t n = 0;
-    for (int j = 0; j < ny; j++)
-        for (int i = 0; i < nx; i++) {
-            uint32_t a = (uint32_t)(j * (nx + 1) + i), b = a + 1, c = a + (uint32_t)nx + 1,
-                     d = c + 1;
-            uint32_t q[6] = {a, b, d, a, d, c};
-            memcpy(s->idx + n, q, sizeof q);
-            n += 6;
-        }
+    grid_quads(s->idx, (uint32_t)nx, (uint32_t)ny);
     s->d.vertex_count = v;
     s->d.positions = s->pos;
     s->d.origin[0] = base[0] + scale * nx / 2;
