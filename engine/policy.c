@@ -9,11 +9,20 @@
  *   nohyst  refine if shareTime > sum timeNeeded (eq. 4 recursion rule);
  *   sse     refine while p's projected geometric error exceeds the pixel
  *           threshold (the threshold is adapted by the cost model);
- *   full    refine whenever the children are resident (reference renders).
+ *   full    refine whenever the children are resident (reference renders);
+ *   counter nohyst's rule, but a node switches (refines or coarsens) only
+ *           after switch_frames consecutive frames that want the switch
+ *           (Maciel and Shirley, I3D 1995, as Lakhia's "Hysteresis"
+ *           describes it: a fixed counter, blind to urgency);
+ *   okamoto refine while the node's projected error eps * f / r exceeds
+ *           the pixel threshold, r the eye's distance to the centre of
+ *           the node's box (Okamoto et al., section 4.2; the threshold
+ *           adapted as sse's).
  */
 #include "policy.h"
 
 #include <assert.h>
+#include <math.h>
 #include <string.h>
 
 /* cumHyst < 0 draws the parent (the tolerance: weights of equal siblings
@@ -48,6 +57,39 @@ static int full_refines(const hlod_policy_in *in, int *near)
     return 1;
 }
 
+/* A switch wanted in a row: each frame that wants one counts, any frame
+ * that does not (or that skips the node) starts the count again.  The
+ * count is not reset by the switch itself: a refinement that must wait for
+ * its children's data happens the frame they arrive. */
+static int counter_refines(const hlod_policy_in *in, int *near)
+{
+    int want = nohyst_refines(in, near);
+    hlod_policy_mem *m = in->mem;
+    if (want == in->refined_last) {
+        m->count = 0;
+        return want;
+    }
+    int8_t dir = want ? 1 : -1;
+    m->count = m->frame + 1 == in->frame && m->dir == dir ? m->count + 1 : 1;
+    m->frame = in->frame;
+    m->dir = dir;
+    return m->count >= in->d->switch_frames ? want : in->refined_last;
+}
+
+static int okamoto_refines(const hlod_policy_in *in, int *near)
+{
+    const hlod_store_node *n = in->node;
+    double r2 = 0;
+    for (int k = 0; k < 3; k++) {
+        double c = 0.5 * (n->bbox_min[k] + n->bbox_max[k]) - in->eye[k];
+        r2 += c * c;
+    }
+    double r = sqrt(r2) > 1e-6 ? sqrt(r2) : 1e-6;
+    double px = n->error * in->pixels_per_radian / r;
+    *near = px > 0.5 * in->sse_pixels;
+    return px > in->sse_pixels;
+}
+
 static const hlod_policy_row rows[HLOD_POLICY_COUNT] = {
     [HLOD_POLICY_LAKHIA] = {"lakhia",
                             HLOD_PT_HYST | HLOD_PT_BUDGET | HLOD_PT_HOLD | HLOD_PT_OCCLUDE |
@@ -58,6 +100,10 @@ static const hlod_policy_row rows[HLOD_POLICY_COUNT] = {
                             nohyst_refines},
     [HLOD_POLICY_SSE] = {"sse", HLOD_PT_OCCLUDE | HLOD_PT_SSE | HLOD_PT_STREAM, sse_refines},
     [HLOD_POLICY_FULL] = {"full", 0, full_refines},
+    [HLOD_POLICY_COUNTER] = {"counter",
+                             HLOD_PT_BUDGET | HLOD_PT_OCCLUDE | HLOD_PT_SHARE | HLOD_PT_STREAM,
+                             counter_refines},
+    [HLOD_POLICY_OKAMOTO] = {"okamoto", HLOD_PT_SSE | HLOD_PT_STREAM, okamoto_refines},
 };
 
 const hlod_policy_row *hlod_policy_row_of(hlod_policy p)

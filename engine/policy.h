@@ -26,6 +26,13 @@ enum {
     HLOD_PT_STREAM = 1u << 6,  /* residency admits and evicts by priority each frame */
 };
 
+/* What a policy remembers of a node between frames (its own use). */
+typedef struct hlod_policy_mem {
+    uint32_t frame;        /* counter: the last frame that wanted a switch */
+    uint32_t count;        /* ... how many in a row, up to that frame */
+    int8_t dir;            /* ... +1 refine, -1 coarsen */
+} hlod_policy_mem;
+
 /* What a policy decides node p of the front from (traverse.c, visit). */
 typedef struct hlod_policy_in {
     const hlod_engine_desc *d;
@@ -38,6 +45,9 @@ typedef struct hlod_policy_in {
     double cum;            /* their counters' weighted vote, cumHyst (HLOD_PT_HYST) */
     int refined_last;      /* p was refined last frame */
     double sse_pixels;     /* the SSE threshold */
+    const double *eye;     /* the camera's position (world) */
+    uint32_t frame;        /* this frame's stamp */
+    hlod_policy_mem *mem;  /* p's memory */
 } hlod_policy_in;
 
 /* 1: draw p's visible children in its place; 0: draw p.  *near: refining

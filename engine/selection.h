@@ -17,6 +17,7 @@
 
 #include "alloc.h"
 #include "occlusion.h"
+#include "policy.h"
 #include "hlod/camera.h"
 #include "hlod/engine.h"
 
@@ -40,6 +41,7 @@ typedef struct hlod_node_frame {
     uint32_t waiting;       /* frame a refinement of it last waited for its children's data */
     uint32_t capped;        /* frame the budget bound coarsened it while the front was held;
                              * 0 once refined again */
+    hlod_policy_mem mem;    /* the policy's own (policy.h) */
 } hlod_node_frame;
 
 /* The camera as the selection sees it, in camera-relative doubles. */

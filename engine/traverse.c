@@ -507,7 +507,7 @@ static int stand_in(walk *w, const hlod_view *v, front *fr, uint32_t p)
 static int policy_refines(const walk *w, const hlod_view *v, uint32_t p, double share,
                           double sum_needed, double cum, int *near)
 {
-    const hlod_node_frame *pf = &w->fr[p];
+    hlod_node_frame *pf = &w->fr[p];
     hlod_policy_in in = {.d = w->d,
                          .node = &w->nodes[p],
                          /* (a square root a node: only for the policy that reads it) */
@@ -518,8 +518,11 @@ static int policy_refines(const walk *w, const hlod_view *v, uint32_t p, double 
                          .share = share,
                          .sum_needed = sum_needed,
                          .cum = cum,
-                         .refined_last = pf->refined + 1 == w->frame,
-                         .sse_pixels = w->sse_pixels};
+                         .refined_last = pf->refined && pf->refined + 1 == w->frame,
+                         .sse_pixels = w->sse_pixels,
+                         .eye = v->eye,
+                         .frame = w->frame,
+                         .mem = &pf->mem};
     return w->policy->refines(&in, near);
 }
 

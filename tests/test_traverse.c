@@ -17,7 +17,8 @@
 #include <unistd.h>
 
 static char g_dir[512];
-static hlod_store *g_store;
+static hlod_store *g_store;  /* a root over four quadrants */
+static hlod_store *g_deep;   /* one block two levels deep: 21 nodes */
 
 /* The selection and the residency under test, and what they share. */
 typedef struct rig {
@@ -30,24 +31,24 @@ typedef struct rig {
     double v_time;      /* ms per unit of cost: each quadrant needs 1 ms */
 } rig;
 
-/* A rig for policy pol, every node resident but `missing` (UINT32_MAX:
- * none). */
-static int rig_init(rig *r, hlod_policy pol, uint32_t missing)
+/* A rig on store for policy pol, every node resident but `missing`
+ * (UINT32_MAX: none). */
+static int rig_init_on(rig *r, hlod_store *store, hlod_policy pol, uint32_t missing)
 {
     memset(r, 0, sizeof *r);
     hlod_engine_desc_defaults(&r->d);
     r->d.deterministic = 1;
     r->d.policy = pol;
     r->d.deterministic_load_bytes = 1u << 30;
-    if (hlod_residency_init(&r->res, g_store, &r->d, &r->st) != HLOD_OK)
+    if (hlod_residency_init(&r->res, store, &r->d, &r->st) != HLOD_OK)
         return 0;
-    if (hlod_selection_init(&r->sel, g_store, &r->d, &r->st) != HLOD_OK)
+    if (hlod_selection_init(&r->sel, store, &r->d, &r->st) != HLOD_OK)
         return 0;
-    for (uint32_t i = 0; i < hlod_store_node_count(g_store); i++)
+    for (uint32_t i = 0; i < hlod_store_node_count(store); i++)
         if (i != missing && hlod_residency_state(&r->res, i) != HLOD_NODE_RESIDENT &&
             hlod_residency_load_now(&r->res, i) != HLOD_OK)
             return 0;
-    r->v_time = 1.0 / hlod_node_cost(&hlod_store_nodes(g_store)[1]);
+    r->v_time = 1.0 / hlod_node_cost(&hlod_store_nodes(store)[1]);
     hlod_camera cam;
     /* straight above the block's centre: the quadrants alike in priority */
     const double eye[3] = {50, 50, 150}, at[3] = {50, 50, 0}, up[3] = {0, 1, 0};
@@ -56,6 +57,11 @@ static int rig_init(rig *r, hlod_policy pol, uint32_t missing)
     const double still[3] = {0, 0, 0};
     hlod_view_init(&r->view, &cam, still, 0);
     return 1;
+}
+
+static int rig_init(rig *r, hlod_policy pol, uint32_t missing)
+{
+    return rig_init_on(r, g_store, pol, missing);
 }
 
 static void rig_free(rig *r)
@@ -212,6 +218,113 @@ static void lakhia_counters_delay_the_switch(void)
     rig_free(&r);
 }
 
+/* counter (Maciel and Shirley): nohyst's rule, but a node switches only
+ * after switch_frames consecutive frames that want the switch: 4.1 ms
+ * shared for the quadrants' 4 wants them, 3.9 wants the root. */
+static void counter_switches_after_switch_frames(void)
+{
+    rig r;
+    CHECK(rig_init(&r, HLOD_POLICY_COUNTER, UINT32_MAX));
+    const uint32_t n = r.d.switch_frames;
+    CHECKF(n == 8, "switch_frames %u by default", n);
+    int k = 0;
+    for (k = 1; k < (int)n; k++) {
+        select_frame(&r, 100, 4.1, 2);
+        CHECKF(drew_root(&r), "frame %d of %u wanting the quadrants: %zu drawn", k, n,
+               r.sel.draw.n);
+    }
+    select_frame(&r, 100, 4.1, 2);
+    CHECKF(drew_quadrants(&r), "frame %u wanting the quadrants: %zu drawn", n, r.sel.draw.n);
+    for (k = 1; k < (int)n; k++) {
+        select_frame(&r, 100, 3.9, 2);
+        CHECKF(drew_quadrants(&r), "frame %d of %u wanting the root: %zu drawn", k, n,
+               r.sel.draw.n);
+    }
+    select_frame(&r, 100, 3.9, 2);
+    CHECKF(drew_root(&r), "frame %u wanting the root: %zu drawn", n, r.sel.draw.n);
+    /* a frame that does not want the switch starts the count again */
+    for (k = 1; k < (int)n; k++)
+        select_frame(&r, 100, 4.1, 2);
+    select_frame(&r, 100, 3.9, 2);
+    for (k = 1; k < (int)n; k++) {
+        select_frame(&r, 100, 4.1, 2);
+        CHECKF(drew_root(&r), "frame %d of %u after the break: %zu drawn", k, n, r.sel.draw.n);
+    }
+    select_frame(&r, 100, 4.1, 2);
+    CHECKF(drew_quadrants(&r), "frame %u after the break: %zu drawn", n, r.sel.draw.n);
+    rig_free(&r);
+    /* switch_frames 1 is nohyst */
+    CHECK(rig_init(&r, HLOD_POLICY_COUNTER, UINT32_MAX));
+    r.d.switch_frames = 1;
+    select_frame(&r, 100, 4.1, 2);
+    CHECKF(drew_quadrants(&r), "switch_frames 1: %zu drawn", r.sel.draw.n);
+    select_frame(&r, 100, 3.9, 2);
+    CHECKF(drew_root(&r), "switch_frames 1, then 3.9 ms: %zu drawn", r.sel.draw.n);
+    rig_free(&r);
+}
+
+/* The projected error of node i as okamoto judges it: the eye's distance
+ * to the centre of its box. */
+static double okamoto_pixels(const rig *r, uint32_t i)
+{
+    const hlod_store_node *n = &hlod_store_nodes(g_deep)[i];
+    double r2 = 0;
+    for (int k = 0; k < 3; k++) {
+        double c = 0.5 * (n->bbox_min[k] + n->bbox_max[k]) - r->view.eye[k];
+        r2 += c * c;
+    }
+    return n->error * r->view.pixels_per_radian / sqrt(r2);
+}
+
+/* okamoto: from 60 places around a block two levels deep, every node
+ * drawn is a leaf or within the threshold, every ancestor of one is over
+ * it, and no node is drawn with its ancestor (a cut); the cuts seen reach
+ * each level. */
+static void okamoto_cut_meets_the_threshold(void)
+{
+    uint64_t s = 0x9e3779b97f4a7c15ull;
+    const hlod_store_node *nodes = hlod_store_nodes(g_deep);
+    unsigned depths = 0, checked = 0;
+    for (int place = 0; place < 60; place++) {
+        rig r;
+        CHECK(rig_init_on(&r, g_deep, HLOD_POLICY_OKAMOTO, UINT32_MAX));
+        double u[5];
+        for (int k = 0; k < 5; k++) {
+            s = s * 6364136223846793005ull + 1442695040888963407ull;
+            u[k] = (double)(s >> 11) / 9007199254740992.0;
+        }
+        const double eye[3] = {-150 + 400 * u[0], -150 + 400 * u[1], 10 + 300 * u[2]},
+                     at[3] = {100 * u[3], 100 * u[4], 0}, up[3] = {0, 0, 1};
+        hlod_camera cam;
+        CHECK(hlod_camera_look_at(&cam, eye, at, up, 60, 0.5, 1e5, 1280, 720) == HLOD_OK);
+        const double still[3] = {0, 0, 0};
+        hlod_view_init(&r.view, &cam, still, 0);
+        const double px = 20 + 60 * (place % 4);
+        select_frame(&r, 0.001, 0.001, px); /* time plays no part */
+        uint8_t drawn[64] = {0};
+        for (size_t k = 0; k < r.sel.draw.n; k++)
+            drawn[r.sel.draw.v[k]] = 1;
+        for (size_t k = 0; k < r.sel.draw.n; k++) {
+            uint32_t i = r.sel.draw.v[k], depth = 0;
+            int leaf = hlod_store_first_child(nodes, i) == hlod_store_child_end(nodes, i);
+            CHECKF(leaf || okamoto_pixels(&r, i) <= px,
+                   "place %d: node %u drawn at %.1f px over the %.0f px threshold", place, i,
+                   okamoto_pixels(&r, i), px);
+            for (uint32_t a = nodes[i].parent; a != HLOD_STORE_NO_PARENT; a = nodes[a].parent) {
+                CHECKF(okamoto_pixels(&r, a) > px && !drawn[a],
+                       "place %d: node %u drawn under %u at %.1f px (threshold %.0f), drawn %d",
+                       place, i, a, okamoto_pixels(&r, a), px, drawn[a]);
+                depth++;
+            }
+            depths |= 1u << depth;
+            checked++;
+        }
+        rig_free(&r);
+    }
+    printf("     %u nodes drawn over 60 places, depths seen 0x%x\n", checked, depths);
+    CHECKF(depths == 7, "the cuts reached depths 0x%x, not all of 0, 1 and 2", depths);
+}
+
 int main(void)
 {
     const char *tmp = getenv("TMPDIR");
@@ -226,6 +339,11 @@ int main(void)
     uint32_t count = 0;
     int ok = fixture_write(path, &o, &count) == HLOD_OK && count == 5 &&
              hlod_store_open(path, NULL, &g_store) == HLOD_OK;
+    char deep[1024];
+    snprintf(deep, sizeof deep, "%s/deep.hlod", g_dir);
+    fixture_opts od = {.roots = 1, .depth = 2};
+    ok = ok && fixture_write(deep, &od, &count) == HLOD_OK && count == 21 &&
+         hlod_store_open(deep, NULL, &g_deep) == HLOD_OK;
     CHECK(ok);
     if (ok) {
         RUN(nohyst_shares_time_by_eq4);
@@ -233,9 +351,13 @@ int main(void)
         RUN(missing_child_forces_parent);
         RUN(full_and_sse_decide_alone);
         RUN(lakhia_counters_delay_the_switch);
+        RUN(counter_switches_after_switch_frames);
+        RUN(okamoto_cut_meets_the_threshold);
     }
     hlod_store_close(g_store);
+    hlod_store_close(g_deep);
     unlink(path);
+    unlink(deep);
     rmdir(g_dir);
     return check_done() || !ok;
 }

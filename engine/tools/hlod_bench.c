@@ -72,7 +72,7 @@ static void usage(FILE *fp)
         "  --up z|y          the path's up axis (default z)\n"
         "  --dt S            simulated time per frame (default 1/30 s)\n"
         "  --frames N        stop after N frames (default: the whole path)\n"
-        "  --policy LIST     lakhia, nohyst, sse (comma list; default lakhia)\n"
+        "  --policy LIST     " HLOD_POLICY_CHOICES " (comma list; default lakhia)\n"
         "  --memory-mb M     memory budget in MiB (default: 25%% of the store's\n"
         "                    payloads in memory, decoded)\n"
         "  --reference       render a full-detail reference per frame: PSNR, SSIM\n"
@@ -321,7 +321,7 @@ static int parse_policies(const char *text, options *o)
     for (char *save = NULL, *t = strtok_r(buf, ",", &save); t; t = strtok_r(NULL, ",", &save)) {
         hlod_policy p;
         if (!hlod_policy_parse(t, &p) || p == HLOD_POLICY_FULL) {
-            hlod_cli_usage_error(PROG, "--policy: unknown policy '%s' (lakhia, nohyst, sse)", t);
+            hlod_cli_usage_error(PROG, "--policy: unknown policy '%s' (" HLOD_POLICY_CHOICES ")", t);
             return 0;
         }
         for (int i = 0; i < o->npolicies; i++)

@@ -79,7 +79,7 @@ static void usage(FILE *fp)
         "  --width W         window width (default 1280)\n"
         "  --height H        window height (default 720)\n"
         "  --target-ms T     target frame time in ms (default 33.3)\n"
-        "  --policy P        lakhia, nohyst or sse (default lakhia)\n"
+        "  --policy P        " HLOD_POLICY_CHOICES " (default lakhia)\n"
         "  --memory-mb M     memory budget in MiB (default: the engine's, 512)\n"
         "  --path P          play a camera path instead of free flight: a file,\n"
         "                    or a built-in name (walk, fly, walk-to-fly,\n"
@@ -176,7 +176,7 @@ static int parse_args(int argc, char **argv, options *o)
             NEED("--policy");
             if (!hlod_policy_parse(v, &o->policy) || o->policy == HLOD_POLICY_FULL)
                 return hlod_cli_usage_error(PROG, "--policy: unknown policy '%s' "
-                                            "(lakhia, nohyst, sse)", v);
+                                            "(" HLOD_POLICY_CHOICES ")", v);
         } else if (FLAG("--record")) {
             NEED("--record");
             o->record = v;

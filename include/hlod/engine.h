@@ -51,8 +51,14 @@ typedef enum hlod_policy {
     HLOD_POLICY_NOHYST,     /* eq. 4 recursion rule, no hysteresis */
     HLOD_POLICY_SSE,        /* screen-space error with an adaptive threshold */
     HLOD_POLICY_FULL,       /* leaves only, everything loaded (reference) */
+    HLOD_POLICY_COUNTER,    /* nohyst's rule, a switch after switch_frames frames that want it
+                               (Maciel and Shirley 1995) */
+    HLOD_POLICY_OKAMOTO,    /* depth-first cut at a projected-error threshold (Okamoto, 4.2) */
     HLOD_POLICY_COUNT
 } hlod_policy;
+
+/* The policies a user picks (full draws references), for help texts. */
+#define HLOD_POLICY_CHOICES "lakhia, nohyst, sse, counter, okamoto"
 
 const char *hlod_policy_name(hlod_policy p);           /* "lakhia", ... */
 int hlod_policy_parse(const char *name, hlod_policy *out); /* 1 on success */
@@ -124,6 +130,8 @@ typedef double (*hlod_time_model)(void *user_data, const struct hlod_frame_stats
       "distances are taken from the eye advanced by this much camera motion, s")                 \
     X(sse_pixels, sse_pixels, D, 2.0, 0, 1, HLOD_UNBOUNDED, 1,                                   \
       "initial screen-space error threshold of the sse policy, pixels")                          \
+    X(switch_frames, switch_frames, U32, 8, 1, 0, 1e6, 1,                                        \
+      "counter policy: a node switches after this many consecutive frames that want it")        \
     X(read_chunk_bytes, read_chunk_bytes, U32, 64u << 10, 1, 0, HLOD_UNBOUNDED, 0,               \
       "the loader reads a payload in steps of this many bytes")                                  \
     X(upload_budget_bytes, upload_budget_bytes, U64, 16ull << 20, 1, 0, HLOD_UNBOUNDED, 1,       \
