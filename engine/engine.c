@@ -489,6 +489,15 @@ static int camera_motion(hlod_engine *e, const hlod_camera *cam, double dt, doub
                e->prev_cam.width == cam->width && e->prev_cam.height == cam->height &&
                e->prev_cam.fov_y_deg == cam->fov_y_deg;
     e->still_run = same ? e->still_run + 1 : 0;
+    /* the view axis's turn (the view matrix's third row), radians per second */
+    e->turn_rad_s = 0;
+    if (e->have_prev && dt > 0) {
+        double dot = 0;
+        for (int k = 0; k < 3; k++)
+            dot += cam->view[4 * k + 2] * e->prev_cam.view[4 * k + 2];
+        dot = dot > 1 ? 1 : dot < -1 ? -1 : dot;
+        e->turn_rad_s = acos(dot) / dt;
+    }
     e->prev_cam = *cam;
     e->have_prev = 1;
     return moved;
@@ -644,6 +653,7 @@ hlod_result hlod_engine_frame(hlod_engine *e, const hlod_camera *cam, double dt,
     const double upload = frame_upload_ms(e), budget = frame_budget(e);
     hlod_view view;
     hlod_view_init(&view, cam, vel, e->d.velocity_lookahead_s);
+    view.turn_rad_s = e->turn_rad_s;
     hlod_select_in in = select_inputs(e, budget, moved);
     double t0 = hlod_now_ms();
     hlod_result r = hlod_select(&e->sel, &e->res, &view, &in);

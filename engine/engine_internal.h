@@ -43,6 +43,7 @@ struct hlod_engine {
     /* camera motion */
     int have_prev;
     hlod_camera prev_cam;   /* the last frame's camera (when have_prev) */
+    double turn_rad_s;      /* how fast the view axis turned into this frame, rad/s */
     uint32_t still_run;     /* frames in a row with the same camera as the last */
     hlod_hold hold;         /* the still camera's hold (hold.h) */
     int have_front;         /* last_front_ms is set (a frame was selected) */

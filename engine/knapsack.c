@@ -5,7 +5,6 @@
 #include "knapsack.h"
 
 #include <math.h>
-#include <stdlib.h>
 #include <string.h>
 
 /* An indexed binary heap of item numbers keyed by ratio: the highest first
@@ -192,21 +191,27 @@ static void best_single(solve *s, double base)
     s->total = base + s->it[b].cost;
 }
 
+static void *knap_realloc(const hlod_knapsack *k, void *p, size_t size)
+{
+    static const hlod_allocator plain = {0};
+    return hlod_mem_realloc(k->a ? k->a : &plain, p, size);
+}
+
 static int grow(hlod_knapsack *k, size_t n)
 {
     if (n <= k->cap)
         return 1;
     size_t cap = n > 2 * k->cap ? n : 2 * k->cap;
     /* heap (v, pos) x 2, kids, child0 (n + 1), child, out; ratio as doubles */
-    uint32_t *u = realloc(k->u, (8 * cap + 1) * sizeof *u);
+    uint32_t *u = knap_realloc(k, k->u, (8 * cap + 1) * sizeof *u);
     if (!u)
         return 0;
     k->u = u;
-    double *r = realloc(k->ratio, cap * sizeof *r);
+    double *r = knap_realloc(k, k->ratio, cap * sizeof *r);
     if (!r)
         return 0;
     k->ratio = r;
-    uint8_t *d = realloc(k->done, cap);
+    uint8_t *d = knap_realloc(k, k->done, cap);
     if (!d)
         return 0;
     k->done = d;
@@ -246,6 +251,13 @@ double hlod_knapsack_solve(hlod_knapsack *k, hlod_knapsack_item *it, uint32_t n,
             s.child[s.out[it[i].parent]++ + s.child0[it[i].parent]] = i;
     memset(s.out, 0, n * sizeof *s.out);
 
+    if (base > budget) {
+        /* even the coarsest choice is over: it alone, as every policy draws
+         * only the roots then */
+        for (uint32_t i = 0; i < n; i++)
+            it[i].taken = 0;
+        return base;
+    }
     s.total = base;
     for (uint32_t i = 0; i < n; i++)
         if (it[i].taken) {
@@ -276,8 +288,13 @@ double hlod_knapsack_solve(hlod_knapsack *k, hlod_knapsack_item *it, uint32_t n,
 
 void hlod_knapsack_free(hlod_knapsack *k)
 {
-    free(k->u);
-    free(k->ratio);
-    free(k->done);
-    memset(k, 0, sizeof *k);
+    static const hlod_allocator plain = {0};
+    const hlod_allocator *a = k->a ? k->a : &plain;
+    hlod_mem_free(a, k->u);
+    hlod_mem_free(a, k->ratio);
+    hlod_mem_free(a, k->done);
+    k->u = NULL;
+    k->ratio = NULL;
+    k->done = NULL;
+    k->cap = 0;
 }

@@ -28,6 +28,8 @@
 #ifndef HLOD_ENGINE_KNAPSACK_H
 #define HLOD_ENGINE_KNAPSACK_H
 
+#include "alloc.h"
+
 #include <stddef.h>
 #include <stdint.h>
 
@@ -42,8 +44,10 @@ typedef struct hlod_knapsack_item {
     uint8_t taken;      /* in: taken last frame; out: the decision */
 } hlod_knapsack_item;
 
-/* Scratch kept between frames (grown as needed; zero-initialise). */
+/* Scratch kept between frames (grown as needed; zero-initialise, then
+ * set a: the engine's allocator, or NULL for malloc). */
 typedef struct hlod_knapsack {
+    const hlod_allocator *a;
     uint32_t *u;        /* 8 words an item: two heaps, children, counts */
     double *ratio;      /* gain per cost, an item */
     uint8_t *done;      /* given back in step 2, an item */

@@ -14,6 +14,9 @@
  *           after switch_frames consecutive frames that want the switch
  *           (Maciel and Shirley, I3D 1995, as Lakhia's "Hysteresis"
  *           describes it: a fixed counter, blind to urgency);
+ *   fs93    refine where Funkhouser and Séquin's greedy knapsack, planned
+ *           before the walk (traverse.c, fs93_plan_front), took the
+ *           refinement (SIGGRAPH 1993; every visible node still drawn);
  *   okamoto refine while the node's projected error eps * f / r exceeds
  *           the pixel threshold, r the eye's distance to the centre of
  *           the node's box (Okamoto et al., section 4.2; the threshold
@@ -90,6 +93,12 @@ static int okamoto_refines(const hlod_policy_in *in, int *near)
     return px > in->sse_pixels;
 }
 
+static int fs93_refines(const hlod_policy_in *in, int *near)
+{
+    *near = in->mem->ask == in->frame;
+    return in->mem->plan == in->frame;
+}
+
 static const hlod_policy_row rows[HLOD_POLICY_COUNT] = {
     [HLOD_POLICY_LAKHIA] = {"lakhia",
                             HLOD_PT_HYST | HLOD_PT_BUDGET | HLOD_PT_HOLD | HLOD_PT_OCCLUDE |
@@ -104,6 +113,8 @@ static const hlod_policy_row rows[HLOD_POLICY_COUNT] = {
                              HLOD_PT_BUDGET | HLOD_PT_OCCLUDE | HLOD_PT_SHARE | HLOD_PT_STREAM,
                              counter_refines},
     [HLOD_POLICY_OKAMOTO] = {"okamoto", HLOD_PT_SSE | HLOD_PT_STREAM, okamoto_refines},
+    [HLOD_POLICY_FS93] = {"fs93", HLOD_PT_KNAPSACK | HLOD_PT_OCCLUDE | HLOD_PT_STREAM,
+                          fs93_refines},
 };
 
 const hlod_policy_row *hlod_policy_row_of(hlod_policy p)

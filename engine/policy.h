@@ -24,6 +24,8 @@ enum {
     HLOD_PT_SSE = 1u << 5,     /* screen-space error: the cost model adapts the SSE
                                   threshold, and the decision reads the distance */
     HLOD_PT_STREAM = 1u << 6,  /* residency admits and evicts by priority each frame */
+    HLOD_PT_KNAPSACK = 1u << 7, /* the front is planned before the walk by FS93's knapsack
+                                   (traverse.c): the decision reads mem->plan and mem->ask */
 };
 
 /* What a policy remembers of a node between frames (its own use). */
@@ -31,6 +33,8 @@ typedef struct hlod_policy_mem {
     uint32_t frame;        /* counter: the last frame that wanted a switch */
     uint32_t count;        /* ... how many in a row, up to that frame */
     int8_t dir;            /* ... +1 refine, -1 coarsen */
+    uint32_t plan;         /* fs93: the frame the knapsack refined the node */
+    uint32_t ask;          /* fs93: the frame its children were worth reading */
 } hlod_policy_mem;
 
 /* What a policy decides node p of the front from (traverse.c, visit). */

@@ -16,6 +16,7 @@
 #define HLOD_ENGINE_SELECTION_H
 
 #include "alloc.h"
+#include "knapsack.h"
 #include "occlusion.h"
 #include "policy.h"
 #include "hlod/camera.h"
@@ -53,6 +54,9 @@ typedef struct hlod_view {
     double pixels_per_radian; /* height / (2 tan(fovy/2)), for screen-space error */
     double vp[16];          /* camera-relative view-projection, column-major */
     double width, height;   /* viewport, pixels */
+    double velocity[3];     /* the camera's, model units per second */
+    double turn_rad_s;      /* how fast the view axis turns, radians per second (the
+                             * engine sets it after hlod_view_init; 0 there) */
 } hlod_view;
 
 /* What one frame's selection is given. */
@@ -83,6 +87,10 @@ typedef struct hlod_selection {
     double reserved, reserving; /* extra of the last frame's refinements; of this frame's */
     uint32_t cap_hits;          /* refinements the budget bound refused this frame */
     uint32_t slice_denied;      /* refinements near but refused by time slices */
+    hlod_knapsack ks;           /* fs93's solver and its items (traverse.c) */
+    hlod_knapsack_item *fs93_items;
+    uint32_t *fs93_nodes;
+    size_t fs93_cap;
 } hlod_selection;
 
 /* d and st must outlive s.  HLOD_ERR_NOMEM. */

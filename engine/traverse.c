@@ -28,6 +28,7 @@
 #include "selection.h"
 
 #include "hold.h"
+#include "knapsack.h"
 #include "policy.h"
 #include "residency.h"
 
@@ -80,6 +81,9 @@ void hlod_selection_free(hlod_selection *s)
     hlod_mem_free(a, s->level.v);
     hlod_mem_free(a, s->next.v);
     hlod_mem_free(a, s->refined.v);
+    hlod_mem_free(a, s->fs93_items);
+    hlod_mem_free(a, s->fs93_nodes);
+    hlod_knapsack_free(&s->ks);
     *s = (hlod_selection){0};
 }
 
@@ -94,6 +98,7 @@ void hlod_view_init(hlod_view *v, const hlod_camera *cam, const double velocity[
         v->eye[k] = cam->position[k];
         double ahead = velocity[k] * lookahead_s;
         v->probe[k] = cam->position[k] + (isfinite(ahead) ? ahead : 0);
+        v->velocity[k] = isfinite(velocity[k]) ? velocity[k] : 0;
     }
     /* the rows of proj * view give the planes (Gribb-Hartmann), in
      * camera-relative coordinates */
@@ -806,6 +811,162 @@ static int visit(walk *w, const hlod_view *v, front *fr, uint32_t p)
     return ask_children(w, &f) && commit(w, fr, p, &f);
 }
 
+/* ---- fs93: the knapsack, planned before the walk ---- */
+
+/* Funkhouser and Séquin's benefit of showing node p's region (its box's
+ * pixels) with tris triangles at a projected error of err_px pixels:
+ * size x accuracy x importance (1) x focus x motion, with accuracy
+ * 1 - err_px / tris^fs93_m, focus 0.5 + 0.5 cos(the angle off the view
+ * axis, 0 behind), and motion 1 / (1 + the region's angular speed across
+ * the view, rad/s: the camera's turn plus its travel seen from p). */
+static double fs93_benefit(const walk *w, const hlod_view *v, uint32_t p, double err_px,
+                           double tris)
+{
+    const hlod_store_node *n = &w->nodes[p];
+    double c[3], r2 = 0, ahead = 0;
+    for (int k = 0; k < 3; k++) {
+        c[k] = 0.5 * (n->bbox_min[k] + n->bbox_max[k]) - v->eye[k];
+        r2 += c[k] * c[k];
+        ahead -= v->toward[k] * c[k];
+    }
+    double r = sqrt(r2);
+    double cosine = r > 1e-9 ? ahead / r : 1;
+    double focus = 0.5 + 0.5 * (cosine > 0 ? cosine : 0);
+    double cross[3] = {v->velocity[1] * c[2] - v->velocity[2] * c[1],
+                       v->velocity[2] * c[0] - v->velocity[0] * c[2],
+                       v->velocity[0] * c[1] - v->velocity[1] * c[0]};
+    double sweep = r2 > 1e-18 ? sqrt(cross[0] * cross[0] + cross[1] * cross[1] +
+                                     cross[2] * cross[2]) / r2
+                              : 0;
+    double motion = 1 / (1 + v->turn_rad_s + sweep);
+    double accuracy = 1 - err_px / pow(tris > 1 ? tris : 1, w->d->fs93_m);
+    return w->fr[p].pix * accuracy * focus * motion;
+}
+
+/* A choice other than last frame's loses 1 - fs93_hyst of its benefit's
+ * size (FS93's hysteresis term). */
+static double fs93_hysteresis(const walk *w, double b)
+{
+    return b - (1 - w->d->fs93_hyst) * fabs(b);
+}
+
+static double projected_error(const walk *w, const hlod_view *v, uint32_t i)
+{
+    return w->nodes[i].error * v->pixels_per_radian / node_distance(v, &w->nodes[i]);
+}
+
+/* The knapsack's items, one a node whose children may replace it. */
+typedef struct fs93_plan {
+    hlod_knapsack_item *it;
+    uint32_t *node;
+    uint32_t n;
+    size_t cap;
+} fs93_plan;
+
+/* Adds node p's item under item `parent`, priced, and then its children's
+ * (those under last frame's front, and one level past it).  Returns 0 on
+ * allocation failure. */
+static int fs93_add(walk *w, const hlod_view *v, fs93_plan *pl, uint32_t p, uint32_t parent,
+                    int past)
+{
+    uint32_t c0 = hlod_store_first_child(w->nodes, p), c1 = hlod_store_child_end(w->nodes, p);
+    if (c0 == c1 || is_hidden(w, p) || stands_down(w, p))
+        return 1;
+    double cost = -node_needed(w, p), tris = 0, err = 0;
+    uint32_t shown = 0;
+    int allowed = 1;
+    for (uint32_t c = c0; c < c1; c++) {
+        if (frustum_vis(w, v, c) < 1)
+            continue;
+        price(w, v, c, 1);
+        shown++;
+        allowed &= !holds_back(w, c);
+        if (is_hidden(w, c))
+            continue;
+        cost += node_needed(w, c);
+        tris += w->nodes[c].tri_count;
+        double e = projected_error(w, v, c);
+        err = e > err ? e : err;
+    }
+    if (!shown)
+        return 1;
+    if (pl->n == pl->cap) {
+        size_t cap = pl->cap ? 2 * pl->cap : 256;
+        hlod_knapsack_item *it = hlod_mem_realloc(&w->d->allocator, pl->it, cap * sizeof *it);
+        if (!it)
+            return 0;
+        pl->it = it;
+        uint32_t *node = hlod_mem_realloc(&w->d->allocator, pl->node, cap * sizeof *node);
+        if (!node)
+            return 0;
+        pl->node = node;
+        pl->cap = cap;
+    }
+    const hlod_node_frame *pf = &w->fr[p];
+    int was = pf->refined && pf->refined + 1 == w->frame;
+    double mine = fs93_benefit(w, v, p, projected_error(w, v, p), w->nodes[p].tri_count),
+           theirs = fs93_benefit(w, v, p, err, tris);
+    uint32_t me = pl->n++;
+    pl->node[me] = p;
+    pl->it[me] = (hlod_knapsack_item){
+        .gain = was ? theirs - fs93_hysteresis(w, mine) : fs93_hysteresis(w, theirs) - mine,
+        .cost = cost,
+        .parent = parent,
+        .allowed = (uint8_t)allowed,
+        .taken = (uint8_t)was};
+    if (!was && past)
+        return 1;
+    for (uint32_t c = c0; c < c1; c++)
+        if (w->fr[c].priced == w->frame && frustum_vis(w, v, c) >= 1 &&
+            !fs93_add(w, v, pl, c, me, past || !was))
+            return 0;
+    return 1;
+}
+
+/* Plans this frame's front for fs93: the items from the visible roots,
+ * the knapsack solved within the budget, and each node's decision left in
+ * its policy memory (plan: refine; ask: its children are worth reading).
+ * Returns 0 on allocation failure. */
+static int fs93_plan_front(walk *w, const hlod_view *v, double budget)
+{
+    hlod_selection *s = w->s;
+    fs93_plan pl = {s->fs93_items, s->fs93_nodes, 0, s->fs93_cap};
+    double base = 0;
+    int ok = 1;
+    for (uint32_t r = 0; r < s->root_count && ok; r++) {
+        if (frustum_vis(w, v, r) < 1)
+            continue;
+        price(w, v, r, 1);
+        if (!is_hidden(w, r))
+            base += node_needed(w, r);
+        ok = fs93_add(w, v, &pl, r, HLOD_KNAPSACK_NONE, 0);
+    }
+    s->fs93_items = pl.it;
+    s->fs93_nodes = pl.node;
+    s->fs93_cap = pl.cap;
+    if (!ok)
+        return 0;
+    s->ks.a = &w->d->allocator;
+    if (hlod_knapsack_solve(&s->ks, pl.it, pl.n, base, budget) < 0)
+        return 0;
+    /* the children worth reading: an item the knapsack would take at half
+     * the gain per cost of the worst it took */
+    double worst = INFINITY;
+    for (uint32_t i = 0; i < pl.n; i++)
+        if (pl.it[i].taken && pl.it[i].cost > 0 && pl.it[i].gain / pl.it[i].cost < worst)
+            worst = pl.it[i].gain / pl.it[i].cost;
+    for (uint32_t i = 0; i < pl.n; i++) {
+        hlod_policy_mem *m = &w->fr[pl.node[i]].mem;
+        const hlod_knapsack_item *t = &pl.it[i];
+        m->plan = t->taken ? w->frame : 0;
+        m->ask = t->gain > 0 && (t->cost <= 0 || !isfinite(worst) ||
+                                 t->gain / t->cost >= 0.5 * worst)
+                     ? w->frame
+                     : 0;
+    }
+    return 1;
+}
+
 /* Each node refined this frame: sub_extra, the extra of the refinements
  * at and under it, which next frame's walk releases at once when it
  * coarsens the node or culls it.  Walk order puts a parent before its
@@ -838,6 +999,8 @@ hlod_result hlod_select(hlod_selection *s, struct hlod_residency *res, const hlo
     s->cap_hits = s->slice_denied = 0;
     front fr = {0, in->budget_ms, s->reserving};
     s->reserving = 0;
+    if ((pol->traits & HLOD_PT_KNAPSACK) && !fs93_plan_front(w, v, in->budget_ms))
+        return HLOD_ERR_NOMEM;
 
     /* the visible roots share share_ms (shareTime: c_targetTime less
      * the fixed frame part, times the engine's share gain); they are always

@@ -271,7 +271,8 @@ static int check_frame(const hlod_engine *e, const hlod_store *s, const hlod_fra
                "roots' slices %.17g, shared time %.17g", root_sum,
                st->budget_ms * st->share_gain);
     hlod_policy pol = d->policy;
-    if ((pol == HLOD_POLICY_LAKHIA || pol == HLOD_POLICY_NOHYST) &&
+    if ((pol == HLOD_POLICY_LAKHIA || pol == HLOD_POLICY_NOHYST || pol == HLOD_POLICY_COUNTER ||
+         pol == HLOD_POLICY_FS93) &&
         st->nodes_per_depth[0] != st->nodes_drawn)
         EXPECT(st->estimated_ms - st->fixed_ms - (d->deterministic ? 0 : st->upload_ms) <=
                    st->budget_ms * (1 + 1e-9),
@@ -300,7 +301,9 @@ static int run_views(const hlod_store *s, const hlod_engine_desc *base, const vi
                      int nviews, int each, const char *what)
 {
     int bad = 0;
-    for (int pol = HLOD_POLICY_LAKHIA; pol <= HLOD_POLICY_SSE; pol++) {
+    for (int pol = 0; pol < HLOD_POLICY_COUNT; pol++) {
+        if (pol == HLOD_POLICY_FULL)
+            continue; /* references only: it loads every leaf */
         hlod_engine_desc d = *base;
         d.policy = (hlod_policy)pol;
         hlod_engine *e = NULL;
@@ -432,7 +435,9 @@ static void all_siblings_outside(void)
     int n = (int)(sizeof views / sizeof *views);
     hlod_engine_desc d = det_desc(1e-7, 20);
     CHECK(run_views(s, &d, views, n, 10, "siblings outside") == 0);
-    for (int pol = HLOD_POLICY_LAKHIA; pol <= HLOD_POLICY_SSE; pol++) {
+    for (int pol = 0; pol < HLOD_POLICY_COUNT; pol++) {
+        if (pol == HLOD_POLICY_FULL)
+            continue; /* references only: it loads every leaf */
         d.policy = (hlod_policy)pol;
         hlod_engine *e = NULL;
         CHECK(hlod_engine_create(s, &d, &e) == HLOD_OK);
@@ -485,7 +490,9 @@ static int run_machine(const hlod_store *s, hlod_engine_desc d, fixed_machine *m
     random_views(v, 40);
     d.time_model = fixed_machine_time;
     d.time_model_user = m;
-    for (int pol = HLOD_POLICY_LAKHIA; pol <= HLOD_POLICY_SSE; pol++) {
+    for (int pol = 0; pol < HLOD_POLICY_COUNT; pol++) {
+        if (pol == HLOD_POLICY_FULL)
+            continue; /* references only: it loads every leaf */
         d.policy = (hlod_policy)pol;
         hlod_engine *e = NULL;
         CHECK(hlod_engine_create(s, &d, &e) == HLOD_OK);

@@ -164,9 +164,10 @@ static void tree_cuts_stay_whole(void)
 }
 
 /* The edges: a front whose coarsest choice is already over the budget
- * takes nothing; a refinement that saves time and gains is always taken
- * and never given back; what last frame took and still fits stays; one
- * worth nothing is given back. */
+ * takes nothing; else a refinement that saves time and gains is taken,
+ * one taken last frame and worth nothing is given back, and one that
+ * still fits stays; what last frame took and still fits stays, one no
+ * longer allowed is given back. */
 static void edges(void)
 {
     hlod_knapsack k = {0};
@@ -174,8 +175,13 @@ static void edges(void)
                                 {5, -2, HLOD_KNAPSACK_NONE, 1, 0},
                                 {-1, 1, HLOD_KNAPSACK_NONE, 1, 1}};
     double t = hlod_knapsack_solve(&k, it, 3, 20, 10);
-    CHECKF(!it[0].taken && it[1].taken && !it[2].taken && fabs(t - 18) < 1e-9,
+    CHECKF(!it[0].taken && !it[1].taken && !it[2].taken && fabs(t - 20) < 1e-9,
            "over the budget: taken %d %d %d, time %g", it[0].taken, it[1].taken, it[2].taken, t);
+    it[0].taken = it[2].taken = 1;
+    t = hlod_knapsack_solve(&k, it, 3, 5, 10);
+    CHECKF(it[0].taken && it[1].taken && !it[2].taken && fabs(t - 4) < 1e-9,
+           "5 ms of a 10 ms budget: taken %d %d %d, time %g", it[0].taken, it[1].taken,
+           it[2].taken, t);
     hlod_knapsack_item keep[3] = {{5, 3, HLOD_KNAPSACK_NONE, 1, 1},
                                   {1, 3, 0, 1, 1},
                                   {4, 3, HLOD_KNAPSACK_NONE, 0, 1}};

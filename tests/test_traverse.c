@@ -325,6 +325,86 @@ static void okamoto_cut_meets_the_threshold(void)
     CHECKF(depths == 7, "the cuts reached depths 0x%x, not all of 0, 1 and 2", depths);
 }
 
+/* fs93 (Funkhouser and Séquin's knapsack): the quadrants when their 3 ms
+ * more fit the budget, the root when they do not, and the root, never
+ * nothing, when even it does not fit. */
+static void fs93_refines_within_the_budget(void)
+{
+    rig r;
+    CHECK(rig_init(&r, HLOD_POLICY_FS93, UINT32_MAX));
+    select_frame(&r, 3.9, 0, 2);
+    CHECKF(drew_root(&r), "budget 3.9 ms for 4 ms of quadrants: %zu drawn", r.sel.draw.n);
+    select_frame(&r, 4.1, 0, 2);
+    CHECKF(drew_quadrants(&r), "budget 4.1 ms: %zu drawn", r.sel.draw.n);
+    select_frame(&r, 0.001, 0, 2);
+    CHECKF(drew_root(&r), "budget 0.001 ms: %zu drawn", r.sel.draw.n);
+    rig_free(&r);
+}
+
+/* fs93 on the block two levels deep, from 60 places at budgets from the
+ * root's time to the whole tree's: the front's time within the budget
+ * (when the root fits), every visible leaf under a drawn node (no visible
+ * node dropped), no node drawn with its ancestor; the fronts reach the
+ * leaves at some places and stop above them at others. */
+static void fs93_front_fits_and_covers(void)
+{
+    uint64_t s = 0x853c49e6748fea9bull;
+    const hlod_store_node *nodes = hlod_store_nodes(g_deep);
+    const uint32_t count = hlod_store_node_count(g_deep);
+    uint32_t deeper = 0, partial = 0;
+    for (int place = 0; place < 60; place++) {
+        rig r;
+        CHECK(rig_init_on(&r, g_deep, HLOD_POLICY_FS93, UINT32_MAX));
+        double u[6];
+        for (int k = 0; k < 6; k++) {
+            s = s * 6364136223846793005ull + 1442695040888963407ull;
+            u[k] = (double)(s >> 11) / 9007199254740992.0;
+        }
+        const double eye[3] = {-150 + 400 * u[0], -150 + 400 * u[1], 10 + 300 * u[2]},
+                     at[3] = {100 * u[3], 100 * u[4], 0}, up[3] = {0, 0, 1};
+        hlod_camera cam;
+        CHECK(hlod_camera_look_at(&cam, eye, at, up, 60, 0.5, 1e5, 1280, 720) == HLOD_OK);
+        const double still[3] = {0, 0, 0};
+        hlod_view_init(&r.view, &cam, still, 0);
+        const double budget = 1 + 20 * u[5]; /* each node needs 1 ms */
+        for (int f = 0; f < 4; f++) /* the plan reaches one level past last frame's front */
+            select_frame(&r, budget, 0, 2);
+        uint8_t drawn[64] = {0};
+        double time = 0;
+        for (size_t k = 0; k < r.sel.draw.n; k++) {
+            drawn[r.sel.draw.v[k]] = 1;
+            time += r.v_time * hlod_node_cost(&nodes[r.sel.draw.v[k]]);
+        }
+        CHECKF(time <= budget + 1e-9 || drew_root(&r),
+               "place %d: the front needs %.3f ms for a %.3f ms budget", place, time, budget);
+        for (uint32_t i = 0; i < count; i++) {
+            int leaf = hlod_store_first_child(nodes, i) == hlod_store_child_end(nodes, i);
+            if (!leaf || hlod_view_outside(&r.view, nodes[i].bbox_min, nodes[i].bbox_max) > 0)
+                continue;
+            uint32_t under = HLOD_STORE_NO_PARENT;
+            for (uint32_t a = i; a != HLOD_STORE_NO_PARENT && under == HLOD_STORE_NO_PARENT;
+                 a = nodes[a].parent)
+                if (drawn[a])
+                    under = a;
+            CHECKF(under != HLOD_STORE_NO_PARENT, "place %d: visible leaf %u under no drawn node",
+                   place, i);
+            for (uint32_t a = under == HLOD_STORE_NO_PARENT ? HLOD_STORE_NO_PARENT
+                                                             : nodes[under].parent;
+                 a != HLOD_STORE_NO_PARENT; a = nodes[a].parent)
+                CHECKF(!drawn[a], "place %d: node %u drawn with its ancestor %u", place, under, a);
+        }
+        int leaves = 0;
+        for (size_t k = 0; k < r.sel.draw.n; k++)
+            leaves |= nodes[r.sel.draw.v[k]].depth == 2;
+        deeper += leaves;
+        partial += !leaves && r.sel.draw.n > 1;
+        rig_free(&r);
+    }
+    printf("     60 places: %u fronts reach the leaves, %u stop between\n", deeper, partial);
+    CHECKF(deeper >= 10 && partial >= 5, "%u fronts reach the leaves, %u stop between", deeper,
+           partial);
+}
+
 int main(void)
 {
     const char *tmp = getenv("TMPDIR");
@@ -353,6 +433,8 @@ int main(void)
         RUN(lakhia_counters_delay_the_switch);
         RUN(counter_switches_after_switch_frames);
         RUN(okamoto_cut_meets_the_threshold);
+        RUN(fs93_refines_within_the_budget);
+        RUN(fs93_front_fits_and_covers);
     }
     hlod_store_close(g_store);
     hlod_store_close(g_deep);

@@ -1469,26 +1469,32 @@ static int make_dir(const char *dir)
     return e ? -1 : 0;
 }
 
-/* pareto.png and sweep_frame_time.png from DIR/sweep.csv. */
+/* pareto.png (with a reference: PSNR needs one) and sweep_frame_time.png
+ * from DIR/sweep.csv. */
 static int plot_sweep(const options *o)
 {
-    char s[2048];
+    char names[256] = "", pareto[512] = "", s[2048];
+    for (int i = 0; i < o->npolicies; i++) {
+        size_t n = strlen(names);
+        snprintf(names + n, sizeof names - n, "%s%s", i ? " " : "", hlod_policy_name(o->policies[i]));
+    }
+    if (o->reference)
+        snprintf(pareto, sizeof pareto,
+                 "set xlabel 'mean frame time (ms)'\n"
+                 "set ylabel 'mean PSNR (dB)'\nset output 'pareto.png'\n"
+                 "set title 'Run time vs error, one curve per policy'\n"
+                 "plot for [p in '%s'] '< grep ^'.p.', sweep.csv' using 6:13 "
+                 "with linespoints title p\n",
+                 names);
     snprintf(s, sizeof s,
              "set datafile separator ','\nset terminal pngcairo size 900,600\n"
-             "set grid\nset key outside\nset xlabel 'mean frame time (ms)'\n"
-             "set ylabel 'mean PSNR (dB)'\nset output 'pareto.png'\n"
-             "set title 'Run time vs error, one curve per policy'\n"
-             "plot for [p in '%s%s%s%s%s'] '< grep ^'.p.', sweep.csv' using 6:13 "
-             "with linespoints title p\n"
+             "set grid\nset key outside\n%s"
              "set output 'sweep_frame_time.png'\nset ylabel 'ms'\n"
              "set xlabel 'run'\nset title 'Mean and p95 frame time per run'\n"
              "plot 'sweep.csv' every ::1 using 0:6 with linespoints title 'mean', "
              "'' every ::1 using 0:7 with linespoints title 'p95', '' every ::1 using "
              "0:5 with lines dt 2 title 'target'\n",
-             hlod_policy_name(o->policies[0]), o->npolicies > 1 ? " " : "",
-             o->npolicies > 1 ? hlod_policy_name(o->policies[1]) : "",
-             o->npolicies > 2 ? " " : "",
-             o->npolicies > 2 ? hlod_policy_name(o->policies[2]) : "");
+             pareto);
     return run_gnuplot(o->out, "sweep", s);
 }
 

@@ -54,11 +54,12 @@ typedef enum hlod_policy {
     HLOD_POLICY_COUNTER,    /* nohyst's rule, a switch after switch_frames frames that want it
                                (Maciel and Shirley 1995) */
     HLOD_POLICY_OKAMOTO,    /* depth-first cut at a projected-error threshold (Okamoto, 4.2) */
+    HLOD_POLICY_FS93,       /* Funkhouser and Séquin's greedy knapsack (SIGGRAPH 1993) */
     HLOD_POLICY_COUNT
 } hlod_policy;
 
 /* The policies a user picks (full draws references), for help texts. */
-#define HLOD_POLICY_CHOICES "lakhia, nohyst, sse, counter, okamoto"
+#define HLOD_POLICY_CHOICES "lakhia, nohyst, sse, fs93, counter, okamoto"
 
 const char *hlod_policy_name(hlod_policy p);           /* "lakhia", ... */
 int hlod_policy_parse(const char *name, hlod_policy *out); /* 1 on success */
@@ -132,6 +133,10 @@ typedef double (*hlod_time_model)(void *user_data, const struct hlod_frame_stats
       "initial screen-space error threshold of the sse policy, pixels")                          \
     X(switch_frames, switch_frames, U32, 8, 1, 0, 1e6, 1,                                        \
       "counter policy: a node switches after this many consecutive frames that want it")        \
+    X(fs93_hyst, fs93_hyst, D, 0.9, 0, 1, 1, 1,                                                  \
+      "fs93 policy: a choice other than last frame's keeps this fraction of its benefit")       \
+    X(fs93_m, fs93_m, D, 0.5, 0, 0, 4, 1,                                                        \
+      "fs93 policy: accuracy = 1 - projected error / triangles^fs93_m")                          \
     X(read_chunk_bytes, read_chunk_bytes, U32, 64u << 10, 1, 0, HLOD_UNBOUNDED, 0,               \
       "the loader reads a payload in steps of this many bytes")                                  \
     X(upload_budget_bytes, upload_budget_bytes, U64, 16ull << 20, 1, 0, HLOD_UNBOUNDED, 1,       \
