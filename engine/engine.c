@@ -715,6 +715,45 @@ hlod_result hlod_engine_replay(hlod_engine *e, const hlod_camera *cam, int occlu
     return HLOD_OK;
 }
 
+hlod_result hlod_engine_replay_coned(hlod_engine *e, const hlod_camera *cam, uint32_t *drawn,
+                                     uint32_t *unchecked)
+{
+    if (drawn)
+        *drawn = 0;
+    if (unchecked)
+        *unchecked = 0;
+    if (!e || !cam || !camera_ok(cam) || e->frame == 0)
+        return HLOD_ERR_INVALID_ARG;
+    if (!e->d.renderer)
+        return HLOD_OK;
+    /* the frame's nodes as it drew them, then the culled ones: their faces
+     * all face away, so with back faces culled (HLOD_RENDER_SOLID) no
+     * pixel changes */
+    const hlod_u32_vec *list = e->drawn_valid ? &e->drawn
+                               : e->draw_list  ? e->draw_list
+                                               : &e->sel.draw;
+    uint32_t missed = 0, done = 0;
+    hlod_gpu_begin(e->d.renderer, cam);
+    for (size_t k = 0; k < list->n; k++)
+        gpu_draw_node(e, cam, list->v[k]);
+    for (size_t k = 0; k < e->sel.coned.n; k++) {
+        uint32_t i = e->sel.coned.v[k];
+        if (hlod_residency_state(&e->res, i) == HLOD_NODE_RESIDENT &&
+            hlod_residency_gpu(&e->res, i)) {
+            gpu_draw_node(e, cam, i);
+            done++;
+        } else {
+            missed++;
+        }
+    }
+    hlod_gpu_end(e->d.renderer, 1);
+    if (drawn)
+        *drawn = done;
+    if (unchecked)
+        *unchecked = missed;
+    return HLOD_OK;
+}
+
 /* ---- reference renders ---- */
 
 hlod_result hlod_engine_load_all_leaves(hlod_engine *e, const hlod_camera *cam)

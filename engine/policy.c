@@ -20,7 +20,8 @@
  *   okamoto refine while the node's projected error eps * f / r exceeds
  *           the pixel threshold, r the eye's distance to the centre of
  *           the node's box (Okamoto et al., section 4.2; the threshold
- *           adapted as sse's).
+ *           adapted as sse's); back-facing subtrees (normal cones) are
+ *           always skipped, as the paper's walk does.
  */
 #include "policy.h"
 
@@ -112,7 +113,8 @@ static const hlod_policy_row rows[HLOD_POLICY_COUNT] = {
     [HLOD_POLICY_COUNTER] = {"counter",
                              HLOD_PT_BUDGET | HLOD_PT_OCCLUDE | HLOD_PT_SHARE | HLOD_PT_STREAM,
                              counter_refines},
-    [HLOD_POLICY_OKAMOTO] = {"okamoto", HLOD_PT_SSE | HLOD_PT_STREAM, okamoto_refines},
+    [HLOD_POLICY_OKAMOTO] = {"okamoto", HLOD_PT_SSE | HLOD_PT_STREAM | HLOD_PT_CONES,
+                             okamoto_refines},
     [HLOD_POLICY_FS93] = {"fs93", HLOD_PT_KNAPSACK | HLOD_PT_OCCLUDE | HLOD_PT_STREAM,
                           fs93_refines},
 };

@@ -24,6 +24,7 @@ enum {
     HLOD_PT_SSE = 1u << 5,     /* screen-space error: the cost model adapts the SSE
                                   threshold, and the decision reads the distance */
     HLOD_PT_STREAM = 1u << 6,  /* residency admits and evicts by priority each frame */
+    HLOD_PT_CONES = 1u << 8,   /* normal cones cull whatever the cone_cull setting */
     HLOD_PT_KNAPSACK = 1u << 7, /* the front is planned before the walk by FS93's knapsack
                                    (traverse.c): the decision reads mem->plan and mem->ask */
 };

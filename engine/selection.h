@@ -43,6 +43,7 @@ typedef struct hlod_node_frame {
     uint32_t capped;        /* frame the budget bound coarsened it while the front was held;
                              * 0 once refined again */
     hlod_policy_mem mem;    /* the policy's own (policy.h) */
+    uint32_t coned;         /* frame normal cones last culled it */
 } hlod_node_frame;
 
 /* The camera as the selection sees it, in camera-relative doubles. */
@@ -77,6 +78,7 @@ typedef struct hlod_select_in {
 
 typedef struct hlod_selection {
     const hlod_store_node *nodes;
+    const hlod_store_extra *extras; /* the store's, or NULL: no normal cones */
     uint32_t node_count, root_count;
     const hlod_engine_desc *d;  /* the engine's settings, read only */
     hlod_frame_stats *st;       /* the engine's stats of the current frame */
@@ -84,6 +86,7 @@ typedef struct hlod_selection {
     hlod_u32_vec draw;          /* nodes drawn this frame */
     hlod_u32_vec level, next;   /* breadth-first levels */
     hlod_u32_vec refined;       /* nodes refined this frame, in walk order */
+    hlod_u32_vec coned;         /* nodes normal cones culled this frame */
     double reserved, reserving; /* extra of the last frame's refinements; of this frame's */
     uint32_t cap_hits;          /* refinements the budget bound refused this frame */
     uint32_t slice_denied;      /* refinements near but refused by time slices */

@@ -50,6 +50,8 @@ typedef struct walk {
     uint32_t hold_since; /* when hold: the frame the front began to hold */
     const hlod_policy_row *policy;
     const hlod_occlusion *occ; /* when occlusion: last frame's verdicts */
+    int cones;           /* normal cones cull (the setting, or the policy's trait) */
+    int nomem;           /* an allocation failed where no result could say so */
 } walk;
 
 /* ---- life ---- */
@@ -60,6 +62,7 @@ hlod_result hlod_selection_init(hlod_selection *s, const hlod_store *store,
     assert(s && store && d && st);
     *s = (hlod_selection){0};
     s->nodes = hlod_store_nodes(store);
+    s->extras = hlod_store_extras(store);
     s->node_count = hlod_store_node_count(store);
     s->root_count = hlod_store_root_count(store);
     s->d = d;
@@ -81,6 +84,7 @@ void hlod_selection_free(hlod_selection *s)
     hlod_mem_free(a, s->level.v);
     hlod_mem_free(a, s->next.v);
     hlod_mem_free(a, s->refined.v);
+    hlod_mem_free(a, s->coned.v);
     hlod_mem_free(a, s->fs93_items);
     hlod_mem_free(a, s->fs93_nodes);
     hlod_knapsack_free(&s->ks);
@@ -243,10 +247,61 @@ static double node_priority(const walk *w, const hlod_view *v, uint32_t i,
     return pr;
 }
 
-/* frustumVis in [0, 1], or -1 when the node is beyond the falloff (not
- * priced). */
-static double frustum_vis(const walk *w, const hlod_view *v, uint32_t i)
+/* Whether node i's faces and all its descendants' face away from the eye:
+ * its normal cone (axis a, half-angle t < 90 degrees) and the sphere
+ * around its box (centre c, radius r) with dot(a, p - eye) >= sin(t) |p -
+ * eye| for every point p of it, so that every normal makes at most 90
+ * degrees with every view ray (Shirman and Abi-Ezzi's cone test):
+ * dot(a, c - eye) - r > sin(t) (|c - eye| + r).  Camera-relative doubles.
+ * A node without a cone (two-sided, or its normals spread too wide) never
+ * culls. */
+static int cone_hides(const walk *w, const hlod_view *v, uint32_t i)
 {
+    const hlod_store_extra *x = &w->s->extras[i];
+    if (!(x->flags & HLOD_EXTRA_CONE) || !(x->cone_cos > 0))
+        return 0;
+    const hlod_store_node *n = &w->nodes[i];
+    double along = 0, c2 = 0, r2 = 0;
+    for (int k = 0; k < 3; k++) {
+        double c = 0.5 * (n->bbox_min[k] + n->bbox_max[k]) - v->eye[k],
+               h = 0.5 * (n->bbox_max[k] - n->bbox_min[k]);
+        along += x->cone_axis[k] * c;
+        c2 += c * c;
+        r2 += h * h;
+    }
+    double r = sqrt(r2), reach = sqrt(c2) + r;
+    double sine = sqrt(1 - (double)x->cone_cos * x->cone_cos);
+    return along - r > sine * reach + 1e-7 * reach;
+}
+
+/* Notes node i culled by its cone this frame (once), and asks for it when
+ * the engine keeps culled nodes (hlod-bench --cone-check).  0 on
+ * allocation failure. */
+static int note_coned(walk *w, const hlod_view *v, uint32_t i)
+{
+    hlod_node_frame *f = &w->fr[i];
+    if (f->coned == w->frame)
+        return 1;
+    f->coned = w->frame;
+    w->st->cone_culled++;
+    if (!hlod_u32_push(&w->d->allocator, &w->s->coned, i))
+        return 0;
+    if (!w->d->keep_coned || hlod_residency_state(w->res, i) == HLOD_NODE_RESIDENT)
+        return 1;
+    f->priority = node_priority(w, v, i, 0);
+    f->priced = w->frame;
+    return hlod_residency_want(w->res, i, f->priority);
+}
+
+/* frustumVis in [0, 1], or -1 when the node is beyond the falloff or its
+ * normal cone faces away (not priced). */
+static double frustum_vis(walk *w, const hlod_view *v, uint32_t i)
+{
+    if (w->cones && cone_hides(w, v, i)) {
+        if (!note_coned(w, v, i))
+            w->nomem = 1;
+        return -1;
+    }
     double out = hlod_view_outside(v, w->nodes[i].bbox_min, w->nodes[i].bbox_max);
     if (!(out > 0))
         return 1;
@@ -992,10 +1047,11 @@ hlod_result hlod_select(hlod_selection *s, struct hlod_residency *res, const hlo
                 s->nodes,    s->fr,         in->frame,   in->v_time,
                 in->sse_pixels, in->draw_ms, in->pixel_ms,
                 in->occlusion && in->occ && (pol->traits & HLOD_PT_OCCLUDE), in->still,
-                in->hold_since && (pol->traits & HLOD_PT_HOLD), in->hold_since, pol, in->occ};
+                in->hold_since && (pol->traits & HLOD_PT_HOLD), in->hold_since, pol, in->occ,
+                s->extras && (s->d->cone_cull > 0 || (pol->traits & HLOD_PT_CONES)), 0};
     walk *w = &ctx;
     const double share_ms = in->share_ms;
-    s->draw.n = s->level.n = s->next.n = s->refined.n = 0;
+    s->draw.n = s->level.n = s->next.n = s->refined.n = s->coned.n = 0;
     s->cap_hits = s->slice_denied = 0;
     front fr = {0, in->budget_ms, s->reserving};
     s->reserving = 0;
@@ -1041,5 +1097,5 @@ hlod_result hlod_select(hlod_selection *s, struct hlod_residency *res, const hlo
         w->s->next = t;
     }
     sum_subtrees(w);
-    return HLOD_OK;
+    return w->nomem ? HLOD_ERR_NOMEM : HLOD_OK;
 }

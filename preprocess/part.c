@@ -288,6 +288,7 @@ typedef struct part {
     hlod_part_header h;
     hlod_store_header sh;
     hlod_store_node *nodes;     /* the part store's table */
+    hlod_store_extra *extras;   /* its extras, or NULL */
     uint8_t *sec;
     double (*lo)[3], (*hi)[3];
     hlod_part_key *keys;
@@ -301,6 +302,7 @@ static void part_close(part *p)
     if (p->fd >= 0)
         close(p->fd);
     free(p->nodes);
+    free(p->extras);
     free(p->sec);
     for (size_t i = 0; p->tops && i < p->ntops; i++)
         hlod_city_item_free(&p->tops[i]);
@@ -386,6 +388,21 @@ static hlod_result part_open(part *p, const char *path, const hlod_logger *lg)
     r = hlod_store_validate(sh, p->nodes, sh->file_size, path, lg);
     if (r != HLOD_OK)
         return r;
+    if (sh->extras_offset) {
+        hlod_store_extras_header xh;
+        size_t bytes = (size_t)sh->node_count * sizeof *p->extras;
+        p->extras = malloc(bytes ? bytes : 1);
+        if (!p->extras)
+            return HLOD_ERR_NOMEM;
+        if (read_all(p->fd, &xh, sizeof xh, h->store_offset + sh->extras_offset) ||
+            read_all(p->fd, p->extras, bytes, h->store_offset + sh->extras_offset + sizeof xh)) {
+            hlod_logf(lg, HLOD_LOG_ERROR, "%s: cannot read the shard's extras table", path);
+            return HLOD_ERR_IO;
+        }
+        r = hlod_store_check_extras(sh, &xh, p->extras, path, lg);
+        if (r != HLOD_OK)
+            return r;
+    }
     /* the section */
     p->sec = malloc(h->section_size ? (size_t)h->section_size : 1);
     if (!p->sec)
@@ -505,7 +522,8 @@ static hlod_result copy_node(merge *M, part *p, uint32_t j, uint8_t **scratch, s
     if (M->n == M->cap)
         return HLOD_ERR_INVALID_ARG;
     hlod_store_node *node = &M->all[M->n];
-    hlod_result r = hlod_store_writer_add_copy(M->w, src, *scratch, node);
+    hlod_result r = hlod_store_writer_add_copy(
+        M->w, src, *scratch, p->extras ? &p->extras[p->keys[j].store] : NULL, node);
     if (r != HLOD_OK) {
         hlod_logf(lg, HLOD_LOG_ERROR, "%s: store node %u: %s", p->path, p->keys[j].store,
                   hlod_result_str(r));

@@ -45,6 +45,8 @@ typedef struct payload_record {
     uint32_t tex_width, tex_height, tex_channels;
     uint8_t written;    /* pwrite completed */
     uint8_t used;       /* claimed by a node in finish */
+    float cone_axis[3]; /* the normal cone of the payload's own faces (unit), as stored */
+    float cone_cos;     /* its half-angle's cosine; -1: no bound; 2: no face */
 } payload_record;
 
 struct hlod_store_writer {
@@ -203,6 +205,87 @@ static hlod_result check_desc(const hlod_store_payload_desc *p, const char *name
     return HLOD_OK;
 }
 
+/* A cone in floats, as the extras table holds it: the axis rounded, the
+ * cosine rounded down by a margin that covers the axis's rounding (2 and
+ * -1, no face and no bound, kept). */
+static void cone_store(const double axis[3], double c, float out_axis[3], float *out_cos)
+{
+    for (int k = 0; k < 3; k++)
+        out_axis[k] = (float)axis[k];
+    if (c >= 2 || c <= -1) {
+        *out_cos = c >= 2 ? 2.0f : -1.0f;
+        return;
+    }
+    float f = (float)(c - 1e-6);
+    while ((double)f > c - 1e-6)
+        f = nextafterf(f, -2.0f);
+    *out_cos = f < -1 ? -1.0f : f;
+}
+
+/* The cone of the faces' unit normals: the area-weighted mean as its axis
+ * and the widest face from it; cos 2 when no face has an area (nothing to
+ * bound), -1 when the normals cancel out.  In double, relative to each
+ * face's first corner. */
+static void face_cone(const hlod_store_payload_desc *p, double axis[3], double *cos_out)
+{
+    double sum[3] = {0, 0, 0};
+    int any = 0;
+    for (int pass = 0; pass < 2; pass++) {
+        double lo = 2;
+        for (size_t t = 0; t < p->tri_count; t++) {
+            const double *a = p->positions + 3 * (size_t)p->indices[3 * t];
+            const double *b = p->positions + 3 * (size_t)p->indices[3 * t + 1];
+            const double *c = p->positions + 3 * (size_t)p->indices[3 * t + 2];
+            double u[3] = {b[0] - a[0], b[1] - a[1], b[2] - a[2]};
+            double v[3] = {c[0] - a[0], c[1] - a[1], c[2] - a[2]};
+            double x[3] = {u[1] * v[2] - u[2] * v[1], u[2] * v[0] - u[0] * v[2],
+                           u[0] * v[1] - u[1] * v[0]};
+            double len = sqrt(x[0] * x[0] + x[1] * x[1] + x[2] * x[2]);
+            if (!(len > 0))
+                continue; /* no area: draws nothing */
+            if (pass == 0) {
+                for (int k = 0; k < 3; k++)
+                    sum[k] += x[k];
+                any = 1;
+            } else {
+                double d = (x[0] * axis[0] + x[1] * axis[1] + x[2] * axis[2]) / len;
+                lo = d < lo ? d : lo;
+            }
+        }
+        if (pass == 0) {
+            double len = sqrt(sum[0] * sum[0] + sum[1] * sum[1] + sum[2] * sum[2]);
+            if (!any || !(len > 0)) {
+                axis[0] = axis[1] = 0;
+                axis[2] = 1;
+                *cos_out = any ? -1 : 2;
+                return;
+            }
+            for (int k = 0; k < 3; k++)
+                axis[k] = sum[k] / len;
+        } else {
+            *cos_out = lo < -1 ? -1 : lo;
+        }
+    }
+}
+
+/* face_cone of the faces a raw payload stores: float offsets from the
+ * origin, so that a sliver whose orientation the rounding flips is bounded
+ * as it is drawn. */
+static hlod_result raw_face_cone(const hlod_store_payload_desc *p, double axis[3],
+                                 double *cone_cos)
+{
+    double *pos = malloc(3 * sizeof *pos * (size_t)p->vertex_count);
+    if (!pos)
+        return HLOD_ERR_NOMEM;
+    for (size_t i = 0; i < 3 * (size_t)p->vertex_count; i++)
+        pos[i] = (double)(float)(p->positions[i] - p->origin[i % 3]);
+    hlod_store_payload_desc d = *p;
+    d.positions = pos;
+    face_cone(&d, axis, cone_cos);
+    free(pos);
+    return HLOD_OK;
+}
+
 /* Fills the fields of n that p determines (Lakhia eqs. 1-3). */
 static void derive_node(const hlod_store_payload_desc *p, double c_tex, hlod_store_node *n)
 {
@@ -322,7 +405,8 @@ static void cache_order(const hlod_store_payload_desc *p, uint32_t *idx, uint32_
 /* The packed layout of p into a new buffer; fills node's derived fields from
  * the quantized positions and the snapped origin (node->flags set). */
 static hlod_result serialize_packed(const hlod_store_writer *w, const hlod_store_payload_desc *p,
-                                    hlod_store_node *node, uint8_t **out, uint64_t *out_size)
+                                    hlod_store_node *node, uint8_t **out, uint64_t *out_size,
+                                    double axis[3], double *cone_cos)
 {
     const char *name = w->file.final_path;
     const double q = w->desc.quant_step, *g0 = w->desc.quant_origin;
@@ -369,6 +453,7 @@ static hlod_result serialize_packed(const hlod_store_writer *w, const hlod_store
     d.uvs = uvs;
     d.colors = col;
     derive_node(&d, w->desc.build.c_tex, node);
+    face_cone(&d, axis, cone_cos); /* of the faces as stored, on the grid */
     hlod_packed_input in = {
         .flags = node->flags, .vertex_count = p->vertex_count, .tri_count = p->tri_count,
         .tex_tri_count = p->tex_tri_count, .grid = grid, .normals = nrm, .uvs = uvs,
@@ -392,7 +477,8 @@ done:
 
 /* called from any thread */
 static hlod_result store_payload(hlod_store_writer *w, uint8_t *buf, uint64_t size,
-                                 hlod_store_node *node);
+                                 hlod_store_node *node, const double axis[3], double cone_cos,
+                                 int stored);
 
 hlod_result hlod_store_writer_add(hlod_store_writer *w, const hlod_store_payload_desc *p,
                                   hlod_store_node *node)
@@ -408,22 +494,28 @@ hlod_result hlod_store_writer_add(hlod_store_writer *w, const hlod_store_payload
                   (p->colors ? HLOD_NODE_COLORS : 0) | (p->pixels ? HLOD_NODE_TEXTURE : 0);
     uint8_t *buf = NULL;
     uint64_t size = 0;
+    double axis[3], cone_cos = -1;
     if (w->desc.quant_step > 0) {
-        r = serialize_packed(w, p, node, &buf, &size);
+        r = serialize_packed(w, p, node, &buf, &size, axis, &cone_cos);
     } else {
         r = serialize_raw(p, node, &buf, &size);
-        if (r == HLOD_OK)
+        if (r == HLOD_OK) {
             derive_node(p, w->desc.build.c_tex, node);
+            r = raw_face_cone(p, axis, &cone_cos);
+            if (r != HLOD_OK)
+                free(buf);
+        }
     }
     if (r != HLOD_OK)
         return r;
-    return store_payload(w, buf, size, node);
+    return store_payload(w, buf, size, node, axis, cone_cos, 0);
 }
 
 /* Writes the serialized payload buf (size bytes, freed here) at the next
  * aligned offset and completes *node's payload fields. */
 static hlod_result store_payload(hlod_store_writer *w, uint8_t *buf, uint64_t size,
-                                 hlod_store_node *node)
+                                 hlod_store_node *node, const double axis[3], double cone_cos,
+                                 int stored)
 {
     const char *name = w->file.final_path;
     uint64_t hash = hlod_store_hash(buf, (size_t)size);
@@ -464,6 +556,13 @@ static hlod_result store_payload(hlod_store_writer *w, uint8_t *buf, uint64_t si
     rec->tex_width = node->tex_width;
     rec->tex_height = node->tex_height;
     rec->tex_channels = node->tex_channels;
+    if (stored) { /* a cone as a store holds it: kept exactly */
+        for (int k = 0; k < 3; k++)
+            rec->cone_axis[k] = (float)axis[k];
+        rec->cone_cos = (float)cone_cos;
+    } else {
+        cone_store(axis, cone_cos, rec->cone_axis, &rec->cone_cos);
+    }
     pthread_mutex_unlock(&w->lock);
 
     int e = pwrite_all(w->fd, buf, (size_t)size, offset);
@@ -485,7 +584,8 @@ static hlod_result store_payload(hlod_store_writer *w, uint8_t *buf, uint64_t si
 }
 
 hlod_result hlod_store_writer_add_copy(hlod_store_writer *w, const hlod_store_node *src,
-                                       const void *bytes, hlod_store_node *node)
+                                       const void *bytes, const hlod_store_extra *src_extra,
+                                       hlod_store_node *node)
 {
     if (!w || !src || !bytes || !node || !src->payload_size || src->payload_size > SIZE_MAX)
         return HLOD_ERR_INVALID_ARG;
@@ -504,7 +604,16 @@ hlod_result hlod_store_writer_add_copy(hlod_store_writer *w, const hlod_store_no
     node->depth = 0;
     node->block = 0;
     node->error = 0;
-    return store_payload(w, buf, src->payload_size, node);
+    /* the source's cone bounds its subtree, so its own faces too (a record
+     * without one: no face under it) */
+    double axis[3] = {0, 0, 1}, cone_cos = src_extra ? 2 : -1;
+    if (src_extra && (src_extra->flags & HLOD_EXTRA_CONE)) {
+        for (int k = 0; k < 3; k++)
+            axis[k] = src_extra->cone_axis[k];
+        cone_cos = src_extra->cone_cos;
+    }
+    return store_payload(w, buf, src->payload_size, node, axis, cone_cos,
+                         src_extra != NULL);
 }
 
 /* ---- finish ---- */
@@ -690,6 +799,68 @@ static hlod_result fill_table(hlod_store_writer *w, const hlod_store_node *nodes
     return HLOD_OK;
 }
 
+/* cos(angle between unit a and b + the half-angle whose cosine is c): the
+ * cosine of the widest normal of a cone (b, c) seen from a; -1 past 180. */
+static double widest_from(const float a[3], const float b[3], double c)
+{
+    double d = (double)a[0] * b[0] + (double)a[1] * b[1] + (double)a[2] * b[2];
+    double alpha = acos(d > 1 ? 1 : d < -1 ? -1 : d), theta = acos(c > 1 ? 1 : c < -1 ? -1 : c);
+    return alpha + theta >= M_PI ? -1 : cos(alpha + theta);
+}
+
+/* The extras of the table in store order: each node's normal cone bounds
+ * its own faces and every descendant's.  Its axis is its own faces' (the
+ * first child's when it has none), and the cosine the least of its own and
+ * each child's cone's widest normal seen from that axis, in floats as
+ * stored, so that a merge, which hands each copied node its subtree's cone
+ * as its own, gets the same bytes (the cone of a node taken with its
+ * children's again is itself).  A node drawn two-sided (not
+ * HLOD_RENDER_SOLID) or under which one is, never culls (cos -1). */
+static void subtree_cones(hlod_store_writer *w, const hlod_store_node *table, uint32_t count,
+                          hlod_store_extra *x)
+{
+    for (uint32_t pos = count; pos-- > 0;) {
+        const hlod_store_node *t = &table[pos];
+        const payload_record *rec = find_record(w, t->payload_offset);
+        float axis[3] = {rec->cone_axis[0], rec->cone_axis[1], rec->cone_axis[2]};
+        double c = rec->cone_cos;
+        uint32_t c0 = t->first_child, c1 = table[pos + 1].first_child;
+        if (c >= 2)
+            for (uint32_t k = c0; k < c1; k++)
+                if (x[k].cone_cos < 2) {
+                    memcpy(axis, x[k].cone_axis, sizeof axis);
+                    break;
+                }
+        int two_sided = !(t->render_flags & HLOD_RENDER_SOLID) || c <= -1;
+        for (uint32_t k = c0; k < c1 && !two_sided; k++) {
+            if (x[k].cone_cos >= 2)
+                continue; /* nothing drawn under it */
+            if (x[k].cone_cos <= -1) {
+                two_sided = 1;
+                break;
+            }
+            double wide = widest_from(axis, x[k].cone_axis, x[k].cone_cos);
+            c = wide < c ? wide : c;
+        }
+        x[pos].flags = HLOD_EXTRA_CONE;
+        memcpy(x[pos].cone_axis, axis, sizeof axis);
+        if (two_sided || c <= -1) {
+            x[pos].cone_cos = -1;
+        } else if (c >= 2) {
+            x[pos].cone_cos = 2; /* no face: replaced below once the children are done */
+        } else {
+            /* rounded down, no margin: the terms are exact in the floats
+             * stored, and a cosine already stored comes back unchanged */
+            float f = (float)c;
+            x[pos].cone_cos = (double)f > c ? nextafterf(f, -2.0f) : f;
+        }
+    }
+    /* a subtree without a face bounds nothing: no cone (and no culling) */
+    for (uint32_t pos = 0; pos < count; pos++)
+        if (x[pos].cone_cos >= 2)
+            memset(&x[pos], 0, sizeof x[pos]);
+}
+
 /* called from the owner thread */
 hlod_result hlod_store_writer_finish(hlod_store_writer *w, const hlod_store_node *nodes,
                                      uint32_t count, uint32_t *store_index)
@@ -701,6 +872,7 @@ hlod_result hlod_store_writer_finish(hlod_store_writer *w, const hlod_store_node
     hlod_result r = HLOD_ERR_INVALID_ARG;
     uint32_t *order = NULL, *child_count = NULL, *index = NULL;
     hlod_store_node *table = NULL;
+    hlod_store_extra *extras = NULL;
     if (!nodes || count == 0 || count >= UINT32_MAX) {
         hlod_logf(lg, HLOD_LOG_ERROR, "%s: %u nodes given to finish", name, count);
         goto fail;
@@ -774,7 +946,21 @@ hlod_result hlod_store_writer_finish(hlod_store_writer *w, const hlod_store_node
     }
     h.node_table_offset = w->next;      /* aligned, after the last payload */
     h.node_table_size = ((uint64_t)count + 1) * sizeof(hlod_store_node);
-    h.file_size = h.node_table_offset + h.node_table_size;
+    extras = calloc(count, sizeof *extras);
+    if (!extras) {
+        r = HLOD_ERR_NOMEM;
+        goto fail;
+    }
+    subtree_cones(w, table, count, extras);
+    hlod_store_extras_header xh;
+    memset(&xh, 0, sizeof xh);
+    memcpy(xh.magic, HLOD_EXTRAS_MAGIC, 8);
+    xh.count = count;
+    xh.record_size = sizeof(hlod_store_extra);
+    xh.hash = hlod_store_hash(extras, (size_t)count * sizeof *extras);
+    h.extras_size = sizeof(hlod_store_extra);
+    h.extras_offset = h.node_table_offset + h.node_table_size;
+    h.file_size = h.extras_offset + sizeof xh + (uint64_t)count * sizeof *extras;
     h.node_table_hash = hlod_store_hash(table, (size_t)h.node_table_size);
     h.header_hash = hlod_store_hash(&h, HLOD_STORE_HEADER_HASHED);
 
@@ -782,7 +968,14 @@ hlod_result hlod_store_writer_finish(hlod_store_writer *w, const hlod_store_node
     r = hlod_store_validate(&h, table, h.file_size, name, lg);
     if (r != HLOD_OK)
         goto fail;
+    r = hlod_store_check_extras(&h, &xh, extras, name, lg);
+    if (r != HLOD_OK)
+        goto fail;
     int e = pwrite_all(w->fd, table, (size_t)h.node_table_size, h.node_table_offset);
+    if (!e)
+        e = pwrite_all(w->fd, &xh, sizeof xh, h.extras_offset);
+    if (!e)
+        e = pwrite_all(w->fd, extras, (size_t)count * sizeof *extras, h.extras_offset + sizeof xh);
     if (!e)
         e = pwrite_all(w->fd, &h, sizeof h, 0);
     if (e) {
@@ -796,6 +989,7 @@ hlod_result hlod_store_writer_finish(hlod_store_writer *w, const hlod_store_node
     if (store_index)
         memcpy(store_index, index, (size_t)count * sizeof *index);
 fail:
+    free(extras);
     free(order);
     free(child_count);
     free(index);

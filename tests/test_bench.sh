@@ -12,7 +12,10 @@
 # sane, and the replay changes no selection; frames.csv's new columns come
 # last; --save-frames writes the frames (and the reference's) as PNG; the
 # 2x2 supersampled reference differs from the plain one; --occlusion-check
-# fills its columns and keys and changes no selection; and the EGL
+# fills its columns and keys and changes no selection; all six policies
+# sweep, and two without a reference write no pareto.png; --cone-check on
+# a closed model's orbit (bunny00.off) and on the city finds no pixel the
+# culled nodes would change; and the EGL
 # backend draws the frame OSMesa draws (PSNR >= 40 dB; both images are kept
 # in a folder the failure names).
 set -u
@@ -108,7 +111,7 @@ ok $? "deadline_met and toggles_after_60 agree with frames.csv"
 [ "$(($(wc -l <"$T/run/jitter.csv") - 1))" -eq 120 ] && head -1 "$T/run/jitter.csv" | grep -qx "i,ms"
 ok $? "jitter.csv: one row per replay (120)"
 head -1 "$T/run/frames.csv" |
-    grep -q ",toggles_up_ma35,toggles_down_ma35,pixels_drawn,margin,occlusion_hidden,occlusion_tested,occlusion_culled,occlusion_ms,occlusion_check_psnr,occlusion_check_differing$"
+    grep -q ",toggles_up_ma35,toggles_down_ma35,pixels_drawn,margin,occlusion_hidden,occlusion_tested,occlusion_culled,occlusion_ms,occlusion_check_psnr,occlusion_check_differing,cone_culled,cone_check_differing$"
 ok $? "frames.csv: the new columns come last, in order"
 for png in frame_time nodes_per_depth toggles memory psnr; do
     head -c 8 "$T/run/$png.png" 2>/dev/null | od -An -tx1 | grep -q "89 50 4e 47" || missing="$missing $png"
@@ -157,13 +160,58 @@ ok $? "--jitter-frames 0: no replay, same selection as with it, machine_p50_ms n
         <"$T/detocc/summary.json" && grep -q '"occlusion_check_psnr_min": null' "$T/det1/summary.json"
 ok $? "--occlusion-check: a PSNR and differing pixels per frame, summary keys, same selection"
 
+POLICIES=lakhia,nohyst,sse,fs93,counter,okamoto
 "$BIN/hlod-bench" "$T/city.hlod" --path "$P" --out "$T/sweep" "${COMMON[@]}" --reference \
-    --reference-every 10 --policy lakhia,nohyst,sse --sweep target_ms=10,30 2>/dev/null
-[ $? -eq 0 ] && [ "$(($(wc -l <"$T/sweep/sweep.csv") - 1))" -eq 6 ] && [ -s "$T/sweep/pareto.png" ] &&
-    [ -s "$T/sweep/nohyst-target_ms=30/summary.json" ]
-ok $? "sweep: 3 policies x 2 targets in sweep.csv, pareto.png"
-head -1 "$T/sweep/sweep.csv" | grep -q ",run_dir,deadline_met,machine_p50_ms,machine_p99_ms,machine_p99_over_p50,estimate_err_p50,estimate_err_p95,occlusion_culled_mean,toggles_after_60$"
-ok $? "sweep.csv: the issue 17 keys as trailing columns"
+    --reference-every 10 --policy $POLICIES --sweep target_ms=10,30 2>/dev/null
+[ $? -eq 0 ] && [ "$(($(wc -l <"$T/sweep/sweep.csv") - 1))" -eq 12 ] && [ -s "$T/sweep/pareto.png" ] &&
+    [ -s "$T/sweep/nohyst-target_ms=30/summary.json" ] &&
+    [ "$(cut -d, -f1 "$T/sweep/sweep.csv" | sed 1d | sort -u | wc -l)" -eq 6 ] &&
+    grep -q "'lakhia nohyst sse fs93 counter okamoto'" "$T/sweep/sweep.gp"
+ok $? "sweep: 6 policies x 2 targets in sweep.csv, pareto.png plots each"
+head -1 "$T/sweep/sweep.csv" | grep -q ",run_dir,deadline_met,machine_p50_ms,machine_p99_ms,machine_p99_over_p50,estimate_err_p50,estimate_err_p95,occlusion_culled_mean,toggles_after_60,cone_culled_mean$"
+ok $? "sweep.csv: the issue 17 keys, then cone_culled_mean, as trailing columns"
+"$BIN/hlod-bench" "$T/city.hlod" --path "$P" --out "$T/noref" "${COMMON[@]}" --policy fs93,counter 2>"$T/err"
+[ $? -eq 0 ] && [ ! -e "$T/noref/pareto.png" ] && [ -s "$T/noref/sweep_frame_time.png" ]
+ok $? "two policies without a reference: exit 0, no pareto.png (no PSNR), the frame-time plot ($(head -c 200 "$T/err"))"
+
+# ---- normal cones (docs/runtime.md, "Normal cones") ----
+# A closed model (bunny00.off) on an orbit: culled nodes drawn again over
+# the frame change no pixel, and most culled nodes are checked so (kept
+# loaded for it); okamoto culls by cones whatever the setting; without
+# cone_cull, lakhia culls nothing.
+BUNNY=$SRC/data/meshes/bunny00.off
+if [ -r "$BUNNY" ]; then
+    "$BIN/hlod-build" "$BUNNY" -o "$T/bunny.hlod" --desired-tris 450 --quiet &&
+        perl -e 'for my $i (0 .. 20) { my $t = $i * 0.5; my $a = 6.283185307 * $t / 10;
+            printf "%g %.6f %.6f 0.5 0 0 0\n", $t, 1.6 * cos($a), 1.6 * sin($a) }' >"$T/orbit.path"
+    ok $? "bunny store and orbit path"
+    CONE=(--path "$T/orbit.path" --target-ms 33 --width 320 --height 180 --frames 300 --memory-mb 64 --no-plots
+        --jitter-frames 0 --cone-check)
+    "$BIN/hlod-bench" "$T/bunny.hlod" "${CONE[@]}" --out "$T/cone" --policy lakhia,okamoto \
+        --set cone_cull=1 2>"$T/err" &&
+        "$BIN/hlod-bench" "$T/bunny.hlod" "${CONE[@]}" --out "$T/nocone" 2>>"$T/err"
+    rc=$?
+    for r in cone/lakhia cone/okamoto nocone; do
+        echo "REPORT cones $r: $(perl -MJSON::PP -e 'local $/; my $j = JSON::PP->new->decode(<STDIN>);
+            print join " ", map { "$_=" . ($j->{$_} // "null") } qw(cone_culled_mean cone_check_differing_max
+            cone_check_nodes cone_check_unchecked tris_mean render_waits)' <"$T/$r/summary.json" 2>/dev/null)"
+    done
+    [ $rc -eq 0 ] && for r in cone/lakhia cone/okamoto; do
+        perl -MJSON::PP -e 'local $/; my $j = JSON::PP->new->decode(<STDIN>);
+            exit !($j->{cone_culled_mean} > 1 && $j->{cone_check_differing_max} == 0 &&
+                   $j->{cone_check_nodes} >= 0.9 * ($j->{cone_check_nodes} + $j->{cone_check_unchecked}) &&
+                   $j->{render_waits} == 0)' <"$T/$r/summary.json" || exit 1
+    done && perl -MJSON::PP -e 'local $/; my $j = JSON::PP->new->decode(<STDIN>);
+        exit !($j->{cone_culled_mean} == 0 && $j->{cone_check_differing_max} == 0)' <"$T/nocone/summary.json"
+    ok $? "--cone-check on the bunny's orbit: lakhia (cone_cull=1) and okamoto cull, 0 differing pixels, >= 90% of culled nodes drawn in the check; cone_cull=0 culls none ($(head -c 200 "$T/err"))"
+else
+    skip "normal cones: $BUNNY missing (data/fetch-meshes.sh)"
+fi
+"$BIN/hlod-bench" "$T/city.hlod" --path "$P" --out "$T/citycone" "${COMMON[@]}" --set cone_cull=1 \
+    --cone-check --no-plots 2>/dev/null &&
+    [ "$(col "$T/citycone" cone_check_differing | sort -u)" = 0 ] &&
+    grep -q '"cone_check_differing_max": 0' "$T/citycone/summary.json"
+ok $? "--cone-check on the city: 0 differing pixels in every frame ($(grep -o '"cone_culled_mean": [^,]*' "$T/citycone/summary.json" 2>/dev/null))"
 
 # Reference frames are rendered once per invocation and reused by later
 # runs: a deterministic nohyst run after a lakhia run must score exactly as

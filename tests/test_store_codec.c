@@ -196,7 +196,7 @@ static void round_trip_within_error(void)
         if (!s)
             return;
         const hlod_store_header *h = hlod_store_get_header(s);
-        CHECK(h->version == 3 && h->payload_codec == HLOD_STORE_CODEC_PACKED &&
+        CHECK(h->version == HLOD_STORE_VERSION && h->payload_codec == HLOD_STORE_CODEC_PACKED &&
               h->quant_step == step);
         hlod_store_payload pa, pb;
         CHECK(hlod_store_read_node(s, 0, 64, &pa) == HLOD_OK);
@@ -403,7 +403,8 @@ static void forged_payloads_refused(void)
     }
 }
 
-/* Rewrites the header's version (and its checksum). */
+/* Rewrites the header's version (and its checksum); below version 4, the
+ * extras table is cut off the file. */
 static void set_version(const char *path, uint32_t version)
 {
     FILE *fp = fopen(path, "r+b");
@@ -411,14 +412,22 @@ static void set_version(const char *path, uint32_t version)
     if (!fp || fread(&h, sizeof h, 1, fp) != 1)
         abort();
     h.version = version;
+    if (version < 4 && h.extras_offset) {
+        h.file_size = h.extras_offset;
+        h.extras_offset = 0;
+        h.extras_size = 0;
+        if (ftruncate(fileno(fp), (off_t)h.file_size) != 0)
+            abort();
+    }
     h.header_hash = hlod_store_hash(&h, HLOD_STORE_HEADER_HASHED);
     fseek(fp, 0, SEEK_SET);
     fwrite(&h, sizeof h, 1, fp);
     fclose(fp);
 }
 
-/* A raw store is byte for byte a version 2 store but for the version: read
- * as version 2, exactly; version 1 is refused with "rebuild". */
+/* A raw store without its extras table is byte for byte a version 2 store
+ * but for the version: read as version 2, exactly, with no extras (no
+ * normal cones); version 1 is refused with "rebuild". */
 static void versions(void)
 {
     static grid_mesh a, b;
@@ -428,6 +437,7 @@ static void versions(void)
     hlod_store *s = NULL;
     CHECK(hlod_store_open(path, &LG, &s) == HLOD_OK);
     if (s) {
+        CHECK(hlod_store_extras(s) == NULL);
         hlod_store_payload p;
         CHECK(hlod_store_read_node(s, 0, 64, &p) == HLOD_OK);
         CHECK(p.vertex_count == a.v && p.uvs && memcmp(p.pixels, a.tex, sizeof a.tex) == 0 &&

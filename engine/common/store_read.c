@@ -66,6 +66,7 @@ struct hlod_store {
     hlod_logger logger;         /* copy; func may be NULL */
     hlod_store_header header;
     hlod_store_node *nodes;     /* node_count + 1 */
+    hlod_store_extra *extras;   /* node_count, or NULL */
     hlod_store_pread_fn pread_fn; /* test hook; NULL: pread */
     void *pread_user;
     struct store_cache *cache;  /* a URL's local payload cache (HLOD_CACHE_DIR), or NULL */
@@ -348,7 +349,7 @@ hlod_result hlod_store_check_header(const hlod_store_header *h, uint64_t file_si
     if (h->file_size != file_size)
         BAD(HLOD_ERR_FORMAT, "%s: file is %llu bytes, its header says %llu (truncated?)", name,
             (unsigned long long)file_size, (unsigned long long)h->file_size);
-    if (h->build.reserved || h->reserved2 || !is_zero(h->reserved, sizeof h->reserved))
+    if (h->build.reserved || (h->version < 4 && (h->extras_size || h->extras_offset)))
         BAD(HLOD_ERR_FORMAT, "%s: reserved header fields are not zero", name);
     if (h->payload_codec > HLOD_STORE_CODEC_PACKED ||
         (h->version < 3 && h->payload_codec != HLOD_STORE_CODEC_RAW))
@@ -375,6 +376,18 @@ hlod_result hlod_store_check_header(const hlod_store_header *h, uint64_t file_si
         BAD(HLOD_ERR_FORMAT, "%s: node table [%llu, +%llu) lies outside the file (%llu bytes)",
             name, (unsigned long long)h->node_table_offset, (unsigned long long)table,
             (unsigned long long)file_size);
+    if (h->extras_offset || h->extras_size) {
+        uint64_t ex = sizeof(hlod_store_extras_header) +
+                      (uint64_t)h->node_count * sizeof(hlod_store_extra);
+        if (h->extras_size != sizeof(hlod_store_extra))
+            BAD(HLOD_ERR_FORMAT, "%s: extras records of %u bytes, expected %zu", name,
+                h->extras_size, sizeof(hlod_store_extra));
+        if (h->extras_offset < h->node_table_offset + table || ex > file_size ||
+            h->extras_offset > file_size - ex)
+            BAD(HLOD_ERR_FORMAT, "%s: extras table [%llu, +%llu) lies outside the file after "
+                "the node table (%llu bytes)", name, (unsigned long long)h->extras_offset,
+                (unsigned long long)ex, (unsigned long long)file_size);
+    }
     if (h->build.method > HLOD_STORE_METHOD_METIS)
         BAD(HLOD_ERR_FORMAT, "%s: unknown build method %u", name, h->build.method);
     if (!isfinite(h->build.level_factor) || h->build.level_factor < 0 ||
@@ -438,6 +451,55 @@ static hlod_result source_open(hlod_store *s, uint64_t *file_size)
     return source_read(s, &s->header, sizeof s->header, 0, "the header");
 }
 
+/* One extras record's fields: known flags, a unit axis and a cosine in
+ * [-1, 1] when it has a cone, zero where its flags say nothing. */
+static int extra_ok(const hlod_store_extra *x)
+{
+    if (x->flags & ~HLOD_EXTRA_ALL_FLAGS)
+        return 0;
+    if (!(x->flags & HLOD_EXTRA_CONE))
+        return x->cone_axis[0] == 0 && x->cone_axis[1] == 0 && x->cone_axis[2] == 0 &&
+               x->cone_cos == 0;
+    double len = (double)x->cone_axis[0] * x->cone_axis[0] +
+                 (double)x->cone_axis[1] * x->cone_axis[1] +
+                 (double)x->cone_axis[2] * x->cone_axis[2];
+    return fabs(len - 1) < 1e-4 && x->cone_cos >= -1 && x->cone_cos <= 1;
+}
+
+hlod_result hlod_store_check_extras(const hlod_store_header *h, const hlod_store_extras_header *xh,
+                                   const hlod_store_extra *x, const char *name,
+                                   const hlod_logger *lg)
+{
+    if (memcmp(xh->magic, HLOD_EXTRAS_MAGIC, 8) != 0 || xh->count != h->node_count ||
+        xh->record_size != sizeof(hlod_store_extra) || !is_zero(xh->reserved, sizeof xh->reserved))
+        BAD(HLOD_ERR_FORMAT, "%s: the extras table's header is not one for %u nodes", name,
+            h->node_count);
+    if (hlod_store_hash(x, (size_t)xh->count * sizeof *x) != xh->hash)
+        BAD(HLOD_ERR_CHECKSUM, "%s: extras table checksum mismatch", name);
+    for (uint32_t i = 0; i < xh->count; i++)
+        if (!extra_ok(&x[i]))
+            BAD(HLOD_ERR_FORMAT, "%s: node %u: its extras record is not valid (flags %#x)", name,
+                i, x[i].flags);
+    return HLOD_OK;
+}
+
+/* The extras table (check_header bounded it). */
+static hlod_result read_extras(hlod_store *s)
+{
+    hlod_store_extras_header xh;
+    hlod_result r = source_read(s, &xh, sizeof xh, s->header.extras_offset, "the extras table");
+    if (r != HLOD_OK)
+        return r;
+    size_t bytes = (size_t)s->header.node_count * sizeof(hlod_store_extra);
+    s->extras = malloc(bytes ? bytes : 1);
+    if (!s->extras)
+        return HLOD_ERR_NOMEM;
+    r = source_read(s, s->extras, bytes, s->header.extras_offset + sizeof xh, "the extras table");
+    if (r != HLOD_OK)
+        return r;
+    return hlod_store_check_extras(&s->header, &xh, s->extras, s->path, &s->logger);
+}
+
 hlod_result hlod_store_open(const char *path, const hlod_logger *lg_in, hlod_store **out)
 {
     if (!out)
@@ -485,6 +547,11 @@ hlod_result hlod_store_open(const char *path, const hlod_logger *lg_in, hlod_sto
     r = hlod_store_validate(&s->header, s->nodes, file_size, path, lg);
     if (r != HLOD_OK)
         goto fail;
+    if (s->header.extras_offset) {
+        r = read_extras(s);
+        if (r != HLOD_OK)
+            goto fail;
+    }
     cache_open(s);
     *out = s;
     return HLOD_OK;
@@ -502,12 +569,14 @@ void hlod_store_close(hlod_store *s)
     hlod_http_close(s->http);
     cache_close(s->cache);
     free(s->nodes);
+    free(s->extras);
     free(s->path);
     free(s);
 }
 
 const hlod_store_header *hlod_store_get_header(const hlod_store *s) { return &s->header; }
 const hlod_store_node *hlod_store_nodes(const hlod_store *s) { return s->nodes; }
+const hlod_store_extra *hlod_store_extras(const hlod_store *s) { return s->extras; }
 uint32_t hlod_store_node_count(const hlod_store *s) { return s->header.node_count; }
 uint32_t hlod_store_root_count(const hlod_store *s) { return s->header.root_count; }
 uint32_t hlod_store_block_count(const hlod_store *s) { return s->header.block_count; }

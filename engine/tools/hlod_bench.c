@@ -92,6 +92,10 @@ static void usage(FILE *fp)
         "                    occlusion culling and compare with the frame's image\n"
         "                    (frames.csv occlusion_check_psnr/_differing, summary\n"
         "                    occlusion_check_*); not charged to the frame\n"
+        "  --cone-check      after each frame, draw its selection again with the\n"
+        "                    nodes normal cones culled (kept loaded for it) and\n"
+        "                    compare (frames.csv cone_check_differing, summary\n"
+        "                    cone_check_*); not charged to the frame\n"
         "  --backend B       osmesa (default), or egl: a hardware EGL device, else\n"
         "                    Mesa's surfaceless platform (llvmpipe without a GPU)\n"
         "  --compare A B     print the PSNR, SSIM and differing pixels of images\n"
@@ -122,7 +126,8 @@ static void usage(FILE *fp)
         "estimate_err_p50, estimate_err_p95, occlusion_culled_mean, toggles_after_60,\n"
         "occlusion_ms_mean, overhead_ms_mean, overhead_ms_max,\n"
         "occlusion_check_psnr_min, occlusion_check_differing_max,\n"
-        "occlusion_check_bad_frames, policy, path.\n"
+        "occlusion_check_bad_frames, cone_culled_mean, cone_check_differing_max,\n"
+        "cone_check_nodes, cone_check_unchecked, policy, path.\n"
         "\n"
         "Exit status: 0 success, 1 a run failed, 2 bad command line.\n"
         "\n"
@@ -153,7 +158,7 @@ typedef struct options {
     uint32_t width, height;
     long frames;
     int up_y, reference, reference_every, reference_ss, deterministic, plots, json;
-    int backend, jitter_frames, occlusion_check, realtime;
+    int backend, jitter_frames, occlusion_check, cone_check, realtime;
     uint64_t save[MAX_SAVE];    /* --save-frames */
     int nsave;
     const char *compare[2];     /* --compare A B */
@@ -415,6 +420,8 @@ static int parse_args(int argc, char **argv, options *o)
             o->jitter_frames = (int)n;
         } else if (!strcmp(a, "--occlusion-check")) {
             o->occlusion_check = 1;
+        } else if (!strcmp(a, "--cone-check")) {
+            o->cone_check = 1;
         } else if (FLAG("--backend")) {
             NEED("--backend");
             if (!strcmp(v, "osmesa"))
@@ -486,6 +493,9 @@ typedef struct frame_rec {
     double up_ma, down_ma;      /* toggles, 35-frame moving average */
     double occ_psnr;            /* --occlusion-check: against occlusion off; NAN without */
     long long occ_differing;    /* its differing pixels; -1 without */
+    long long cone_differing;   /* --cone-check: pixels the culled nodes changed; -1 without */
+    uint32_t cone_checked;      /* ... culled nodes drawn in the check */
+    uint32_t cone_unchecked;    /* ... culled nodes not resident (not drawn) */
 } frame_rec;
 
 typedef struct summary {
@@ -506,6 +516,9 @@ typedef struct summary {
     double machine_p50, machine_p99;        /* the frozen replay; NAN without one */
     double est_err_p50, est_err_p95;        /* |estimated - measured| / measured */
     double occlusion_culled_mean;
+    double cone_culled_mean;
+    long long cone_differing_max;           /* --cone-check; -1 without */
+    unsigned long long cone_checked, cone_unchecked;
     uint64_t toggles_after_60;              /* up + down over frames 60.. */
     double occlusion_ms_mean;
     double overhead_mean, overhead_max;     /* traversal + occlusion ms per frame */
@@ -528,6 +541,7 @@ static void summarise_extra(const frame_rec *r, long n, double target, const dou
     size_t nerr = 0;
     s->occ_psnr_min = NAN;
     s->occ_differing_max = s->occ_bad = -1;
+    s->cone_differing_max = -1;
     for (long i = 0; i < n; i++) {
         const hlod_frame_stats *st = &r[i].st;
         double overhead = st->traversal_ms + st->occlusion_ms;
@@ -548,6 +562,13 @@ static void summarise_extra(const frame_rec *r, long n, double target, const dou
         }
         s->deadline_met += st->measured_ms <= target;
         s->occlusion_culled_mean += st->occlusion_culled;
+        s->cone_culled_mean += st->cone_culled;
+        if (r[i].cone_differing >= 0) {
+            if (r[i].cone_differing > s->cone_differing_max)
+                s->cone_differing_max = r[i].cone_differing;
+            s->cone_checked += r[i].cone_checked;
+            s->cone_unchecked += r[i].cone_unchecked;
+        }
         if (i >= SETTLED_FRAME)
             s->toggles_after_60 += (uint64_t)st->toggles_up + st->toggles_down;
         if (err && st->measured_ms > 0)
@@ -558,6 +579,7 @@ static void summarise_extra(const frame_rec *r, long n, double target, const dou
         s->overhead_mean /= (double)n;
         s->deadline_met /= (double)n;
         s->occlusion_culled_mean /= (double)n;
+        s->cone_culled_mean /= (double)n;
     }
     s->est_err_p50 = s->est_err_p95 = NAN;
     if (err && nerr) {
@@ -685,7 +707,8 @@ static hlod_result write_frames_csv(const char *dir, const frame_rec *r, long n,
                 "loads,evictions,bytes_read,load_failures,bad_nodes,queued,render_waits,psnr,"
                 "ssim,luma_change,ref_luma_change,toggles_up_ma35,toggles_down_ma35,"
                 "pixels_drawn,margin,occlusion_hidden,occlusion_tested,occlusion_culled,"
-                "occlusion_ms,occlusion_check_psnr,occlusion_check_differing\n");
+                "occlusion_ms,occlusion_check_psnr,occlusion_check_differing,cone_culled,"
+                "cone_check_differing\n");
     for (long i = 0; i < n; i++) {
         const hlod_frame_stats *s = &r[i].st;
         fprintf(fp, "%llu,%.6f,%.4f,%.4f,%.9g,%.4f,%.4f,%.4f,%.4f,%.4f,%.4f,%u",
@@ -717,9 +740,14 @@ static hlod_result write_frames_csv(const char *dir, const frame_rec *r, long n,
                 s->pixels_drawn, s->margin, s->occlusion_hidden, s->occlusion_tested,
                 s->occlusion_culled, s->occlusion_ms);
         if (r[i].occ_differing < 0)
-            fprintf(fp, ",,\n");
+            fprintf(fp, ",,");
         else
-            fprintf(fp, ",%.4f,%lld\n", r[i].occ_psnr, r[i].occ_differing);
+            fprintf(fp, ",%.4f,%lld", r[i].occ_psnr, r[i].occ_differing);
+        fprintf(fp, ",%u", s->cone_culled);
+        if (r[i].cone_differing < 0)
+            fprintf(fp, ",\n");
+        else
+            fprintf(fp, ",%lld\n", r[i].cone_differing);
     }
     return hlod_atomic_commit(&af, lg);
 }
@@ -783,6 +811,16 @@ static void json_summary(hlod_json *j, const summary *s, const char *policy, con
     } else {
         hlod_json_int(j, "occlusion_check_differing_max", s->occ_differing_max);
         hlod_json_int(j, "occlusion_check_bad_frames", s->occ_bad);
+    }
+    hlod_json_double(j, "cone_culled_mean", s->cone_culled_mean);
+    if (s->cone_differing_max < 0) {
+        hlod_json_string(j, "cone_check_differing_max", NULL);
+        hlod_json_string(j, "cone_check_nodes", NULL);
+        hlod_json_string(j, "cone_check_unchecked", NULL);
+    } else {
+        hlod_json_int(j, "cone_check_differing_max", s->cone_differing_max);
+        hlod_json_int(j, "cone_check_nodes", (long long)s->cone_checked);
+        hlod_json_int(j, "cone_check_unchecked", (long long)s->cone_unchecked);
     }
     hlod_json_string(j, "policy", policy);
     hlod_json_string(j, "path", path);
@@ -996,6 +1034,7 @@ typedef struct context {
     uint8_t *img, *prev_img, *ref, *prev_ref;
     uint8_t *ref_big;           /* the reference's read-back at ss * W x ss * H */
     uint8_t *occ_img;           /* --occlusion-check: the frame drawn without occlusion */
+    uint8_t *cone_img;          /* --cone-check: the frame drawn with the cone-culled nodes */
     /* Reference frames depend on the camera alone, not on the policy or a
      * swept constant, so one invocation renders each frame's reference
      * once and keeps it (up to REF_CACHE_BYTES): a policy comparison or a
@@ -1240,7 +1279,7 @@ static int frame_image(run_state *s, uint64_t f, frame_rec *fr, int save, const 
     context *c = s->c;
     const options *o = c->o;
     *image = NULL;
-    if (o->reference || save || o->occlusion_check) {
+    if (o->reference || save || o->occlusion_check || o->cone_check) {
         hlod_result r = target_read(&c->gl, c->img);
         if (r != HLOD_OK) {
             hlod_cli_progress_clear(&s->bar);
@@ -1286,6 +1325,30 @@ static int check_occlusion(run_state *s, uint64_t f, const hlod_camera *cam,
         differ += memcmp(image + 3 * k, c->occ_img + 3 * k, 3) != 0;
     fr->occ_differing = differ;
     hlod_psnr_rgb8(image, c->occ_img, o->width, o->height, &fr->occ_psnr);
+    return 0;
+}
+
+/* --cone-check: the frame's selection drawn again with the nodes normal
+ * cones culled must draw the same image.  0, or 1 on failure. */
+static int check_cones(run_state *s, uint64_t f, const hlod_camera *cam, const uint8_t *image,
+                       frame_rec *fr)
+{
+    context *c = s->c;
+    const options *o = c->o;
+    hlod_result r = hlod_engine_replay_coned(s->e, cam, &fr->cone_checked, &fr->cone_unchecked);
+    if (r == HLOD_OK)
+        r = target_read(&c->gl, c->cone_img);
+    if (r != HLOD_OK) {
+        hlod_cli_progress_clear(&s->bar);
+        hlod_cli_error(PROG, "%s: frame %llu: the cone check's replay failed: %s", o->store,
+                       (unsigned long long)f, hlod_result_str(r));
+        return 1;
+    }
+    size_t npix = (size_t)o->width * o->height;
+    long long differ = 0;
+    for (size_t k = 0; k < npix; k++)
+        differ += memcmp(image + 3 * k, c->cone_img + 3 * k, 3) != 0;
+    fr->cone_differing = differ;
     return 0;
 }
 
@@ -1345,7 +1408,8 @@ static int run_frame(run_state *s, uint64_t f)
     frame_rec *fr = &s->rec[f];
     path_camera(c, f, &cam, &fr->t);
     fr->psnr = fr->ssim = fr->luma = fr->ref_luma = fr->occ_psnr = NAN;
-    fr->occ_differing = -1;
+    fr->occ_differing = fr->cone_differing = -1;
+    fr->cone_checked = fr->cone_unchecked = 0;
     if (o->realtime) {
         /* a viewer's pace: frame f starts f x dt after frame 0 */
         double now = hlod_now_ms();
@@ -1373,6 +1437,8 @@ static int run_frame(run_state *s, uint64_t f)
     if (save && write_frame_png(s->dir, f, "", image, o->width, o->height, &c->lg) != 0)
         return 1;
     if (o->occlusion_check && check_occlusion(s, f, &cam, image, fr) != 0)
+        return 1;
+    if (o->cone_check && check_cones(s, f, &cam, image, fr) != 0)
         return 1;
     if (s->njit && f == s->jitter_frame && replay_jitter(s, f, &cam) != 0)
         return 1;
@@ -1406,6 +1472,7 @@ static int run(context *c, hlod_policy policy, const char *dir, const setting *e
     hlod_engine_desc d;
     if (run_desc(c, policy, extra, &d) != 0)
         return 1;
+    d.keep_coned = o->cone_check;
     run_state s;
     memset(&s, 0, sizeof s);
     s.c = c;
@@ -1615,8 +1682,9 @@ static int setup_gl(context *c)
     c->prev_ref = malloc(npix);
     c->ref_big = o->reference && ss > 1 ? malloc(npix * ss * ss) : NULL;
     c->occ_img = o->occlusion_check ? malloc(npix) : NULL;
+    c->cone_img = o->cone_check ? malloc(npix) : NULL;
     if (r != HLOD_OK || !c->img || !c->prev_img || !c->ref || !c->prev_ref ||
-        (o->occlusion_check && !c->occ_img) ||
+        (o->occlusion_check && !c->occ_img) || (o->cone_check && !c->cone_img) ||
         (o->reference && ss > 1 && !c->ref_big)) {
         hlod_cli_error(PROG, "cannot set up headless OpenGL (%s, GL 3.3): %s", backend,
                        hlod_result_str(r != HLOD_OK ? r : HLOD_ERR_NOMEM));
@@ -1654,7 +1722,7 @@ static int open_sweep(context *c, hlod_atomic_file *af)
                     "oscillations,psnr_mean,psnr_min,ssim_mean,tris_mean,loads,evictions,"
                     "peak_resident_bytes,run_dir,deadline_met,machine_p50_ms,"
                     "machine_p99_ms,machine_p99_over_p50,estimate_err_p50,estimate_err_p95,"
-                    "occlusion_culled_mean,toggles_after_60\n");
+                    "occlusion_culled_mean,toggles_after_60,cone_culled_mean\n");
     return 0;
 }
 
@@ -1662,7 +1730,7 @@ static void sweep_row(FILE *fp, const options *o, const char *pname, int vi, con
                       const char *dir)
 {
     fprintf(fp, "%s,%s,%g,%ld,%g,%.4f,%.4f,%.4f,%.4f,%.4f,%.5f,%llu,%.4f,%.4f,"
-            "%.5f,%.1f,%llu,%llu,%llu,%s,%.4f,%.4f,%.4f,%.4f,%.5f,%.5f,%.3f,%llu\n",
+            "%.5f,%.1f,%llu,%llu,%llu,%s,%.4f,%.4f,%.4f,%.4f,%.5f,%.5f,%.3f,%llu,%.3f\n",
             pname, o->sweep_key ? o->sweep_key : "", o->sweep_key ? o->sweep[vi] : 0,
             s->frames, s->target_ms, s->mean, s->p95, s->p99, s->within, s->over,
             s->toggles_per_frame, (unsigned long long)s->osc, s->psnr_mean, s->psnr_min,
@@ -1670,7 +1738,7 @@ static void sweep_row(FILE *fp, const options *o, const char *pname, int vi, con
             (unsigned long long)s->evictions, (unsigned long long)s->peak_resident, dir,
             s->deadline_met, s->machine_p50, s->machine_p99, s->machine_p99 / s->machine_p50,
             s->est_err_p50, s->est_err_p95, s->occlusion_culled_mean,
-            (unsigned long long)s->toggles_after_60);
+            (unsigned long long)s->toggles_after_60, s->cone_culled_mean);
 }
 
 /* Policy pi with sweep value vi, into DIR itself for a single run, else
@@ -1753,6 +1821,7 @@ static void teardown(context *c)
     free(c->prev_ref);
     free(c->ref_big);
     free(c->occ_img);
+    free(c->cone_img);
     target_destroy(&c->ref_gl);
     target_destroy(&c->gl);
     hlod_store_close(c->store);

@@ -157,6 +157,8 @@ typedef double (*hlod_time_model)(void *user_data, const struct hlod_frame_stats
       "1: the paper's control, the mean frame time on target_ms (no margin); 0: the deadline")    \
     X(still_refine_late, still_refine_late, B, 1, 0, 0, 1, 1,                                    \
       "1: a still camera's held front still refines where data it waited for arrives late; 0: no") \
+    X(cone_cull, cone_cull, B, 0, 0, 0, 1, 1,                                                    \
+      "1: a node whose normal cone faces away from the eye is skipped with its subtree; 0: off") \
     X(occlusion, occlusion, B, 1, 0, 0, 1, 1,                                                    \
       "1: nodes hidden behind this frame's depth are not drawn, charged or refined; 0: off")      \
     X(steady_heap, steady_heap, B, 1, 0, 0, 1, 0,                                                \
@@ -184,6 +186,11 @@ typedef struct hlod_engine_desc {
      * and the loader runs synchronously inside frame() reading at most
      * deterministic_load_bytes per frame in priority order. */
     int deterministic;
+
+    /* Nodes that normal cones cull are still asked for (at the priority of
+     * a node just outside the frustum), so hlod_engine_replay_coned can
+     * draw them: hlod-bench --cone-check. */
+    int keep_coned;
 
     hlod_renderer *renderer;     /* NULL: select only, draw nothing (tests) */
     hlod_time_model time_model;  /* NULL: wall time (glFinish-bounded) */
@@ -257,6 +264,9 @@ typedef struct hlod_frame_stats {
     uint32_t occlusion_hidden;   /* front nodes hidden in the last frame: not charged, not refined */
     uint32_t occlusion_tested;   /* front nodes tested against this frame's depth pyramid */
     uint32_t occlusion_culled;   /* front nodes that test hid: not drawn */
+    uint32_t cone_culled;        /* nodes skipped with their subtrees because their normal
+                                    cone faced away from the eye (docs/runtime.md, "Normal
+                                    cones") */
     double occlusion_ms;         /* CPU time of the depth read-back, pyramid and tests */
     /* loader thread CPU time this frame (docs/store-format.md) */
     double loader_finish_ms;     /* checksums, decoding and validation of payloads */
@@ -304,6 +314,15 @@ const hlod_engine_desc *hlod_engine_get_desc(const hlod_engine *e);
  * occlusion culling changes no pixel.  HLOD_ERR_INVALID_ARG before the
  * first frame or for a bad camera. */
 hlod_result hlod_engine_replay(hlod_engine *e, const hlod_camera *cam, int occlusion, double *ms);
+
+/* Draws the last frame's selection again from cam as hlod_engine_replay
+ * with occlusion 1 does, and then every node normal cones culled in it
+ * that is resident, as that frame would have drawn them (back faces
+ * culled): the pixels must not change.  *drawn gets the culled nodes
+ * drawn, *unchecked those not resident (not drawn); either may be NULL.
+ * HLOD_ERR_INVALID_ARG as replay. */
+hlod_result hlod_engine_replay_coned(hlod_engine *e, const hlod_camera *cam, uint32_t *drawn,
+                                     uint32_t *unchecked);
 
 /* Loads every node the policy HLOD_POLICY_FULL would draw from cam (all
  * leaves in or near the frustum), synchronously, ignoring the budget.  For

@@ -108,7 +108,8 @@ extern "C" {
 /* ---- format ---- */
 
 #define HLOD_STORE_MAGIC "HLODSTOR"     /* 8 bytes, no terminator on disk */
-#define HLOD_STORE_VERSION 3u       /* 3: payload codec; 2: city levels (block_depth, top_count) */
+#define HLOD_STORE_VERSION 4u       /* 4: the extras table; 3: payload codec; 2: city levels
+                                       (block_depth, top_count) */
 #define HLOD_STORE_VERSION_MIN 2u   /* the oldest version this reader reads */
 #define HLOD_STORE_ENDIAN 0x01020304u   /* read back as 0x04030201: wrong byte order */
 #define HLOD_STORE_DEFAULT_ALIGN 4096u
@@ -166,11 +167,13 @@ typedef struct hlod_store_header {
     uint32_t block_count;       /* 192 blocks, >= 1 */
     uint32_t top_count;         /* 196 nodes at depth <= block_depth */
     uint32_t payload_codec;     /* 200 HLOD_STORE_CODEC_* (0 in version 2) */
-    uint32_t reserved2;         /* 204 zero */
+    uint32_t extras_size;       /* 204 bytes of an extras record, sizeof(hlod_store_extra);
+                                   0: no extras table (always 0 before version 4) */
     double quant_step;          /* 208 packed: the position grid's step (a
                                    power of two), model units; raw: 0 */
     double quant_origin[3];     /* 216 packed: a point of the grid; raw: 0 */
-    uint8_t reserved[8];        /* 240 zero */
+    uint64_t extras_offset;     /* 240 the extras table (hlod_store_extras_header, then
+                                   node_count records); 0 when there is none */
     uint64_t header_hash;       /* 248 XXH3-64 of bytes [0, 248) */
 } hlod_store_header;
 
@@ -188,6 +191,36 @@ typedef struct hlod_store_header {
 #define HLOD_RENDER_SOLID 1u    /* its block is a closed, outward-wound
                                    surface: back faces may be culled */
 #define HLOD_RENDER_ALL_FLAGS 1u
+
+/* The extras table (version 4, optional; docs/store-format.md): after the
+ * node table, a header and then one record a node, in node order.  What a
+ * record holds is flagged per node; a reader that finds no table has
+ * none of it (normal cones off). */
+#define HLOD_EXTRAS_MAGIC "HLODEXTR"
+
+typedef struct hlod_store_extras_header {
+    char magic[8];              /*  0 HLOD_EXTRAS_MAGIC */
+    uint32_t count;             /*  8 = header.node_count */
+    uint32_t record_size;       /* 12 = header.extras_size */
+    uint64_t hash;              /* 16 XXH3-64 of the records */
+    uint8_t reserved[40];       /* 24 zero */
+} hlod_store_extras_header;     /* 64 bytes */
+
+/* hlod_store_extra.flags */
+#define HLOD_EXTRA_CONE 1u      /* cone_axis and cone_cos bound the face normals */
+#define HLOD_EXTRA_COLOR 2u     /* color holds the node's representative colour */
+#define HLOD_EXTRA_CUBE 4u      /* cube holds its six cube-face colours */
+#define HLOD_EXTRA_ALL_FLAGS 7u
+
+typedef struct hlod_store_extra {
+    float cone_axis[3];         /*  0 unit: with cone_cos, the normal cone of every face
+                                   of the node and of its descendants: each face's
+                                   unit normal n has dot(n, axis) >= cone_cos */
+    float cone_cos;             /* 12 cosine of the half-angle, in [-1, 1] */
+    uint8_t color[4];           /* 16 RGBA, sRGB (HLOD_EXTRA_COLOR) */
+    uint8_t cube[6][4];         /* 20 RGBA seen along +x, -x, +y, -y, +z, -z (HLOD_EXTRA_CUBE) */
+    uint32_t flags;             /* 44 HLOD_EXTRA_* */
+} hlod_store_extra;             /* 48 bytes */
 
 typedef struct hlod_store_node {
     uint32_t first_child;       /*   0 see the tree rule above */
@@ -308,6 +341,13 @@ double hlod_store_cost(uint32_t tex_tris, uint32_t untex_tris, double c_tex);
 hlod_result hlod_store_validate(const hlod_store_header *h, const hlod_store_node *nodes,
                                 uint64_t file_size, const char *name, const hlod_logger *lg);
 
+/* The extras table of a store whose header passed check_header: its
+ * header xh (count and record size as the store's), the records' checksum,
+ * and each record's fields.  HLOD_ERR_FORMAT, HLOD_ERR_CHECKSUM. */
+hlod_result hlod_store_check_extras(const hlod_store_header *h, const hlod_store_extras_header *xh,
+                                   const hlod_store_extra *x, const char *name,
+                                   const hlod_logger *lg);
+
 /* Checks a header as the reader does at open, before the node table:
  * magic, byte order, version, record sizes, checksum, file_size equal to
  * file_size, reserved fields, codec and position grid, the node table
@@ -347,6 +387,9 @@ void hlod_store_close(hlod_store *s);   /* s may be NULL; no reads may be in fli
  * records (the sentinel last).  Any thread. */
 const hlod_store_header *hlod_store_get_header(const hlod_store *s);
 const hlod_store_node *hlod_store_nodes(const hlod_store *s);
+/* node_count records of the extras table, or NULL when the store has none
+ * (stores before version 4, or built without). */
+const hlod_store_extra *hlod_store_extras(const hlod_store *s);
 uint32_t hlod_store_node_count(const hlod_store *s);
 uint32_t hlod_store_root_count(const hlod_store *s);
 uint32_t hlod_store_block_count(const hlod_store *s);

@@ -99,9 +99,13 @@ hlod_result hlod_store_writer_add(hlod_store_writer *w, const hlod_store_payload
  * fields, its payload offset this store's; parent, first_child, depth,
  * block and error are zeroed as add leaves them.  The two stores must
  * share the payload layout: quant_step, quant_origin and jpeg_quality
- * (hlod-merge copies the payloads of part files, docs/sharded-builds.md). */
+ * (hlod-merge copies the payloads of part files, docs/sharded-builds.md).
+ * src_extra: src's extras record (its normal cone stands for the copied
+ * faces'), or NULL: the node's faces are unbounded (no cone culling at or
+ * above it). */
 hlod_result hlod_store_writer_add_copy(hlod_store_writer *w, const hlod_store_node *src,
-                                       const void *bytes, hlod_store_node *node);
+                                       const void *bytes, const hlod_store_extra *src_extra,
+                                       hlod_store_node *node);
 
 /* called from the owner thread after every add returned.  nodes[0..count)
  * in any order, each filled by add and then given its parent (an index into

@@ -10,8 +10,10 @@
  * payload section: normals, UVs, colours, a texture, and the tree rule with
  * several roots and two levels.  The packed-* seeds are format 3's packed
  * payloads (docs/store-format.md): every codec stream, a JPEG texture.
- * The committed one-node, textured-tree and two-roots seeds are format 2's
- * (the reader still reads version 2); --seeds rewrites them as version 3.
+ * The committed one-node, textured-tree and two-roots seeds are format 2's,
+ * and the packed-* ones format 3's (the reader still reads both); --seeds
+ * leaves them and writes the v4-* seeds, format 4's with the extras table
+ * (a node's normal cone; one-sided quads, so the cones bound them).
  */
 #include "hlod/store_write.h"
 
@@ -79,11 +81,13 @@ static int write_store(const char *dir, const char *name, uint32_t roots, uint32
         nodes[root].parent = HLOD_STORE_NO_PARENT;
         nodes[root].block = b;
         nodes[root].error = 0.5;
+        nodes[root].render_flags = HLOD_RENDER_SOLID;
         for (uint32_t c = 0; c < children && r == HLOD_OK; c++) {
             uint32_t k = n++;
             r = add_quad(w, 2.0 * b + 0.5 * c, 0, 0.5, textured && c == 0, &nodes[k]);
             nodes[k].parent = root;
             nodes[k].error = 0.25;
+            nodes[k].render_flags = HLOD_RENDER_SOLID;
         }
     }
     if (r != HLOD_OK) {
@@ -103,10 +107,7 @@ int main(int argc, char **argv)
         return 2;
     }
     int bad = 0;
-    bad |= write_store(argv[1], "one-node.hlod", 1, 0, 0, 0);
-    bad |= write_store(argv[1], "textured-tree.hlod", 1, 2, 1, 0);
-    bad |= write_store(argv[1], "two-roots.hlod", 2, 1, 0, 0);
-    bad |= write_store(argv[1], "packed-textured-tree.hlod", 1, 2, 1, 1);
-    bad |= write_store(argv[1], "packed-two-roots.hlod", 2, 1, 0, 1);
+    bad |= write_store(argv[1], "v4-textured-tree.hlod", 1, 2, 1, 0);
+    bad |= write_store(argv[1], "v4-packed-two-roots.hlod", 2, 1, 0, 1);
     return bad;
 }
