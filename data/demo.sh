@@ -146,10 +146,10 @@ if [ ! -d "$PATHS" ]; then
         { echo "demo: error: hlod-gen-city --paths failed" >&2; exit 1; }
 fi
 STORE=$CITY-$DESIRED.hlod
-# kept only when it is this format's (a version 2 store still reads, but the
+# kept only when it is this format's (an older store still reads, but the
 # demo shows what hlod-build makes now: packed payloads)
 if [ -s "$STORE" ] && [ "$STORE" -nt "$CITY.obj" ] &&
-    "$ROOT/build/bin/hlod-info" --json "$STORE" 2>/dev/null | grep -q '"version":3,'; then
+    "$ROOT/build/bin/hlod-info" --json "$STORE" 2>/dev/null | grep -q '"version":4,'; then
     echo "==> store: $STORE exists (delete it to build again)"
 else
     echo "==> hlod-build $CITY.obj (cutplane, --desired-tris $DESIRED)"
@@ -210,10 +210,16 @@ done
 for p in walk-to-fly walk-drive fly walk orbit still; do
     run_bench "floor/$p" --path "$p" --target-ms 1 --no-plots --jitter-frames 0
 done
+# The selection policies side by side (docs/runtime.md, "Policies"), on
+# the same frames at 640x360 so that six policies stay within the demo's
+# time: walk-to-fly at 33 ms here, walk-drive at 33 ms in the sweep.
+POLICIES=lakhia,nohyst,sse,fs93,counter,okamoto
+run_bench policies/walk-to-fly --path walk-to-fly --target-ms 33 --width 640 --height 360 \
+    --reference --reference-every "$REF_EVERY" --policy "$POLICIES" --no-plots --jitter-frames 0
 # Run time against error: one curve per policy over a sweep of targets,
 # smaller frames so the sweep stays within the demo's time.
 run_bench sweep --path walk-drive --width 640 --height 360 --reference \
-    --reference-every "$REF_EVERY" --policy lakhia,nohyst,sse --sweep target_ms=8,15,25,40
+    --reference-every "$REF_EVERY" --policy "$POLICIES" --sweep target_ms=8,15,25,33,40
 
 # report.md: the headline numbers from the summaries, and each of issue
 # 17's targets with its measured value and PASS or MISS (then the earlier
@@ -513,12 +519,58 @@ perl -MJSON::PP -e '
         print $o "reference of the same camera.\n\n| run | frame | reference |\n|---|---|---|\n", @shots;
     }
 
+    # The policies side by side, and each one\x27s PSNR read at lakhia\x27s
+    # mean frame times on the sweep (linear between its points; "-" where
+    # lakhia\x27s mean lies outside the policy\x27s measured range).
+    my @pols = qw(lakhia nohyst sse fs93 counter okamoto);
+    my @prow;
+    for my $p (qw(walk-drive walk-to-fly)) {
+        for my $pol (@pols) {
+            my $j = load($p eq "walk-drive" ? "$dir/sweep/$pol-target_ms=33/summary.json"
+                                            : "$dir/policies/$p/$pol/summary.json") or next;
+            push @prow, sprintf "| %s | %s | %s | %.2f | %.3f | %d | %s | %s | %d |\n", $p, $pol,
+                defined $j->{deadline_met} ? sprintf("%.1f%%", 100 * $j->{deadline_met}) : "-",
+                $j->{frame_ms_mean}, $j->{toggles_per_frame}, $j->{oscillations},
+                $f->($j->{psnr_mean}), $f->($j->{psnr_min}), $j->{render_waits};
+        }
+    }
+    if (@prow) {
+        print $o "\n## Policies\n\nEach policy on the same frames at 33 ms, 640x360, scored against the ";
+        print $o "supersampled full-detail reference every $ARGV[5] frames (walk-drive: ";
+        print $o "sweep/POLICY-target_ms=33/; walk-to-fly: policies/walk-to-fly/POLICY/).\n\n";
+        print $o "| path | policy | deadline met | mean ms | toggles/frame | oscillations | PSNR dB | worst PSNR dB | render waits |\n";
+        print $o "|---|---|---|---|---|---|---|---|---|\n", @prow;
+    }
+    if (open my $c, "<", "$dir/sweep/sweep.csv") {
+        my %p; <$c>;
+        while (<$c>) { my @v = split /,/; $p{$v[0]}{$v[2]} = [$v[5], $v[12]]; }
+        my $psnr_at = sub { my ($pol, $x) = @_;
+            my @c = sort { $a->[0] <=> $b->[0] } values %{$p{$pol} // {}};
+            return undef if !@c || $x < $c[0][0] || $x > $c[-1][0];
+            return $c[0][1] if @c == 1;
+            my $i = 0; $i++ while $i < $#c - 1 && $x > $c[$i + 1][0];
+            my ($u, $w) = @c[$i, $i + 1];
+            return $w->[0] == $u->[0] ? $u->[1]
+                 : $u->[1] + ($w->[1] - $u->[1]) * ($x - $u->[0]) / ($w->[0] - $u->[0]); };
+        my @have = grep { $p{$_} } @pols;
+        if ($p{lakhia} && @have > 1) {
+            print $o "\nPSNR (dB) at lakhia\x27s mean frame time of each sweep target (walk-drive, sweep/; ";
+            print $o "sweep/pareto.png plots every policy):\n\n| target ms | lakhia mean ms | ";
+            print $o join(" | ", @have), " |\n|", "---|" x (@have + 2), "\n";
+            for my $t (sort { $a <=> $b } keys %{$p{lakhia}}) {
+                my $x = $p{lakhia}{$t}[0];
+                print $o "| $t | ", sprintf("%.1f", $x), " | ",
+                    join(" | ", map { $f->($psnr_at->($_, $x)) } @have), " |\n";
+            }
+        }
+    }
+
     print $o "\nPlots: walk-to-fly/frame_time.png (Lakhia Fig. 9), walk-to-fly/nodes_per_depth.png (Fig. 7), ";
     print $o "walk-drive/*/toggles.png (Fig. 8), */psnr.png, */memory.png, sweep/pareto.png (run time vs error); ";
     print $o "*/jitter.csv: the frozen-selection replays.\n";
     close $o or die;
     rename "$md.tmp", $md or die;
-' "$REPORT" "$REPORT/report.md" "$SECONDS" "${BLOCK_DEPTH:-0}" "$CITY_NAME" || failed=1
+' "$REPORT" "$REPORT/report.md" "$SECONDS" "${BLOCK_DEPTH:-0}" "$CITY_NAME" "$REF_EVERY" || failed=1
 echo
 [ -f "$REPORT/report.md" ] && cat "$REPORT/report.md"
 echo "(report, plots and per-frame CSVs in out/report/)"

@@ -13,9 +13,9 @@ The first folder of a URL names the fault its payload requests get:
 with that fault (/416-2/city.hlod too: anything after a '-' names a run
 counted apart, so a test can run a kind again), any other path without
 faults.  Faults hit payload requests
-only: a range starting at or after the 256-byte store header and outside the
-node table (whose place the server reads from the store's header), so the
-header and node table reads at open are always answered.  Every Nth payload
+only: a range starting at or after the 256-byte store header, outside the
+node table and before the extras table (whose places the server reads from
+the store's header), so the reads at open are always answered.  Every Nth payload
 request (--every N, counted for each such folder apart) gets:
   416       a 416 (range not satisfiable) with 'Content-Range: bytes */SIZE'
             (the file's true size, as a server or proxy glitch would send);
@@ -63,7 +63,7 @@ class State:
         if run.split("-", 1)[0] not in KINDS or start < HEADER_SIZE:
             return 0
         table = node_table(path)
-        if table and table[0] <= start < table[0] + table[1]:
+        if table and (table[0] <= start < table[0] + table[1] or (table[2] and start >= table[2])):
             return 0
         with self.lock:
             now = time.monotonic()
@@ -82,7 +82,8 @@ class State:
 
 
 def node_table(path):
-    """(offset, size) of a store's node table, or None."""
+    """(offset, size) of a store's node table and the extras table's offset
+    (0: none), or None."""
     try:
         with open(path, "rb") as f:
             h = f.read(HEADER_SIZE)
@@ -90,7 +91,7 @@ def node_table(path):
         return None
     if len(h) < HEADER_SIZE or not h.startswith(b"HLODSTOR"):
         return None
-    return struct.unpack_from("<QQ", h, 56)
+    return struct.unpack_from("<QQ", h, 56) + struct.unpack_from("<Q", h, 240)
 
 
 class Handler(http.server.BaseHTTPRequestHandler):
