@@ -205,6 +205,20 @@ static hlod_result check_desc(const hlod_store_payload_desc *p, const char *name
     return HLOD_OK;
 }
 
+/* Triangle t's edge cross product (b - a) x (c - a), in double: its
+ * normal times twice its area. */
+static void face_cross(const hlod_store_payload_desc *p, size_t t, double x[3])
+{
+    const double *a = p->positions + 3 * (size_t)p->indices[3 * t];
+    const double *b = p->positions + 3 * (size_t)p->indices[3 * t + 1];
+    const double *c = p->positions + 3 * (size_t)p->indices[3 * t + 2];
+    double u[3] = {b[0] - a[0], b[1] - a[1], b[2] - a[2]};
+    double v[3] = {c[0] - a[0], c[1] - a[1], c[2] - a[2]};
+    x[0] = u[1] * v[2] - u[2] * v[1];
+    x[1] = u[2] * v[0] - u[0] * v[2];
+    x[2] = u[0] * v[1] - u[1] * v[0];
+}
+
 /* A cone in floats, as the extras table holds it: the axis rounded, the
  * cosine rounded down by a margin that covers the axis's rounding (2 and
  * -1, no face and no bound, kept). */
@@ -233,13 +247,8 @@ static void face_cone(const hlod_store_payload_desc *p, double axis[3], double *
     for (int pass = 0; pass < 2; pass++) {
         double lo = 2;
         for (size_t t = 0; t < p->tri_count; t++) {
-            const double *a = p->positions + 3 * (size_t)p->indices[3 * t];
-            const double *b = p->positions + 3 * (size_t)p->indices[3 * t + 1];
-            const double *c = p->positions + 3 * (size_t)p->indices[3 * t + 2];
-            double u[3] = {b[0] - a[0], b[1] - a[1], b[2] - a[2]};
-            double v[3] = {c[0] - a[0], c[1] - a[1], c[2] - a[2]};
-            double x[3] = {u[1] * v[2] - u[2] * v[1], u[2] * v[0] - u[0] * v[2],
-                           u[0] * v[1] - u[1] * v[0]};
+            double x[3];
+            face_cross(p, t, x);
             double len = sqrt(x[0] * x[0] + x[1] * x[1] + x[2] * x[2]);
             if (!(len > 0))
                 continue; /* no area: draws nothing */
@@ -311,13 +320,8 @@ static void derive_node(const hlod_store_payload_desc *p, double c_tex, hlod_sto
      * what matter; this keeps city-scale coordinates exact). */
     double area = 0, sum[3] = {0, 0, 0};
     for (size_t t = 0; t < p->tri_count; t++) {
-        const double *a = p->positions + 3 * (size_t)p->indices[3 * t];
-        const double *b = p->positions + 3 * (size_t)p->indices[3 * t + 1];
-        const double *c = p->positions + 3 * (size_t)p->indices[3 * t + 2];
-        double u[3] = {b[0] - a[0], b[1] - a[1], b[2] - a[2]};
-        double v[3] = {c[0] - a[0], c[1] - a[1], c[2] - a[2]};
-        double x[3] = {u[1] * v[2] - u[2] * v[1], u[2] * v[0] - u[0] * v[2],
-                       u[0] * v[1] - u[1] * v[0]};
+        double x[3];
+        face_cross(p, t, x);
         /* |x| / 2 is the area; x / 2 is the unit normal times the area */
         area += 0.5 * sqrt(x[0] * x[0] + x[1] * x[1] + x[2] * x[2]);
         for (int k = 0; k < 3; k++)

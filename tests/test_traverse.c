@@ -263,6 +263,28 @@ static void counter_switches_after_switch_frames(void)
     rig_free(&r);
 }
 
+/* A uniform number in [0, 1) from the LCG state *s. */
+static double lcg(uint64_t *s)
+{
+    *s = *s * 6364136223846793005ull + 1442695040888963407ull;
+    return (double)(*s >> 11) / 9007199254740992.0;
+}
+
+/* A camera somewhere around and above the deep block, looking at a point
+ * of it, into r's view. */
+static void random_place(rig *r, uint64_t *s)
+{
+    double u[5];
+    for (int k = 0; k < 5; k++)
+        u[k] = lcg(s);
+    const double eye[3] = {-150 + 400 * u[0], -150 + 400 * u[1], 10 + 300 * u[2]},
+                 at[3] = {100 * u[3], 100 * u[4], 0}, up[3] = {0, 0, 1};
+    hlod_camera cam;
+    CHECK(hlod_camera_look_at(&cam, eye, at, up, 60, 0.5, 1e5, 1280, 720) == HLOD_OK);
+    const double still[3] = {0, 0, 0};
+    hlod_view_init(&r->view, &cam, still, 0);
+}
+
 /* The projected error of node i as okamoto judges it: the eye's distance
  * to the centre of its box. */
 static double okamoto_pixels(const rig *r, uint32_t i)
@@ -288,17 +310,7 @@ static void okamoto_cut_meets_the_threshold(void)
     for (int place = 0; place < 60; place++) {
         rig r;
         CHECK(rig_init_on(&r, g_deep, HLOD_POLICY_OKAMOTO, UINT32_MAX));
-        double u[5];
-        for (int k = 0; k < 5; k++) {
-            s = s * 6364136223846793005ull + 1442695040888963407ull;
-            u[k] = (double)(s >> 11) / 9007199254740992.0;
-        }
-        const double eye[3] = {-150 + 400 * u[0], -150 + 400 * u[1], 10 + 300 * u[2]},
-                     at[3] = {100 * u[3], 100 * u[4], 0}, up[3] = {0, 0, 1};
-        hlod_camera cam;
-        CHECK(hlod_camera_look_at(&cam, eye, at, up, 60, 0.5, 1e5, 1280, 720) == HLOD_OK);
-        const double still[3] = {0, 0, 0};
-        hlod_view_init(&r.view, &cam, still, 0);
+        random_place(&r, &s);
         const double px = 20 + 60 * (place % 4);
         select_frame(&r, 0.001, 0.001, px); /* time plays no part */
         uint8_t drawn[64] = {0};
@@ -355,18 +367,8 @@ static void fs93_front_fits_and_covers(void)
     for (int place = 0; place < 60; place++) {
         rig r;
         CHECK(rig_init_on(&r, g_deep, HLOD_POLICY_FS93, UINT32_MAX));
-        double u[6];
-        for (int k = 0; k < 6; k++) {
-            s = s * 6364136223846793005ull + 1442695040888963407ull;
-            u[k] = (double)(s >> 11) / 9007199254740992.0;
-        }
-        const double eye[3] = {-150 + 400 * u[0], -150 + 400 * u[1], 10 + 300 * u[2]},
-                     at[3] = {100 * u[3], 100 * u[4], 0}, up[3] = {0, 0, 1};
-        hlod_camera cam;
-        CHECK(hlod_camera_look_at(&cam, eye, at, up, 60, 0.5, 1e5, 1280, 720) == HLOD_OK);
-        const double still[3] = {0, 0, 0};
-        hlod_view_init(&r.view, &cam, still, 0);
-        const double budget = 1 + 20 * u[5]; /* each node needs 1 ms */
+        random_place(&r, &s);
+        const double budget = 1 + 20 * lcg(&s); /* each node needs 1 ms */
         for (int f = 0; f < 4; f++) /* the plan reaches one level past last frame's front */
             select_frame(&r, budget, 0, 2);
         uint8_t drawn[64] = {0};

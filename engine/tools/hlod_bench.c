@@ -1302,6 +1302,15 @@ static int frame_image(run_state *s, uint64_t f, frame_rec *fr, int save, const 
     return 0;
 }
 
+/* The pixels of two RGB images of npix pixels that differ. */
+static long long differing_pixels(const uint8_t *a, const uint8_t *b, size_t npix)
+{
+    long long differ = 0;
+    for (size_t k = 0; k < npix; k++)
+        differ += memcmp(a + 3 * k, b + 3 * k, 3) != 0;
+    return differ;
+}
+
 /* --occlusion-check: the same selection without occlusion culling must
  * draw the same image.  0, or 1 on failure. */
 static int check_occlusion(run_state *s, uint64_t f, const hlod_camera *cam,
@@ -1319,11 +1328,7 @@ static int check_occlusion(run_state *s, uint64_t f, const hlod_camera *cam,
                        o->store, (unsigned long long)f, hlod_result_str(r));
         return 1;
     }
-    size_t npix = (size_t)o->width * o->height;
-    long long differ = 0;
-    for (size_t k = 0; k < npix; k++)
-        differ += memcmp(image + 3 * k, c->occ_img + 3 * k, 3) != 0;
-    fr->occ_differing = differ;
+    fr->occ_differing = differing_pixels(image, c->occ_img, (size_t)o->width * o->height);
     hlod_psnr_rgb8(image, c->occ_img, o->width, o->height, &fr->occ_psnr);
     return 0;
 }
@@ -1344,11 +1349,7 @@ static int check_cones(run_state *s, uint64_t f, const hlod_camera *cam, const u
                        (unsigned long long)f, hlod_result_str(r));
         return 1;
     }
-    size_t npix = (size_t)o->width * o->height;
-    long long differ = 0;
-    for (size_t k = 0; k < npix; k++)
-        differ += memcmp(image + 3 * k, c->cone_img + 3 * k, 3) != 0;
-    fr->cone_differing = differ;
+    fr->cone_differing = differing_pixels(image, c->cone_img, (size_t)o->width * o->height);
     return 0;
 }
 
