@@ -905,6 +905,19 @@ static double fs93_hysteresis(const walk *w, double b)
     return b - (1 - w->d->fs93_hyst) * fabs(b);
 }
 
+/* What fs93 prices node i at: the cost model's timeNeeded (the sum of its
+ * terms), or with fs93_cost the paper's max(per-primitive, per-pixel)
+ * form of the same fitted terms (Funkhouser and Séquin's cost heuristic:
+ * the pipeline's slower stage sets a node's time). */
+static double fs93_node_cost(const walk *w, uint32_t i)
+{
+    if (!(w->d->fs93_cost > 0))
+        return node_needed(w, i);
+    double prim = w->draw_ms + w->v_time * hlod_node_cost(&w->nodes[i]),
+           fill = w->pixel_ms * w->fr[i].pix;
+    return prim > fill ? prim : fill;
+}
+
 static double projected_error(const walk *w, const hlod_view *v, uint32_t i)
 {
     return w->nodes[i].error * v->pixels_per_radian / node_distance(v, &w->nodes[i]);
@@ -927,7 +940,7 @@ static int fs93_add(walk *w, const hlod_view *v, fs93_plan *pl, uint32_t p, uint
     uint32_t c0 = hlod_store_first_child(w->nodes, p), c1 = hlod_store_child_end(w->nodes, p);
     if (c0 == c1 || is_hidden(w, p) || stands_down(w, p))
         return 1;
-    double cost = -node_needed(w, p), tris = 0, err = 0;
+    double cost = -fs93_node_cost(w, p), tris = 0, err = 0;
     uint32_t shown = 0;
     int allowed = 1;
     for (uint32_t c = c0; c < c1; c++) {
@@ -938,7 +951,7 @@ static int fs93_add(walk *w, const hlod_view *v, fs93_plan *pl, uint32_t p, uint
         allowed &= !holds_back(w, c);
         if (is_hidden(w, c))
             continue;
-        cost += node_needed(w, c);
+        cost += fs93_node_cost(w, c);
         tris += w->nodes[c].tri_count;
         double e = projected_error(w, v, c);
         err = e > err ? e : err;
@@ -993,7 +1006,7 @@ static int fs93_plan_front(walk *w, const hlod_view *v, double budget)
             continue;
         price(w, v, r, 1);
         if (!is_hidden(w, r))
-            base += node_needed(w, r);
+            base += fs93_node_cost(w, r);
         ok = fs93_add(w, v, &pl, r, HLOD_KNAPSACK_NONE, 0);
     }
     s->fs93_items = pl.it;

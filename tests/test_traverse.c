@@ -407,6 +407,37 @@ static void fs93_front_fits_and_covers(void)
            partial);
 }
 
+/* fs93_cost: each quadrant needs 1 ms of primitives, the root 1 ms of
+ * primitives and 2 ms of pixels (each quadrant about a quarter of that).
+ * Summed, the root takes 3 ms and the quadrants about 6; maxed, 2 and 4:
+ * a 5 ms budget refines under the paper's max form only. */
+static void fs93_cost_max_form(void)
+{
+    for (int form = 0; form < 2; form++) {
+        rig r;
+        CHECK(rig_init(&r, HLOD_POLICY_FS93, UINT32_MAX));
+        r.d.fs93_cost = form ? 1 : -1;
+        select_frame(&r, 100, 0, 2); /* prices the boxes' pixels */
+        double pix = r.sel.fr[0].pix, quads = 0;
+        for (uint32_t c = 1; c <= 4; c++)
+            quads += r.sel.fr[c].pix;
+        CHECKF(pix > 0 && quads > 0.9 * pix && quads < 1.1 * pix,
+               "root box %g pixels, quadrants' %g", pix, quads);
+        r.frame++;
+        memset(&r.st, 0, sizeof r.st);
+        hlod_residency_begin_frame(&r.res, r.frame);
+        hlod_select_in in = {.frame = r.frame, .v_time = r.v_time, .pixel_ms = 2 / pix,
+                             .sse_pixels = 2, .budget_ms = 5, .share_ms = 0};
+        /* from the root: last frame refined it, so start coarse again */
+        r.sel.fr[0].refined = 0;
+        CHECK(hlod_select(&r.sel, &r.res, &r.view, &in) == HLOD_OK);
+        hlod_residency_end_frame(&r.res);
+        CHECKF(form ? drew_quadrants(&r) : drew_root(&r), "fs93_cost %d, budget 5 ms: %zu drawn",
+               form, r.sel.draw.n);
+        rig_free(&r);
+    }
+}
+
 int main(void)
 {
     const char *tmp = getenv("TMPDIR");
@@ -437,6 +468,7 @@ int main(void)
         RUN(okamoto_cut_meets_the_threshold);
         RUN(fs93_refines_within_the_budget);
         RUN(fs93_front_fits_and_covers);
+        RUN(fs93_cost_max_form);
     }
     hlod_store_close(g_store);
     hlod_store_close(g_deep);

@@ -137,6 +137,8 @@ typedef double (*hlod_time_model)(void *user_data, const struct hlod_frame_stats
       "fs93 policy: a choice other than last frame's keeps this fraction of its benefit")       \
     X(fs93_m, fs93_m, D, 0.5, 0, 0, 4, 1,                                                        \
       "fs93 policy: accuracy = 1 - projected error / triangles^fs93_m")                          \
+    X(fs93_cost, fs93_cost, B, 0, 0, 0, 1, 1,                                                    \
+      "fs93 policy: 1: a node costs max(per-primitive, per-pixel) of the fitted terms; 0: their sum") \
     X(read_chunk_bytes, read_chunk_bytes, U32, 64u << 10, 1, 0, HLOD_UNBOUNDED, 0,               \
       "the loader reads a payload in steps of this many bytes")                                  \
     X(upload_budget_bytes, upload_budget_bytes, U64, 16ull << 20, 1, 0, HLOD_UNBOUNDED, 1,       \
