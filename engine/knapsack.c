@@ -79,6 +79,7 @@ typedef struct solve {
     heap leaves;              /* taken, no taken child: what may be given back, lowest first */
     heap cand;                /* may be taken, best first */
     double total, budget;
+    double fresh;             /* the bound for an item not taken last frame */
 } solve;
 
 static int is_leaf(const solve *s, uint32_t i)
@@ -89,7 +90,7 @@ static int is_leaf(const solve *s, uint32_t i)
 static int can_take(const solve *s, uint32_t i)
 {
     const hlod_knapsack_item *t = &s->it[i];
-    return !t->taken && !s->done[i] && t->allowed && t->gain > 0 &&
+    return !t->taken && !(s->done[i] & 1) && t->allowed && t->gain > 0 &&
            (t->parent == HLOD_KNAPSACK_NONE || s->it[t->parent].taken);
 }
 
@@ -143,14 +144,22 @@ static void shed(solve *s)
         heap_push(&s->leaves, s->out[k]);
 }
 
-/* Step 2 for item i, taken over the budget: the taken leaves of the lowest
- * gain per cost are given back until the front fits again, i itself when
- * its turn comes (then the solve moves on to the next item).  Each item
- * given back here is done with for this solve. */
+/* The bound item i is taken under: the budget for one taken last frame,
+ * the fresh bound for a new one. */
+static double bound_for(const solve *s, uint32_t i)
+{
+    return (s->done[i] & 2) ? s->budget : s->fresh;
+}
+
+/* Step 2 for item i, taken over its bound: the taken leaves of the lowest
+ * gain per cost are given back until the front fits it again, i itself
+ * when its turn comes (then the solve moves on to the next item).  Each
+ * item given back here is done with for this solve. */
 static void make_room(solve *s, uint32_t i)
 {
     uint32_t kept = 0;
-    while (s->total > s->budget && s->leaves.n) {
+    const double bound = bound_for(s, i);
+    while (s->total > bound && s->leaves.n) {
         uint32_t j = heap_pop(&s->leaves);
         if (!is_leaf(s, j))
             continue;
@@ -158,7 +167,7 @@ static void make_room(solve *s, uint32_t i)
             s->out[kept++] = j; /* frees no time */
             continue;
         }
-        s->done[j] = 1;
+        s->done[j] |= 1;
         give_back(s, j);
         if (j == i)
             break;
@@ -178,7 +187,7 @@ static void best_single(solve *s, double base)
         if (t->taken)
             sum += t->gain;
         if (t->parent == HLOD_KNAPSACK_NONE && t->allowed && t->gain > best &&
-            base + t->cost <= s->budget) {
+            base + t->cost <= bound_for(s, i)) {
             best = t->gain;
             b = i;
         }
@@ -220,12 +229,13 @@ static int grow(hlod_knapsack *k, size_t n)
 }
 
 double hlod_knapsack_solve(hlod_knapsack *k, hlod_knapsack_item *it, uint32_t n, double base,
-                           double budget)
+                           double budget, double fresh)
 {
     if (!grow(k, n ? n : 1))
         return -1;
     uint32_t *u = k->u;
-    solve s = {.it = it, .n = n, .ratio = k->ratio, .done = k->done, .budget = budget};
+    solve s = {.it = it, .n = n, .ratio = k->ratio, .done = k->done, .budget = budget,
+               .fresh = fresh < budget ? fresh : budget};
     s.leaves = (heap){u, u + n, 0, 0, s.ratio};
     s.cand = (heap){u + 2 * n, u + 3 * n, 0, 1, s.ratio};
     s.kids = u + 4 * n;
@@ -240,6 +250,8 @@ double hlod_knapsack_solve(hlod_knapsack *k, hlod_knapsack_item *it, uint32_t n,
         hlod_knapsack_item *t = &it[i];
         if (t->taken && (!t->allowed || (t->parent != HLOD_KNAPSACK_NONE && !it[t->parent].taken)))
             t->taken = 0;
+        if (t->taken)
+            s.done[i] = 2; /* kept from last frame: its bound is the budget */
         s.ratio[i] = t->cost > 0 ? t->gain / t->cost : t->gain > 0 ? INFINITY : -INFINITY;
         if (t->parent != HLOD_KNAPSACK_NONE)
             s.child0[t->parent + 1]++;
@@ -276,7 +288,7 @@ double hlod_knapsack_solve(hlod_knapsack *k, hlod_knapsack_item *it, uint32_t n,
         uint32_t i = heap_pop(&s.cand);
         if (!can_take(&s, i))
             continue;
-        int fits = s.total + it[i].cost <= budget || it[i].cost <= 0;
+        int fits = s.total + it[i].cost <= bound_for(&s, i) || it[i].cost <= 0;
         take(&s, i);
         if (!fits)
             make_room(&s, i);

@@ -15,7 +15,8 @@
  *   1. while the front's time is over the budget, the taken item of the
  *      lowest gain per cost with no taken child is given back;
  *   2. each item that may be taken (its parent taken), best gain per cost
- *      first, is taken; over the budget, the taken items of the lowest
+ *      first, is taken; over its bound (the budget for an item taken last
+ *      frame, `fresh` for a new one), the taken items of the lowest
  *      gain per cost with no taken child are given back until it fits,
  *      the new item itself when its turn comes (the paper's "increment the
  *      best, decrement the worst"); an item given back is not taken again
@@ -50,18 +51,21 @@ typedef struct hlod_knapsack {
     const hlod_allocator *a;
     uint32_t *u;        /* 8 words an item: two heaps, children, counts */
     double *ratio;      /* gain per cost, an item */
-    uint8_t *done;      /* given back in step 2, an item */
+    uint8_t *done;      /* an item: 1 given back in step 2, 2 taken last frame */
     size_t cap;         /* items the scratch holds */
     uint32_t exchanges; /* items the last solve gave back for better ones (step 2) */
 } hlod_knapsack;
 
 /* Decides items[0, n): `taken` on return.  base is the time of the
  * coarsest choice (no item taken), budget the bound on base plus the
- * taken items' cost.  Returns the front's time, or a negative value on
+ * taken items' cost.  An item not taken last frame is taken only while the
+ * front then stays within fresh (<= budget; the engine's budget bound
+ * keeps KEEP_MARGIN of room for new refinements): the bound's own
+ * hysteresis.  Returns the front's time, or a negative value on
  * allocation failure (items unchanged).  When even the coarsest choice
  * exceeds the budget, nothing is taken. */
 double hlod_knapsack_solve(hlod_knapsack *k, hlod_knapsack_item *items, uint32_t n, double base,
-                           double budget);
+                           double budget, double fresh);
 
 void hlod_knapsack_free(hlod_knapsack *k);
 

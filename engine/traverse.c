@@ -1015,7 +1015,9 @@ static int fs93_plan_front(walk *w, const hlod_view *v, double budget)
     if (!ok)
         return 0;
     s->ks.a = &w->d->allocator;
-    if (hlod_knapsack_solve(&s->ks, pl.it, pl.n, base, budget) < 0)
+    /* the budget bound's own hysteresis, as for the other policies: a new
+     * refinement must leave KEEP_MARGIN of the budget free */
+    if (hlod_knapsack_solve(&s->ks, pl.it, pl.n, base, budget, budget * (1 - KEEP_MARGIN)) < 0)
         return 0;
     /* the children worth reading: an item the knapsack would take at half
      * the gain per cost of the worst it took */

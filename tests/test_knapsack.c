@@ -86,7 +86,7 @@ static void greedy_half_the_optimum(void)
             it[1] = (hlod_knapsack_item){3, 1, HLOD_KNAPSACK_NONE, 1, 0};
         }
         int base = (int)(20 * uniform()), cap = (int)(uniform() * sum);
-        double total = hlod_knapsack_solve(&k, it, n, base, base + cap);
+        double total = hlod_knapsack_solve(&k, it, n, base, base + cap, base + cap);
         exchanges += k.exchanges;
         double gain, cost, opt = dp_optimum(it, n, cap);
         CHECKF(sums(it, n, &gain, &cost), "front %d: a taken item not allowed", f);
@@ -148,7 +148,7 @@ static void tree_cuts_stay_whole(void)
             sum += it[i].cost;
         }
         double base = 10, room = uniform() * sum;
-        double total = hlod_knapsack_solve(&k, it, n, base, base + room);
+        double total = hlod_knapsack_solve(&k, it, n, base, base + room, base + room);
         double gain, cost, opt = tree_optimum(it, n, room);
         CHECKF(sums(it, n, &gain, &cost), "tree %d: a cut with a taken item under one not taken",
                f);
@@ -167,28 +167,42 @@ static void tree_cuts_stay_whole(void)
  * takes nothing; else a refinement that saves time and gains is taken,
  * one taken last frame and worth nothing is given back, and one that
  * still fits stays; what last frame took and still fits stays, one no
- * longer allowed is given back. */
+ * longer allowed is given back; a new item must fit the fresh bound, a
+ * kept one the budget. */
 static void edges(void)
 {
     hlod_knapsack k = {0};
     hlod_knapsack_item it[3] = {{5, 1, HLOD_KNAPSACK_NONE, 1, 1},
                                 {5, -2, HLOD_KNAPSACK_NONE, 1, 0},
                                 {-1, 1, HLOD_KNAPSACK_NONE, 1, 1}};
-    double t = hlod_knapsack_solve(&k, it, 3, 20, 10);
+    double t = hlod_knapsack_solve(&k, it, 3, 20, 10, 10);
     CHECKF(!it[0].taken && !it[1].taken && !it[2].taken && fabs(t - 20) < 1e-9,
            "over the budget: taken %d %d %d, time %g", it[0].taken, it[1].taken, it[2].taken, t);
     it[0].taken = it[2].taken = 1;
-    t = hlod_knapsack_solve(&k, it, 3, 5, 10);
+    t = hlod_knapsack_solve(&k, it, 3, 5, 10, 10);
     CHECKF(it[0].taken && it[1].taken && !it[2].taken && fabs(t - 4) < 1e-9,
            "5 ms of a 10 ms budget: taken %d %d %d, time %g", it[0].taken, it[1].taken,
            it[2].taken, t);
     hlod_knapsack_item keep[3] = {{5, 3, HLOD_KNAPSACK_NONE, 1, 1},
                                   {1, 3, 0, 1, 1},
                                   {4, 3, HLOD_KNAPSACK_NONE, 0, 1}};
-    t = hlod_knapsack_solve(&k, keep, 3, 0, 6);
+    t = hlod_knapsack_solve(&k, keep, 3, 0, 6, 6);
     CHECKF(keep[0].taken && keep[1].taken && !keep[2].taken && fabs(t - 6) < 1e-9,
            "kept: taken %d %d %d (the third not allowed), time %g", keep[0].taken, keep[1].taken,
            keep[2].taken, t);
+    /* the fresh bound: a new item must fit it, a kept one only the budget */
+    hlod_knapsack_item two[2] = {{5, 5, HLOD_KNAPSACK_NONE, 1, 1}, {4, 3, HLOD_KNAPSACK_NONE, 1, 0}};
+    t = hlod_knapsack_solve(&k, two, 2, 0, 9, 7);
+    CHECKF(two[0].taken && !two[1].taken && fabs(t - 5) < 1e-9,
+           "budget 9, fresh 7: taken %d %d, time %g", two[0].taken, two[1].taken, t);
+    two[0].taken = 1;
+    two[1].taken = 0;
+    t = hlod_knapsack_solve(&k, two, 2, 0, 9, 9);
+    CHECKF(two[0].taken && two[1].taken && fabs(t - 8) < 1e-9,
+           "budget and fresh 9: taken %d %d, time %g", two[0].taken, two[1].taken, t);
+    hlod_knapsack_item late[1] = {{5, 8, HLOD_KNAPSACK_NONE, 1, 1}};
+    t = hlod_knapsack_solve(&k, late, 1, 0, 9, 7);
+    CHECKF(late[0].taken, "a kept item over the fresh bound but within the budget given back");
     hlod_knapsack_free(&k);
 }
 
