@@ -94,6 +94,8 @@ typedef struct hlod_selection {
     hlod_knapsack_item *fs93_items;
     uint32_t *fs93_nodes;
     size_t fs93_cap;
+    hlod_knapsack_item *fs93_wish; /* the items again, all allowed: what to read */
+    size_t fs93_wish_cap;
 } hlod_selection;
 
 /* d and st must outlive s.  HLOD_ERR_NOMEM. */

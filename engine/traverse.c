@@ -87,6 +87,7 @@ void hlod_selection_free(hlod_selection *s)
     hlod_mem_free(a, s->coned.v);
     hlod_mem_free(a, s->fs93_items);
     hlod_mem_free(a, s->fs93_nodes);
+    hlod_mem_free(a, s->fs93_wish);
     hlod_knapsack_free(&s->ks);
     *s = (hlod_selection){0};
 }
@@ -1015,24 +1016,31 @@ static int fs93_plan_front(walk *w, const hlod_view *v, double budget)
     if (!ok)
         return 0;
     s->ks.a = &w->d->allocator;
-    /* the budget bound's own hysteresis, as for the other policies: a new
-     * refinement must leave KEEP_MARGIN of the budget free */
-    if (hlod_knapsack_solve(&s->ks, pl.it, pl.n, base, budget, budget * (1 - KEEP_MARGIN)) < 0)
+    const double fresh = budget * (1 - KEEP_MARGIN);
+    /* the children worth reading: the refinements the knapsack would take
+     * were every child resident (the same solve, every item allowed) */
+    if (s->fs93_wish_cap < pl.n) {
+        hlod_knapsack_item *x = hlod_mem_realloc(&w->d->allocator, s->fs93_wish,
+                                                 pl.cap * sizeof *x);
+        if (!x)
+            return 0;
+        s->fs93_wish = x;
+        s->fs93_wish_cap = pl.cap;
+    }
+    for (uint32_t i = 0; i < pl.n; i++) {
+        s->fs93_wish[i] = pl.it[i];
+        s->fs93_wish[i].allowed = 1;
+    }
+    if (hlod_knapsack_solve(&s->ks, s->fs93_wish, pl.n, base, budget, fresh) < 0)
         return 0;
-    /* the children worth reading: an item the knapsack would take at half
-     * the gain per cost of the worst it took */
-    double worst = INFINITY;
-    for (uint32_t i = 0; i < pl.n; i++)
-        if (pl.it[i].taken && pl.it[i].cost > 0 && pl.it[i].gain / pl.it[i].cost < worst)
-            worst = pl.it[i].gain / pl.it[i].cost;
+    /* the plan, within the budget bound and its own hysteresis, as for the
+     * other policies: a new refinement must leave KEEP_MARGIN of it free */
+    if (hlod_knapsack_solve(&s->ks, pl.it, pl.n, base, budget, fresh) < 0)
+        return 0;
     for (uint32_t i = 0; i < pl.n; i++) {
         hlod_policy_mem *m = &w->fr[pl.node[i]].mem;
-        const hlod_knapsack_item *t = &pl.it[i];
-        m->plan = t->taken ? w->frame : 0;
-        m->ask = t->gain > 0 && (t->cost <= 0 || !isfinite(worst) ||
-                                 t->gain / t->cost >= 0.5 * worst)
-                     ? w->frame
-                     : 0;
+        m->plan = pl.it[i].taken ? w->frame : 0;
+        m->ask = s->fs93_wish[i].taken ? w->frame : 0;
     }
     return 1;
 }

@@ -445,6 +445,28 @@ static void fs93_cost_max_form(void)
     }
 }
 
+/* fs93 asks for the children it would refine into were they resident:
+ * above the deep block with time for every leaf, leaf 5 (under quadrant
+ * 1) missing: the three other quadrants refine, quadrant 1 is drawn, and
+ * leaf 5 is asked for every frame. */
+static void fs93_asks_for_what_it_would_refine(void)
+{
+    rig r;
+    CHECK(rig_init_on(&r, g_deep, HLOD_POLICY_FS93, 5));
+    CHECK(hlod_residency_state(&r.res, 5) == HLOD_NODE_ABSENT);
+    for (int f = 0; f < 3; f++) {
+        select_frame(&r, 1000, 0, 2);
+        CHECKF(r.res.res[5].wanted == r.frame, "frame %u: leaf 5 not asked for", r.frame);
+    }
+    int q1 = 0, leaves = 0;
+    for (size_t k = 0; k < r.sel.draw.n; k++) {
+        q1 |= r.sel.draw.v[k] == 1;
+        leaves += hlod_store_nodes(g_deep)[r.sel.draw.v[k]].depth == 2;
+    }
+    CHECKF(q1 && leaves == 12, "quadrant 1 drawn %d, %d leaves drawn", q1, leaves);
+    rig_free(&r);
+}
+
 int main(void)
 {
     const char *tmp = getenv("TMPDIR");
@@ -476,6 +498,7 @@ int main(void)
         RUN(fs93_refines_within_the_budget);
         RUN(fs93_front_fits_and_covers);
         RUN(fs93_cost_max_form);
+        RUN(fs93_asks_for_what_it_would_refine);
     }
     hlod_store_close(g_store);
     hlod_store_close(g_deep);
