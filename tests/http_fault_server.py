@@ -11,8 +11,9 @@ the whole file), keep-alive connections, GET and HEAD.
 The first folder of a URL names the fault its payload requests get:
 /416/city.hlod, /truncate/city.hlod, /reset/city.hlod and /stall/city.hlod serve ROOT/city.hlod
 with that fault (/416-2/city.hlod too: anything after a '-' names a run
-counted apart, so a test can run a kind again), any other path without
-faults.  Faults hit payload requests
+counted apart, so a test can run a kind again; a name eN or eNmK, as in
+/stall-e1m6/, also sets that run's --every to N and its --max to K), any
+other path without faults.  Faults hit payload requests
 only: a range starting at or after the 256-byte store header, outside the
 node table and before the extras table (whose places the server reads from
 the store's header), so the reads at open are always answered.  Every Nth payload
@@ -36,6 +37,7 @@ import argparse
 import email.utils
 import http.server
 import os
+import re
 import socket
 import socketserver
 import struct
@@ -65,12 +67,17 @@ class State:
         table = node_table(path)
         if table and (table[0] <= start < table[0] + table[1] or (table[2] and start >= table[2])):
             return 0
+        every, most = self.args.every, self.args.max
+        m = re.fullmatch(r"e(\d+)(?:m(\d+))?", run.split("-", 1)[1]) if "-" in run else None
+        if m:
+            every = max(1, int(m.group(1)))
+            most = int(m.group(2)) if m.group(2) else most
         with self.lock:
             now = time.monotonic()
             first = self.first_payload.setdefault(run, now)
             n = self.payload_requests[run] = self.payload_requests.get(run, 0) + 1
             k = self.faults.get(run, 0)
-            if k >= self.args.max or now - first > self.args.for_s or n % self.args.every:
+            if k >= most or now - first > self.args.for_s or n % every:
                 return 0
             self.faults[run] = k + 1
             return k + 1
