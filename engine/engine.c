@@ -647,7 +647,8 @@ hlod_result hlod_engine_frame(hlod_engine *e, const hlod_camera *cam, double dt,
         return HLOD_ERR_INVALID_ARG;
     }
     double t_start = hlod_now_ms(), vel[3];
-    const long slept0 = hlod_sleeps_now(), excused0 = hlod_sleeps_excused();
+    const long slept0 = hlod_sleeps_now(), excused0 = hlod_sleeps_excused(),
+               paged0 = hlod_sleeps_paged();
     int moved = frame_inputs(e, cam, dt, vel);
     frame_uploads(e);
     const double upload = frame_upload_ms(e), budget = frame_budget(e);
@@ -671,9 +672,15 @@ hlod_result hlod_engine_frame(hlod_engine *e, const hlod_camera *cam, double dt,
     learn(e, measured, upload, budget, moved);
     frame_residency(e);
     /* the render thread slept outside GL, synchronous reads and the
-     * logger: it waited (sleeps.h) */
+     * logger: it waited (sleeps.h), unless the system was reading a page
+     * of the process back in (a major fault: counted apart) */
     long slept = hlod_sleeps_now() - slept0 - (hlod_sleeps_excused() - excused0);
+    long paged = hlod_sleeps_paged() - paged0;
+    if (paged > slept)
+        paged = slept > 0 ? slept : 0;
+    slept -= paged;
     e->st.render_waits = slept > 0 ? (uint32_t)slept : 0;
+    e->st.render_paged = paged > 0 ? (uint32_t)paged : 0;
     if (stats)
         *stats = e->st;
     return HLOD_OK;

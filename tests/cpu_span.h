@@ -40,9 +40,10 @@
 
 typedef struct cpu_span {
     double wall0, cpu0;
-    long vol0, inv0;
+    long vol0, inv0, maj0;
     double wall_ms, cpu_ms; /* set by span_stop */
     long vol, inv;          /* voluntary and involuntary switches in the span */
+    long maj;               /* major page faults in the span (a page read back in) */
 } cpu_span;
 
 static inline double span_clock_ms(clockid_t id)
@@ -58,6 +59,7 @@ static inline void span_start(cpu_span *s)
     getrusage(RUSAGE_THREAD, &ru);
     s->vol0 = ru.ru_nvcsw;
     s->inv0 = ru.ru_nivcsw;
+    s->maj0 = ru.ru_majflt;
     s->cpu0 = span_clock_ms(CLOCK_THREAD_CPUTIME_ID);
     s->wall0 = span_clock_ms(CLOCK_MONOTONIC);
 }
@@ -70,6 +72,7 @@ static inline void span_stop(cpu_span *s)
     getrusage(RUSAGE_THREAD, &ru);
     s->vol = ru.ru_nvcsw - s->vol0;
     s->inv = ru.ru_nivcsw - s->inv0;
+    s->maj = ru.ru_majflt - s->maj0;
 }
 
 /* How many spans that kept the CPU may still be slow for no cause in the

@@ -117,6 +117,8 @@ typedef struct soak {
     int slow_frames;                /* over FRAME_MS, of the frames that kept the CPU */
     int nonfinite, drew_outside;
     int blocked_frames;             /* frame() blocked (voluntary switch) */
+    int paged_frames;               /* ... in a major page fault (render_paged) */
+    uint32_t render_paged;
     double worst_blocked_ms;        /* the longest of those frames */
     int judged;                     /* frames that kept the CPU (cpu_span.h) */
     int unexplained_slow;           /* frames that kept the CPU, never blocked and took
@@ -281,7 +283,13 @@ static void *soak_main(void *arg)
             if (dt > k->worst_ms)
                 k->worst_ms = dt;
         }
-        if (sp.vol) {
+        /* a sleep in a major page fault is the system paging the process
+         * back in (render_paged), bounded apart */
+        if (sp.vol && sp.maj) {
+            k->paged_frames++;
+            fprintf(stderr, "  frame %ld slept %ld times in %ld major faults (%.2f ms)\n",
+                    (long)k->frames_ok, sp.vol, sp.maj, dt);
+        } else if (sp.vol) {
             k->blocked_frames++;
             if (dt > k->worst_blocked_ms)
                 k->worst_blocked_ms = dt;
@@ -290,6 +298,7 @@ static void *soak_main(void *arg)
         k->loads += st.loads;
         k->evictions += st.evictions;
         k->render_waits += st.render_waits;
+        k->render_paged += st.render_paged;
         k->load_failures += st.load_failures;
         k->bad_nodes = st.bad_nodes;
         k->nonfinite += !stats_finite(&st);
@@ -329,6 +338,13 @@ static void check_soak(const soak *k, const char *what)
         CHECKF(k->render_waits == 0 && k->blocked_frames == 0,
                "%s: the render thread slept %u times; %d frames blocked, the longest %.2f ms",
                what, k->render_waits, k->blocked_frames, k->worst_blocked_ms);
+    /* sleeps in major page faults: the host paging the process back in
+     * (these machines run DAMON's pageout of cold pages), not the engine;
+     * as rare as the host's other spikes (cpu_span.h) */
+    CHECKF(k->paged_frames <= 1 + k->frames_ok / 30000 &&
+               k->render_paged <= (uint32_t)(2 * (1 + k->frames_ok / 30000)),
+           "%s: %d frames slept in major page faults (%u sleeps)", what, k->paged_frames,
+           k->render_paged);
     /* ASan's allocator locks its central free lists and its quarantine;
      * a thread that finds them taken yields or sleeps, as long as the
      * holder takes (30 ms once, beside another build).  Measured: 1-3
@@ -389,13 +405,13 @@ static void soak_one_engine(void)
            "peak_resident=%llu peak_with_reads=%llu budget=%llu over_budget=%llu "
            "rss_warm_kb=%ld rss_end_kb=%ld rss_drift_kb=%ld rss_checked=%d "
            "worst_frame_ms=%.2f slow_frames=%d render_waits=%u preempted_frames=%u "
-           "blocked_frames=%d worst_blocked_ms=%.2f seconds=%.1f\n", k.frames,
+           "blocked_frames=%d worst_blocked_ms=%.2f paged_frames=%d seconds=%.1f\n", k.frames,
            k.invalid_ok, (unsigned long long)k.loads, (unsigned long long)k.evictions,
            (unsigned long long)k.peak_resident, (unsigned long long)k.peak_used,
            (unsigned long long)k.budget, (unsigned long long)k.over_budget, k.rss_warm_kb,
            k.rss_end_kb, drift, !SANITIZED, k.worst_ms, k.slow_frames, k.render_waits,
            (uint32_t)(k.frames_ok - k.judged), k.blocked_frames, k.worst_blocked_ms,
-           secs);
+           k.paged_frames, secs);
     fprintf(stderr, "  render thread: slept %u times; blocked in %d frames (longest %.2f ms); "
             "%d of %d frames judged (not preempted)\n", k.render_waits, k.blocked_frames,
             k.worst_blocked_ms, k.judged, k.frames_ok);

@@ -16,6 +16,12 @@ long hlod_sleeps_now(void)
     return getrusage(RUSAGE_THREAD, &ru) == 0 ? ru.ru_nvcsw : 0;
 }
 
+long hlod_sleeps_paged(void)
+{
+    struct rusage ru;
+    return getrusage(RUSAGE_THREAD, &ru) == 0 ? ru.ru_majflt : 0;
+}
+
 long hlod_sleeps_excused(void)
 {
     return excused;

@@ -16,6 +16,12 @@
 /* Voluntary context switches of the calling thread so far. */
 long hlod_sleeps_now(void);
 
+/* Major page faults of the calling thread so far: pages the system read
+ * back in (from the executable, a library or a mapped file) that it had
+ * evicted.  A sleep in one is the system paging, not a wait on the loader:
+ * the engine counts such sleeps apart (render_paged). */
+long hlod_sleeps_paged(void);
+
 /* Of those, the ones inside excused calls, on this thread. */
 long hlod_sleeps_excused(void);
 

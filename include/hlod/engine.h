@@ -258,7 +258,11 @@ typedef struct hlod_frame_stats {
                                     (voluntary context switches) outside GL, a
                                     deterministic run's synchronous reads and the
                                     logger: it blocked, on the loader or anything
-                                    else; must be 0.  A preemption is not a wait */
+                                    else; must be 0.  A preemption is not a wait, nor
+                                    a sleep in a major page fault (render_paged) */
+    uint32_t render_paged;       /* sleeps of the render thread in this frame while the
+                                    system read a page of the process back in (a major
+                                    fault: paging, e.g. a host reclaiming cold pages) */
     /* cost model and deadline (docs/runtime.md, "The cost model and deadline margin") */
     double pixels_drawn;         /* screen pixels of the drawn nodes' projected boxes */
     double margin;               /* deadline margin: the front may take (target - uploads) / margin */
