@@ -986,7 +986,9 @@ static int fs93_add(walk *w, const hlod_view *v, fs93_plan *pl, uint32_t p, uint
     if (!was && past)
         return 1;
     for (uint32_t c = c0; c < c1; c++)
-        if (w->fr[c].priced == w->frame && frustum_vis(w, v, c) >= 1 &&
+        /* priced above as visible (a node cones culled may be priced too,
+         * with keep_coned, but is stamped coned) */
+        if (w->fr[c].priced == w->frame && w->fr[c].coned != w->frame &&
             !fs93_add(w, v, pl, c, me, past || !was))
             return 0;
     return 1;
