@@ -241,6 +241,20 @@ perl -MJSON::PP -e '
     # on, a controller that cannot foresee r and meets 98 % of deadlines
     # averages at most E[r] / q98(r) of the target; and no model predicts a frozen
     # selection (jitter.csv) better than the best constant does.
+    # sweep.csv: policy -> target -> [mean ms, PSNR, the run\x27s machine p50 ms]
+    sub sweep { my $f = shift; open my $c, "<", $f or return undef; my %p; <$c>;
+                while (<$c>) { my @v = split /,/; $p{$v[0]}{$v[2]} = [$v[5], $v[12], $v[21]]; }
+                return \%p; }
+    # a policy\x27s points by mean ms, and its PSNR read at mean x, linearly
+    # between its points (undef outside its measured range)
+    sub curve { my ($p, $pol) = @_; return [sort { $a->[0] <=> $b->[0] } values %{$p->{$pol} // {}}]; }
+    sub at { my ($cv, $x) = @_; my @c = @$cv;
+             return undef if !@c || $x < $c[0][0] || $x > $c[-1][0];
+             return $c[0][1] if @c == 1;
+             my $i = 0; $i++ while $i < $#c - 1 && $x > $c[$i + 1][0];
+             my ($u, $w) = @c[$i, $i + 1];
+             return $w->[0] == $u->[0] ? $u->[1]
+                  : $u->[1] + ($w->[1] - $u->[1]) * ($x - $u->[0]) / ($w->[0] - $u->[0]); }
     sub quant { my ($q, @v) = @_; @v = sort { $a <=> $b } @v; return undef unless @v;
                 return $v[int($q * (@v - 1) + 0.5)]; }
     sub mean_limit { my $fr = frames(shift) or return undef; my @r;
@@ -384,19 +398,11 @@ perl -MJSON::PP -e '
     # compared (N/A): extended along its end segment the curve would say
     # what that policy was never measured doing (sse\x27s lowest mean was
     # 14.8 ms where lakhia\x27s was 8.7).
-    if (open my $c, "<", "$dir/sweep/sweep.csv") {
-        my %p; <$c>;
-        # (mean ms, PSNR, the run\x27s machine p50 ms: its frozen replay)
-        while (<$c>) { my @v = split /,/; $p{$v[0]}{$v[2]} = [$v[5], $v[12], $v[21]]; }
-        my $curve = sub { [sort { $a->[0] <=> $b->[0] } values %{$p{$_[0]} // {}}] };
-        my $at = sub { my ($cv, $x) = @_; my @c = @$cv;
-                       return undef unless @c;
-                       return undef if $x < $c[0][0] || $x > $c[-1][0];
-                       return $c[0][1] if @c == 1;
-                       my $i = 0; $i++ while $i < $#c - 1 && $x > $c[$i + 1][0];
-                       my ($u, $w) = @c[$i, $i + 1];
-                       return $u->[1] if $w->[0] == $u->[0];
-                       return $u->[1] + ($w->[1] - $u->[1]) * ($x - $u->[0]) / ($w->[0] - $u->[0]); };
+    my $sw = sweep("$dir/sweep/sweep.csv");
+    if ($sw) {
+        my %p = %$sw;
+        my $curve = sub { curve($sw, $_[0]) };
+        my $at = \&at;
         my ($sse, $noh) = ($curve->("sse"), $curve->("nohyst"));
         for my $t (sort { $a <=> $b } keys %{$p{lakhia} // {}}) {
             my $l = $p{lakhia}{$t};
@@ -541,17 +547,9 @@ perl -MJSON::PP -e '
         print $o "| path | policy | deadline met | mean ms | toggles/frame | oscillations | PSNR dB | worst PSNR dB | render waits |\n";
         print $o "|---|---|---|---|---|---|---|---|---|\n", @prow;
     }
-    if (open my $c, "<", "$dir/sweep/sweep.csv") {
-        my %p; <$c>;
-        while (<$c>) { my @v = split /,/; $p{$v[0]}{$v[2]} = [$v[5], $v[12]]; }
-        my $psnr_at = sub { my ($pol, $x) = @_;
-            my @c = sort { $a->[0] <=> $b->[0] } values %{$p{$pol} // {}};
-            return undef if !@c || $x < $c[0][0] || $x > $c[-1][0];
-            return $c[0][1] if @c == 1;
-            my $i = 0; $i++ while $i < $#c - 1 && $x > $c[$i + 1][0];
-            my ($u, $w) = @c[$i, $i + 1];
-            return $w->[0] == $u->[0] ? $u->[1]
-                 : $u->[1] + ($w->[1] - $u->[1]) * ($x - $u->[0]) / ($w->[0] - $u->[0]); };
+    if ($sw) {
+        my %p = %$sw;
+        my $psnr_at = sub { at(curve($sw, $_[0]), $_[1]) };
         my @have = grep { $p{$_} } @pols;
         if ($p{lakhia} && @have > 1) {
             print $o "\nPSNR (dB) at lakhia\x27s mean frame time of each sweep target (walk-drive, sweep/; ";
