@@ -145,6 +145,28 @@ static hlod_result check_desc(const hlod_engine_desc *d, const hlod_logger *lg)
     return HLOD_OK;
 }
 
+/* A store that refines additively (a sample tree) is drawn by a policy
+ * with HLOD_PT_ADDITIVE, or full (its reference: every node); one that
+ * refines by replacement by any other. */
+static hlod_result check_refine(const hlod_store *store, const hlod_engine_desc *d)
+{
+    int add = (hlod_store_get_header(store)->flags & HLOD_STORE_ADDITIVE) != 0;
+    int pol = hlod_policy_has(d->policy, HLOD_PT_ADDITIVE);
+    if (add && !pol && d->policy != HLOD_POLICY_FULL) {
+        hlod_logf(&d->logger, HLOD_LOG_ERROR, "engine: the store refines additively (a sample "
+                  "tree): policy %s draws replacement hierarchies; use klein or full",
+                  hlod_policy_name(d->policy));
+        return HLOD_ERR_INVALID_ARG;
+    }
+    if (!add && pol) {
+        hlod_logf(&d->logger, HLOD_LOG_ERROR, "engine: policy %s draws a sample tree; this "
+                  "store refines by replacement (build one with hlod-build --method sampletree)",
+                  hlod_policy_name(d->policy));
+        return HLOD_ERR_INVALID_ARG;
+    }
+    return HLOD_OK;
+}
+
 /* ---- create / destroy ---- */
 
 hlod_result hlod_engine_create(const hlod_store *store, const hlod_engine_desc *desc,
@@ -158,6 +180,8 @@ hlod_result hlod_engine_create(const hlod_store *store, const hlod_engine_desc *
     hlod_engine_desc d = *desc;
     hlod_engine_desc_defaults(&d);
     hlod_result r = check_desc(&d, &d.logger);
+    if (r == HLOD_OK)
+        r = check_refine(store, &d);
     if (r != HLOD_OK)
         return r;
 
@@ -205,6 +229,7 @@ void hlod_engine_destroy(hlod_engine *e)
     hlod_mem_free(&e->d.allocator, e->drawn.v);
     hlod_mem_free(&e->d.allocator, e->later.v);
     hlod_mem_free(&e->d.allocator, e->order.v);
+    hlod_mem_free(&e->d.allocator, e->splat_buf);
     hlod_allocator a = e->d.allocator;
     hlod_mem_free(&a, e);
 }
@@ -229,6 +254,8 @@ hlod_result hlod_engine_set(hlod_engine *e, const hlod_engine_desc *desc)
     if (d.c_memory == 0)
         d.c_memory = e->d.c_memory;
     hlod_result r = check_desc(&d, &e->d.logger);
+    if (r == HLOD_OK)
+        r = check_refine(e->store, &d);
     if (r != HLOD_OK)
         return r;
     hlod_cost_model_set(&e->cost, &e->d, &d);
@@ -436,6 +463,54 @@ static void draw_occluded(hlod_engine *e, const hlod_camera *cam, const hlod_vie
     e->st.occlusion_ms = t2 - t0;
 }
 
+/* The selection's splats (a sample tree's small nodes, Klein 4.5): each
+ * at its box's centre, its colour lit as a face with the node's average
+ * normal would be (gl_render.c's headlight and sky), splat_px wide. */
+static void draw_splats(hlod_engine *e, const hlod_camera *cam)
+{
+    const hlod_u32_vec *sp = &e->sel.splats;
+    const hlod_store_extra *x = e->sel.extras;
+    if (!sp->n || !x)
+        return;
+    if (e->splat_cap < sp->n) {
+        hlod_gpu_splat *b = hlod_mem_realloc(&e->d.allocator, e->splat_buf, sp->n * sizeof *b);
+        if (!b)
+            return; /* the frame goes without its splats */
+        e->splat_buf = b;
+        e->splat_cap = sp->n;
+    }
+    for (size_t k = 0; k < sp->n; k++) {
+        const hlod_store_node *n = &e->nodes[sp->v[k]];
+        const uint8_t *c = x[sp->v[k]].color;
+        double rel[3], d2 = 0, nl = 0, dot = 0;
+        for (int a = 0; a < 3; a++) {
+            rel[a] = 0.5 * (n->bbox_min[a] + n->bbox_max[a]) - cam->position[a];
+            d2 += rel[a] * rel[a];
+            nl += (double)n->avg_normal[a] * n->avg_normal[a];
+        }
+        double d = sqrt(d2), nz = 1;
+        if (nl > 0 && d > 0) {
+            for (int a = 0; a < 3; a++)
+                dot -= n->avg_normal[a] * rel[a] / (d * sqrt(nl));
+            nz = n->avg_normal[2] / sqrt(nl);
+            if (dot < 0)
+                nz = -nz; /* back faces are lit like front faces */
+        } else {
+            dot = 1;
+            nz = d > 0 ? -rel[2] / d : 1;
+        }
+        double light = 0.20 + 0.55 * fabs(dot) + 0.25 * (0.5 + 0.5 * nz);
+        hlod_gpu_splat *s = &e->splat_buf[k];
+        for (int a = 0; a < 3; a++) {
+            s->pos[a] = (float)rel[a];
+            double v = c[a] * light;
+            s->rgba[a] = (uint8_t)(v > 255 ? 255 : v + 0.5);
+        }
+        s->rgba[3] = 255;
+    }
+    (void)hlod_gpu_splats(e->d.renderer, e->splat_buf, (uint32_t)sp->n, (float)e->d.splat_px);
+}
+
 static void draw_frame(hlod_engine *e, const hlod_camera *cam, const hlod_view *view)
 {
     hlod_renderer *r = e->d.renderer;
@@ -447,6 +522,7 @@ static void draw_frame(hlod_engine *e, const hlod_camera *cam, const hlod_view *
     } else {
         for (size_t k = 0; k < e->draw_list->n; k++)
             gpu_draw_node(e, cam, e->draw_list->v[k]);
+        draw_splats(e, cam);
         e->drawn_valid = 0; /* replay draws the selection */
         hlod_gpu_end(r, 1);
         return;
@@ -713,6 +789,7 @@ hlod_result hlod_engine_replay(hlod_engine *e, const hlod_camera *cam, int occlu
             for (size_t k = 0; k < e->later.n; k++)
                 if (hlod_occlusion_hidden(&e->occ, e->later.v[k]) == e->frame)
                     gpu_draw_node(e, cam, e->later.v[k]);
+        draw_splats(e, cam);
         hlod_gpu_end(r, 1);
     }
     double t = e->d.time_model ? e->d.time_model(e->d.time_model_user, &e->st)

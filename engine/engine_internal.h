@@ -39,6 +39,8 @@ struct hlod_engine {
     hlod_u32_vec drawn;         /* nodes the last frame drew, in draw order */
     int drawn_valid;            /* drawn holds them (occlusion was on) */
     hlod_u32_vec later;         /* scratch: nodes tested before they are drawn */
+    struct hlod_gpu_splat *splat_buf; /* the frame's splats for the renderer (engine.c) */
+    size_t splat_cap;
 
     /* camera motion */
     int have_prev;

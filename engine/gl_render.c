@@ -26,6 +26,7 @@
  *   Back faces are lit like front faces (scanned meshes are not closed).
  */
 #include <assert.h>
+#include <stddef.h>
 #include <stdint.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -56,6 +57,7 @@
     X(PFNGLGETUNIFORMLOCATIONPROC, GetUniformLocation)               \
     X(PFNGLUSEPROGRAMPROC, UseProgram)                               \
     X(PFNGLUNIFORM1IPROC, Uniform1i)                                 \
+    X(PFNGLUNIFORM1FPROC, Uniform1f)                                 \
     X(PFNGLUNIFORM3FPROC, Uniform3f)                                 \
     X(PFNGLUNIFORMMATRIX4FVPROC, UniformMatrix4fv)                   \
     X(PFNGLGENVERTEXARRAYSPROC, GenVertexArrays)                     \
@@ -86,6 +88,7 @@
     X(PFNGLFRONTFACEPROC, FrontFace)                                 \
     X(PFNGLPOLYGONMODEPROC, PolygonMode)                             \
     X(PFNGLDRAWELEMENTSPROC, DrawElements)                           \
+    X(PFNGLDRAWARRAYSPROC, DrawArrays)                               \
     X(PFNGLFLUSHPROC, Flush)                                         \
     X(PFNGLREADPIXELSPROC, ReadPixels)                               \
     X(PFNGLFINISHPROC, Finish)
@@ -122,6 +125,11 @@ struct hlod_renderer {
     float clear[3];
     hlod_depth_view depth_view; /* reads depth in place; NULL: glReadPixels */
     void *depth_view_user;
+    struct {                    /* splats (hlod_gpu_splats): one program, one buffer */
+        GLuint prog, vao, vbo;
+        GLint u_viewproj, u_size;
+        size_t cap;             /* splats the buffer holds */
+    } splat;
 };
 
 /* The shaders come in variants chosen per draw (compiled once): NORMALS
@@ -196,6 +204,27 @@ static const char *fragment_src =
     "    vec3 base = u_flat;\n"
     "#endif\n"
     "    o_color = vec4(base * light, 1.0);\n"
+    "}\n";
+
+/* Splats: a point of u_size pixels, its colour as given (lit by the
+ * caller), at its camera-relative position. */
+static const char *splat_vertex_src =
+    "layout(location = 0) in vec3 a_position;\n"
+    "layout(location = 3) in vec4 a_color;\n"
+    "uniform mat4 u_viewproj;\n"
+    "uniform float u_size;\n"
+    "out vec4 v_color;\n"
+    "void main() {\n"
+    "    v_color = a_color;\n"
+    "    gl_PointSize = u_size;\n"
+    "    gl_Position = u_viewproj * vec4(a_position, 1.0);\n"
+    "}\n";
+
+static const char *splat_fragment_src =
+    "in vec4 v_color;\n"
+    "out vec4 o_color;\n"
+    "void main() {\n"
+    "    o_color = vec4(v_color.rgb, 1.0);\n"
     "}\n";
 
 /* Depth-colour mode: one colour per hierarchy level, cycling. */
@@ -305,6 +334,45 @@ static void delete_programs(hlod_renderer *r)
         for (int m = 0; m < 3; m++)
             if (r->prog[n][m].id)
                 r->gl.DeleteProgram(r->prog[n][m].id);
+    if (r->splat.prog)
+        r->gl.DeleteProgram(r->splat.prog);
+    if (r->splat.vbo)
+        r->gl.DeleteBuffers(1, &r->splat.vbo);
+    if (r->splat.vao)
+        r->gl.DeleteVertexArrays(1, &r->splat.vao);
+    memset(&r->splat, 0, sizeof r->splat);
+}
+
+static int build_splat_program(hlod_renderer *r)
+{
+    const gl_table *gl = &r->gl;
+    GLuint vs = compile(r, GL_VERTEX_SHADER, "", splat_vertex_src);
+    GLuint fs = vs ? compile(r, GL_FRAGMENT_SHADER, "", splat_fragment_src) : 0;
+    GLuint prog = fs ? gl->CreateProgram() : 0;
+    if (prog) {
+        gl->AttachShader(prog, vs);
+        gl->AttachShader(prog, fs);
+        gl->LinkProgram(prog);
+        GLint ok = 0;
+        gl->GetProgramiv(prog, GL_LINK_STATUS, &ok);
+        if (!ok) {
+            char log[1024] = "";
+            gl->GetProgramInfoLog(prog, sizeof log, NULL, log);
+            hlod_logf(&r->lg, HLOD_LOG_ERROR, "renderer: splat link: %s", log);
+            gl->DeleteProgram(prog);
+            prog = 0;
+        }
+    }
+    if (vs)
+        gl->DeleteShader(vs);
+    if (fs)
+        gl->DeleteShader(fs);
+    if (!prog)
+        return 0;
+    r->splat.prog = prog;
+    r->splat.u_viewproj = gl->GetUniformLocation(prog, "u_viewproj");
+    r->splat.u_size = gl->GetUniformLocation(prog, "u_size");
+    return 1;
 }
 
 static int build_programs(hlod_renderer *r)
@@ -315,6 +383,10 @@ static int build_programs(hlod_renderer *r)
                 delete_programs(r);
                 return 0;
             }
+    if (!build_splat_program(r)) {
+        delete_programs(r);
+        return 0;
+    }
     return 1;
 }
 
@@ -588,6 +660,7 @@ void hlod_gpu_begin(hlod_renderer *r, const hlod_camera *cam)
             gl->UseProgram(r->prog[n][m].id);
             gl->UniformMatrix4fv(r->prog[n][m].u_viewproj, 1, GL_FALSE, vp);
         }
+    memcpy(r->vp, vp, sizeof vp);
     r->cur = &r->prog[0][0];
     gl->ActiveTexture(GL_TEXTURE0);
     /* what nodes without these sections read (current attribute values) */
@@ -644,6 +717,49 @@ void hlod_gpu_draw(hlod_renderer *r, const hlod_gpu_node *g, const double offset
         gl->DrawElements(GL_TRIANGLES, (GLsizei)(g->index_count - g->tex_index_count),
                          GL_UNSIGNED_INT, (const void *)(uintptr_t)(4 * (size_t)g->tex_index_count));
     }
+}
+
+/* called from the render thread, between begin and end */
+hlod_result hlod_gpu_splats(hlod_renderer *r, const hlod_gpu_splat *s, uint32_t n, float size_px)
+{
+    assert(r && (s || !n));
+    if (!n)
+        return HLOD_OK;
+    const gl_table *gl = &r->gl;
+    if (!r->splat.vao) {
+        gl->GenVertexArrays(1, &r->splat.vao);
+        gl->GenBuffers(1, &r->splat.vbo);
+        gl->BindVertexArray(r->splat.vao);
+        gl->BindBuffer(GL_ARRAY_BUFFER, r->splat.vbo);
+        gl->EnableVertexAttribArray(ATTR_POSITION);
+        gl->VertexAttribPointer(ATTR_POSITION, 3, GL_FLOAT, GL_FALSE, sizeof *s, (const void *)0);
+        gl->EnableVertexAttribArray(ATTR_COLOR);
+        gl->VertexAttribPointer(ATTR_COLOR, 4, GL_UNSIGNED_BYTE, GL_TRUE, sizeof *s,
+                                (const void *)offsetof(hlod_gpu_splat, rgba));
+    }
+    gl->BindVertexArray(r->splat.vao);
+    gl->BindBuffer(GL_ARRAY_BUFFER, r->splat.vbo);
+    if (n > r->splat.cap) {
+        size_t cap = r->splat.cap ? r->splat.cap : 4096;
+        while (cap < n)
+            cap *= 2;
+        gl->BufferData(GL_ARRAY_BUFFER, (GLsizeiptr)(cap * sizeof *s), NULL, GL_STREAM_DRAW);
+        r->splat.cap = cap;
+    }
+    gl->BufferSubData(GL_ARRAY_BUFFER, 0, (GLsizeiptr)(n * sizeof *s), s);
+    gl->UseProgram(r->splat.prog);
+    r->cur = NULL;
+    gl->UniformMatrix4fv(r->splat.u_viewproj, 1, GL_FALSE, r->vp);
+    gl->Uniform1f(r->splat.u_size, size_px);
+    gl->Enable(GL_PROGRAM_POINT_SIZE);
+    gl->DrawArrays(GL_POINTS, 0, (GLsizei)n);
+    gl->Disable(GL_PROGRAM_POINT_SIZE);
+    GLenum e = take_errors(gl);
+    if (e != GL_NO_ERROR) {
+        hlod_logf(&r->lg, HLOD_LOG_ERROR, "renderer: %u splats: GL error %#x", n, e);
+        return e == GL_OUT_OF_MEMORY ? HLOD_ERR_NOMEM : HLOD_ERR_UNSUPPORTED;
+    }
+    return HLOD_OK;
 }
 
 /* called from the render thread */

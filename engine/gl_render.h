@@ -51,6 +51,17 @@ void hlod_gpu_draw(hlod_renderer *r, const hlod_gpu_node *g, const double offset
                    uint32_t depth);
 void hlod_gpu_end(hlod_renderer *r, int finish);
 
+/* One splat: a position relative to the camera and a colour, lit. */
+typedef struct hlod_gpu_splat {
+    float pos[3];
+    uint8_t rgba[4];
+} hlod_gpu_splat;   /* 16 bytes */
+
+/* Draws n splats as points of size_px x size_px pixels, depth tested
+ * (Klein 4.5; docs/sampletree.md).  Between begin and end.
+ * HLOD_ERR_NOMEM, HLOD_ERR_UNSUPPORTED (logged) on a GL error. */
+hlod_result hlod_gpu_splats(hlod_renderer *r, const hlod_gpu_splat *s, uint32_t n, float size_px);
+
 /* Waits for the draws so far (glFinish), between begin and end: what
  * follows is timed without the GPU's work. */
 void hlod_gpu_wait(hlod_renderer *r);

@@ -21,7 +21,9 @@
  *           the pixel threshold, r the eye's distance to the centre of
  *           the node's box (Okamoto et al., section 4.2; the threshold
  *           adapted as sse's); back-facing subtrees (normal cones) are
- *           always skipped, as the paper's walk does.
+ *           always skipped, as the paper's walk does;
+ *   klein   a sample tree's walk (traverse.c, walk_additive): no front to
+ *           decide, so its function is never asked.
  */
 #include "policy.h"
 
@@ -100,6 +102,13 @@ static int fs93_refines(const hlod_policy_in *in, int *near)
     return in->mem->plan == in->frame;
 }
 
+static int klein_refines(const hlod_policy_in *in, int *near)
+{
+    (void)in;
+    *near = 1;
+    return 1;
+}
+
 static const hlod_policy_row rows[HLOD_POLICY_COUNT] = {
     [HLOD_POLICY_LAKHIA] = {"lakhia",
                             HLOD_PT_HYST | HLOD_PT_BUDGET | HLOD_PT_HOLD | HLOD_PT_OCCLUDE |
@@ -117,6 +126,7 @@ static const hlod_policy_row rows[HLOD_POLICY_COUNT] = {
                              okamoto_refines},
     [HLOD_POLICY_FS93] = {"fs93", HLOD_PT_KNAPSACK | HLOD_PT_OCCLUDE | HLOD_PT_STREAM,
                           fs93_refines},
+    [HLOD_POLICY_KLEIN] = {"klein", HLOD_PT_ADDITIVE | HLOD_PT_STREAM, klein_refines},
 };
 
 const hlod_policy_row *hlod_policy_row_of(hlod_policy p)

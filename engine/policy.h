@@ -27,6 +27,9 @@ enum {
     HLOD_PT_CONES = 1u << 8,   /* normal cones cull whatever the cone_cull setting */
     HLOD_PT_KNAPSACK = 1u << 7, /* the front is planned before the walk by FS93's knapsack
                                    (traverse.c): the decision reads mem->plan and mem->ask */
+    HLOD_PT_ADDITIVE = 1u << 9, /* draws a store that refines additively (a sample tree):
+                                   every visited node, ancestors too, and splats where a
+                                   node's box is small (traverse.c, walk_additive) */
 };
 
 /* What a policy remembers of a node between frames (its own use). */

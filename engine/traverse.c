@@ -63,6 +63,7 @@ hlod_result hlod_selection_init(hlod_selection *s, const hlod_store *store,
     *s = (hlod_selection){0};
     s->nodes = hlod_store_nodes(store);
     s->extras = hlod_store_extras(store);
+    s->additive = (hlod_store_get_header(store)->flags & HLOD_STORE_ADDITIVE) != 0;
     s->node_count = hlod_store_node_count(store);
     s->root_count = hlod_store_root_count(store);
     s->d = d;
@@ -85,6 +86,7 @@ void hlod_selection_free(hlod_selection *s)
     hlod_mem_free(a, s->next.v);
     hlod_mem_free(a, s->refined.v);
     hlod_mem_free(a, s->coned.v);
+    hlod_mem_free(a, s->splats.v);
     hlod_mem_free(a, s->fs93_items);
     hlod_mem_free(a, s->fs93_nodes);
     hlod_mem_free(a, s->fs93_wish);
@@ -138,10 +140,12 @@ void hlod_view_init(hlod_view *v, const hlod_camera *cam, const double velocity[
     v->height = cam->height;
 }
 
-int hlod_view_project(const hlod_view *v, const double bmin[3], const double bmax[3],
-                      double rect[4], double *zmin)
+/* The box's screen rectangle, not clipped (x0, y0, x1, y1, pixels), and
+ * the window depth of its nearest corner; 0 when part of it lies at or
+ * behind the eye plane or before the near plane. */
+static int project_raw(const hlod_view *v, const double bmin[3], const double bmax[3],
+                       double rect[4], double *zmin)
 {
-    assert(v && bmin && bmax && rect && zmin);
     const double *m = v->vp;
     double x0 = INFINITY, y0 = INFINITY, x1 = -INFINITY, y1 = -INFINITY, z0 = INFINITY;
     for (int c = 0; c < 8; c++) {
@@ -162,11 +166,24 @@ int hlod_view_project(const hlod_view *v, const double bmin[3], const double bma
         y1 = sy > y1 ? sy : y1;
         z0 = sz < z0 ? sz : z0;
     }
-    rect[0] = x0 > 0 ? x0 : 0;
-    rect[1] = y0 > 0 ? y0 : 0;
-    rect[2] = x1 < v->width ? x1 : v->width;
-    rect[3] = y1 < v->height ? y1 : v->height;
+    rect[0] = x0;
+    rect[1] = y0;
+    rect[2] = x1;
+    rect[3] = y1;
     *zmin = z0;
+    return 1;
+}
+
+int hlod_view_project(const hlod_view *v, const double bmin[3], const double bmax[3],
+                      double rect[4], double *zmin)
+{
+    assert(v && bmin && bmax && rect && zmin);
+    if (!project_raw(v, bmin, bmax, rect, zmin))
+        return 0;
+    rect[0] = rect[0] > 0 ? rect[0] : 0;
+    rect[1] = rect[1] > 0 ? rect[1] : 0;
+    rect[2] = rect[2] < v->width ? rect[2] : v->width;
+    rect[3] = rect[3] < v->height ? rect[3] : v->height;
     return 1;
 }
 
@@ -1051,6 +1068,70 @@ static int fs93_plan_front(walk *w, const hlod_view *v, double budget)
  * at and under it, which next frame's walk releases at once when it
  * coarsens the node or culls it.  Walk order puts a parent before its
  * children, so the reverse order sums bottom up. */
+/* ---- additive stores (a sample tree; docs/sampletree.md) ---- */
+
+/* Klein 4.2 and 4.5: depth-first from the roots, every node whose box
+ * meets the frustum (and that normal cones do not cull) is drawn, its
+ * ancestors with it; where a node's box projects within splat_px x
+ * splat_px pixels the walk stops there and the node is one splat of its
+ * colour instead of its triangles.  A node not resident is asked for
+ * (bigger on screen first: an ancestor before its descendants) and the
+ * walk goes on below it: a missing node thins the picture, it leaves no
+ * hole where its ancestors or descendants are in.  Policy full draws
+ * every node (no splats): the sample tree's reference. */
+static int walk_additive(walk *w, const hlod_view *v)
+{
+    hlod_selection *s = w->s;
+    const int full = w->d->policy == HLOD_POLICY_FULL;
+    const double px = w->d->splat_px;
+    hlod_u32_vec *stack = &s->level;
+    stack->n = 0;
+    for (uint32_t r = s->root_count; r-- > 0;)
+        if (!hlod_u32_push(&w->d->allocator, stack, r))
+            return 0;
+    while (stack->n) {
+        uint32_t i = stack->v[--stack->n];
+        const hlod_store_node *n = &w->nodes[i];
+        if (hlod_view_outside(v, n->bbox_min, n->bbox_max) > 0)
+            continue;
+        if (w->cones && cone_hides(w, v, i)) {
+            if (!note_coned(w, v, i))
+                return 0;
+            continue;
+        }
+        hlod_node_frame *f = &w->fr[i];
+        double raw[4], z;
+        int front = project_raw(v, n->bbox_min, n->bbox_max, raw, &z);
+        double cw = fmin(raw[2], v->width) - fmax(raw[0], 0),
+               ch = fmin(raw[3], v->height) - fmax(raw[1], 0);
+        w->st->nodes_visited++;
+        f->pix = !front ? v->width * v->height : cw > 0 && ch > 0 ? cw * ch : 0;
+        f->priority = 1 + f->pix;
+        f->priced = w->frame;
+        if (!full && front && raw[2] - raw[0] <= px && raw[3] - raw[1] <= px && s->extras &&
+            (s->extras[i].flags & HLOD_EXTRA_COLOR)) {
+            if (!hlod_u32_push(&w->d->allocator, &s->splats, i))
+                return 0;
+            w->st->splats++;
+            continue;
+        }
+        hlod_node_state state = hlod_residency_state(w->res, i);
+        if (state == HLOD_NODE_RESIDENT) {
+            if (!draw_node(w, i))
+                return 0;
+        } else if (state != HLOD_NODE_BAD) {
+            w->st->wanted_missing++;
+            if (!hlod_residency_need(w->res, i, f->priority))
+                return 0;
+        }
+        uint32_t c0 = hlod_store_first_child(w->nodes, i), c1 = hlod_store_child_end(w->nodes, i);
+        for (uint32_t c = c1; c-- > c0;)
+            if (!hlod_u32_push(&w->d->allocator, stack, c))
+                return 0;
+    }
+    return 1;
+}
+
 static void sum_subtrees(walk *w)
 {
     const hlod_u32_vec *r = &w->s->refined;
@@ -1076,8 +1157,10 @@ hlod_result hlod_select(hlod_selection *s, struct hlod_residency *res, const hlo
                 s->extras && (s->d->cone_cull > 0 || (pol->traits & HLOD_PT_CONES)), 0};
     walk *w = &ctx;
     const double share_ms = in->share_ms;
-    s->draw.n = s->level.n = s->next.n = s->refined.n = s->coned.n = 0;
+    s->draw.n = s->level.n = s->next.n = s->refined.n = s->coned.n = s->splats.n = 0;
     s->cap_hits = s->slice_denied = 0;
+    if (s->additive)
+        return walk_additive(w, v) && !w->nomem ? HLOD_OK : HLOD_ERR_NOMEM;
     front fr = {0, in->budget_ms, s->reserving};
     s->reserving = 0;
     if ((pol->traits & HLOD_PT_KNAPSACK) && !fs93_plan_front(w, v, in->budget_ms))

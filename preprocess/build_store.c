@@ -30,6 +30,7 @@
 #include "city_levels.h"
 #include "build_node.h"
 #include "part.h"
+#include "sampletree.h"
 #include "hlod/image.h"
 #include "hlod/mesh_io.h"
 #include "hlod/store_write.h"
@@ -478,6 +479,7 @@ void hlod_build_desc_defaults(hlod_build_desc *d)
     d->leaf_tris = 4000;
     d->node_tris = 2000;
     d->c_tex = 0.5;
+    d->sample_c = HLOD_BUILD_SAMPLE_C;
     d->seed = 1;
     d->city_levels = 1;
     d->compress = 1;
@@ -489,8 +491,13 @@ void hlod_build_desc_defaults(hlod_build_desc *d)
 static hlod_result check_desc(const hlod_build_desc *d, const hlod_logger *lg)
 {
     const char *bad = NULL;
-    if (d->method != HLOD_BUILD_CUTPLANE && d->method != HLOD_BUILD_METIS)
-        bad = "method is not cutplane or metis";
+    if (d->method != HLOD_BUILD_CUTPLANE && d->method != HLOD_BUILD_METIS &&
+        d->method != HLOD_BUILD_SAMPLETREE)
+        bad = "method is not cutplane, metis or sampletree";
+    else if (!(d->sample_c > 0 && d->sample_c <= 1000))
+        bad = "sample_c is not in (0, 1000]";
+    else if (d->method == HLOD_BUILD_SAMPLETREE && d->shard_count)
+        bad = "a sample tree is built whole (no shards)";
     else if (!(isfinite(d->grid) && d->grid >= 0 && d->grid <= 1e12))
         bad = "grid is not a cell size in [0, 1e12]";
     else if (d->desired_tris < 1 || d->voxel_tris < 1 || d->node_tris < 1 || d->leaf_tris < 2)
@@ -874,7 +881,7 @@ static size_t build_threads(const hlod_build_desc *d)
 /* City levels are built over more than one block unless turned off. */
 static int want_levels(const hlod_build_desc *d, size_t blocks)
 {
-    return d->city_levels && blocks >= 2;
+    return d->city_levels && blocks >= 2 && d->method != HLOD_BUILD_SAMPLETREE;
 }
 
 /* Builds every block on the worker threads and streams their nodes into
@@ -1253,6 +1260,13 @@ static void writer_desc(const hlod_build_desc *d, const input *in, const hlod_lo
     wd->build.leaf_tris = metis ? d->leaf_tris : 0;
     wd->build.node_tris = metis ? d->node_tris : 0;
     wd->build.c_tex = d->c_tex;
+    if (d->method == HLOD_BUILD_SAMPLETREE) {
+        memset(&wd->build, 0, sizeof wd->build);
+        wd->build.method = HLOD_STORE_METHOD_SAMPLETREE;
+        wd->build.level_factor = d->sample_c;
+        wd->build.leaf_tris = d->leaf_tris;
+        wd->build.c_tex = d->c_tex;
+    }
     wd->logger = lg;
     if (d->compress) {
         position_grid((const double (*)[3])in->lo, (const double (*)[3])in->hi, in->nb,
@@ -1312,6 +1326,39 @@ static hlod_result write_part(const hlod_city_plan *plan, const blocks *bs, cons
     return r;
 }
 
+/* The sample tree over every block (sampletree.c); finishes w. */
+static hlod_result build_sampletree(const hlod_build_desc *d, const blocks *bs,
+                                    hlod_store_writer *w, hlod_build_report *rep,
+                                    const char *out_path, const hlod_logger *lg)
+{
+    hlod_st_block *sb = calloc(bs->n ? bs->n : 1, sizeof *sb);
+    if (!sb) {
+        hlod_store_writer_abort(w);
+        return HLOD_ERR_NOMEM;
+    }
+    for (size_t i = 0; i < bs->n; i++) {
+        sb[i].mesh = &bs->b[i].mesh;
+        sb[i].texture = bs->b[i].texture;
+        for (int k = 0; k < 4; k++) {
+            float c = bs->b[i].color[k] < 0 ? 0 : bs->b[i].color[k] > 1 ? 1 : bs->b[i].color[k];
+            sb[i].rgba[k] = (uint8_t)lrintf(c * 255);
+        }
+    }
+    hlod_st_params p = {d->sample_c, d->leaf_tris, d->seed, lg};
+    hlod_st_report sr;
+    hlod_result r = hlod_build_sampletree(sb, bs->n, &p, w, &sr);
+    free(sb);
+    if (r != HLOD_OK) {
+        hlod_logf(lg, HLOD_LOG_ERROR, "%s: sample tree: %s", out_path, hlod_result_str(r));
+        return r;
+    }
+    rep->nodes = sr.nodes;
+    rep->levels = sr.levels;
+    rep->tris_leaf = sr.tris_leaf;
+    rep->tris_total = sr.tris;
+    return HLOD_OK;
+}
+
 hlod_result hlod_build_store(const hlod_build_desc *d, const char *const *inputs, size_t n,
                              const char *out_path, const hlod_logger *lg,
                              hlod_build_report *report)
@@ -1369,28 +1416,33 @@ hlod_result hlod_build_store(const hlod_build_desc *d, const char *const *inputs
         if (r != HLOD_OK)
             hlod_logf(lg, HLOD_LOG_ERROR, "%s: cannot create: %s", path, hlod_result_str(r));
     }
-    if (r == HLOD_OK && !(outs = calloc(bs->n ? bs->n : 1, sizeof *outs)))
-        r = HLOD_ERR_NOMEM;
-    if (r == HLOD_OK)
-        r = build_blocks(d, bs, outs, w, in.levels, lg);
     rep.blocks = bs->n;
     top_levels T = {0};
     hlod_city_item *tops = NULL;
     uint32_t to = sharded ? ph.cut_level : in.plan.levels;
-    if (r == HLOD_OK && in.levels)
-        r = build_levels(d, &in.plan, to, bs, in.gid, outs, w, &T, &tops, lg);
     uint32_t *store_index = NULL;
-    if (r == HLOD_OK) {
-        r = finish_store(w, bs, outs, &T, sharded ? store_path : out_path, &rep,
-                         sharded ? &store_index : NULL, lg);
+    if (r == HLOD_OK && d->method == HLOD_BUILD_SAMPLETREE) {
+        r = build_sampletree(d, bs, w, &rep, out_path, lg);
         w = NULL;
-    }
-    if (r == HLOD_OK && sharded) {
-        r = write_part(&in.plan, bs, in.gid, outs, &T, store_index, in.levels ? tops : NULL,
-                       in.levels, (const double (*)[3])in.lo, (const double (*)[3])in.hi, out_path,
-                       store_path, &ph, lg);
+    } else {
+        if (r == HLOD_OK && !(outs = calloc(bs->n ? bs->n : 1, sizeof *outs)))
+            r = HLOD_ERR_NOMEM;
         if (r == HLOD_OK)
-            store_path[0] = 0;
+            r = build_blocks(d, bs, outs, w, in.levels, lg);
+        if (r == HLOD_OK && in.levels)
+            r = build_levels(d, &in.plan, to, bs, in.gid, outs, w, &T, &tops, lg);
+        if (r == HLOD_OK) {
+            r = finish_store(w, bs, outs, &T, sharded ? store_path : out_path, &rep,
+                             sharded ? &store_index : NULL, lg);
+            w = NULL;
+        }
+        if (r == HLOD_OK && sharded) {
+            r = write_part(&in.plan, bs, in.gid, outs, &T, store_index, in.levels ? tops : NULL,
+                           in.levels, (const double (*)[3])in.lo, (const double (*)[3])in.hi,
+                           out_path, store_path, &ph, lg);
+            if (r == HLOD_OK)
+                store_path[0] = 0;
+        }
     }
     free(store_index);
     if (tops)

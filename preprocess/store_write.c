@@ -60,6 +60,9 @@ struct hlod_store_writer {
     size_t record_count, record_cap;
     int failed;
     double quant_error;         /* half a grid cell's diagonal; 0 when raw */
+    uint8_t (*colors)[4];       /* per node given to finish: its representative
+                                   colour (hlod_store_writer_set_colors), or NULL */
+    uint32_t color_count;
 };
 
 static uint64_t align_up(uint64_t v, uint64_t a)
@@ -101,7 +104,7 @@ hlod_result hlod_store_writer_open(const char *path, const hlod_store_writer_des
     }
     const hlod_store_build_info *b = &desc->build;
     if (!(b->c_tex >= 0 && b->c_tex <= 1) || !isfinite(b->level_factor) ||
-        b->level_factor < 0 || b->method > HLOD_STORE_METHOD_METIS || b->reserved) {
+        b->level_factor < 0 || b->method > HLOD_STORE_METHOD_SAMPLETREE || b->reserved) {
         hlod_logf(lg, HLOD_LOG_ERROR, "%s: bad build parameters (method %u, c_tex %g, level "
                   "factor %g)", path, b->method, b->c_tex, b->level_factor);
         return HLOD_ERR_INVALID_ARG;
@@ -152,6 +155,7 @@ void hlod_store_writer_abort(hlod_store_writer *w)
     hlod_atomic_abort(&w->file);
     pthread_mutex_destroy(&w->lock);
     free(w->records);
+    free(w->colors);
     free(w);
 }
 
@@ -942,6 +946,8 @@ hlod_result hlod_store_writer_finish(hlod_store_writer *w, const hlod_store_node
             h.depth_count = t->depth + 1;
         if (t->flags & HLOD_NODE_TEXTURE)
             h.flags |= HLOD_STORE_TEXTURED;
+        if (h.build.method == HLOD_STORE_METHOD_SAMPLETREE)
+            h.flags |= HLOD_STORE_ADDITIVE;
         h.payload_bytes += t->payload_size;
         for (int k = 0; k < 3; k++) {
             h.bbox_min[k] = fmin(h.bbox_min[k], t->bbox_min[k]);
@@ -956,6 +962,18 @@ hlod_result hlod_store_writer_finish(hlod_store_writer *w, const hlod_store_node
         goto fail;
     }
     subtree_cones(w, table, count, extras);
+    if (w->colors) {
+        if (w->color_count != count) {
+            hlod_logf(lg, HLOD_LOG_ERROR, "%s: %u node colours for %u nodes", name,
+                      w->color_count, count);
+            r = HLOD_ERR_INVALID_ARG;
+            goto fail;
+        }
+        for (uint32_t k = 0; k < count; k++) {
+            memcpy(extras[index[k]].color, w->colors[k], 4);
+            extras[index[k]].flags |= HLOD_EXTRA_COLOR;
+        }
+    }
     hlod_store_extras_header xh;
     memset(&xh, 0, sizeof xh);
     memcpy(xh.magic, HLOD_EXTRAS_MAGIC, 8);
@@ -1000,4 +1018,22 @@ fail:
     free(table);
     hlod_store_writer_abort(w);     /* after a commit: only frees */
     return r;
+}
+
+hlod_result hlod_store_writer_set_colors(hlod_store_writer *w, const uint8_t (*colors)[4],
+                                         uint32_t count)
+{
+    if (!w || (!colors && count))
+        return HLOD_ERR_INVALID_ARG;
+    free(w->colors);
+    w->colors = NULL;
+    w->color_count = 0;
+    if (!count)
+        return HLOD_OK;
+    w->colors = malloc((size_t)count * sizeof *w->colors);
+    if (!w->colors)
+        return HLOD_ERR_NOMEM;
+    memcpy(w->colors, colors, (size_t)count * sizeof *w->colors);
+    w->color_count = count;
+    return HLOD_OK;
 }

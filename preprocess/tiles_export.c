@@ -873,7 +873,8 @@ static cJSON *tile_json(const job *J, uint32_t i, const double parent_origin[3],
     }
     cJSON_AddItemToObject(cJSON_AddObjectToObject(t, "boundingVolume"), "box", num_array(box, 12));
     add_num(t, "geometricError", n->error);
-    cJSON_AddStringToObject(t, "refine", "REPLACE");
+    /* a sample tree's nodes add to their ancestors (docs/sampletree.md) */
+    cJSON_AddStringToObject(t, "refine", (J->h->flags & HLOD_STORE_ADDITIVE) ? "ADD" : "REPLACE");
     double m[16] = {1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1};
     for (int k = 0; k < 3; k++)
         m[12 + k] = n->origin[k] - parent_origin[k];

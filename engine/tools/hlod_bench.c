@@ -127,7 +127,7 @@ static void usage(FILE *fp)
         "occlusion_ms_mean, overhead_ms_mean, overhead_ms_max,\n"
         "occlusion_check_psnr_min, occlusion_check_differing_max,\n"
         "occlusion_check_bad_frames, cone_culled_mean, cone_check_differing_max,\n"
-        "cone_check_nodes, cone_check_unchecked, policy, path.\n"
+        "cone_check_nodes, cone_check_unchecked, splats_mean, policy, path.\n"
         "\n"
         "Exit status: 0 success, 1 a run failed, 2 bad command line.\n"
         "\n"
@@ -164,6 +164,7 @@ typedef struct options {
     const char *compare[2];     /* --compare A B */
     hlod_policy policies[HLOD_POLICY_COUNT];
     int npolicies;
+    int policy_given;           /* --policy was given (else lakhia, klein for a sample tree) */
     setting sets[MAX_SETS];
     int nsets;
     const char *sweep_key;
@@ -395,6 +396,7 @@ static int parse_args(int argc, char **argv, options *o)
                 return 2;
         } else if (FLAG("--policy")) {
             NEED("--policy");
+            o->policy_given = 1;
             if (!parse_policies(v, o))
                 return 2;
         } else if (!strcmp(a, "--reference")) {
@@ -517,6 +519,7 @@ typedef struct summary {
     double est_err_p50, est_err_p95;        /* |estimated - measured| / measured */
     double occlusion_culled_mean;
     double cone_culled_mean;
+    double splats_mean;
     long long cone_differing_max;           /* --cone-check; -1 without */
     unsigned long long cone_checked, cone_unchecked;
     uint64_t toggles_after_60;              /* up + down over frames 60.. */
@@ -563,6 +566,7 @@ static void summarise_extra(const frame_rec *r, long n, double target, const dou
         s->deadline_met += st->measured_ms <= target;
         s->occlusion_culled_mean += st->occlusion_culled;
         s->cone_culled_mean += st->cone_culled;
+        s->splats_mean += st->splats;
         if (r[i].cone_differing >= 0) {
             if (r[i].cone_differing > s->cone_differing_max)
                 s->cone_differing_max = r[i].cone_differing;
@@ -580,6 +584,7 @@ static void summarise_extra(const frame_rec *r, long n, double target, const dou
         s->deadline_met /= (double)n;
         s->occlusion_culled_mean /= (double)n;
         s->cone_culled_mean /= (double)n;
+        s->splats_mean /= (double)n;
     }
     s->est_err_p50 = s->est_err_p95 = NAN;
     if (err && nerr) {
@@ -708,7 +713,7 @@ static hlod_result write_frames_csv(const char *dir, const frame_rec *r, long n,
                 "ssim,luma_change,ref_luma_change,toggles_up_ma35,toggles_down_ma35,"
                 "pixels_drawn,margin,occlusion_hidden,occlusion_tested,occlusion_culled,"
                 "occlusion_ms,occlusion_check_psnr,occlusion_check_differing,cone_culled,"
-                "cone_check_differing\n");
+                "cone_check_differing,splats\n");
     for (long i = 0; i < n; i++) {
         const hlod_frame_stats *s = &r[i].st;
         fprintf(fp, "%llu,%.6f,%.4f,%.4f,%.9g,%.4f,%.4f,%.4f,%.4f,%.4f,%.4f,%u",
@@ -745,9 +750,10 @@ static hlod_result write_frames_csv(const char *dir, const frame_rec *r, long n,
             fprintf(fp, ",%.4f,%lld", r[i].occ_psnr, r[i].occ_differing);
         fprintf(fp, ",%u", s->cone_culled);
         if (r[i].cone_differing < 0)
-            fprintf(fp, ",\n");
+            fprintf(fp, ",");
         else
-            fprintf(fp, ",%lld\n", r[i].cone_differing);
+            fprintf(fp, ",%lld", r[i].cone_differing);
+        fprintf(fp, ",%u\n", s->splats);
     }
     return hlod_atomic_commit(&af, lg);
 }
@@ -813,6 +819,7 @@ static void json_summary(hlod_json *j, const summary *s, const char *policy, con
         hlod_json_int(j, "occlusion_check_bad_frames", s->occ_bad);
     }
     hlod_json_double(j, "cone_culled_mean", s->cone_culled_mean);
+    hlod_json_double(j, "splats_mean", s->splats_mean);
     if (s->cone_differing_max < 0) {
         hlod_json_string(j, "cone_check_differing_max", NULL);
         hlod_json_string(j, "cone_check_nodes", NULL);
@@ -1847,6 +1854,9 @@ int main(int argc, char **argv)
     c.lg = hlod_cli_logger(&log_state);
     if (open_inputs(&c) != 0)
         return 1;
+    /* a sample tree is drawn by klein unless --policy says otherwise */
+    if (!o.policy_given && (hlod_store_get_header(c.store)->flags & HLOD_STORE_ADDITIVE))
+        o.policies[0] = HLOD_POLICY_KLEIN;
     rc = setup_gl(&c);
     if (rc == 0) {
         prepare_frames(&c);

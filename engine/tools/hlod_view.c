@@ -122,6 +122,7 @@ typedef struct options {
     uint32_t width, height;
     double target_ms, memory_mb, fov, near_plane;
     hlod_policy policy;
+    int policy_given;   /* --policy was given (else lakhia, klein for a sample tree) */
     long frames;            /* -1: until Esc */
     int up_y, have_start, have_look;
     double start[3], look[3];
@@ -174,6 +175,7 @@ static int parse_args(int argc, char **argv, options *o)
         return hlod_cli_usage_error(PROG, "%s needs a value", name);
         if (FLAG("--policy")) {
             NEED("--policy");
+            o->policy_given = 1;
             if (!hlod_policy_parse(v, &o->policy) || o->policy == HLOD_POLICY_FULL)
                 return hlod_cli_usage_error(PROG, "--policy: unknown policy '%s' "
                                             "(" HLOD_POLICY_CHOICES ")", v);
@@ -784,6 +786,8 @@ int main(int argc, char **argv)
         return 1;
     }
     const hlod_store_header *h = hlod_store_get_header(v.store);
+    if (!o.policy_given && (h->flags & HLOD_STORE_ADDITIVE))
+        o.policy = HLOD_POLICY_KLEIN; /* a sample tree */
     v.depths = h->depth_count < HLOD_STATS_MAX_DEPTH ? h->depth_count : HLOD_STATS_MAX_DEPTH;
     init_camera(&v, h);
 

@@ -29,8 +29,15 @@ extern "C" {
 
 typedef enum hlod_build_method {
     HLOD_BUILD_CUTPLANE = 0,    /* Lakhia III-A */
-    HLOD_BUILD_METIS = 1        /* Okamoto 4.1 */
+    HLOD_BUILD_METIS = 1,       /* Okamoto 4.1 */
+    HLOD_BUILD_SAMPLETREE = 2   /* Klein 4-5: a randomized sample tree that
+                                   refines additively (docs/sampletree.md) */
 } hlod_build_method;
+
+/* The sample constant c of Klein's Theorem 1: p = exp(-exp(-c)) > 1 - 1e-6. */
+#define HLOD_BUILD_SAMPLE_C 13.8
+/* The sample tree's leaf size when none is given (hlod-build). */
+#define HLOD_BUILD_SAMPLE_LEAF 256
 
 /* Input coordinates beyond this magnitude are refused (naming the file and
  * the vertex): past it a double no longer holds a tenth of a millimetre. */
@@ -43,7 +50,10 @@ typedef struct hlod_build_desc {
     size_t desired_tris;        /* C_desiredTri (cutplane); default 4000 */
     double level_factor;        /* C_levelFactor (cutplane), >= 2; default 3 */
     size_t voxel_tris;          /* N_v (metis); default 500 */
-    size_t leaf_tris;           /* N_l (metis); default 4000 */
+    size_t leaf_tris;           /* N_l (metis); default 4000; sampletree: a
+                                   cell of more triangles splits */
+    double sample_c;            /* sampletree: c of m_u = q ln q + c q, in
+                                   (0, 1000]; default HLOD_BUILD_SAMPLE_C */
     size_t node_tris;           /* N_n (metis); default 2000 */
     double c_tex;               /* c_tex of Lakhia eq. 1, in [0, 1]; default 0.5 */
     uint64_t seed;              /* every choice's seed; default 1 */

@@ -55,11 +55,13 @@ typedef enum hlod_policy {
                                (Maciel and Shirley 1995) */
     HLOD_POLICY_OKAMOTO,    /* depth-first cut at a projected-error threshold (Okamoto, 4.2) */
     HLOD_POLICY_FS93,       /* Funkhouser and Séquin's greedy knapsack (SIGGRAPH 1993) */
+    HLOD_POLICY_KLEIN,      /* a sample tree drawn additively, splats of splat_px where a
+                               node's box projects to at most that (Klein 4.2, 4.5) */
     HLOD_POLICY_COUNT
 } hlod_policy;
 
 /* The policies a user picks (full draws references), for help texts. */
-#define HLOD_POLICY_CHOICES "lakhia, nohyst, sse, fs93, counter, okamoto"
+#define HLOD_POLICY_CHOICES "lakhia, nohyst, sse, fs93, counter, okamoto, klein"
 
 const char *hlod_policy_name(hlod_policy p);           /* "lakhia", ... */
 int hlod_policy_parse(const char *name, hlod_policy *out); /* 1 on success */
@@ -139,6 +141,8 @@ typedef double (*hlod_time_model)(void *user_data, const struct hlod_frame_stats
       "fs93 policy: accuracy = 1 - projected error / triangles^fs93_m")                          \
     X(fs93_cost, fs93_cost, B, 0, 0, 0, 1, 1,                                                    \
       "fs93 policy: 1: a node costs max(per-primitive, per-pixel) of the fitted terms; 0: their sum") \
+    X(splat_px, splat_px, U32, 1, 1, 0, 64, 1,                                                   \
+      "klein policy: a node whose box projects within splat_px x splat_px pixels is one splat")  \
     X(read_chunk_bytes, read_chunk_bytes, U32, 64u << 10, 1, 0, HLOD_UNBOUNDED, 0,               \
       "the loader reads a payload in steps of this many bytes")                                  \
     X(upload_budget_bytes, upload_budget_bytes, U64, 16ull << 20, 1, 0, HLOD_UNBOUNDED, 1,       \
@@ -273,6 +277,8 @@ typedef struct hlod_frame_stats {
     uint32_t cone_culled;        /* nodes skipped with their subtrees because their normal
                                     cone faced away from the eye (docs/runtime.md, "Normal
                                     cones") */
+    uint32_t splats;             /* sample tree nodes drawn as one splat (policy klein;
+                                    docs/sampletree.md) */
     double occlusion_ms;         /* CPU time of the depth read-back, pyramid and tests */
     /* loader thread CPU time this frame (docs/store-format.md) */
     double loader_finish_ms;     /* checksums, decoding and validation of payloads */

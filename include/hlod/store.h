@@ -125,11 +125,18 @@ extern "C" {
 
 /* header.flags */
 #define HLOD_STORE_TEXTURED 1u          /* some node has a texture */
+#define HLOD_STORE_ADDITIVE 2u          /* nodes refine additively: a node's
+                                           children add to what it draws, its
+                                           ancestors stay drawn (the sample
+                                           tree; set iff build.method is
+                                           HLOD_STORE_METHOD_SAMPLETREE) */
 
 /* header.method: how the hierarchy was partitioned */
 #define HLOD_STORE_METHOD_OTHER 0u
 #define HLOD_STORE_METHOD_CUTPLANE 1u   /* Lakhia III-A */
 #define HLOD_STORE_METHOD_METIS 2u      /* Okamoto 4.1 */
+#define HLOD_STORE_METHOD_SAMPLETREE 3u /* Klein 4-5: a randomized sample tree
+                                           (docs/sampletree.md); additive */
 
 /* The build parameters, recorded so tools can show how a store was made
  * (docs/hlod-build.md).  Zero where the method does not use one. */
@@ -137,9 +144,10 @@ typedef struct hlod_store_build_info {
     uint32_t method;        /* HLOD_STORE_METHOD_* */
     uint32_t reserved;      /* 0 */
     uint64_t desired_tris;  /* C_desiredTri: triangles of each hlod_0 node */
-    double level_factor;    /* C_levelFactor */
+    double level_factor;    /* C_levelFactor; sampletree: the sample
+                               constant c of m_u = q ln q + c q */
     uint64_t voxel_tris;    /* N_v */
-    uint64_t leaf_tris;     /* N_l */
+    uint64_t leaf_tris;     /* N_l; sampletree: a leaf cell's polygons at most */
     uint64_t node_tris;     /* N_n */
     double c_tex;           /* c_tex of eq. 1, in [0, 1] */
 } hlod_store_build_info;   /* 56 bytes */

@@ -127,6 +127,14 @@ hlod_result hlod_store_writer_add_copy(hlod_store_writer *w, const hlod_store_no
 hlod_result hlod_store_writer_finish(hlod_store_writer *w, const hlod_store_node *nodes,
                                      uint32_t count, uint32_t *store_index);
 
+/* called from the owner thread before finish: colors[k] is the
+ * representative colour (RGBA, sRGB) of the node finish will get as
+ * nodes[k]; finish stores it in the extras table (HLOD_EXTRA_COLOR) and
+ * refuses a count other than its own.  Copied; count 0 clears it.
+ * HLOD_ERR_INVALID_ARG, HLOD_ERR_NOMEM. */
+hlod_result hlod_store_writer_set_colors(hlod_store_writer *w, const uint8_t (*colors)[4],
+                                         uint32_t count);
+
 /* called from the owner thread: removes the temporary file, frees w
  * (NULL is fine).  No add may be in flight. */
 void hlod_store_writer_abort(hlod_store_writer *w);

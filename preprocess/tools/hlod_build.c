@@ -41,8 +41,10 @@ static void usage(FILE *fp)
             "block per leaf tile) and writes it as one streaming store for the runtime.\n"
             "\n"
             "  -o, --output OUT       the store to write (required)\n"
-            "  --method M             cutplane (Lakhia III-A, default) or metis\n"
-            "                         (Okamoto 4.1)\n"
+            "  --method M             cutplane (Lakhia III-A, default), metis\n"
+            "                         (Okamoto 4.1) or sampletree (Klein 4-5: a\n"
+            "                         randomized sample tree, additive;\n"
+            "                         docs/sampletree.md)\n"
             "  --blocks B             objects (default: each input object is a block)\n"
             "                         or grid:SIZE (square cells of SIZE model units\n"
             "                         in x and y; z is up)\n"
@@ -51,7 +53,11 @@ static void usage(FILE *fp)
             "  --level-factor F       C_levelFactor: pieces per cut and triangle ratio\n"
             "                         between levels (cutplane, integer >= 2, default 3)\n"
             "  --voxel-tris N         N_v: triangles per voxel (metis, default 500)\n"
-            "  --leaf-tris N          N_l: leaf size (metis, default 4000)\n"
+            "  --leaf-tris N          N_l: leaf size (metis, default 4000); sampletree:\n"
+            "                         a cell of more triangles splits (default 256)\n"
+            "  --sample-c C           sampletree: c of the sample size\n"
+            "                         q ln q + c q (Klein Theorem 1; default 13.8,\n"
+            "                         p > 1 - 1e-6), in (0, 1000]\n"
             "  --node-tris N          N_n: inner node size (metis, default 2000)\n"
             "  --c-tex C              c_tex of Lakhia eq. 1 in [0, 1] (default 0.5)\n"
             "  --city-levels L        on (default): group nodes over the blocks, about\n"
@@ -102,6 +108,7 @@ static int parse(int argc, char **argv, options *o)
     hlod_build_desc_defaults(&o->bd);
     long cpus = sysconf(_SC_NPROCESSORS_ONLN);
     o->bd.threads = cpus > 0 ? (size_t)cpus : 1;
+    int leaf_given = 0;
     o->inputs = calloc((size_t)argc, sizeof *o->inputs);
     if (!o->inputs)
         return 0;
@@ -138,8 +145,10 @@ static int parse(int argc, char **argv, options *o)
                 o->bd.method = HLOD_BUILD_CUTPLANE;
             else if (!strcmp(val, "metis"))
                 o->bd.method = HLOD_BUILD_METIS;
+            else if (!strcmp(val, "sampletree"))
+                o->bd.method = HLOD_BUILD_SAMPLETREE;
             else {
-                hlod_cli_error(PROG, "--method: '%s' is not cutplane or metis", val);
+                hlod_cli_error(PROG, "--method: '%s' is not cutplane, metis or sampletree", val);
                 return 0;
             }
         } else if (!strcmp(a, "--blocks")) {
@@ -171,6 +180,11 @@ static int parse(int argc, char **argv, options *o)
         } else if (!strcmp(a, "--leaf-tris")) {
             NEED_VAL();
             if (!hlod_cli_parse_size(PROG, a, val, 2, 1u << 30, &o->bd.leaf_tris))
+                return 0;
+            leaf_given = 1;
+        } else if (!strcmp(a, "--sample-c")) {
+            NEED_VAL();
+            if (!hlod_cli_parse_double(PROG, a, val, 0, 1000, HLOD_CLI_MIN_OPEN, &o->bd.sample_c))
                 return 0;
         } else if (!strcmp(a, "--node-tris")) {
             NEED_VAL();
@@ -236,6 +250,8 @@ static int parse(int argc, char **argv, options *o)
         hlod_cli_error(PROG, "no output: -o OUT.hlod is required");
         return 0;
     }
+    if (o->bd.method == HLOD_BUILD_SAMPLETREE && !leaf_given)
+        o->bd.leaf_tris = HLOD_BUILD_SAMPLE_LEAF;
     if (o->bd.method == HLOD_BUILD_METIS && o->bd.node_tris >= o->bd.leaf_tris)
         hlod_cli_error(PROG, "warning: --node-tris %zu >= --leaf-tris %zu: inner nodes simplify little",
                        o->bd.node_tris, o->bd.leaf_tris);
@@ -289,7 +305,9 @@ int main(int argc, char **argv)
         hlod_json_size(&j, "bytes", bytes);
         hlod_json_double(&j, "seconds", secs);
         hlod_json_size(&j, "peak_rss_bytes", hlod_cli_peak_rss());
-        hlod_json_string(&j, "method", opt.bd.method == HLOD_BUILD_METIS ? "metis" : "cutplane");
+        hlod_json_string(&j, "method", opt.bd.method == HLOD_BUILD_METIS        ? "metis"
+                                       : opt.bd.method == HLOD_BUILD_SAMPLETREE ? "sampletree"
+                                                                                : "cutplane");
         hlod_json_size(&j, "threads", opt.bd.threads);
         if (opt.bd.shard_count) {
             hlod_json_size(&j, "shard_index", opt.bd.shard_index);

@@ -29,7 +29,7 @@ static void usage(FILE *fp)
         "\n"
         "Writes an HLOD store (a file or an http(s) URL) as a 3D Tiles 1.1 tileset:\n"
         "DIR/tileset.json (our hierarchy: geometricError is each node's error,\n"
-        "refine REPLACE, box volumes, tile transforms in double precision) and\n"
+        "refine REPLACE (ADD for a sample tree), box volumes, tile transforms in double precision) and\n"
         "DIR/tiles/N.glb per node (KHR_mesh_quantization positions, normals, UVs,\n"
         "the node's texture as JPEG or PNG, vertex or material colours).  DIR is\n"
         "written beside itself and renamed into place only when complete.\n"

@@ -132,6 +132,7 @@ static const char *method_name(uint32_t m)
 {
     return m == HLOD_STORE_METHOD_CUTPLANE ? "cutplane"
          : m == HLOD_STORE_METHOD_METIS    ? "metis"
+         : m == HLOD_STORE_METHOD_SAMPLETREE ? "sampletree"
                                            : "other";
 }
 
@@ -187,8 +188,10 @@ static int print_json(FILE *fp, const char *file, const hlod_store *s, const sta
     json_double(fp, st->error_min);
     fputs(",\"error_max\":", fp);
     json_double(fp, st->error_max);
-    fprintf(fp, ",\"textured\":%s,\"method\":\"%s\",\"desired_tris\":%llu,\"level_factor\":",
-            (h->flags & HLOD_STORE_TEXTURED) ? "true" : "false", method_name(h->build.method),
+    fprintf(fp, ",\"textured\":%s,\"refine\":\"%s\",\"method\":\"%s\",\"desired_tris\":%llu,"
+            "\"level_factor\":",
+            (h->flags & HLOD_STORE_TEXTURED) ? "true" : "false",
+            (h->flags & HLOD_STORE_ADDITIVE) ? "add" : "replace", method_name(h->build.method),
             (unsigned long long)h->build.desired_tris);
     json_double(fp, h->build.level_factor);
     fprintf(fp, ",\"voxel_tris\":%llu,\"leaf_tris\":%llu,\"node_tris\":%llu,\"c_tex\":",
@@ -213,13 +216,19 @@ static void print_table(FILE *fp, const char *file, const hlod_store *s, const s
 {
     const hlod_store_header *h = hlod_store_get_header(s);
     const hlod_store_build_info *b = &h->build;
-    fprintf(fp, "%s: hlod store version %u, %llu bytes, %s\n", file, h->version,
+    fprintf(fp, "%s: hlod store version %u, %llu bytes, %s, %s\n", file, h->version,
             (unsigned long long)h->file_size,
-            (h->flags & HLOD_STORE_TEXTURED) ? "textured" : "untextured");
-    fprintf(fp, "build: method %s, C_desiredTri %llu, C_levelFactor %g, N_v %llu, N_l %llu, "
-            "N_n %llu, c_tex %g\n", method_name(b->method), (unsigned long long)b->desired_tris,
-            b->level_factor, (unsigned long long)b->voxel_tris, (unsigned long long)b->leaf_tris,
-            (unsigned long long)b->node_tris, b->c_tex);
+            (h->flags & HLOD_STORE_TEXTURED) ? "textured" : "untextured",
+            (h->flags & HLOD_STORE_ADDITIVE) ? "refines additively" : "refines by replacement");
+    if (b->method == HLOD_STORE_METHOD_SAMPLETREE)
+        fprintf(fp, "build: method sampletree, c %g, leaf cells of at most %llu triangles, "
+                "c_tex %g\n", b->level_factor, (unsigned long long)b->leaf_tris, b->c_tex);
+    else
+        fprintf(fp, "build: method %s, C_desiredTri %llu, C_levelFactor %g, N_v %llu, N_l %llu, "
+                "N_n %llu, c_tex %g\n", method_name(b->method),
+                (unsigned long long)b->desired_tris, b->level_factor,
+                (unsigned long long)b->voxel_tris, (unsigned long long)b->leaf_tris,
+                (unsigned long long)b->node_tris, b->c_tex);
     fprintf(fp, "bbox: (%.17g, %.17g, %.17g) - (%.17g, %.17g, %.17g)\n", h->bbox_min[0],
             h->bbox_min[1], h->bbox_min[2], h->bbox_max[0], h->bbox_max[1], h->bbox_max[2]);
     fprintf(fp, "blocks %u at depth %u (%u group nodes above, %u roots), nodes %u, leaves %llu, "
