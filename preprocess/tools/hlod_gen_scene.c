@@ -1,0 +1,303 @@
+/*
+ * hlod-gen-scene - scenes that grow by orders of magnitude, for scaling
+ * runs (docs/hlod-gen-scene.md).
+ *
+ *   hlod-gen-scene --kind chessboard --tris N -o OUT.obj [--textured]
+ *                  [--tile-tris T] [--size S] [--quiet]
+ *
+ * The chessboard of Klein et al. (Fig. 11) and Wand et al. (Fig. 6): a
+ * flat board of 8 x 8 squares, S x S model units in the plane z = 0 from
+ * the origin, made of g x g quads (2 g^2 triangles, g the multiple of 8 nearest sqrt(N / 2), at
+ * least 8), written as tiles (one OBJ object a tile, about T triangles
+ * each) so that hlod-build streams it object by object.  Untextured: each
+ * tile is two objects, its white and its black squares, each with its
+ * material's colour (the build's blocks keep one colour each).  Textured
+ * (--textured): each tile one object mapped onto OUT_chess.png, the board's
+ * 8 x 8 squares at 64 pixels each.  Beside it, OUT-reference.obj: the
+ * whole board as two triangles mapped onto the same image, the analytic
+ * reference of either variant (build it and draw it with full detail:
+ * no full-detail render of the big board is needed).
+ *
+ * Files are written through temporary files and renamed; a failure leaves
+ * none of them.
+ */
+#include "atomic_file.h"
+#include "cli.h"
+#include "hlod/image.h"
+
+#include <errno.h>
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <unistd.h>
+
+#define PROG "hlod-gen-scene"
+#define SQUARE_PX 64    /* texture pixels of one square */
+
+/* the two squares' colours (sRGB bytes; materials as bytes / 255) */
+static const uint8_t LIGHT[3] = {230, 222, 200}, DARK[3] = {40, 46, 60};
+
+typedef struct options {
+    const char *kind, *out;
+    size_t tris, tile_tris;
+    double size;            /* the board's side, model units */
+    int textured, quiet;
+} options;
+
+static void usage(FILE *fp)
+{
+    fprintf(fp,
+            "usage: hlod-gen-scene --kind chessboard --tris N -o OUT.obj [options]\n"
+            "\n"
+            "Writes a scene for scaling runs.  chessboard: a flat board of 8 x 8\n"
+            "squares (Klein Fig. 11) of about N triangles in tiles, with OUT.mtl,\n"
+            "and OUT-reference.obj, the same board as two textured triangles.\n"
+            "\n"
+            "  --kind K          chessboard (the only kind)\n"
+            "  --tris N          triangles, about (2 g^2, g a multiple of 8);\n"
+            "                    128 to 4e9\n"
+            "  -o, --output OUT  the OBJ to write (OUT.mtl and OUT_chess.png beside)\n"
+            "  --textured        squares from a texture (OUT_chess.png); default:\n"
+            "                    two materials' colours\n"
+            "  --tile-tris T     triangles of a tile, about (default 20000)\n"
+            "  --size S          the board's side in model units (default 256): more\n"
+            "                    triangles make smaller ones on the same board\n"
+            "  --quiet           no progress bar\n"
+            "  -h, --help        show this help\n"
+            "\n"
+            "Exit status: 0 success, 1 failure (nothing written), 2 bad command line.\n");
+}
+
+static int parse(int argc, char **argv, options *o)
+{
+    memset(o, 0, sizeof *o);
+    o->tile_tris = 20000;
+    o->size = 256;
+    for (int i = 1; i < argc; i++) {
+        const char *a = argv[i], *v = NULL;
+        if (!strcmp(a, "-h") || !strcmp(a, "--help")) {
+            usage(stdout);
+            exit(0);
+        } else if (hlod_cli_match_flag(argc, argv, &i, "--kind", &v)) {
+            if (!v)
+                return hlod_cli_usage_error(PROG, "%s needs a value", "--kind") * 0;
+            if (strcmp(v, "chessboard"))
+                return hlod_cli_usage_error(PROG, "--kind: '%s' is not chessboard", v) * 0;
+            o->kind = v;
+        } else if (hlod_cli_match_flag(argc, argv, &i, "--tris", &v)) {
+            if (!v)
+                return hlod_cli_usage_error(PROG, "%s needs a value", "--tris") * 0;
+            if (!hlod_cli_parse_size(PROG, "--tris", v, 128, 4000000000u, &o->tris))
+                return 0;
+        } else if (hlod_cli_match_flag(argc, argv, &i, "--tile-tris", &v)) {
+            if (!v)
+                return hlod_cli_usage_error(PROG, "%s needs a value", "--tile-tris") * 0;
+            if (!hlod_cli_parse_size(PROG, "--tile-tris", v, 2, 1u << 30, &o->tile_tris))
+                return 0;
+        } else if (hlod_cli_match_flag(argc, argv, &i, "--size", &v)) {
+            if (!v)
+                return hlod_cli_usage_error(PROG, "%s needs a value", "--size") * 0;
+            if (!hlod_cli_parse_double(PROG, "--size", v, 0, 1e7, HLOD_CLI_MIN_OPEN, &o->size))
+                return 0;
+        } else if (hlod_cli_match_flag(argc, argv, &i, "-o", &v) ||
+                   hlod_cli_match_flag(argc, argv, &i, "--output", &v)) {
+            if (!v)
+                return hlod_cli_usage_error(PROG, "%s needs a value", "-o") * 0;
+            o->out = v;
+        } else if (!strcmp(a, "--textured")) {
+            o->textured = 1;
+        } else if (!strcmp(a, "--quiet")) {
+            o->quiet = 1;
+        } else {
+            return hlod_cli_usage_error(PROG, "unknown argument '%s'", a) * 0;
+        }
+    }
+    if (!o->kind)
+        return hlod_cli_usage_error(PROG, "%s is required (see --help)", "--kind") * 0;
+    if (!o->tris)
+        return hlod_cli_usage_error(PROG, "%s is required (see --help)", "--tris") * 0;
+    if (!o->out)
+        return hlod_cli_usage_error(PROG, "%s is required (see --help)", "-o OUT.obj") * 0;
+    size_t n = strlen(o->out);
+    if (n < 5 || strcmp(o->out + n - 4, ".obj"))
+        return hlod_cli_usage_error(PROG, "-o: '%s' does not end in .obj", o->out) * 0;
+    return 1;
+}
+
+/* The path beside OUT.obj with `suffix` in place of ".obj"; its name
+ * alone (for references inside the files) in *base. */
+static char *beside(const char *out, const char *suffix, const char **base)
+{
+    size_t n = strlen(out) - 4;
+    char *p = malloc(n + strlen(suffix) + 1);
+    if (!p)
+        return NULL;
+    memcpy(p, out, n);
+    strcpy(p + n, suffix);
+    const char *slash = strrchr(p, '/');
+    *base = slash ? slash + 1 : p;
+    return p;
+}
+
+/* The board's 8 x 8 squares at SQUARE_PX pixels each, top row first
+ * (v = 0, the board's y = 0, at the bottom). */
+static hlod_result write_texture(const char *path, const hlod_logger *lg)
+{
+    hlod_image img = {8 * SQUARE_PX, 8 * SQUARE_PX, 3, NULL};
+    img.pixels = malloc((size_t)img.width * img.height * 3);
+    if (!img.pixels)
+        return HLOD_ERR_NOMEM;
+    for (int y = 0; y < img.height; y++)
+        for (int x = 0; x < img.width; x++) {
+            int sx = x / SQUARE_PX, sy = (img.height - 1 - y) / SQUARE_PX;
+            memcpy(img.pixels + ((size_t)y * img.width + x) * 3, (sx + sy) % 2 ? LIGHT : DARK, 3);
+        }
+    /* OpenImageIO picks the format by the extension: a temporary name
+     * that keeps it, renamed when written */
+    char tmp[4096 + 32];
+    snprintf(tmp, sizeof tmp, "%.4096s.tmp-%d.png", path, (int)getpid());
+    hlod_result r = hlod_image_write(tmp, &img, lg);
+    free(img.pixels);
+    if (r == HLOD_OK && rename(tmp, path) != 0) {
+        hlod_logf(lg, HLOD_LOG_ERROR, "%s: cannot rename into place: %s", path, strerror(errno));
+        r = HLOD_ERR_IO;
+    }
+    if (r != HLOD_OK)
+        unlink(tmp);
+    return r;
+}
+
+static void write_mtl(FILE *fp, const char *png)
+{
+    fprintf(fp, "# hlod-gen-scene chessboard\n");
+    fprintf(fp, "newmtl light\nKd %.6f %.6f %.6f\n\n", LIGHT[0] / 255.0, LIGHT[1] / 255.0,
+            LIGHT[2] / 255.0);
+    fprintf(fp, "newmtl dark\nKd %.6f %.6f %.6f\n\n", DARK[0] / 255.0, DARK[1] / 255.0,
+            DARK[2] / 255.0);
+    fprintf(fp, "newmtl chess\nKd 1 1 1\nmap_Kd %s\n", png);
+}
+
+/* The board: tiles of t x t quads (the last ones narrower), row by row. */
+static int write_board(FILE *fp, const options *o, size_t g, const char *mtl, hlod_cli_progress *bar)
+{
+    size_t t = (size_t)floor(sqrt((double)o->tile_tris / 2));
+    t = t < 1 ? 1 : t > g ? g : t;
+    size_t tiles = (g + t - 1) / t, sq = g / 8;
+    double q = o->size / (double)g;
+    fprintf(fp, "# hlod-gen-scene chessboard: %zu x %zu quads, %zu triangles, %zu x %zu tiles\n",
+            g, g, 2 * g * g, tiles, tiles);
+    fprintf(fp, "mtllib %s\n", mtl);
+    unsigned long long base = 0;
+    for (size_t ty = 0; ty < tiles; ty++)
+        for (size_t tx = 0; tx < tiles; tx++) {
+            size_t x0 = tx * t, y0 = ty * t, x1 = x0 + t < g ? x0 + t : g, y1 = y0 + t < g ? y0 + t : g;
+            size_t w = x1 - x0 + 1;
+            for (size_t y = y0; y <= y1; y++)
+                for (size_t x = x0; x <= x1; x++) {
+                    fprintf(fp, "v %.17g %.17g 0\n", x == g ? o->size : (double)x * q,
+                            y == g ? o->size : (double)y * q);
+                    if (o->textured)
+                        fprintf(fp, "vt %.9g %.9g\n", (double)x / (double)g, (double)y / (double)g);
+                }
+            for (int pass = 0; pass < (o->textured ? 1 : 2); pass++) {
+                fprintf(fp, "o tile_%zu_%zu%s\nusemtl %s\n", tx, ty,
+                        o->textured ? "" : pass ? "_dark" : "_light",
+                        o->textured ? "chess" : pass ? "dark" : "light");
+                for (size_t y = y0; y < y1; y++)
+                    for (size_t x = x0; x < x1; x++) {
+                        int light = ((x / sq) + (y / sq)) % 2 != 0;
+                        if (!o->textured && light != (pass == 0))
+                            continue;
+                        unsigned long long a = base + (y - y0) * w + (x - x0) + 1, b = a + 1,
+                                           c = a + w, d = c + 1;
+                        if (o->textured)
+                            fprintf(fp, "f %llu/%llu %llu/%llu %llu/%llu\nf %llu/%llu %llu/%llu %llu/%llu\n",
+                                    a, a, b, b, d, d, a, a, d, d, c, c);
+                        else
+                            fprintf(fp, "f %llu %llu %llu\nf %llu %llu %llu\n", a, b, d, a, d, c);
+                    }
+            }
+            base += (unsigned long long)w * (y1 - y0 + 1);
+            if (ferror(fp))
+                return 0;
+            hlod_cli_progress_fn(bar, (double)(ty * tiles + tx + 1), (double)(tiles * tiles));
+        }
+    return 1;
+}
+
+static void write_reference(FILE *fp, const options *o, const char *mtl)
+{
+    double s = o->size;
+    fprintf(fp, "# hlod-gen-scene chessboard reference: the board as two triangles\n");
+    fprintf(fp, "mtllib %s\no board\nusemtl chess\n", mtl);
+    fprintf(fp, "v 0 0 0\nv %.17g 0 0\nv %.17g %.17g 0\nv 0 %.17g 0\n", s, s, s, s);
+    fprintf(fp, "vt 0 0\nvt 1 0\nvt 1 1\nvt 0 1\n");
+    fprintf(fp, "f 1/1 2/2 3/3\nf 1/1 3/3 4/4\n");
+}
+
+int main(int argc, char **argv)
+{
+    options o;
+    if (!parse(argc, argv, &o))
+        return 2;
+    hlod_cli_progress bar;
+    hlod_cli_progress_begin(&bar, "tiles", !o.quiet);
+    hlod_cli_log ls = {PROG, o.quiet ? HLOD_LOG_ERROR : HLOD_LOG_WARN, &bar};
+    hlod_logger lg = hlod_cli_logger(&ls);
+    size_t g = (size_t)llround(sqrt((double)o.tris / 2) / 8) * 8;
+    g = g < 8 ? 8 : g;
+    const char *mtl_base, *png_base, *ref_base;
+    char *mtl = beside(o.out, ".mtl", &mtl_base), *png = beside(o.out, "_chess.png", &png_base),
+         *ref = beside(o.out, "-reference.obj", &ref_base);
+    hlod_atomic_file fo = {0}, fm = {0}, fr = {0};
+    hlod_result r = mtl && png && ref ? HLOD_OK : HLOD_ERR_NOMEM;
+    if (r == HLOD_OK)
+        r = write_texture(png, &lg);
+    if (r == HLOD_OK)
+        r = hlod_atomic_open(&fm, mtl, &lg);
+    if (r == HLOD_OK)
+        r = hlod_atomic_open(&fr, ref, &lg);
+    if (r == HLOD_OK)
+        r = hlod_atomic_open(&fo, o.out, &lg);
+    if (r == HLOD_OK) {
+        write_mtl(fm.fp, png_base);
+        write_reference(fr.fp, &o, mtl_base);
+        if (!write_board(fo.fp, &o, g, mtl_base, &bar)) {
+            hlod_logf(&lg, HLOD_LOG_ERROR, "%s: cannot write: %s", o.out, strerror(errno));
+            r = HLOD_ERR_IO;
+        }
+    }
+    hlod_cli_progress_clear(&bar);
+    /* the board last: its .mtl and image are in place when it appears;
+     * a failure takes back what was committed */
+    int committed = 0;
+    if (r == HLOD_OK && (r = hlod_atomic_commit(&fm, &lg)) == HLOD_OK)
+        committed = 1;
+    if (r == HLOD_OK && (r = hlod_atomic_commit(&fr, &lg)) == HLOD_OK)
+        committed = 2;
+    if (r == HLOD_OK)
+        r = hlod_atomic_commit(&fo, &lg);
+    hlod_atomic_abort(&fo);
+    hlod_atomic_abort(&fm);
+    hlod_atomic_abort(&fr);
+    if (r != HLOD_OK) {
+        if (png)
+            unlink(png);
+        if (committed >= 1)
+            unlink(mtl);
+        if (committed >= 2)
+            unlink(ref);
+        free(mtl);
+        free(png);
+        free(ref);
+        return 1;
+    }
+    if (!o.quiet)
+        fprintf(stderr, "%s: %s: chessboard of %zu triangles (%zu x %zu quads), %s\n", PROG, o.out,
+                2 * g * g, g, g, o.textured ? "textured" : "two colours");
+    free(mtl);
+    free(png);
+    free(ref);
+    return 0;
+}
