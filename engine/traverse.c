@@ -1078,11 +1078,12 @@ static int fs93_plan_front(walk *w, const hlod_view *v, double budget)
  * (bigger on screen first: an ancestor before its descendants) and the
  * walk goes on below it: a missing node thins the picture, it leaves no
  * hole where its ancestors or descendants are in.  Policy full draws
- * every node (no splats): the sample tree's reference. */
+ * every node (no splats): the sample tree's reference; so does klein
+ * with splats off, streaming as klein does. */
 static int walk_additive(walk *w, const hlod_view *v)
 {
     hlod_selection *s = w->s;
-    const int full = w->d->policy == HLOD_POLICY_FULL;
+    const int full = w->d->policy == HLOD_POLICY_FULL || w->d->splats < 0;
     const double px = w->d->splat_px;
     hlod_u32_vec *stack = &s->level;
     stack->n = 0;

@@ -1,0 +1,89 @@
+#!/usr/bin/env bash
+# bench_scaling.sh - frame time against triangles on Klein's chessboard
+# (Klein Fig. 11; docs/sampletree.md).  A benchmark, not a test.
+#
+#   bash tests/bench/bench_scaling.sh OUTDIR [SIZES...]
+#
+# For each size N (default 80000 800000 8000000) writes the board
+# (hlod-gen-scene --kind chessboard; textured for the HLOD row), builds it
+# with each method and runs one fixed low-altitude path at 640x480 with
+# hlod-bench, each run beside the machine's own jitter (the run's frozen
+# selection drawn again, machine_p50_ms and machine_p99_ms):
+#   klein-1, klein-4  the sample tree, policy klein, splat_px 1 and 4;
+#   full              the same sample tree, every node drawn (klein with
+#                     splats 0: the reference walk, no splats);
+#   hlod              cutplane on the textured board, lakhia at TARGET ms.
+# Writes OUTDIR/scaling.csv (method, tris, build_s, store_bytes,
+# frame_ms_mean, frame_ms_p50, machine_p50_ms, machine_p99_ms, tris_mean,
+# splats_mean, psnr_mean), and OUTDIR/scaling.png (log-log frame time
+# against triangles per method, error bars from the machine's p50 to p99)
+# when gnuplot is there.  Boards and stores are kept in OUTDIR/N/.
+# Env: BIN (build/bin), FRAMES (120), TARGET (33), JITTER (60), REF (1: the
+# runs compare with the supersampled two-triangle reference for PSNR; 0: none).
+set -uo pipefail
+ROOT=$(cd "$(dirname "$0")/../.." && pwd)
+BIN=${BIN:-$ROOT/build/bin}
+out=$(realpath -m "${1:?usage: bench_scaling.sh OUTDIR [SIZES...]}")
+shift
+SIZES=("$@")
+[ ${#SIZES[@]} -gt 0 ] || SIZES=(80000 800000 8000000)
+FRAMES=${FRAMES:-120}
+TARGET=${TARGET:-33}
+JITTER=${JITTER:-60}
+mkdir -p "$out" || exit 1
+# the path: 6 m over the 256 m board, from one corner towards the other,
+# looking ahead and down
+perl -e 'for my $i (0 .. 40) { my $t = $i * 0.5; my $x = 20 + 4 * $i; my $y = 10 + 5 * $i;
+    printf "%.2f %.3f %.3f 6 %.3f %.3f 0\n", $t, $x, $y, $x + 12, $y + 30 }' >"$out/low.path"
+csv="$out/scaling.csv"
+echo "method,tris,build_s,store_bytes,frame_ms_mean,frame_ms_p50,machine_p50_ms,machine_p99_ms,tris_mean,splats_mean,psnr_mean" >"$csv"
+key() { perl -MJSON::PP -e 'local $/; my $j = JSON::PP->new->decode(<STDIN>);
+    my $v = $j->{$ARGV[0]}; print defined $v ? $v : ""' "$1" <"$2"; }
+row() { # METHOD N BUILD_JSON STORE RUN_DIR
+    local s="$5/summary.json"
+    echo "$1,$(key tris_in "$3"),$(key seconds "$3"),$(stat -c %s "$4"),$(key frame_ms_mean "$s")," \
+        "$(key frame_ms_p50 "$s"),$(key machine_p50_ms "$s"),$(key machine_p99_ms "$s")," \
+        "$(key tris_mean "$s"),$(key splats_mean "$s"),$(key psnr_mean "$s")" | tr -d ' ' >>"$csv"
+}
+bench() { # STORE RUN_DIR ARGS...
+    local st=$1 dir=$2
+    shift 2
+    "$BIN/hlod-bench" "$st" --path "$out/low.path" --target-ms "$TARGET" --out "$dir" \
+        --width 640 --height 480 --frames "$FRAMES" --jitter-frames "$JITTER" --no-plots \
+        --memory-mb 8192 --set max_inflight=256 "$@" 2>"$dir.err" >/dev/null || { echo "failed: $dir (see $dir.err)"; return 1; }
+}
+for n in "${SIZES[@]}"; do
+    d="$out/$n"
+    mkdir -p "$d"
+    echo "== $n triangles"
+    "$BIN/hlod-gen-scene" --kind chessboard --tris "$n" -o "$d/board.obj" --quiet &&
+        "$BIN/hlod-gen-scene" --kind chessboard --tris "$n" -o "$d/tboard.obj" --textured --quiet ||
+        exit 1
+    "$BIN/hlod-build" "$d/board.obj" -o "$d/st.hlod" --method sampletree --json --quiet >"$d/st.json" ||
+        exit 1
+    "$BIN/hlod-build" "$d/tboard.obj" -o "$d/hlod.hlod" --json --quiet >"$d/hlod.json" || exit 1
+    for i in 1 4; do
+        bench "$d/st.hlod" "$d/klein-$i" --policy klein --set splat_px=$i &&
+            row "klein-$i" "$n" "$d/st.json" "$d/st.hlod" "$d/klein-$i"
+    done
+    bench "$d/st.hlod" "$d/full" --policy klein --set splats=0 &&
+        row full "$n" "$d/st.json" "$d/st.hlod" "$d/full"
+    bench "$d/hlod.hlod" "$d/hlod" --policy lakhia &&
+        row hlod "$n" "$d/hlod.json" "$d/hlod.hlod" "$d/hlod"
+    column -s, -t <"$csv"
+done
+if command -v gnuplot >/dev/null; then
+    gnuplot <<GP
+set terminal pngcairo size 900,600
+set output "$out/scaling.png"
+set datafile separator ","
+set logscale xy
+set key top left
+set xlabel "triangles"
+set ylabel "frame time, ms (bars: the machine's p50 to p99)"
+set title "Chessboard at 640x480 (Klein Fig. 11)"
+plot for [m in "klein-1 klein-4 full hlod"] "$csv" using (strcol(1) eq m ? \$2 : 1/0):5:7:8 \
+    with yerrorlines title m
+GP
+fi
+echo "wrote $csv"
