@@ -120,6 +120,7 @@ void hlod_cost_model_init(hlod_cost_model *m, const hlod_engine_desc *d)
     m->sigma = PRIOR_SIGMA;
     m->margin = aim_margin(d, 0, PRIOR_SIGMA, NULL, 0, 0);
     m->sse_pixels = d->sse_pixels;
+    m->splat_px = d->splat_px;
     m->share_gain = 1;
 }
 
@@ -129,6 +130,8 @@ void hlod_cost_model_set(hlod_cost_model *m, const hlod_engine_desc *old,
     assert(m && old && d);
     if (d->sse_pixels != old->sse_pixels)
         m->sse_pixels = d->sse_pixels;
+    if (d->splat_px != old->splat_px)
+        m->splat_px = d->splat_px;
     if (d->deterministic) {
         m->theta[0] = d->fixed_frame_ms;
         m->theta[2] = d->fixed_v_time;
@@ -618,4 +621,18 @@ void hlod_cost_model_adapt_sse(hlod_cost_model *m, double ratio)
         m->sse_pixels = 0.05;
     if (m->sse_pixels > 1e4)
         m->sse_pixels = 1e4;
+}
+
+void hlod_cost_model_adapt_splat(hlod_cost_model *m, double ratio)
+{
+    assert(m);
+    if (!(isfinite(ratio) && ratio > 0))
+        return;
+    double f = sqrt(ratio);
+    f = f < 0.8 ? 0.8 : f > 1.25 ? 1.25 : f;
+    m->splat_px *= f;
+    if (m->splat_px < 1)
+        m->splat_px = 1;
+    if (m->splat_px > 64)
+        m->splat_px = 64;
 }

@@ -41,6 +41,7 @@ typedef struct hlod_cost_model {
     double margin;                 /* >= 1; 1 when aiming at the mean */
     double share_gain;             /* roots' shareTime = gain * budget, in [1, 64] */
     double sse_pixels;             /* the SSE policy's adaptive threshold */
+    double splat_px;               /* klein-auto's adaptive splat size, pixels */
     /* the fit's own state */
     double a[HLOD_COST_TERMS][HLOD_COST_TERMS]; /* exponentially weighted x x^T */
     double b[HLOD_COST_TERMS];                  /* exponentially weighted x y */
@@ -87,5 +88,12 @@ void hlod_cost_model_adapt_share(hlod_cost_model *m, double est, double budget, 
 
 /* The SSE threshold after a frame that took ratio times the target. */
 void hlod_cost_model_adapt_sse(hlod_cost_model *m, double ratio);
+
+/* klein-auto (Klein 4.5's splat size, chosen each frame; ours): the splat
+ * size times sqrt(ratio), ratio the frame's time over the target (the
+ * estimate's when deterministic), each step within [0.8, 1.25], the size
+ * within [1, 64] pixels.  A frame's triangles fall about as the square of
+ * the splat size where splats stand in for them. */
+void hlod_cost_model_adapt_splat(hlod_cost_model *m, double ratio);
 
 #endif

@@ -605,6 +605,9 @@ static void learn(hlod_engine *e, double measured, double upload, double budget,
     if (hlod_policy_has(e->d.policy, HLOD_PT_SSE))
         hlod_cost_model_adapt_sse(
             m, (e->d.deterministic ? e->st.estimated_ms : measured) / e->d.target_ms);
+    if (hlod_policy_has(e->d.policy, HLOD_PT_AUTOSPLAT))
+        hlod_cost_model_adapt_splat(
+            m, (e->d.deterministic ? e->st.estimated_ms : measured) / e->d.target_ms);
 }
 
 /* Inputs: a new frame's stamp and stats, and the camera's motion (its
@@ -669,6 +672,9 @@ static hlod_select_in select_inputs(hlod_engine *e, double budget, int moved)
                          .still = !moved,
                          .hold_since = hlod_hold_since(e->still_run, e->frame),
                          .sse_pixels = m->sse_pixels,
+                         .splat_px = hlod_policy_has(e->d.policy, HLOD_PT_AUTOSPLAT)
+                                         ? m->splat_px
+                                         : e->d.splat_px,
                          .budget_ms = budget,
                          .share_ms = budget * m->share_gain};
     hlod_hold_inputs(&e->hold, hlod_policy_has(e->d.policy, HLOD_PT_HOLD), e->frame,
@@ -692,6 +698,7 @@ static void publish(hlod_engine *e, const hlod_select_in *in, double measured, d
         hlod_cost_model_predict(m, e->st.nodes_drawn, e->st.cost_drawn, e->st.pixels_drawn) +
         upload;
     e->st.sse_pixels = m->sse_pixels;
+    e->st.splat_px = hlod_policy_has(e->d.policy, HLOD_PT_ADDITIVE) ? in->splat_px : 0;
     e->last_front_ms = e->st.estimated_ms - upload;
     e->have_front = 1;
 }

@@ -23,7 +23,9 @@
  *           adapted as sse's); back-facing subtrees (normal cones) are
  *           always skipped, as the paper's walk does;
  *   klein   a sample tree's walk (traverse.c, walk_additive): no front to
- *           decide, so its function is never asked.
+ *           decide, so its function is never asked;
+ *   klein-auto  klein, the splat size adapted each frame to the target
+ *           (cost_model.c, hlod_cost_model_adapt_splat).
  */
 #include "policy.h"
 
@@ -127,6 +129,8 @@ static const hlod_policy_row rows[HLOD_POLICY_COUNT] = {
     [HLOD_POLICY_FS93] = {"fs93", HLOD_PT_KNAPSACK | HLOD_PT_OCCLUDE | HLOD_PT_STREAM,
                           fs93_refines},
     [HLOD_POLICY_KLEIN] = {"klein", HLOD_PT_ADDITIVE | HLOD_PT_STREAM, klein_refines},
+    [HLOD_POLICY_KLEIN_AUTO] = {"klein-auto", HLOD_PT_ADDITIVE | HLOD_PT_STREAM | HLOD_PT_AUTOSPLAT,
+                                klein_refines},
 };
 
 const hlod_policy_row *hlod_policy_row_of(hlod_policy p)

@@ -30,6 +30,7 @@ enum {
     HLOD_PT_ADDITIVE = 1u << 9, /* draws a store that refines additively (a sample tree):
                                    every visited node, ancestors too, and splats where a
                                    node's box is small (traverse.c, walk_additive) */
+    HLOD_PT_AUTOSPLAT = 1u << 10, /* the cost model adapts the splat size to the target */
 };
 
 /* What a policy remembers of a node between frames (its own use). */

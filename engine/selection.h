@@ -72,6 +72,7 @@ typedef struct hlod_select_in {
     uint32_t hold_since;    /* frame from which a lakhia front holds, the whole camera still a
                              * while (hold_front); 0: not held */
     double sse_pixels;      /* the SSE policy's threshold */
+    double splat_px;        /* the additive walk's splat size, pixels (klein, klein-auto) */
     double budget_ms;       /* the bound on the front's estimate */
     double share_ms;        /* the roots' shareTime (eq. 4) */
 } hlod_select_in;

@@ -52,6 +52,7 @@ typedef struct walk {
     const hlod_occlusion *occ; /* when occlusion: last frame's verdicts */
     int cones;           /* normal cones cull (the setting, or the policy's trait) */
     int nomem;           /* an allocation failed where no result could say so */
+    double splat_px;     /* the additive walk's splat size (select_in) */
 } walk;
 
 /* ---- life ---- */
@@ -1084,7 +1085,7 @@ static int walk_additive(walk *w, const hlod_view *v)
 {
     hlod_selection *s = w->s;
     const int full = w->d->policy == HLOD_POLICY_FULL || w->d->splats < 0;
-    const double px = w->d->splat_px;
+    const double px = w->splat_px;
     hlod_u32_vec *stack = &s->level;
     stack->n = 0;
     for (uint32_t r = s->root_count; r-- > 0;)
@@ -1155,7 +1156,8 @@ hlod_result hlod_select(hlod_selection *s, struct hlod_residency *res, const hlo
                 in->sse_pixels, in->draw_ms, in->pixel_ms,
                 in->occlusion && in->occ && (pol->traits & HLOD_PT_OCCLUDE), in->still,
                 in->hold_since && (pol->traits & HLOD_PT_HOLD), in->hold_since, pol, in->occ,
-                s->extras && (s->d->cone_cull > 0 || (pol->traits & HLOD_PT_CONES)), 0};
+                s->extras && (s->d->cone_cull > 0 || (pol->traits & HLOD_PT_CONES)), 0,
+                in->splat_px >= 1 ? in->splat_px : 1};
     walk *w = &ctx;
     const double share_ms = in->share_ms;
     s->draw.n = s->level.n = s->next.n = s->refined.n = s->coned.n = s->splats.n = 0;

@@ -302,7 +302,7 @@ static int run_views(const hlod_store *s, const hlod_engine_desc *base, const vi
 {
     int bad = 0;
     for (int pol = 0; pol < HLOD_POLICY_COUNT; pol++) {
-        if (pol == HLOD_POLICY_FULL || pol == HLOD_POLICY_KLEIN)
+        if (pol == HLOD_POLICY_FULL || pol == HLOD_POLICY_KLEIN || pol == HLOD_POLICY_KLEIN_AUTO)
             continue; /* full: references only, it loads every leaf; klein: sample trees
                          only (test_sampletree) */
         hlod_engine_desc d = *base;
@@ -437,7 +437,7 @@ static void all_siblings_outside(void)
     hlod_engine_desc d = det_desc(1e-7, 20);
     CHECK(run_views(s, &d, views, n, 10, "siblings outside") == 0);
     for (int pol = 0; pol < HLOD_POLICY_COUNT; pol++) {
-        if (pol == HLOD_POLICY_FULL || pol == HLOD_POLICY_KLEIN)
+        if (pol == HLOD_POLICY_FULL || pol == HLOD_POLICY_KLEIN || pol == HLOD_POLICY_KLEIN_AUTO)
             continue; /* full: references only, it loads every leaf; klein: sample trees
                          only (test_sampletree) */
         d.policy = (hlod_policy)pol;
@@ -493,7 +493,7 @@ static int run_machine(const hlod_store *s, hlod_engine_desc d, fixed_machine *m
     d.time_model = fixed_machine_time;
     d.time_model_user = m;
     for (int pol = 0; pol < HLOD_POLICY_COUNT; pol++) {
-        if (pol == HLOD_POLICY_FULL || pol == HLOD_POLICY_KLEIN)
+        if (pol == HLOD_POLICY_FULL || pol == HLOD_POLICY_KLEIN || pol == HLOD_POLICY_KLEIN_AUTO)
             continue; /* full: references only, it loads every leaf; klein: sample trees
                          only (test_sampletree) */
         d.policy = (hlod_policy)pol;

@@ -13,6 +13,8 @@
  * - Drawn with klein from a far oblique camera at 640x480: where full
  *   (every node, no splats) shows the board, klein leaves at most 1 pixel
  *   uncovered with splat_px 1 and 0.1 % with splat_px 4, splats drawn.
+ * - klein-auto raises the splat size until a synthetic machine's frames
+ *   meet a tight target, and leaves it at 1 under a generous one.
  * - Policies and stores that do not match are refused.
  */
 #include "check.h"
@@ -344,6 +346,13 @@ static int render(hlod_store *s, hlod_policy pol, uint32_t splat_px, const hlod_
     return ok;
 }
 
+/* A synthetic machine: 2e-5 ms a triangle, 1e-4 ms a splat. */
+static double tri_time(void *user, const hlod_frame_stats *st)
+{
+    (void)user;
+    return 2e-5 * (double)st->tris_drawn + 1e-4 * st->splats;
+}
+
 static int is_bg(const uint8_t *p)
 {
     return p[0] == BG[0] && p[1] == BG[1] && p[2] == BG[2];
@@ -388,6 +397,38 @@ static void splats_leave_no_hole(void)
             CHECKF(holes <= 1, "splat_px 1: %zu pixels uncovered", holes);
         else
             CHECKF(holes <= board / 1000, "splat_px 4: %zu of %zu pixels uncovered", holes, board);
+    }
+    /* klein-auto: on a synthetic machine of 2e-5 ms a triangle, a target
+     * of 6 ms (klein at splat_px 1 draws ~10 ms) raises the splat size
+     * until the frames fit; a target of 100 ms leaves it at 1 */
+    const double targets[2] = {6, 100};
+    for (int k = 0; k < 2; k++) {
+        hlod_engine_desc ad = {0};
+        ad.policy = HLOD_POLICY_KLEIN_AUTO;
+        ad.target_ms = targets[k];
+        ad.memory_budget_bytes = 1ull << 32;
+        ad.time_model = tri_time;
+        hlod_engine *ae = NULL;
+        CHECK(hlod_engine_create(s, &ad, &ae) == HLOD_OK);
+        if (!ae)
+            continue;
+        CHECK(hlod_engine_load_all_leaves(ae, &cam) == HLOD_OK);
+        double late = 0, px = 0;
+        for (int f = 0; f < 60; f++) {
+            CHECK(hlod_engine_frame(ae, &cam, 1.0 / 30, &st) == HLOD_OK);
+            if (f >= 50) {
+                late += st.measured_ms / 10;
+                px += st.splat_px / 10;
+            }
+        }
+        printf("REPORT klein-auto target %.0f ms: frames %.2f ms, splat_px %.2f\n", targets[k],
+               late, px);
+        if (k == 0)
+            CHECKF(px > 1.5 && late <= 1.15 * targets[k], "target %.0f: %.2f ms at splat_px %.2f",
+                   targets[k], late, px);
+        else
+            CHECKF(fabs(px - 1) < 1e-9, "target %.0f: splat_px %.2f", targets[k], px);
+        hlod_engine_destroy(ae);
     }
     /* klein draws no replacement store, and no other policy a sample tree */
     hlod_engine_desc d = {0};

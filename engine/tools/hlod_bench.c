@@ -713,7 +713,7 @@ static hlod_result write_frames_csv(const char *dir, const frame_rec *r, long n,
                 "ssim,luma_change,ref_luma_change,toggles_up_ma35,toggles_down_ma35,"
                 "pixels_drawn,margin,occlusion_hidden,occlusion_tested,occlusion_culled,"
                 "occlusion_ms,occlusion_check_psnr,occlusion_check_differing,cone_culled,"
-                "cone_check_differing,splats\n");
+                "cone_check_differing,splats,splat_px\n");
     for (long i = 0; i < n; i++) {
         const hlod_frame_stats *s = &r[i].st;
         fprintf(fp, "%llu,%.6f,%.4f,%.4f,%.9g,%.4f,%.4f,%.4f,%.4f,%.4f,%.4f,%u",
@@ -753,7 +753,7 @@ static hlod_result write_frames_csv(const char *dir, const frame_rec *r, long n,
             fprintf(fp, ",");
         else
             fprintf(fp, ",%lld", r[i].cone_differing);
-        fprintf(fp, ",%u\n", s->splats);
+        fprintf(fp, ",%u,%.3f\n", s->splats, s->splat_px);
     }
     return hlod_atomic_commit(&af, lg);
 }

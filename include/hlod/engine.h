@@ -57,11 +57,13 @@ typedef enum hlod_policy {
     HLOD_POLICY_FS93,       /* Funkhouser and Séquin's greedy knapsack (SIGGRAPH 1993) */
     HLOD_POLICY_KLEIN,      /* a sample tree drawn additively, splats of splat_px where a
                                node's box projects to at most that (Klein 4.2, 4.5) */
+    HLOD_POLICY_KLEIN_AUTO, /* klein with the splat size adapted each frame to meet
+                               target_ms (ours, beyond the paper) */
     HLOD_POLICY_COUNT
 } hlod_policy;
 
 /* The policies a user picks (full draws references), for help texts. */
-#define HLOD_POLICY_CHOICES "lakhia, nohyst, sse, fs93, counter, okamoto, klein"
+#define HLOD_POLICY_CHOICES "lakhia, nohyst, sse, fs93, counter, okamoto, klein, klein-auto"
 
 const char *hlod_policy_name(hlod_policy p);           /* "lakhia", ... */
 int hlod_policy_parse(const char *name, hlod_policy *out); /* 1 on success */
@@ -241,6 +243,7 @@ typedef struct hlod_frame_stats {
     double traversal_ms;         /* CPU time of selection (no GL) */
     double upload_ms;            /* CPU time of GL uploads and frees */
     double sse_pixels;           /* current SSE threshold (policy sse) */
+    double splat_px;             /* the splat size this frame drew with (klein, klein-auto) */
     uint32_t nodes_drawn;
     uint32_t nodes_per_depth[HLOD_STATS_MAX_DEPTH]; /* deeper nodes count in the last */
     uint64_t tris_drawn;
