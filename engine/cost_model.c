@@ -609,30 +609,25 @@ void hlod_cost_model_adapt_share(hlod_cost_model *m, double est, double budget, 
 
 /* The SSE policy's pixel threshold follows the frame time: coarser when
  * over target, finer when under; the square root damps the response. */
-void hlod_cost_model_adapt_sse(hlod_cost_model *m, double ratio)
+/* *v times sqrt(ratio), each step within [0.8, 1.25], *v within [lo, hi]. */
+static void adapt_scale(double *v, double ratio, double lo, double hi)
 {
-    assert(m);
     if (!(isfinite(ratio) && ratio > 0))
         return;
     double f = sqrt(ratio);
     f = f < 0.8 ? 0.8 : f > 1.25 ? 1.25 : f;
-    m->sse_pixels *= f;
-    if (m->sse_pixels < 0.05)
-        m->sse_pixels = 0.05;
-    if (m->sse_pixels > 1e4)
-        m->sse_pixels = 1e4;
+    *v *= f;
+    *v = *v < lo ? lo : *v > hi ? hi : *v;
+}
+
+void hlod_cost_model_adapt_sse(hlod_cost_model *m, double ratio)
+{
+    assert(m);
+    adapt_scale(&m->sse_pixels, ratio, 0.05, 1e4);
 }
 
 void hlod_cost_model_adapt_splat(hlod_cost_model *m, double ratio)
 {
     assert(m);
-    if (!(isfinite(ratio) && ratio > 0))
-        return;
-    double f = sqrt(ratio);
-    f = f < 0.8 ? 0.8 : f > 1.25 ? 1.25 : f;
-    m->splat_px *= f;
-    if (m->splat_px < 1)
-        m->splat_px = 1;
-    if (m->splat_px > 64)
-        m->splat_px = 64;
+    adapt_scale(&m->splat_px, ratio, 1, 64);
 }

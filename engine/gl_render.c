@@ -288,13 +288,14 @@ static GLuint compile(hlod_renderer *r, GLenum type, const char *defines, const 
     return sh;
 }
 
-static int build_program(hlod_renderer *r, int normals, int mode, struct program *out)
+/* Compiles vs_src and fs_src with defines and links them; 0 (logged) on
+ * failure. */
+static GLuint link_program(hlod_renderer *r, const char *defines, const char *vs_src,
+                           const char *fs_src)
 {
     const gl_table *gl = &r->gl;
-    char defines[64];
-    snprintf(defines, sizeof defines, "#define NORMALS %d\n#define MODE %d\n", normals, mode);
-    GLuint vs = compile(r, GL_VERTEX_SHADER, defines, vertex_src);
-    GLuint fs = vs ? compile(r, GL_FRAGMENT_SHADER, defines, fragment_src) : 0;
+    GLuint vs = compile(r, GL_VERTEX_SHADER, defines, vs_src);
+    GLuint fs = vs ? compile(r, GL_FRAGMENT_SHADER, defines, fs_src) : 0;
     GLuint prog = fs ? gl->CreateProgram() : 0;
     if (prog) {
         gl->AttachShader(prog, vs);
@@ -315,6 +316,15 @@ static int build_program(hlod_renderer *r, int normals, int mode, struct program
         gl->DeleteShader(vs);
     if (fs)
         gl->DeleteShader(fs);
+    return prog;
+}
+
+static int build_program(hlod_renderer *r, int normals, int mode, struct program *out)
+{
+    const gl_table *gl = &r->gl;
+    char defines[64];
+    snprintf(defines, sizeof defines, "#define NORMALS %d\n#define MODE %d\n", normals, mode);
+    GLuint prog = link_program(r, defines, vertex_src, fragment_src);
     if (!prog)
         return 0;
     out->id = prog;
@@ -345,33 +355,12 @@ static void delete_programs(hlod_renderer *r)
 
 static int build_splat_program(hlod_renderer *r)
 {
-    const gl_table *gl = &r->gl;
-    GLuint vs = compile(r, GL_VERTEX_SHADER, "", splat_vertex_src);
-    GLuint fs = vs ? compile(r, GL_FRAGMENT_SHADER, "", splat_fragment_src) : 0;
-    GLuint prog = fs ? gl->CreateProgram() : 0;
-    if (prog) {
-        gl->AttachShader(prog, vs);
-        gl->AttachShader(prog, fs);
-        gl->LinkProgram(prog);
-        GLint ok = 0;
-        gl->GetProgramiv(prog, GL_LINK_STATUS, &ok);
-        if (!ok) {
-            char log[1024] = "";
-            gl->GetProgramInfoLog(prog, sizeof log, NULL, log);
-            hlod_logf(&r->lg, HLOD_LOG_ERROR, "renderer: splat link: %s", log);
-            gl->DeleteProgram(prog);
-            prog = 0;
-        }
-    }
-    if (vs)
-        gl->DeleteShader(vs);
-    if (fs)
-        gl->DeleteShader(fs);
+    GLuint prog = link_program(r, "", splat_vertex_src, splat_fragment_src);
     if (!prog)
         return 0;
     r->splat.prog = prog;
-    r->splat.u_viewproj = gl->GetUniformLocation(prog, "u_viewproj");
-    r->splat.u_size = gl->GetUniformLocation(prog, "u_size");
+    r->splat.u_viewproj = r->gl.GetUniformLocation(prog, "u_viewproj");
+    r->splat.u_size = r->gl.GetUniformLocation(prog, "u_size");
     return 1;
 }
 
