@@ -498,6 +498,8 @@ static hlod_result check_desc(const hlod_build_desc *d, const hlod_logger *lg)
         bad = "sample_c is not in (0, 1000]";
     else if (d->method == HLOD_BUILD_SAMPLETREE && d->shard_count)
         bad = "a sample tree is built whole (no shards)";
+    else if (d->memory_mb > (1u << 24))
+        bad = "memory_mb is over 2^24";
     else if (!(isfinite(d->grid) && d->grid >= 0 && d->grid <= 1e12))
         bad = "grid is not a cell size in [0, 1e12]";
     else if (d->desired_tris < 1 || d->voxel_tris < 1 || d->node_tris < 1 || d->leaf_tris < 2)
@@ -1326,36 +1328,50 @@ static hlod_result write_part(const hlod_city_plan *plan, const blocks *bs, cons
     return r;
 }
 
-/* The sample tree over every block (sampletree.c); finishes w. */
-static hlod_result build_sampletree(const hlod_build_desc *d, const blocks *bs,
-                                    hlod_store_writer *w, hlod_build_report *rep,
-                                    const char *out_path, const hlod_logger *lg)
+/* The sample tree (sampletree.c), out of core: a first pass for the box
+ * and the counts, the writer over that box, then the build, with a spill
+ * file beside the output when the buckets outgrow memory_mb. */
+static hlod_result sampletree_store(const hlod_build_desc *d, const char *const *inputs,
+                                    size_t n, const char *scratch, const char *out_path,
+                                    const hlod_logger *lg, hlod_build_report *rep)
 {
-    hlod_st_block *sb = calloc(bs->n ? bs->n : 1, sizeof *sb);
-    if (!sb) {
-        hlod_store_writer_abort(w);
-        return HLOD_ERR_NOMEM;
+    hlod_st_scan *scan = NULL;
+    hlod_result r = hlod_st_scan_inputs(inputs, n, scratch, lg, &scan);
+    if (r != HLOD_OK)
+        return r;
+    double lo[1][3], hi[1][3];
+    hlod_st_scan_box(scan, lo[0], hi[0]);
+    input in = {0};
+    in.lo = lo;
+    in.hi = hi;
+    in.nb = 1;
+    hlod_store_writer_desc wd = {0};
+    writer_desc(d, &in, lg, &wd);
+    hlod_store_writer *w = NULL;
+    r = hlod_store_writer_open(out_path, &wd, &w);
+    if (r != HLOD_OK) {
+        hlod_logf(lg, HLOD_LOG_ERROR, "%s: cannot create: %s", out_path, hlod_result_str(r));
+        hlod_st_scan_free(scan);
+        return r;
     }
-    for (size_t i = 0; i < bs->n; i++) {
-        sb[i].mesh = &bs->b[i].mesh;
-        sb[i].texture = bs->b[i].texture;
-        for (int k = 0; k < 4; k++) {
-            float c = bs->b[i].color[k] < 0 ? 0 : bs->b[i].color[k] > 1 ? 1 : bs->b[i].color[k];
-            sb[i].rgba[k] = (uint8_t)lrintf(c * 255);
-        }
-    }
-    hlod_st_params p = {d->sample_c, d->leaf_tris, d->seed, lg};
+    char spill[4096 + 32];
+    snprintf(spill, sizeof spill, "%.4096s.spill-%d", out_path, (int)getpid());
+    hlod_st_params p = {d->sample_c, d->leaf_tris, d->seed, d->memory_mb << 20, lg};
     hlod_st_report sr;
-    hlod_result r = hlod_build_sampletree(sb, bs->n, &p, w, &sr);
-    free(sb);
+    r = hlod_build_sampletree_inputs(scan, inputs, n, scratch, spill, &p, w, &sr);
+    rep->tris_in = hlod_st_scan_tris(scan);
+    hlod_st_scan_free(scan);
     if (r != HLOD_OK) {
         hlod_logf(lg, HLOD_LOG_ERROR, "%s: sample tree: %s", out_path, hlod_result_str(r));
         return r;
     }
+    rep->blocks = 1;
     rep->nodes = sr.nodes;
     rep->levels = sr.levels;
     rep->tris_leaf = sr.tris_leaf;
     rep->tris_total = sr.tris;
+    rep->buckets = sr.buckets;
+    rep->spill_bytes = sr.spill_bytes;
     return HLOD_OK;
 }
 
@@ -1397,6 +1413,15 @@ hlod_result hlod_build_store(const hlod_build_desc *d, const char *const *inputs
             }
         }
     }
+    if (r == HLOD_OK && d->method == HLOD_BUILD_SAMPLETREE) {
+        r = sampletree_store(d, inputs, n, scratch[0] ? scratch : NULL, out_path, lg, &rep);
+        free(meshes);
+        if (scratch[0])
+            hlod_rm_tree(scratch);
+        if (report && r == HLOD_OK)
+            *report = rep;
+        return r;
+    }
     /* the blocks and the group tree, from the blocks' boxes before any is built */
     if (r == HLOD_OK)
         r = meshes ? read_input(d, inputs, n, meshes, scratch[0] ? scratch : NULL, &in, &ph,
@@ -1421,10 +1446,7 @@ hlod_result hlod_build_store(const hlod_build_desc *d, const char *const *inputs
     hlod_city_item *tops = NULL;
     uint32_t to = sharded ? ph.cut_level : in.plan.levels;
     uint32_t *store_index = NULL;
-    if (r == HLOD_OK && d->method == HLOD_BUILD_SAMPLETREE) {
-        r = build_sampletree(d, bs, w, &rep, out_path, lg);
-        w = NULL;
-    } else {
+    {
         if (r == HLOD_OK && !(outs = calloc(bs->n ? bs->n : 1, sizeof *outs)))
             r = HLOD_ERR_NOMEM;
         if (r == HLOD_OK)

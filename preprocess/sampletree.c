@@ -1,65 +1,203 @@
 /*
- * sampletree.c - Klein's randomized sample tree (sampletree.h,
- * docs/sampletree.md).
+ * sampletree.c - Klein's randomized sample tree, in core or out of core
+ * (sampletree.h, docs/sampletree.md).
  *
- * Triangles are numbered block by block (id = the block's first id + its
- * index there); every list below holds ids, so a node's triangles come out
- * grouped by block in input order, whatever the draws did.
- *
- * The tree lives in memory: per triangle its block, area and colour (17
- * bytes beside the blocks themselves), per node its list.  Payloads are
- * made and written one node at a time, in pre-order.
+ * Triangles are records (positions in double, UVs, a texture slot, a
+ * colour).  A tree holds its records and nodes whose lists index them.
+ * Two kinds of tree are built: a bucket's (an octree cell's triangles,
+ * split, sampled and written but for its root), and the upper tree (the
+ * cells above the buckets: the triangles too big for their bucket, and
+ * each bucket's root, sampled and written last).  Everything a node's
+ * draws depend on is its cell (level and integer coordinates, which seed
+ * its generator) and its children's lists, so the store is a function of
+ * the input, the parameters and the bucket plan.
  */
 #include "sampletree.h"
 
 #include "build.h"
 #include "build_node.h"
 #include "hlod/image.h"
+#include "hlod/mesh_io.h"
 
+#include <errno.h>
 #include <math.h>
+#include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <unistd.h>
 
-#define MAX_DEPTH 40
+#define MAX_LEVEL 40
+#define NONE UINT32_MAX
+#define GRID_LEVEL 6            /* the plan's count grid: 64^3 cells */
+#define GRID_N (1u << GRID_LEVEL)
+#define TRI_BYTES 320           /* what a triangle of a bucket costs to build, about */
 
-typedef struct st_node {
-    double c[3], e;          /* the cell: centre and edge */
-    uint32_t *tris;          /* ids stored here */
-    uint32_t n, cap;
-    uint32_t *kids;          /* child node indices */
-    uint32_t nkids, kids_cap;
-    uint32_t parent;
-    uint32_t depth;
-    double area;             /* A(P(u)): every triangle of the subtree */
-    uint8_t color[4];
-} st_node;
+/* ---- records ---- */
 
-typedef struct st_tex {
-    const char *path;
-    hlod_image img;
-    int ok;
-} st_tex;
+typedef struct st_rec {
+    double p[9];
+    float uv[6];
+    uint32_t tex;               /* texture slot, NONE: untextured */
+    uint8_t rgba[4];
+} st_rec;
 
-typedef struct st {
-    const hlod_st_block *b;
-    size_t nb;
-    const hlod_st_params *p;
-    size_t *first;           /* per block: its first triangle id; first[nb] = total */
-    size_t total;
-    uint32_t *blk;           /* per id: its block */
-    double *area;
-    uint8_t (*rgba)[4];      /* per id: its colour */
-    st_tex **tex;            /* per block: its texture slot, or NULL */
-    st_tex *texes;
-    size_t ntex;
-    st_node *nodes;
-    size_t count, cap;
-    uint32_t *remap;         /* per block vertex (all blocks): its index in a payload */
-    size_t *vfirst;          /* per block: its first vertex in remap */
-} st;
+/* A record in the spill file: positions relative to its bucket's centre. */
+typedef struct st_disk {
+    float p[9];
+    float uv[6];
+    uint32_t tex;
+    uint8_t rgba[4];
+} st_disk;
 
-/* ---- randomness (splitmix64: seeded per node, so any node's draws are a
- * function of the seed and that node alone) ---- */
+typedef struct st_texes {
+    char **path;
+    hlod_image *img;
+    int *state;                 /* 0 not read, 1 read, -1 unreadable */
+    size_t n, cap;
+} st_texes;
+
+static void texes_free(st_texes *t)
+{
+    for (size_t i = 0; i < t->n; i++) {
+        free(t->path[i]);
+        hlod_image_free(&t->img[i]);
+    }
+    free(t->path);
+    free(t->img);
+    free(t->state);
+    memset(t, 0, sizeof *t);
+}
+
+/* The slot of path (added when new), or NONE when out of memory. */
+static uint32_t tex_slot(st_texes *t, const char *path)
+{
+    for (size_t i = 0; i < t->n; i++)
+        if (!strcmp(t->path[i], path))
+            return (uint32_t)i;
+    if (t->n == t->cap) {
+        size_t nc = t->cap ? 2 * t->cap : 16;
+        char **p = realloc(t->path, nc * sizeof *p);
+        if (p)
+            t->path = p;
+        hlod_image *im = realloc(t->img, nc * sizeof *im);
+        if (im)
+            t->img = im;
+        int *st = realloc(t->state, nc * sizeof *st);
+        if (st)
+            t->state = st;
+        if (!p || !im || !st)
+            return NONE;
+        t->cap = nc;
+    }
+    if (!(t->path[t->n] = strdup(path)))
+        return NONE;
+    memset(&t->img[t->n], 0, sizeof t->img[t->n]);
+    t->state[t->n] = 0;
+    return (uint32_t)t->n++;
+}
+
+/* Slot i's image, read at first use; NULL when it cannot be read. */
+static const hlod_image *tex_get(st_texes *t, uint32_t i, const hlod_logger *lg)
+{
+    if (i == NONE || i >= t->n)
+        return NULL;
+    if (!t->state[i]) {
+        int ok = hlod_image_read(t->path[i], &t->img[i], lg) == HLOD_OK && t->img[i].width > 0;
+        t->state[i] = ok ? 1 : -1;
+        if (!ok)
+            hlod_logf(lg, HLOD_LOG_WARN, "texture %s unreadable: its triangles are built "
+                      "untextured", t->path[i]);
+    }
+    return t->state[i] > 0 ? &t->img[i] : NULL;
+}
+
+/* The texture's texel at (u, v), wrapped (v = 0 the bottom row), as RGBA. */
+static void texel(const hlod_image *img, double u, double v, uint8_t out[4])
+{
+    u -= floor(u);
+    v -= floor(v);
+    int x = (int)(u * img->width), y = (int)((1 - v) * img->height);
+    x = x < 0 ? 0 : x >= img->width ? img->width - 1 : x;
+    y = y < 0 ? 0 : y >= img->height ? img->height - 1 : y;
+    const uint8_t *p = img->pixels + ((size_t)y * img->width + x) * img->channels;
+    switch (img->channels) {
+    case 1: out[0] = out[1] = out[2] = p[0]; out[3] = 255; break;
+    case 2: out[0] = out[1] = out[2] = p[0]; out[3] = p[1]; break;
+    case 3: out[0] = p[0]; out[1] = p[1]; out[2] = p[2]; out[3] = 255; break;
+    default: memcpy(out, p, 4); break;
+    }
+}
+
+/* Triangle t of mesh m as a record: its material's texture (when m has
+ * UVs and the image can be read; its colour the texel under its UV
+ * centroid) or its material's colour. */
+static void make_rec(const hlod_mesh *m, size_t t, const char *texture, const float diffuse[4],
+                     st_texes *tx, const hlod_logger *lg, st_rec *r)
+{
+    memset(r, 0, sizeof *r);
+    for (int k = 0; k < 3; k++)
+        memcpy(&r->p[3 * k], &m->positions[3 * (size_t)m->indices[3 * t + k]], 3 * sizeof(double));
+    r->tex = NONE;
+    uint32_t slot = texture && m->uvs ? tex_slot(tx, texture) : NONE;
+    const hlod_image *img = slot != NONE ? tex_get(tx, slot, lg) : NULL;
+    if (img) {
+        double u = 0, v = 0;
+        for (int k = 0; k < 3; k++) {
+            const float *uv = &m->uvs[2 * (size_t)m->indices[3 * t + k]];
+            r->uv[2 * k] = uv[0];
+            r->uv[2 * k + 1] = uv[1];
+            u += uv[0] / 3.0;
+            v += uv[1] / 3.0;
+        }
+        r->tex = slot;
+        texel(img, u, v, r->rgba);
+    } else {
+        for (int k = 0; k < 4; k++) {
+            float c = diffuse[k] < 0 ? 0 : diffuse[k] > 1 ? 1 : diffuse[k];
+            r->rgba[k] = (uint8_t)lrintf(c * 255);
+        }
+    }
+}
+
+static double rec_area(const st_rec *r)
+{
+    double u[3], v[3];
+    for (int k = 0; k < 3; k++) {
+        u[k] = r->p[3 + k] - r->p[k];
+        v[k] = r->p[6 + k] - r->p[k];
+    }
+    double x = u[1] * v[2] - u[2] * v[1], y = u[2] * v[0] - u[0] * v[2],
+           z = u[0] * v[1] - u[1] * v[0];
+    return 0.5 * sqrt(x * x + y * y + z * z);
+}
+
+static void rec_centroid(const st_rec *r, double g[3])
+{
+    for (int a = 0; a < 3; a++)
+        g[a] = (r->p[a] + r->p[3 + a] + r->p[6 + a]) / 3;
+}
+
+/* Do r's vertices lie in the sphere about c of squared radius r2? */
+static int rec_fits(const st_rec *r, const double c[3], double r2)
+{
+    for (int k = 0; k < 3; k++) {
+        double d2 = 0;
+        for (int a = 0; a < 3; a++)
+            d2 += (r->p[3 * k + a] - c[a]) * (r->p[3 * k + a] - c[a]);
+        if (d2 > r2)
+            return 0;
+    }
+    return 1;
+}
+
+/* The squared radius of the bounding sphere of a cell of edge e, with a
+ * hair of slack for rounding. */
+static double sphere_r2(double e)
+{
+    return 0.75 * e * e * (1 + 1e-12);
+}
+
+/* ---- randomness (splitmix64, seeded per cell) ---- */
 
 static uint64_t splitmix(uint64_t *s)
 {
@@ -105,146 +243,56 @@ void hlod_st_draw(const double *w, size_t n, size_t m, uint64_t *state, double *
     }
 }
 
-/* ---- triangles ---- */
+/* ---- trees ---- */
 
-static const double *tri_vertex(const st *S, uint32_t id, int k)
+typedef struct hist {
+    double h[4][256];
+} hist;
+
+typedef struct st_cell {
+    double c[3], e;             /* centre and edge */
+    uint32_t level;             /* octree level: the root cube's is 0 */
+    uint64_t ix, iy, iz;        /* integer coordinates at that level */
+} st_cell;
+
+typedef struct st_node {
+    st_cell cell;
+    uint32_t *tris;             /* record indices */
+    uint32_t n, cap;
+    uint32_t *kids;             /* node indices in the same tree */
+    uint32_t nkids, kcap;
+    uint32_t *gkids;            /* children written already (their out indices) */
+    uint32_t ngk, gkcap;
+    uint32_t parent;            /* node index, NONE for the tree's root */
+    double area;                /* A(P(u)) */
+    uint8_t color[4];
+    hist *H;                    /* done: its subtree's colour histogram */
+    int done;                   /* sampled already (a bucket's root in the upper tree) */
+} st_node;
+
+typedef struct st_tree {
+    st_rec *rec;
+    double *area;               /* per record */
+    size_t nrec, rcap;
+    st_node *nodes;
+    size_t count, cap;
+} st_tree;
+
+static void tree_free(st_tree *t)
 {
-    const hlod_mesh *m = S->b[S->blk[id]].mesh;
-    size_t t = id - S->first[S->blk[id]];
-    return &m->positions[3 * (size_t)m->indices[3 * t + k]];
+    for (size_t i = 0; i < t->count; i++) {
+        free(t->nodes[i].tris);
+        free(t->nodes[i].kids);
+        free(t->nodes[i].gkids);
+        free(t->nodes[i].H);
+    }
+    free(t->nodes);
+    free(t->rec);
+    free(t->area);
+    memset(t, 0, sizeof *t);
 }
 
-static double tri_area(const double *a, const double *b, const double *c)
-{
-    double u[3], v[3];
-    for (int k = 0; k < 3; k++) {
-        u[k] = b[k] - a[k];
-        v[k] = c[k] - a[k];
-    }
-    double x = u[1] * v[2] - u[2] * v[1], y = u[2] * v[0] - u[0] * v[2],
-           z = u[0] * v[1] - u[1] * v[0];
-    return 0.5 * sqrt(x * x + y * y + z * z);
-}
-
-/* The texture's texel at (u, v), wrapped (v = 0 the bottom row). */
-static void texel(const hlod_image *img, double u, double v, uint8_t out[4])
-{
-    u -= floor(u);
-    v -= floor(v);
-    int x = (int)(u * img->width), y = (int)((1 - v) * img->height);
-    x = x < 0 ? 0 : x >= img->width ? img->width - 1 : x;
-    y = y < 0 ? 0 : y >= img->height ? img->height - 1 : y;
-    const uint8_t *p = img->pixels + ((size_t)y * img->width + x) * img->channels;
-    switch (img->channels) {
-    case 1: out[0] = out[1] = out[2] = p[0]; out[3] = 255; break;
-    case 2: out[0] = out[1] = out[2] = p[0]; out[3] = p[1]; break;
-    case 3: out[0] = p[0]; out[1] = p[1]; out[2] = p[2]; out[3] = 255; break;
-    default: memcpy(out, p, 4); break;
-    }
-}
-
-static hlod_result load_textures(st *S)
-{
-    S->tex = calloc(S->nb ? S->nb : 1, sizeof *S->tex);
-    S->texes = calloc(S->nb ? S->nb : 1, sizeof *S->texes);
-    if (!S->tex || !S->texes)
-        return HLOD_ERR_NOMEM;
-    for (size_t i = 0; i < S->nb; i++) {
-        const char *path = S->b[i].texture;
-        if (!path || !S->b[i].mesh->uvs)
-            continue;
-        size_t k = 0;
-        while (k < S->ntex && strcmp(S->texes[k].path, path))
-            k++;
-        if (k == S->ntex) {
-            st_tex *t = &S->texes[S->ntex++];
-            t->path = path;
-            t->ok = hlod_image_read(path, &t->img, S->p->lg) == HLOD_OK && t->img.width > 0;
-            if (!t->ok)
-                hlod_logf(S->p->lg, HLOD_LOG_WARN, "texture %s unreadable: its triangles are "
-                          "built untextured", path);
-        }
-        if (S->texes[k].ok)
-            S->tex[i] = &S->texes[k];
-    }
-    return HLOD_OK;
-}
-
-static hlod_result number_triangles(st *S)
-{
-    S->first = malloc((S->nb + 1) * sizeof *S->first);
-    if (!S->first)
-        return HLOD_ERR_NOMEM;
-    size_t t = 0, v = 0;
-    S->vfirst = malloc((S->nb + 1) * sizeof *S->vfirst);
-    if (!S->vfirst)
-        return HLOD_ERR_NOMEM;
-    for (size_t i = 0; i < S->nb; i++) {
-        S->first[i] = t;
-        S->vfirst[i] = v;
-        t += S->b[i].mesh->tri_count;
-        v += S->b[i].mesh->vertex_count;
-    }
-    S->first[S->nb] = t;
-    S->vfirst[S->nb] = v;
-    S->total = t;
-    if (!t)
-        return HLOD_ERR_EMPTY;
-    if (t >= UINT32_MAX)
-        return HLOD_ERR_INVALID_ARG;
-    S->blk = malloc(t * sizeof *S->blk);
-    S->area = malloc(t * sizeof *S->area);
-    S->rgba = malloc(t * sizeof *S->rgba);
-    S->remap = malloc((v ? v : 1) * sizeof *S->remap);
-    if (!S->blk || !S->area || !S->rgba || !S->remap)
-        return HLOD_ERR_NOMEM;
-    for (size_t k = 0; k < v; k++)
-        S->remap[k] = UINT32_MAX;
-    for (size_t i = 0; i < S->nb; i++) {
-        const hlod_mesh *m = S->b[i].mesh;
-        for (size_t j = 0; j < m->tri_count; j++) {
-            uint32_t id = (uint32_t)(S->first[i] + j);
-            S->blk[id] = (uint32_t)i;
-            S->area[id] = tri_area(tri_vertex(S, id, 0), tri_vertex(S, id, 1), tri_vertex(S, id, 2));
-            if (S->tex[i]) {
-                /* the texture under the UV centroid */
-                double u = 0, w = 0;
-                for (int k = 0; k < 3; k++) {
-                    uint32_t vi = m->indices[3 * j + k];
-                    u += m->uvs[2 * (size_t)vi] / 3.0;
-                    w += m->uvs[2 * (size_t)vi + 1] / 3.0;
-                }
-                texel(&S->tex[i]->img, u, w, S->rgba[id]);
-            } else {
-                memcpy(S->rgba[id], S->b[i].rgba, 4);
-            }
-        }
-    }
-    return HLOD_OK;
-}
-
-/* ---- the octree ---- */
-
-static uint32_t node_add(st *S, const double c[3], double e, uint32_t parent, uint32_t depth)
-{
-    if (S->count == S->cap) {
-        size_t nc = S->cap ? 2 * S->cap : 256;
-        st_node *n = realloc(S->nodes, nc * sizeof *n);
-        if (!n)
-            return UINT32_MAX;
-        S->nodes = n;
-        S->cap = nc;
-    }
-    st_node *n = &S->nodes[S->count];
-    memset(n, 0, sizeof *n);
-    memcpy(n->c, c, sizeof n->c);
-    n->e = e;
-    n->parent = parent;
-    n->depth = depth;
-    return (uint32_t)S->count++;
-}
-
-static int list_push(uint32_t **v, uint32_t *n, uint32_t *cap, uint32_t x)
+static int push_u32(uint32_t **v, uint32_t *n, uint32_t *cap, uint32_t x)
 {
     if (*n == *cap) {
         uint32_t nc = *cap ? 2 * *cap : 8;
@@ -258,42 +306,95 @@ static int list_push(uint32_t **v, uint32_t *n, uint32_t *cap, uint32_t x)
     return 1;
 }
 
-static int fits(const st *S, uint32_t id, const double c[3], double r2)
+static int tree_reserve_recs(st_tree *t, size_t n)
 {
-    for (int k = 0; k < 3; k++) {
-        const double *p = tri_vertex(S, id, k);
-        double d2 = 0;
-        for (int a = 0; a < 3; a++)
-            d2 += (p[a] - c[a]) * (p[a] - c[a]);
-        if (d2 > r2)
-            return 0;
-    }
+    if (n <= t->rcap)
+        return 1;
+    size_t nc = t->rcap ? t->rcap : 1024;
+    while (nc < n)
+        nc *= 2;
+    st_rec *r = realloc(t->rec, nc * sizeof *r);
+    if (r)
+        t->rec = r;
+    double *a = realloc(t->area, nc * sizeof *a);
+    if (a)
+        t->area = a;
+    if (!r || !a)
+        return 0;
+    t->rcap = nc;
     return 1;
+}
+
+/* Appends record r; its index, or NONE. */
+static uint32_t tree_add_rec(st_tree *t, const st_rec *r)
+{
+    if (t->nrec >= NONE - 1 || !tree_reserve_recs(t, t->nrec + 1))
+        return NONE;
+    t->rec[t->nrec] = *r;
+    t->area[t->nrec] = rec_area(r);
+    return (uint32_t)t->nrec++;
+}
+
+static uint32_t node_add(st_tree *t, const st_cell *cell, uint32_t parent)
+{
+    if (t->count == t->cap) {
+        size_t nc = t->cap ? 2 * t->cap : 64;
+        st_node *n = realloc(t->nodes, nc * sizeof *n);
+        if (!n)
+            return NONE;
+        t->nodes = n;
+        t->cap = nc;
+    }
+    st_node *n = &t->nodes[t->count];
+    memset(n, 0, sizeof *n);
+    n->cell = *cell;
+    n->parent = parent;
+    return (uint32_t)t->count++;
+}
+
+static st_cell child_cell(const st_cell *p, int o)
+{
+    st_cell c = *p;
+    double h = p->e / 2;
+    for (int a = 0; a < 3; a++)
+        c.c[a] = p->c[a] + ((o >> a) & 1 ? h / 2 : -h / 2);
+    c.e = h;
+    c.level = p->level + 1;
+    c.ix = 2 * p->ix + (o & 1);
+    c.iy = 2 * p->iy + ((o >> 1) & 1);
+    c.iz = 2 * p->iz + ((o >> 2) & 1);
+    return c;
+}
+
+static int octant(const st_cell *cell, const double g[3])
+{
+    return (g[0] >= cell->c[0]) | (g[1] >= cell->c[1]) << 1 | (g[2] >= cell->c[2]) << 2;
+}
+
+static int has_kids(const st_node *n)
+{
+    return n->nkids + n->ngk > 0;
 }
 
 /* Node u's triangles ids[0..n): those that fit no child's sphere stay in
  * u; the others go down by their centroid's octant.  A cell whose
- * triangles would all go into one child and none stay is that child's
- * cell instead (no node with a single child and nothing of its own). */
-static hlod_result split(st *S, uint32_t u, uint32_t *ids, size_t n, uint8_t *oct)
+ * triangles would all go into one octant, none staying, is that octant
+ * instead. */
+static hlod_result split(st_tree *t, uint32_t u, uint32_t *ids, size_t n, uint8_t *oct,
+                         size_t leaf_tris)
 {
-    st_node *N = &S->nodes[u];
     for (;;) {
-        N = &S->nodes[u];
-        if (n <= S->p->leaf_tris || N->depth >= MAX_DEPTH || !(N->e > 0))
+        st_node *N = &t->nodes[u];
+        if (n <= leaf_tris || N->cell.level >= MAX_LEVEL || !(N->cell.e > 0))
             break;
-        double h = N->e / 2, r2 = 0.75 * h * h * (1 + 1e-12); /* (h sqrt(3) / 2)^2 */
         size_t own = 0, cnt[8] = {0};
+        double r2 = sphere_r2(N->cell.e / 2);
         for (size_t i = 0; i < n; i++) {
-            double g[3] = {0, 0, 0};
-            for (int k = 0; k < 3; k++)
-                for (int a = 0; a < 3; a++)
-                    g[a] += tri_vertex(S, ids[i], k)[a] / 3;
-            int o = (g[0] >= N->c[0]) | (g[1] >= N->c[1]) << 1 | (g[2] >= N->c[2]) << 2;
-            double cc[3];
-            for (int a = 0; a < 3; a++)
-                cc[a] = N->c[a] + ((o >> a) & 1 ? h / 2 : -h / 2);
-            oct[i] = fits(S, ids[i], cc, r2) ? (uint8_t)o : 8;
+            double g[3];
+            rec_centroid(&t->rec[ids[i]], g);
+            int o = octant(&N->cell, g);
+            st_cell cc = child_cell(&N->cell, o);
+            oct[i] = rec_fits(&t->rec[ids[i]], cc.c, r2) ? (uint8_t)o : 8;
             if (oct[i] == 8)
                 own++;
             else
@@ -308,69 +409,53 @@ static hlod_result split(st *S, uint32_t u, uint32_t *ids, size_t n, uint8_t *oc
                 only = o;
             }
         if (used == 1 && own == 0) {
-            /* the same node, one octant smaller */
-            for (int a = 0; a < 3; a++)
-                N->c[a] += (only >> a) & 1 ? h / 2 : -h / 2;
-            N->e = h;
+            N->cell = child_cell(&N->cell, only);
             continue;
         }
-        /* partition ids: own first, then octant by octant (stable) */
         uint32_t *tmp = malloc(n * sizeof *tmp);
-        if (!tmp)
+        uint8_t *otmp = malloc(n);
+        if (!tmp || !otmp) {
+            free(tmp);
+            free(otmp);
             return HLOD_ERR_NOMEM;
-        size_t start[10] = {0};
+        }
+        size_t start[9];
         start[0] = 0;
         start[1] = own;
-        for (int o = 0; o < 8; o++)
+        for (int o = 0; o < 7; o++)
             start[o + 2] = start[o + 1] + cnt[o];
         size_t cur[9];
-        for (int o = 0; o < 9; o++)
-            cur[o] = o == 0 ? 0 : start[o];
+        memcpy(cur, start, sizeof cur);
         for (size_t i = 0; i < n; i++) {
             int slot = oct[i] == 8 ? 0 : oct[i] + 1;
+            otmp[cur[slot]] = oct[i];
             tmp[cur[slot]++] = ids[i];
         }
         memcpy(ids, tmp, n * sizeof *ids);
+        memcpy(oct, otmp, n);
         free(tmp);
+        free(otmp);
         for (size_t i = 0; i < own; i++)
-            if (!list_push(&S->nodes[u].tris, &S->nodes[u].n, &S->nodes[u].cap, ids[i]))
+            if (!push_u32(&t->nodes[u].tris, &t->nodes[u].n, &t->nodes[u].cap, ids[i]))
                 return HLOD_ERR_NOMEM;
         for (int o = 0; o < 8; o++) {
             if (!cnt[o])
                 continue;
-            N = &S->nodes[u];
-            double cc[3];
-            for (int a = 0; a < 3; a++)
-                cc[a] = N->c[a] + ((o >> a) & 1 ? h / 2 : -h / 2);
-            uint32_t k = node_add(S, cc, h, u, N->depth + 1);
-            if (k == UINT32_MAX)
+            st_cell cc = child_cell(&t->nodes[u].cell, o);
+            uint32_t k = node_add(t, &cc, u);
+            if (k == NONE || !push_u32(&t->nodes[u].kids, &t->nodes[u].nkids,
+                                       &t->nodes[u].kcap, k))
                 return HLOD_ERR_NOMEM;
-            N = &S->nodes[u];
-            if (!list_push(&N->kids, &N->nkids, &N->kids_cap, k))
-                return HLOD_ERR_NOMEM;
-            hlod_result r = split(S, k, ids + start[o + 1], cnt[o], oct + start[o + 1]);
+            hlod_result r = split(t, k, ids + start[o + 1], cnt[o], oct + start[o + 1], leaf_tris);
             if (r != HLOD_OK)
                 return r;
         }
         return HLOD_OK;
     }
-    /* a leaf: every triangle stays */
     for (size_t i = 0; i < n; i++)
-        if (!list_push(&S->nodes[u].tris, &S->nodes[u].n, &S->nodes[u].cap, ids[i]))
+        if (!push_u32(&t->nodes[u].tris, &t->nodes[u].n, &t->nodes[u].cap, ids[i]))
             return HLOD_ERR_NOMEM;
     return HLOD_OK;
-}
-
-/* ---- the samples (bottom-up) ---- */
-
-typedef struct hist {
-    double h[4][256];
-} hist;
-
-static void hist_add(hist *H, const uint8_t c[4], double w)
-{
-    for (int k = 0; k < 4; k++)
-        H->h[k][c[k]] += w;
 }
 
 static void hist_median(const hist *H, uint8_t out[4])
@@ -390,87 +475,63 @@ static void hist_median(const hist *H, uint8_t out[4])
     }
 }
 
-/* Node u's subtree: its children's samples first, then u's own draws;
- * H receives the subtree's colour histogram. */
-static hlod_result sample(st *S, uint32_t u, hist *H)
+static uint64_t cell_seed(uint64_t seed, const st_cell *c)
 {
-    memset(H, 0, sizeof *H);
-    st_node *N = &S->nodes[u];
-    for (uint32_t i = 0; i < N->n; i++) {
-        N->area += S->area[N->tris[i]];
-        hist_add(H, S->rgba[N->tris[i]], S->area[N->tris[i]]);
+    uint64_t s = seed ^ 0x632be59bd9b4e019ull;
+    uint64_t k[4] = {c->level, c->ix, c->iy, c->iz};
+    for (int i = 0; i < 4; i++) {
+        s ^= k[i] + 0x9e3779b97f4a7c15ull;
+        s = splitmix(&s);
     }
-    if (N->nkids) {
-        hist *CH = malloc(sizeof *CH);
-        if (!CH)
-            return HLOD_ERR_NOMEM;
-        for (uint32_t k = 0; k < S->nodes[u].nkids; k++) {
-            hlod_result r = sample(S, S->nodes[u].kids[k], CH);
-            if (r != HLOD_OK) {
-                free(CH);
-                return r;
-            }
-            S->nodes[u].area += S->nodes[S->nodes[u].kids[k]].area;
-            for (int c = 0; c < 4; c++)
-                for (int v = 0; v < 256; v++)
-                    H->h[c][v] += CH->h[c][v];
-        }
-        free(CH);
-    }
-    N = &S->nodes[u];
-    hist_median(H, N->color);
-    if (!N->nkids)
-        return HLOD_OK;
+    return s;
+}
 
-    /* the pool: u's own triangles, then each child's, in order */
+/* Node u's draws over its pool (its own list, then each child's): the
+ * distinct triangles drawn from children move up; a child with children
+ * of its own keeps one triangle. */
+static hlod_result draw_up(st_tree *t, uint32_t u, double c, uint64_t seed)
+{
+    st_node *N = &t->nodes[u];
     size_t pool = N->n;
     for (uint32_t k = 0; k < N->nkids; k++)
-        pool += S->nodes[N->kids[k]].n;
-    uint32_t *pid = malloc(pool * sizeof *pid);
-    uint32_t *pfrom = malloc(pool * sizeof *pfrom);   /* the child's slot, or UINT32_MAX */
-    double *w = malloc(pool * sizeof *w), *cum = malloc(pool * sizeof *cum);
-    size_t m = hlod_st_sample_size(N->area, N->e * N->e, S->p->c);
+        pool += t->nodes[N->kids[k]].n;
+    uint32_t *pid = malloc((pool + 1) * sizeof *pid);
+    double *w = malloc((pool + 1) * sizeof *w), *cum = malloc((pool + 1) * sizeof *cum);
+    size_t m = hlod_st_sample_size(N->area, N->cell.e * N->cell.e, c);
     size_t chunk = m < 65536 ? m : 65536;
     uint32_t *draw = malloc(chunk * sizeof *draw);
-    uint8_t *chosen = calloc(pool, 1);
-    hlod_result r = pid && pfrom && w && cum && draw && chosen ? HLOD_OK : HLOD_ERR_NOMEM;
-    if (r == HLOD_OK) {
+    uint8_t *chosen = calloc(pool + 1, 1);
+    hlod_result r = pid && w && cum && draw && chosen ? HLOD_OK : HLOD_ERR_NOMEM;
+    if (r == HLOD_OK && pool) {
         size_t j = 0;
-        for (uint32_t i = 0; i < N->n; i++, j++) {
-            pid[j] = N->tris[i];
-            pfrom[j] = UINT32_MAX;
-            w[j] = S->area[pid[j]];
-        }
+        for (uint32_t i = 0; i < N->n; i++, j++)
+            w[j] = t->area[pid[j] = N->tris[i]];
         for (uint32_t k = 0; k < N->nkids; k++) {
-            const st_node *C = &S->nodes[N->kids[k]];
-            for (uint32_t i = 0; i < C->n; i++, j++) {
-                pid[j] = C->tris[i];
-                pfrom[j] = k;
-                w[j] = S->area[pid[j]];
-            }
+            const st_node *C = &t->nodes[N->kids[k]];
+            for (uint32_t i = 0; i < C->n; i++, j++)
+                w[j] = t->area[pid[j] = C->tris[i]];
         }
-        uint64_t state = S->p->seed ^ (0x632be59bd9b4e019ull * ((uint64_t)u + 1));
         double wsum = 0;
         for (size_t i = 0; i < pool; i++)
             wsum += w[i];
-        if (wsum <= 0) /* degenerate triangles only: uniform */
+        if (!(wsum > 0)) /* degenerate triangles only: uniform */
             for (size_t i = 0; i < pool; i++)
                 w[i] = 1;
+        uint64_t state = cell_seed(seed, &N->cell);
         for (size_t done = 0; done < m; done += chunk) {
             size_t now = m - done < chunk ? m - done : chunk;
             hlod_st_draw(w, pool, now, &state, cum, draw);
             for (size_t i = 0; i < now; i++)
                 chosen[draw[i]] = 1;
         }
-        /* the distinct triangles drawn from children move up; a child with
-         * children of its own keeps one triangle (a node holds >= 1) */
         size_t base = N->n;
-        for (uint32_t k = 0; k < N->nkids && r == HLOD_OK; k++) {
-            size_t c0 = base, c1 = base + S->nodes[N->kids[k]].n, drawn = 0;
+        for (uint32_t k = 0; k < t->nodes[u].nkids && r == HLOD_OK; k++) {
+            st_node *C = &t->nodes[t->nodes[u].kids[k]];
+            size_t c0 = base, c1 = base + C->n, drawn = 0;
             base = c1;
             for (size_t i = c0; i < c1; i++)
                 drawn += chosen[i];
-            int spare = S->nodes[N->kids[k]].nkids && drawn == c1 - c0;
+            int spare = has_kids(C) && drawn == c1 - c0;
             uint32_t keep = 0;
             for (size_t i = c0; i < c1; i++) {
                 int up = chosen[i];
@@ -478,55 +539,104 @@ static hlod_result sample(st *S, uint32_t u, hist *H)
                     up = 0;
                     spare = 0;
                 }
-                if (up && !list_push(&S->nodes[u].tris, &S->nodes[u].n, &S->nodes[u].cap, pid[i])) {
-                    r = HLOD_ERR_NOMEM;
-                    break;
+                if (up) {
+                    if (!push_u32(&t->nodes[u].tris, &t->nodes[u].n, &t->nodes[u].cap, pid[i])) {
+                        r = HLOD_ERR_NOMEM;
+                        break;
+                    }
+                } else {
+                    C->tris[keep++] = pid[i];
                 }
-                N = &S->nodes[u];
-                if (!up)
-                    S->nodes[N->kids[k]].tris[keep++] = pid[i];
             }
-            S->nodes[N->kids[k]].n = keep;
+            C->n = keep;
         }
     }
     free(pid);
-    free(pfrom);
     free(w);
     free(cum);
     free(draw);
     free(chosen);
+    return r;
+}
+
+/* Node u's subtree: its children's samples first, then u's own draws; H
+ * receives the subtree's colour histogram. */
+static hlod_result sample(st_tree *t, uint32_t u, hist *H, double c, uint64_t seed)
+{
+    if (t->nodes[u].done) {
+        memcpy(H, t->nodes[u].H, sizeof *H);
+        return HLOD_OK;
+    }
+    memset(H, 0, sizeof *H);
+    st_node *N = &t->nodes[u];
+    N->area = 0;
+    for (uint32_t i = 0; i < N->n; i++) {
+        const st_rec *r = &t->rec[N->tris[i]];
+        N->area += t->area[N->tris[i]];
+        for (int k = 0; k < 4; k++)
+            H->h[k][r->rgba[k]] += t->area[N->tris[i]];
+    }
+    if (N->nkids) {
+        hist *CH = malloc(sizeof *CH);
+        if (!CH)
+            return HLOD_ERR_NOMEM;
+        for (uint32_t k = 0; k < t->nodes[u].nkids; k++) {
+            hlod_result r = sample(t, t->nodes[u].kids[k], CH, c, seed);
+            if (r != HLOD_OK) {
+                free(CH);
+                return r;
+            }
+            t->nodes[u].area += t->nodes[t->nodes[u].kids[k]].area;
+            for (int ch = 0; ch < 4; ch++)
+                for (int v = 0; v < 256; v++)
+                    H->h[ch][v] += CH->h[ch][v];
+        }
+        free(CH);
+    }
+    N = &t->nodes[u];
+    hist_median(H, N->color);
+    if (!N->nkids)
+        return HLOD_OK;
+    hlod_result r = draw_up(t, u, c, seed);
     if (r != HLOD_OK)
         return r;
-    /* nothing drawn could move up (each child with children kept its one
-     * triangle): the first such child gives its triangle and hands its
-     * children to u */
-    N = &S->nodes[u];
+    /* nothing could move up (each child with children kept its one
+     * triangle): the first child gives its triangle, and when that
+     * empties it, u adopts its children */
+    N = &t->nodes[u];
     if (!N->n && N->nkids) {
         uint32_t k0 = N->kids[0];
-        st_node *C = &S->nodes[k0];
-        if (!list_push(&N->tris, &N->n, &N->cap, C->tris[--C->n]))
-            return HLOD_ERR_NOMEM;
-        if (!C->n && C->nkids) {
-            N = &S->nodes[u];
-            C = &S->nodes[k0];
-            N->kids[0] = C->kids[0];
-            S->nodes[C->kids[0]].parent = u;
-            for (uint32_t k = 1; k < C->nkids; k++) {
-                S->nodes[C->kids[k]].parent = u;
-                if (!list_push(&N->kids, &N->nkids, &N->kids_cap, C->kids[k]))
+        st_node *C = &t->nodes[k0];
+        if (C->n) {
+            uint32_t x = C->tris[--C->n];
+            if (!push_u32(&t->nodes[u].tris, &t->nodes[u].n, &t->nodes[u].cap, x))
+                return HLOD_ERR_NOMEM;
+        }
+        C = &t->nodes[k0];
+        if (!C->n && has_kids(C)) {
+            N = &t->nodes[u];
+            N->kids[0] = NONE;
+            for (uint32_t k = 0; k < C->nkids; k++) {
+                t->nodes[C->kids[k]].parent = u;
+                if (!push_u32(&t->nodes[u].kids, &t->nodes[u].nkids, &t->nodes[u].kcap,
+                              C->kids[k]))
                     return HLOD_ERR_NOMEM;
-                N = &S->nodes[u];
-                C = &S->nodes[k0];
             }
-            C->nkids = 0;
+            for (uint32_t k = 0; k < C->ngk; k++)
+                if (!push_u32(&t->nodes[u].gkids, &t->nodes[u].ngk, &t->nodes[u].gkcap,
+                              C->gkids[k]))
+                    return HLOD_ERR_NOMEM;
+            C->nkids = C->ngk = 0;
         }
     }
-    /* leaves the draws emptied go */
-    N = &S->nodes[u];
+    /* children the draws emptied go */
+    N = &t->nodes[u];
     uint32_t kept = 0;
     for (uint32_t k = 0; k < N->nkids; k++) {
-        const st_node *C = &S->nodes[N->kids[k]];
-        if (C->n || C->nkids)
+        if (N->kids[k] == NONE)
+            continue;
+        const st_node *C = &t->nodes[N->kids[k]];
+        if (C->n || has_kids(C))
             N->kids[kept++] = N->kids[k];
     }
     N->nkids = kept;
@@ -534,6 +644,16 @@ static hlod_result sample(st *S, uint32_t u, hist *H)
 }
 
 /* ---- payloads ---- */
+
+typedef struct st_build {
+    const hlod_st_params *p;
+    st_texes tx;
+    hlod_store_writer *w;
+    hlod_store_node *out;       /* written nodes; parent NONE until known */
+    uint8_t (*colors)[4];
+    size_t nout, ocap;
+    hlod_st_report rep;
+} st_build;
 
 static int cmp_u32(const void *a, const void *b)
 {
@@ -566,10 +686,11 @@ static hlod_result to_rgba(const hlod_image *img, hlod_image *out)
 }
 
 typedef struct group {
-    size_t tri0, tri1;       /* the node's triangles [tri0, tri1) in sorted order */
-    size_t v0, v1;           /* its vertices in the payload mesh */
-    hlod_image atlas;        /* its texture's crop (hlod_node_texture) */
-    int x, y;                /* its place in the packed atlas */
+    size_t tri0, tri1;          /* the node's triangles [tri0, tri1) in payload order */
+    size_t v0, v1;              /* its vertices in the payload mesh */
+    uint32_t tex;
+    hlod_image atlas;           /* its texture's crop (hlod_node_texture) */
+    int x, y;                   /* its place in the packed atlas */
 } group;
 
 /* Shelf packing of the groups' atlases into one image (4 channels unless
@@ -592,7 +713,7 @@ static hlod_result pack_atlases(group *g, size_t ng, hlod_mesh *m, hlod_image *o
     int W = (int)ceil(sqrt(area) * 1.25);
     W = W < maxw ? maxw : W;
     int x = 0, y = 0, row = 0;
-    for (size_t i = 0; i < ng; i++) {   /* in order: deterministic, good enough */
+    for (size_t i = 0; i < ng; i++) {
         if (x + g[i].atlas.width > W) {
             y += row;
             x = row = 0;
@@ -635,91 +756,147 @@ static hlod_result pack_atlases(group *g, size_t ng, hlod_mesh *m, hlod_image *o
     return HLOD_OK;
 }
 
-/* Node u's payload: its triangles by block, textured blocks first (each
- * block's texels cropped by hlod_node_texture, the crops packed into one
- * atlas), then the untextured ones with their colours. */
-static hlod_result emit(st *S, uint32_t u, hlod_store_writer *w, hlod_store_node *out)
+/* A vertex of a payload: exact position, UV and colour. */
+typedef struct vkey {
+    double p[3];
+    float uv[2];
+    uint8_t rgba[4];
+} vkey;
+
+static uint64_t vkey_hash(const vkey *k)
 {
-    st_node *N = &S->nodes[u];
-    qsort(N->tris, N->n, sizeof *N->tris, cmp_u32);
-    /* textured triangles first: stable by (untextured, id) */
-    uint32_t *order = malloc((size_t)N->n * sizeof *order);
-    group *g = calloc((size_t)N->n + 1, sizeof *g);
+    uint64_t h = 0x243f6a8885a308d3ull;
+    uint64_t w[4];
+    memcpy(w, k->p, 24);
+    uint32_t u[3];
+    memcpy(u, k->uv, 8);
+    memcpy(&u[2], k->rgba, 4);
+    w[3] = (uint64_t)u[0] | (uint64_t)u[1] << 32;
+    for (int i = 0; i < 4; i++) {
+        h ^= w[i];
+        h = splitmix(&h);
+    }
+    h ^= u[2];
+    return splitmix(&h);
+}
+
+static int cmp_u64(const void *a, const void *b)
+{
+    uint64_t x = *(const uint64_t *)a, y = *(const uint64_t *)b;
+    return (x > y) - (x < y);
+}
+
+/* Node u's payload: its triangles by texture slot (textured first; each
+ * texture's texels cropped by hlod_node_texture, the crops packed into one
+ * atlas), then the untextured ones with their colours; vertices shared
+ * where position, UV and colour agree. */
+static hlod_result emit_node(st_build *B, st_tree *t, uint32_t u, hlod_store_node *out)
+{
+    st_node *N = &t->nodes[u];
+    uint32_t n = N->n;
+    uint32_t *order = malloc(((size_t)n + 1) * sizeof *order);
+    group *g = calloc((size_t)n + 1, sizeof *g);
+    size_t hcap = 16;
+    while (hcap < 6 * (size_t)n)
+        hcap *= 2;
+    uint32_t *slot = malloc(hcap * sizeof *slot);
+    vkey *keys = malloc((3 * (size_t)n + 1) * sizeof *keys);
     hlod_mesh m = {0};
     uint8_t *colors = NULL;
     hlod_image tex = {0};
-    hlod_result r = order && g ? HLOD_OK : HLOD_ERR_NOMEM;
+    hlod_result r = order && g && slot && keys ? HLOD_OK : HLOD_ERR_NOMEM;
     size_t ng = 0, ntex = 0, vc = 0;
     if (r == HLOD_OK) {
-        size_t j = 0;
-        for (int pass = 0; pass < 2; pass++)
-            for (uint32_t i = 0; i < N->n; i++)
-                if ((S->tex[S->blk[N->tris[i]]] != NULL) == (pass == 0))
-                    order[j++] = N->tris[i];
-        /* the groups (runs of one block) and their vertices */
-        for (uint32_t i = 0; i < N->n; i++) {
-            uint32_t id = order[i], b = S->blk[id];
-            if (!ng || S->blk[order[g[ng - 1].tri0]] != b) {
+        /* by texture slot (untextured, NONE, last), then record */
+        uint64_t *key = malloc(((size_t)n + 1) * sizeof *key);
+        if (!key) {
+            r = HLOD_ERR_NOMEM;
+            n = 0;
+        }
+        for (uint32_t i = 0; i < n; i++)
+            key[i] = (uint64_t)t->rec[N->tris[i]].tex << 32 | N->tris[i];
+        if (key)
+            qsort(key, n, sizeof *key, cmp_u64);
+        for (uint32_t i = 0; i < n; i++)
+            order[i] = (uint32_t)key[i];
+        free(key);
+        for (size_t i = 0; i < hcap; i++)
+            slot[i] = NONE;
+        uint32_t *idx = malloc((3 * (size_t)n + 1) * sizeof *idx);
+        if (!idx)
+            r = HLOD_ERR_NOMEM;
+        for (uint32_t i = 0; i < n && r == HLOD_OK; i++) {
+            const st_rec *rc = &t->rec[order[i]];
+            if (!ng || g[ng - 1].tex != rc->tex) {
                 if (ng)
                     g[ng - 1].tri1 = i;
                 g[ng].tri0 = i;
+                g[ng].tex = rc->tex;
+                g[ng].v0 = vc;
+                if (ng)
+                    g[ng - 1].v1 = vc;
                 ng++;
             }
-            if (S->tex[b])
+            if (rc->tex != NONE)
                 ntex++;
-            const hlod_mesh *bm = S->b[b].mesh;
-            size_t t = id - S->first[b];
             for (int k = 0; k < 3; k++) {
-                uint32_t *rv = &S->remap[S->vfirst[b] + bm->indices[3 * t + k]];
-                if (*rv == UINT32_MAX)
-                    *rv = (uint32_t)vc++;
-            }
-        }
-        g[ng - 1].tri1 = N->n;
-        r = hlod_mesh_alloc(&m, vc, N->n, ntex ? HLOD_MESH_UVS : 0);
-    }
-    if (r == HLOD_OK && !(colors = malloc(vc * 4 + 1)))
-        r = HLOD_ERR_NOMEM;
-    if (r == HLOD_OK) {
-        size_t vdone = 0;
-        for (size_t gi = 0; gi < ng; gi++) {
-            g[gi].v0 = vdone;
-            for (size_t i = g[gi].tri0; i < g[gi].tri1; i++) {
-                uint32_t id = order[i], b = S->blk[id];
-                const hlod_mesh *bm = S->b[b].mesh;
-                size_t t = id - S->first[b];
-                for (int k = 0; k < 3; k++) {
-                    uint32_t src = bm->indices[3 * t + k], dst = S->remap[S->vfirst[b] + src];
-                    m.indices[3 * i + k] = dst;
-                    if (dst >= vdone) { /* first use: vertices numbered in order of use */
-                        memcpy(&m.positions[3 * (size_t)dst], &bm->positions[3 * (size_t)src],
-                               3 * sizeof(double));
-                        if (m.uvs) {
-                            m.uvs[2 * (size_t)dst] = S->tex[b] ? bm->uvs[2 * (size_t)src] : 0;
-                            m.uvs[2 * (size_t)dst + 1] = S->tex[b] ? bm->uvs[2 * (size_t)src + 1] : 0;
-                        }
-                        memcpy(colors + 4 * (size_t)dst, S->b[b].rgba, 4);
-                        vdone = dst + 1;
-                    }
+                vkey key;
+                memset(&key, 0, sizeof key);
+                memcpy(key.p, &rc->p[3 * k], sizeof key.p);
+                if (rc->tex != NONE) {
+                    key.uv[0] = rc->uv[2 * k];
+                    key.uv[1] = rc->uv[2 * k + 1];
+                    memset(key.rgba, 255, 4);
+                } else {
+                    memcpy(key.rgba, rc->rgba, 4);
                 }
+                /* vertices of one group only: a group's range stays contiguous */
+                size_t h = vkey_hash(&key) & (hcap - 1);
+                uint32_t found = NONE;
+                while (slot[h] != NONE) {
+                    if (slot[h] >= g[ng - 1].v0 && !memcmp(&keys[slot[h]], &key, sizeof key)) {
+                        found = slot[h];
+                        break;
+                    }
+                    h = (h + 1) & (hcap - 1);
+                }
+                if (found == NONE) {
+                    found = (uint32_t)vc;
+                    keys[vc++] = key;
+                    slot[h] = found;
+                }
+                idx[3 * (size_t)i + k] = found;
             }
-            g[gi].v1 = vdone;
         }
-        /* reset the remap for the next node */
-        for (uint32_t i = 0; i < N->n; i++) {
-            uint32_t id = order[i], b = S->blk[id];
-            const hlod_mesh *bm = S->b[b].mesh;
-            size_t t = id - S->first[b];
-            for (int k = 0; k < 3; k++)
-                S->remap[S->vfirst[b] + bm->indices[3 * t + k]] = UINT32_MAX;
+        if (ng) {
+            g[ng - 1].tri1 = n;
+            g[ng - 1].v1 = vc;
         }
+        if (r == HLOD_OK)
+            r = hlod_mesh_alloc(&m, vc, n, ntex ? HLOD_MESH_UVS : 0);
+        if (r == HLOD_OK && !(colors = malloc(vc * 4 + 1)))
+            r = HLOD_ERR_NOMEM;
+        if (r == HLOD_OK) {
+            memcpy(m.indices, idx, 3 * (size_t)n * sizeof *idx);
+            for (size_t v = 0; v < vc; v++) {
+                memcpy(&m.positions[3 * v], keys[v].p, sizeof keys[v].p);
+                if (m.uvs)
+                    memcpy(&m.uvs[2 * v], keys[v].uv, sizeof keys[v].uv);
+                memcpy(colors + 4 * v, keys[v].rgba, 4);
+            }
+        }
+        free(idx);
     }
     /* each textured group's crop, on a view of the payload mesh */
     size_t ntg = 0;
     for (size_t gi = 0; gi < ng && r == HLOD_OK; gi++) {
-        uint32_t b = S->blk[order[g[gi].tri0]];
-        if (!S->tex[b])
+        if (g[gi].tex == NONE)
             break;
+        const hlod_image *img = tex_get(&B->tx, g[gi].tex, B->p->lg);
+        if (!img) { /* read before, so never: the records said textured */
+            r = HLOD_ERR_IO;
+            break;
+        }
         ntg++;
         hlod_mesh sub = {0};
         size_t nv = g[gi].v1 - g[gi].v0, nt = g[gi].tri1 - g[gi].tri0;
@@ -730,7 +907,7 @@ static hlod_result emit(st *S, uint32_t u, hlod_store_writer *w, hlod_store_node
         memcpy(sub.uvs, &m.uvs[2 * g[gi].v0], nv * 2 * sizeof(float));
         for (size_t i = 0; i < 3 * nt; i++)
             sub.indices[i] = m.indices[3 * g[gi].tri0 + i] - (uint32_t)g[gi].v0;
-        r = hlod_node_texture(&S->tex[b]->img, &sub, 1.0, &g[gi].atlas);
+        r = hlod_node_texture(img, &sub, 1.0, &g[gi].atlas);
         if (r == HLOD_OK)
             memcpy(&m.uvs[2 * g[gi].v0], sub.uvs, nv * 2 * sizeof(float));
         hlod_mesh_free(&sub);
@@ -739,10 +916,10 @@ static hlod_result emit(st *S, uint32_t u, hlod_store_writer *w, hlod_store_node
         r = pack_atlases(g, ntg, &m, &tex);
     if (r == HLOD_OK) {
         static const uint8_t white[4] = {255, 255, 255, 255};
-        r = hlod_build_add_payload(w, &m, ntg ? &tex : NULL, ntex, colors, white, out);
+        r = hlod_build_add_payload(B->w, &m, ntg ? &tex : NULL, ntex, colors, white, out);
     }
     if (r == HLOD_OK)
-        out->error = N->e * sqrt(3.0);  /* the cell's diagonal */
+        out->error = N->cell.e * sqrt(3.0);  /* the cell's diagonal */
     for (size_t gi = 0; g && gi < ng; gi++)
         hlod_image_free(&g[gi].atlas);
     hlod_image_free(&tex);
@@ -750,134 +927,825 @@ static hlod_result emit(st *S, uint32_t u, hlod_store_writer *w, hlod_store_node
     free(colors);
     free(order);
     free(g);
+    free(slot);
+    free(keys);
     return r;
 }
 
-static void st_free(st *S)
+/* Writes node u of t as the next output node; its index, or NONE. */
+static uint32_t write_node(st_build *B, st_tree *t, uint32_t u, hlod_result *res)
 {
-    for (size_t i = 0; i < S->count; i++) {
-        free(S->nodes[i].tris);
-        free(S->nodes[i].kids);
+    if (B->nout == B->ocap) {
+        size_t nc = B->ocap ? 2 * B->ocap : 1024;
+        hlod_store_node *o = realloc(B->out, nc * sizeof *o);
+        if (o)
+            B->out = o;
+        uint8_t (*c)[4] = realloc(B->colors, nc * sizeof *c);
+        if (c)
+            B->colors = c;
+        if (!o || !c || nc >= NONE) {
+            *res = HLOD_ERR_NOMEM;
+            return NONE;
+        }
+        B->ocap = nc;
     }
-    free(S->nodes);
-    for (size_t i = 0; i < S->ntex; i++)
-        hlod_image_free(&S->texes[i].img);
-    free(S->texes);
-    free(S->tex);
-    free(S->first);
-    free(S->vfirst);
-    free(S->blk);
-    free(S->area);
-    free(S->rgba);
-    free(S->remap);
+    const st_node *N = &t->nodes[u];
+    qsort(t->nodes[u].tris, N->n, sizeof *N->tris, cmp_u32);
+    hlod_store_node *o = &B->out[B->nout];
+    *res = emit_node(B, t, u, o);
+    if (*res != HLOD_OK)
+        return NONE;
+    o->parent = NONE;
+    o->block = 0;
+    memcpy(B->colors[B->nout], t->nodes[u].color, 4);
+    B->rep.tris += N->n;
+    if (has_kids(N))
+        B->rep.tris_inner += N->n;
+    else
+        B->rep.tris_leaf += N->n;
+    return (uint32_t)B->nout++;
 }
+
+/* Writes t's nodes in pre-order from root, the root too unless
+ * skip_root (then its children's out indices join its gkids); each
+ * node's written children (gkids) get it as parent. */
+static hlod_result write_tree(st_build *B, st_tree *t, uint32_t root, int skip_root)
+{
+    uint32_t *stack = malloc((t->count + 1) * sizeof *stack);
+    uint32_t *gidx = malloc((t->count + 1) * sizeof *gidx);
+    if (!stack || !gidx) {
+        free(stack);
+        free(gidx);
+        return HLOD_ERR_NOMEM;
+    }
+    hlod_result r = HLOD_OK;
+    size_t sp = 0;
+    stack[sp++] = root;
+    while (sp && r == HLOD_OK) {
+        uint32_t u = stack[--sp];
+        st_node *N = &t->nodes[u];
+        if (u == root && skip_root) {
+            gidx[u] = NONE;
+        } else {
+            gidx[u] = write_node(B, t, u, &r);
+            if (r != HLOD_OK)
+                break;
+            N = &t->nodes[u];
+            if (u != root) {
+                uint32_t pg = gidx[N->parent];
+                if (pg != NONE)
+                    B->out[gidx[u]].parent = pg;
+                else if (!push_u32(&t->nodes[N->parent].gkids, &t->nodes[N->parent].ngk,
+                                   &t->nodes[N->parent].gkcap, gidx[u]))
+                    r = HLOD_ERR_NOMEM;
+            }
+            for (uint32_t k = 0; k < N->ngk; k++)
+                B->out[N->gkids[k]].parent = gidx[u];
+        }
+        N = &t->nodes[u];
+        for (uint32_t k = N->nkids; k-- > 0;)
+            stack[sp++] = N->kids[k];
+    }
+    free(stack);
+    free(gidx);
+    return r;
+}
+
+/* ---- the bucket plan ---- */
+
+typedef struct st_bucket {
+    st_cell cell;
+    uint32_t upper;             /* its node in the upper tree */
+    st_rec *buf;                /* records not spilled yet (in double) */
+    size_t nbuf, bufcap;
+    uint64_t *chunk_off;        /* spilled runs: offset, records */
+    uint32_t *chunk_n;
+    size_t nchunk, chunkcap;
+    size_t count;               /* records given to it */
+} st_bucket;
+
+typedef struct st_plan {
+    st_cell root;
+    st_tree upper;              /* the cells above and at the buckets */
+    st_bucket *b;
+    size_t nb;
+    uint32_t *grid_bucket;      /* per cell of the count grid: its bucket, or NONE */
+    size_t bucket_tris;         /* a bucket's triangles at most (the memory limit's) */
+    FILE *spill;
+    const char *spill_path;
+    uint64_t spill_bytes;
+    size_t buffered;            /* records in the buffers */
+    size_t buffer_limit;
+} st_plan;
+
+static void plan_free(st_plan *P)
+{
+    for (size_t i = 0; i < P->nb; i++) {
+        free(P->b[i].buf);
+        free(P->b[i].chunk_off);
+        free(P->b[i].chunk_n);
+    }
+    free(P->b);
+    free(P->grid_bucket);
+    tree_free(&P->upper);
+    if (P->spill) {
+        fclose(P->spill);
+        unlink(P->spill_path);
+    }
+    memset(P, 0, sizeof *P);
+}
+
+struct hlod_st_scan {
+    double lo[3], hi[3];
+    size_t tris;
+    /* per object: its box and triangles (the counts are spread over the
+     * grid cells its box meets once the root cube is known) */
+    double (*olo)[3], (*ohi)[3];
+    size_t *otris;
+    size_t nobj, objcap;
+};
+
+void hlod_st_scan_free(hlod_st_scan *s)
+{
+    if (!s)
+        return;
+    free(s->olo);
+    free(s->ohi);
+    free(s->otris);
+    free(s);
+}
+
+void hlod_st_scan_box(const hlod_st_scan *s, double lo[3], double hi[3])
+{
+    memcpy(lo, s->lo, sizeof s->lo);
+    memcpy(hi, s->hi, sizeof s->hi);
+}
+
+size_t hlod_st_scan_tris(const hlod_st_scan *s)
+{
+    return s->tris;
+}
+
+static st_cell root_cell(const double lo[3], const double hi[3])
+{
+    st_cell c;
+    memset(&c, 0, sizeof c);
+    double e = 0;
+    for (int a = 0; a < 3; a++) {
+        c.c[a] = 0.5 * (lo[a] + hi[a]);
+        e = fmax(e, hi[a] - lo[a]);
+    }
+    c.e = e > 0 ? e * (1 + 1e-9) : 1;
+    return c;
+}
+
+/* The count grid's cell index of point g in the root cube. */
+static size_t grid_cell(const st_cell *root, const double g[3])
+{
+    size_t i[3];
+    for (int a = 0; a < 3; a++) {
+        double f = (g[a] - (root->c[a] - root->e / 2)) / root->e * GRID_N;
+        long v = (long)floor(f);
+        i[a] = v < 0 ? 0 : v >= (long)GRID_N ? GRID_N - 1 : (size_t)v;
+    }
+    return (i[2] * GRID_N + i[1]) * GRID_N + i[0];
+}
+
+static double grid_sum(const double *grid, uint64_t ix, uint64_t iy, uint64_t iz, uint32_t level)
+{
+    uint64_t w = (uint64_t)GRID_N >> level;
+    double s = 0;
+    for (uint64_t z = iz * w; z < (iz + 1) * w; z++)
+        for (uint64_t y = iy * w; y < (iy + 1) * w; y++)
+            for (uint64_t x = ix * w; x < (ix + 1) * w; x++)
+                s += grid[(z * GRID_N + y) * GRID_N + x];
+    return s;
+}
+
+/* The plan's recursion: cell c (upper node u) is a bucket when its count
+ * fits or it is a grid cell; else its octants with triangles are. */
+static hlod_result plan_cell(st_plan *P, const double *grid, uint32_t u)
+{
+    st_cell c = P->upper.nodes[u].cell;
+    double count = grid_sum(grid, c.ix, c.iy, c.iz, c.level);
+    if (count <= (double)P->bucket_tris || c.level >= GRID_LEVEL) {
+        if (P->nb % 64 == 0) {
+            st_bucket *b = realloc(P->b, (P->nb + 64) * sizeof *b);
+            if (!b)
+                return HLOD_ERR_NOMEM;
+            P->b = b;
+        }
+        st_bucket *b = &P->b[P->nb++];
+        memset(b, 0, sizeof *b);
+        b->cell = c;
+        b->upper = u;
+        uint64_t w = (uint64_t)GRID_N >> c.level;
+        for (uint64_t z = c.iz * w; z < (c.iz + 1) * w; z++)
+            for (uint64_t y = c.iy * w; y < (c.iy + 1) * w; y++)
+                for (uint64_t x = c.ix * w; x < (c.ix + 1) * w; x++)
+                    P->grid_bucket[(z * GRID_N + y) * GRID_N + x] = (uint32_t)(P->nb - 1);
+        return HLOD_OK;
+    }
+    for (int o = 0; o < 8; o++) {
+        st_cell cc = child_cell(&c, o);
+        if (!(grid_sum(grid, cc.ix, cc.iy, cc.iz, cc.level) > 0))
+            continue;
+        uint32_t k = node_add(&P->upper, &cc, u);
+        if (k == NONE || !push_u32(&P->upper.nodes[u].kids, &P->upper.nodes[u].nkids,
+                                   &P->upper.nodes[u].kcap, k))
+            return HLOD_ERR_NOMEM;
+        hlod_result r = plan_cell(P, grid, k);
+        if (r != HLOD_OK)
+            return r;
+    }
+    return HLOD_OK;
+}
+
+static hlod_result plan_buckets(st_plan *P, const st_cell *root, const double *grid,
+                                size_t bucket_tris)
+{
+    P->root = *root;
+    P->bucket_tris = bucket_tris;
+    P->grid_bucket = malloc((size_t)GRID_N * GRID_N * GRID_N * sizeof *P->grid_bucket);
+    if (!P->grid_bucket || node_add(&P->upper, root, NONE) != 0)
+        return HLOD_ERR_NOMEM;
+    for (size_t i = 0; i < (size_t)GRID_N * GRID_N * GRID_N; i++)
+        P->grid_bucket[i] = NONE;
+    return plan_cell(P, grid, 0);
+}
+
+/* Spills every buffer to the spill file. */
+static hlod_result spill_all(st_plan *P, const hlod_logger *lg)
+{
+    if (!P->spill) {
+        P->spill = fopen(P->spill_path, "w+b");
+        if (!P->spill) {
+            hlod_logf(lg, HLOD_LOG_ERROR, "%s: cannot create the spill file: %s", P->spill_path,
+                      strerror(errno));
+            return HLOD_ERR_IO;
+        }
+    }
+    for (size_t i = 0; i < P->nb; i++) {
+        st_bucket *b = &P->b[i];
+        if (!b->nbuf)
+            continue;
+        if (b->nchunk == b->chunkcap) {
+            size_t nc = b->chunkcap ? 2 * b->chunkcap : 8;
+            uint64_t *o = realloc(b->chunk_off, nc * sizeof *o);
+            if (o)
+                b->chunk_off = o;
+            uint32_t *n = realloc(b->chunk_n, nc * sizeof *n);
+            if (n)
+                b->chunk_n = n;
+            if (!o || !n)
+                return HLOD_ERR_NOMEM;
+            b->chunkcap = nc;
+        }
+        b->chunk_off[b->nchunk] = P->spill_bytes;
+        b->chunk_n[b->nchunk++] = (uint32_t)b->nbuf;
+        for (size_t i = 0; i < b->nbuf; i++) {
+            const st_rec *r = &b->buf[i];
+            st_disk d;
+            for (int k = 0; k < 9; k++)
+                d.p[k] = (float)(r->p[k] - b->cell.c[k % 3]);
+            memcpy(d.uv, r->uv, sizeof d.uv);
+            d.tex = r->tex;
+            memcpy(d.rgba, r->rgba, 4);
+            if (fwrite(&d, sizeof d, 1, P->spill) != 1) {
+                hlod_logf(lg, HLOD_LOG_ERROR, "%s: cannot write the spill file: %s",
+                          P->spill_path, strerror(errno));
+                return HLOD_ERR_IO;
+            }
+        }
+        P->spill_bytes += b->nbuf * sizeof(st_disk);
+        free(b->buf);
+        b->buf = NULL;
+        b->nbuf = b->bufcap = 0;
+    }
+    P->buffered = 0;
+    return HLOD_OK;
+}
+
+/* Record r to its place: the bucket its centroid falls in when it fits
+ * that bucket's sphere, else the deepest upper cell on the way there
+ * whose sphere holds it. */
+static hlod_result place(st_plan *P, const st_rec *r, const hlod_logger *lg)
+{
+    double g[3];
+    rec_centroid(r, g);
+    uint32_t bi = P->grid_bucket[grid_cell(&P->root, g)];
+    if (bi != NONE) {
+        st_bucket *b = &P->b[bi];
+        if (rec_fits(r, b->cell.c, sphere_r2(b->cell.e))) {
+            if (b->nbuf == b->bufcap) {
+                size_t nc = b->bufcap ? 2 * b->bufcap : 256;
+                st_rec *d = realloc(b->buf, nc * sizeof *d);
+                if (!d)
+                    return HLOD_ERR_NOMEM;
+                b->buf = d;
+                b->bufcap = nc;
+            }
+            b->buf[b->nbuf++] = *r;
+            b->count++;
+            if (++P->buffered >= P->buffer_limit)
+                return spill_all(P, lg);
+            return HLOD_OK;
+        }
+    }
+    /* the upper tree: down from the root while a child on the centroid's
+     * side holds it */
+    st_tree *U = &P->upper;
+    uint32_t u = 0;
+    for (;;) {
+        const st_node *N = &U->nodes[u];
+        uint32_t next = NONE;
+        for (uint32_t k = 0; k < N->nkids && next == NONE; k++) {
+            const st_cell *cc = &U->nodes[N->kids[k]].cell;
+            int inside = 1;
+            for (int a = 0; a < 3; a++)
+                inside &= g[a] >= cc->c[a] - cc->e / 2 && g[a] < cc->c[a] + cc->e / 2;
+            if (inside && rec_fits(r, cc->c, sphere_r2(cc->e)))
+                next = N->kids[k];
+        }
+        /* a bucket's own node takes only what fits it (checked above) */
+        if (next == NONE || (bi != NONE && next == P->b[bi].upper))
+            break;
+        u = next;
+    }
+    uint32_t id = tree_add_rec(U, r);
+    if (id == NONE || !push_u32(&U->nodes[u].tris, &U->nodes[u].n, &U->nodes[u].cap, id))
+        return HLOD_ERR_NOMEM;
+    return HLOD_OK;
+}
+
+/* Bucket b's records, relative positions back to world doubles. */
+static hlod_result load_bucket(st_plan *P, st_bucket *b, st_tree *t, const hlod_logger *lg)
+{
+    if (!tree_reserve_recs(t, b->count + 1))
+        return HLOD_ERR_NOMEM;
+    st_disk *tmp = NULL;
+    size_t tmpcap = 0;
+    for (size_t c = 0; c < b->nchunk; c++) {
+        size_t n = b->chunk_n[c];
+        if (n > tmpcap) {
+            st_disk *x = realloc(tmp, n * sizeof *x);
+            if (!x) {
+                free(tmp);
+                return HLOD_ERR_NOMEM;
+            }
+            tmp = x;
+            tmpcap = n;
+        }
+        if (fseeko(P->spill, (off_t)b->chunk_off[c], SEEK_SET) != 0 ||
+            fread(tmp, sizeof *tmp, n, P->spill) != n) {
+            hlod_logf(lg, HLOD_LOG_ERROR, "%s: cannot read the spill file back: %s",
+                      P->spill_path, strerror(errno));
+            free(tmp);
+            return HLOD_ERR_IO;
+        }
+        for (size_t i = 0; i < n; i++) {
+            st_rec r;
+            for (int k = 0; k < 9; k++)
+                r.p[k] = b->cell.c[k % 3] + (double)tmp[i].p[k];
+            memcpy(r.uv, tmp[i].uv, sizeof r.uv);
+            r.tex = tmp[i].tex;
+            memcpy(r.rgba, tmp[i].rgba, 4);
+            if (tree_add_rec(t, &r) == NONE) {
+                free(tmp);
+                return HLOD_ERR_NOMEM;
+            }
+        }
+    }
+    for (size_t i = 0; i < b->nbuf; i++)
+        if (tree_add_rec(t, &b->buf[i]) == NONE) {
+            free(tmp);
+            return HLOD_ERR_NOMEM;
+        }
+    free(tmp);
+    free(b->buf);
+    b->buf = NULL;
+    b->nbuf = b->bufcap = 0;
+    return HLOD_OK;
+}
+
+/* Bucket b: its subtree built, sampled and written but for its root,
+ * whose triangles, area, histogram and written children go to its node
+ * in the upper tree. */
+static hlod_result build_bucket(st_build *B, st_plan *P, st_bucket *b)
+{
+    st_tree t = {0};
+    hlod_result r = load_bucket(P, b, &t, B->p->lg);
+    if (r == HLOD_OK && !t.nrec) {
+        tree_free(&t);
+        return HLOD_OK;
+    }
+    if (t.nrec > B->rep.bucket_tris_max)
+        B->rep.bucket_tris_max = t.nrec;
+    B->rep.buckets++;
+    uint32_t *ids = r == HLOD_OK ? malloc(t.nrec * sizeof *ids) : NULL;
+    uint8_t *oct = r == HLOD_OK ? malloc(t.nrec) : NULL;
+    if (r == HLOD_OK && (!ids || !oct || node_add(&t, &b->cell, NONE) != 0))
+        r = HLOD_ERR_NOMEM;
+    if (r == HLOD_OK) {
+        for (size_t i = 0; i < t.nrec; i++)
+            ids[i] = (uint32_t)i;
+        r = split(&t, 0, ids, t.nrec, oct, B->p->leaf_tris);
+    }
+    free(ids);
+    free(oct);
+    hist *H = r == HLOD_OK ? malloc(sizeof *H) : NULL;
+    if (r == HLOD_OK)
+        r = H ? sample(&t, 0, H, B->p->c, B->p->seed) : HLOD_ERR_NOMEM;
+    if (r == HLOD_OK)
+        r = write_tree(B, &t, 0, 1);
+    if (r == HLOD_OK) {
+        /* the root into the upper tree */
+        st_tree *U = &P->upper;
+        st_node *root = &t.nodes[0];
+        for (uint32_t i = 0; i < root->n && r == HLOD_OK; i++) {
+            uint32_t id = tree_add_rec(U, &t.rec[root->tris[i]]);
+            st_node *un = &U->nodes[b->upper];
+            if (id == NONE || !push_u32(&un->tris, &un->n, &un->cap, id))
+                r = HLOD_ERR_NOMEM;
+        }
+        st_node *un = &U->nodes[b->upper];
+        un->cell = root->cell;  /* a single-octant cell shrinks */
+        un->area = root->area;
+        memcpy(un->color, root->color, 4);
+        un->H = H;
+        H = NULL;
+        un->done = 1;
+        for (uint32_t k = 0; k < root->ngk && r == HLOD_OK; k++)
+            if (!push_u32(&un->gkids, &un->ngk, &un->gkcap, root->gkids[k]))
+                r = HLOD_ERR_NOMEM;
+        if (!un->n && !un->ngk)
+            un->done = 1; /* empty: its parent drops it */
+    }
+    free(H);
+    tree_free(&t);
+    return r;
+}
+
+/* The upper tree, once every bucket is in: its own triangles sampled
+ * with the buckets' roots below, and written. */
+static hlod_result build_upper(st_build *B, st_plan *P)
+{
+    st_tree *U = &P->upper;
+    /* a bucket whose cell held upper triangles as well: they joined its
+     * node after its root's (never: place() keeps a bucket's node for
+     * what fits the bucket).  An upper node without children or triangles
+     * (an empty plan cell) has nothing: its parent drops it. */
+    hist *H = malloc(sizeof *H);
+    if (!H)
+        return HLOD_ERR_NOMEM;
+    hlod_result r = sample(U, 0, H, B->p->c, B->p->seed);
+    free(H);
+    if (r != HLOD_OK)
+        return r;
+    if (!U->nodes[0].n) {
+        hlod_logf(B->p->lg, HLOD_LOG_ERROR, "sample tree: no triangles");
+        return HLOD_ERR_EMPTY;
+    }
+    return write_tree(B, U, 0, 0);
+}
+
+/* ---- finishing ---- */
+
+static size_t depth_of(const hlod_store_node *out, uint32_t *depth, uint32_t k)
+{
+    if (depth[k] != NONE)
+        return depth[k];
+    uint32_t d = 0, i = k;
+    while (out[i].parent != HLOD_STORE_NO_PARENT && depth[i] == NONE) {
+        i = out[i].parent;
+        d++;
+    }
+    d += depth[i] == NONE ? 0 : depth[i];
+    depth[k] = d;
+    return d;
+}
+
+static hlod_result finish(st_build *B, hlod_st_report *rep)
+{
+    hlod_result r = HLOD_OK;
+    uint32_t *depth = malloc((B->nout + 1) * sizeof *depth);
+    if (!depth)
+        r = HLOD_ERR_NOMEM;
+    for (size_t k = 0; r == HLOD_OK && k < B->nout; k++) {
+        if (B->out[k].parent == NONE)
+            B->out[k].parent = HLOD_STORE_NO_PARENT;
+        depth[k] = NONE;
+    }
+    for (size_t k = 0; r == HLOD_OK && k < B->nout; k++) {
+        size_t d = depth_of(B->out, depth, (uint32_t)k) + 1;
+        B->rep.levels = d > B->rep.levels ? d : B->rep.levels;
+    }
+    free(depth);
+    if (r == HLOD_OK) {
+        hlod_build_contain(B->out, B->nout);
+        r = hlod_store_writer_set_colors(B->w, (const uint8_t (*)[4])B->colors, (uint32_t)B->nout);
+    }
+    if (r == HLOD_OK) {
+        r = hlod_store_writer_finish(B->w, B->out, (uint32_t)B->nout, NULL);
+        B->w = NULL;
+        B->rep.nodes = B->nout;
+    }
+    if (rep && r == HLOD_OK)
+        *rep = B->rep;
+    return r;
+}
+
+static void build_free(st_build *B)
+{
+    if (B->w)
+        hlod_store_writer_abort(B->w);
+    free(B->out);
+    free(B->colors);
+    texes_free(&B->tx);
+}
+
+/* Every bucket in plan order, then the upper tree; finishes. */
+static hlod_result build_all(st_build *B, st_plan *P, hlod_st_report *rep)
+{
+    hlod_result r = HLOD_OK;
+    for (size_t i = 0; i < P->nb && r == HLOD_OK; i++)
+        r = build_bucket(B, P, &P->b[i]);
+    if (r == HLOD_OK)
+        r = build_upper(B, P);
+    B->rep.spill_bytes = P->spill_bytes;
+    if (r == HLOD_OK)
+        r = finish(B, rep);
+    return r;
+}
+
+/* ---- in memory ---- */
 
 hlod_result hlod_build_sampletree(const hlod_st_block *b, size_t nb, const hlod_st_params *p,
                                   hlod_store_writer *w, hlod_st_report *rep)
 {
-    st S = {0};
-    S.b = b;
-    S.nb = nb;
-    S.p = p;
     if (rep)
         memset(rep, 0, sizeof *rep);
+    st_build B = {0};
+    B.p = p;
+    B.w = w;
+    st_plan P = {0};
     hlod_result r = (b || !nb) && p && w && p->c > 0 && p->leaf_tris >= 1 ? HLOD_OK
                                                                           : HLOD_ERR_INVALID_ARG;
-    if (r == HLOD_OK)
-        r = load_textures(&S);
-    if (r == HLOD_OK)
-        r = number_triangles(&S);
-    uint32_t *ids = NULL;
-    uint8_t *oct = NULL;
+    double lo[3] = {INFINITY, INFINITY, INFINITY}, hi[3] = {-INFINITY, -INFINITY, -INFINITY};
+    size_t total = 0;
+    for (size_t i = 0; r == HLOD_OK && i < nb; i++) {
+        const hlod_mesh *m = b[i].mesh;
+        for (size_t t = 0; t < m->tri_count; t++)
+            for (int k = 0; k < 3; k++)
+                for (int a = 0; a < 3; a++) {
+                    double v = m->positions[3 * (size_t)m->indices[3 * t + k] + a];
+                    lo[a] = fmin(lo[a], v);
+                    hi[a] = fmax(hi[a], v);
+                }
+        total += m->tri_count;
+    }
+    if (r == HLOD_OK && !total)
+        r = HLOD_ERR_EMPTY;
+    /* one bucket: the root cube */
+    st_cell root = r == HLOD_OK ? root_cell(lo, hi) : (st_cell){{0}, 0, 0, 0, 0, 0};
+    double *grid = NULL;
+    if (r == HLOD_OK && !(grid = calloc((size_t)GRID_N * GRID_N * GRID_N, sizeof *grid)))
+        r = HLOD_ERR_NOMEM;
     if (r == HLOD_OK) {
-        double lo[3] = {INFINITY, INFINITY, INFINITY}, hi[3] = {-INFINITY, -INFINITY, -INFINITY};
-        for (size_t i = 0; i < nb; i++) {
-            double l[3], h[3];
-            if (!b[i].mesh->tri_count || !hlod_mesh_bounds(b[i].mesh, l, h))
-                continue;
-            for (int a = 0; a < 3; a++) {
-                lo[a] = fmin(lo[a], l[a]);
-                hi[a] = fmax(hi[a], h[a]);
-            }
+        grid[0] = (double)total;
+        P.buffer_limit = SIZE_MAX;
+        r = plan_buckets(&P, &root, grid, SIZE_MAX);
+    }
+    free(grid);
+    for (size_t i = 0; r == HLOD_OK && i < nb; i++) {
+        const hlod_mesh *m = b[i].mesh;
+        float diffuse[4];
+        for (int k = 0; k < 4; k++)
+            diffuse[k] = b[i].rgba[k] / 255.0f;
+        for (size_t t = 0; t < m->tri_count && r == HLOD_OK; t++) {
+            st_rec rec;
+            make_rec(m, t, b[i].texture, diffuse, &B.tx, p->lg, &rec);
+            if (rec.tex == NONE)
+                memcpy(rec.rgba, b[i].rgba, 4);
+            r = place(&P, &rec, p->lg);
         }
-        double c[3], e = 0;
-        for (int a = 0; a < 3; a++) {
-            c[a] = 0.5 * (lo[a] + hi[a]);
-            e = fmax(e, hi[a] - lo[a]);
-        }
-        e = e > 0 ? e * (1 + 1e-9) : 1;
-        ids = malloc(S.total * sizeof *ids);
-        oct = malloc(S.total);
-        r = ids && oct && node_add(&S, c, e, UINT32_MAX, 0) == 0 ? HLOD_OK : HLOD_ERR_NOMEM;
     }
-    if (r == HLOD_OK) {
-        for (size_t i = 0; i < S.total; i++)
-            ids[i] = (uint32_t)i;
-        r = split(&S, 0, ids, S.total, oct);
-    }
-    free(ids);
-    free(oct);
-    hist *H = malloc(sizeof *H);
     if (r == HLOD_OK)
-        r = H ? sample(&S, 0, H) : HLOD_ERR_NOMEM;
-    free(H);
-    /* pre-order over the kept nodes: payloads, then the tree */
-    hlod_store_node *out = NULL;
-    uint32_t *stack = NULL, *index = NULL, *depth_of = NULL; /* depth_of: each kept node's depth */
-    uint8_t (*colors)[4] = NULL;
-    size_t kept = 0;
-    if (r == HLOD_OK) {
-        out = calloc(S.count, sizeof *out);
-        stack = malloc(S.count * sizeof *stack);
-        index = malloc(S.count * sizeof *index);
-        depth_of = malloc(S.count * sizeof *depth_of);
-        colors = malloc(S.count * sizeof *colors);
-        r = out && stack && index && depth_of && colors ? HLOD_OK : HLOD_ERR_NOMEM;
-    }
-    if (r == HLOD_OK) {
-        size_t sp = 0;
-        stack[sp++] = 0;
-        while (sp && r == HLOD_OK) {
-            uint32_t u = stack[--sp];
-            const st_node *N = &S.nodes[u];
-            index[u] = (uint32_t)kept;
-            depth_of[kept] = N->parent == UINT32_MAX ? 0 : depth_of[index[N->parent]] + 1;
-            r = emit(&S, u, w, &out[kept]);
+        r = build_all(&B, &P, rep);
+    plan_free(&P);
+    build_free(&B);
+    return r;
+}
+
+/* ---- out of core: the inputs, streamed ---- */
+
+/* Calls fn for every mesh of inputs[0..n): an OBJ object by object
+ * (positions only when pos_only), any other format whole. */
+typedef hlod_result (*mesh_fn)(void *user, const char *path, const hlod_mesh *m);
+
+typedef struct each_ctx {
+    mesh_fn fn;
+    void *user;
+    const char *path;
+} each_ctx;
+
+static hlod_result each_object(void *user, const hlod_obj_info *info, const hlod_mesh *m)
+{
+    (void)info;
+    each_ctx *c = user;
+    return m ? c->fn(c->user, c->path, m) : HLOD_OK;
+}
+
+static hlod_result each_mesh(const char *const *inputs, size_t n, const char *scratch,
+                             int pos_only, const hlod_logger *lg, mesh_fn fn, void *user)
+{
+    for (size_t i = 0; i < n; i++) {
+        hlod_result r;
+        hlod_mesh m = {0};
+        if (hlod_mesh_is_obj(inputs[i])) {
+            each_ctx c = {fn, user, inputs[i]};
+            hlod_obj_stream_desc sd = {.logger = lg, .positions_only = pos_only,
+                                       .object = each_object, .user = &c};
+            r = hlod_obj_stream(inputs[i], &sd, &m);
+        } else {
+            hlod_import_desc idesc = {lg, 0, scratch};
+            r = hlod_mesh_import(inputs[i], &idesc, &m, NULL);
             if (r != HLOD_OK)
-                break;
-            out[kept].parent = N->parent == UINT32_MAX ? HLOD_STORE_NO_PARENT : index[N->parent];
-            out[kept].block = 0;
-            memcpy(colors[kept], N->color, 4);
-            if (rep) {
-                rep->tris += N->n;
-                if (N->nkids)
-                    rep->tris_inner += N->n;
-                else
-                    rep->tris_leaf += N->n;
-                rep->levels = depth_of[kept] + 1 > rep->levels ? depth_of[kept] + 1 : rep->levels;
-            }
-            kept++;
-            for (uint32_t k = N->nkids; k-- > 0;)
-                stack[sp++] = N->kids[k];
+                hlod_logf(lg, HLOD_LOG_ERROR, "%s: cannot read: %s", inputs[i],
+                          hlod_result_str(r));
+            else
+                r = fn(user, inputs[i], &m);
         }
+        hlod_mesh_free(&m);
+        if (r != HLOD_OK)
+            return r;
     }
-    if (r == HLOD_OK) {
-        hlod_build_contain(out, kept);
-        r = hlod_store_writer_set_colors(w, (const uint8_t (*)[4])colors, (uint32_t)kept);
+    return HLOD_OK;
+}
+
+typedef struct scan_ctx {
+    hlod_st_scan *s;
+    const hlod_logger *lg;
+} scan_ctx;
+
+static hlod_result scan_mesh(void *user, const char *path, const hlod_mesh *m)
+{
+    scan_ctx *c = user;
+    hlod_st_scan *s = c->s;
+    double lo[3] = {INFINITY, INFINITY, INFINITY}, hi[3] = {-INFINITY, -INFINITY, -INFINITY};
+    for (size_t t = 0; t < m->tri_count; t++)
+        for (int k = 0; k < 3; k++) {
+            const double *p = &m->positions[3 * (size_t)m->indices[3 * t + k]];
+            for (int a = 0; a < 3; a++) {
+                if (!(fabs(p[a]) <= HLOD_BUILD_MAX_COORD)) {
+                    hlod_logf(c->lg, HLOD_LOG_ERROR, "%s: vertex %u: %c = %g is beyond +-%g, "
+                              "which a store cannot hold", path, m->indices[3 * t + k],
+                              "xyz"[a], p[a], HLOD_BUILD_MAX_COORD);
+                    return HLOD_ERR_NAN;
+                }
+                lo[a] = fmin(lo[a], p[a]);
+                hi[a] = fmax(hi[a], p[a]);
+            }
+        }
+    if (!m->tri_count)
+        return HLOD_OK;
+    if (s->nobj == s->objcap) {
+        size_t nc = s->objcap ? 2 * s->objcap : 256;
+        double (*a)[3] = realloc(s->olo, nc * sizeof *a);
+        if (a)
+            s->olo = a;
+        double (*b)[3] = realloc(s->ohi, nc * sizeof *b);
+        if (b)
+            s->ohi = b;
+        size_t *t = realloc(s->otris, nc * sizeof *t);
+        if (t)
+            s->otris = t;
+        if (!a || !b || !t)
+            return HLOD_ERR_NOMEM;
+        s->objcap = nc;
     }
-    if (r == HLOD_OK) {
-        r = hlod_store_writer_finish(w, out, (uint32_t)kept, NULL);
-        w = NULL;
-        if (r == HLOD_OK && rep)
-            rep->nodes = kept;
+    memcpy(s->olo[s->nobj], lo, sizeof lo);
+    memcpy(s->ohi[s->nobj], hi, sizeof hi);
+    s->otris[s->nobj++] = m->tri_count;
+    for (int a = 0; a < 3; a++) {
+        s->lo[a] = fmin(s->lo[a], lo[a]);
+        s->hi[a] = fmax(s->hi[a], hi[a]);
     }
-    if (w)
-        hlod_store_writer_abort(w);
-    free(out);
-    free(stack);
-    free(index);
-    free(depth_of);
-    free(colors);
-    st_free(&S);
+    s->tris += m->tri_count;
+    return HLOD_OK;
+}
+
+hlod_result hlod_st_scan_inputs(const char *const *inputs, size_t n, const char *scratch,
+                                const hlod_logger *lg, hlod_st_scan **out)
+{
+    *out = NULL;
+    hlod_st_scan *s = calloc(1, sizeof *s);
+    if (!s)
+        return HLOD_ERR_NOMEM;
+    for (int a = 0; a < 3; a++) {
+        s->lo[a] = INFINITY;
+        s->hi[a] = -INFINITY;
+    }
+    scan_ctx c = {s, lg};
+    hlod_result r = each_mesh(inputs, n, scratch, 1, lg, scan_mesh, &c);
+    if (r == HLOD_OK && !s->tris) {
+        hlod_logf(lg, HLOD_LOG_ERROR, "no triangles in the input");
+        r = HLOD_ERR_EMPTY;
+    }
+    if (r != HLOD_OK) {
+        hlod_st_scan_free(s);
+        return r;
+    }
+    *out = s;
+    return HLOD_OK;
+}
+
+/* The approximate count grid: each object's triangles spread evenly over
+ * the grid cells its box meets. */
+static hlod_result scan_grid(const hlod_st_scan *s, const st_cell *root, double **grid)
+{
+    double *g = calloc((size_t)GRID_N * GRID_N * GRID_N, sizeof *g);
+    if (!g)
+        return HLOD_ERR_NOMEM;
+    for (size_t o = 0; o < s->nobj; o++) {
+        size_t a0 = grid_cell(root, s->olo[o]), a1 = grid_cell(root, s->ohi[o]);
+        size_t x0 = a0 % GRID_N, y0 = a0 / GRID_N % GRID_N, z0 = a0 / GRID_N / GRID_N;
+        size_t x1 = a1 % GRID_N, y1 = a1 / GRID_N % GRID_N, z1 = a1 / GRID_N / GRID_N;
+        double cells = (double)(x1 - x0 + 1) * (y1 - y0 + 1) * (z1 - z0 + 1);
+        for (size_t z = z0; z <= z1; z++)
+            for (size_t y = y0; y <= y1; y++)
+                for (size_t x = x0; x <= x1; x++)
+                    g[(z * GRID_N + y) * GRID_N + x] += (double)s->otris[o] / cells;
+    }
+    *grid = g;
+    return HLOD_OK;
+}
+
+typedef struct place_ctx {
+    st_plan *P;
+    st_build *B;
+    size_t tris;
+} place_ctx;
+
+static hlod_result place_mesh(void *user, const char *path, const hlod_mesh *m)
+{
+    (void)path;
+    place_ctx *c = user;
+    static const float grey[4] = {0.8f, 0.8f, 0.8f, 1};
+    for (size_t t = 0; t < m->tri_count; t++) {
+        uint32_t mat = m->tri_material ? m->tri_material[t] : 0;
+        const hlod_material *mt = mat < m->material_count ? &m->materials[mat] : NULL;
+        st_rec rec;
+        make_rec(m, t, mt ? mt->texture_path : NULL, mt ? mt->diffuse : grey, &c->B->tx,
+                 c->B->p->lg, &rec);
+        hlod_result r = place(c->P, &rec, c->B->p->lg);
+        if (r != HLOD_OK)
+            return r;
+    }
+    c->tris += m->tri_count;
+    return HLOD_OK;
+}
+
+hlod_result hlod_build_sampletree_inputs(const hlod_st_scan *s, const char *const *inputs,
+                                         size_t n, const char *scratch, const char *spill_path,
+                                         const hlod_st_params *p, hlod_store_writer *w,
+                                         hlod_st_report *rep)
+{
+    if (rep)
+        memset(rep, 0, sizeof *rep);
+    st_build B = {0};
+    B.p = p;
+    B.w = w;
+    st_plan P = {0};
+    P.spill_path = spill_path;
+    double *grid = NULL;
+    st_cell root = root_cell(s->lo, s->hi);
+    /* the memory: half for the buffers, half for a bucket's build */
+    size_t bucket_tris = SIZE_MAX;
+    P.buffer_limit = SIZE_MAX;
+    if (p->memory_bytes) {
+        bucket_tris = p->memory_bytes / 2 / TRI_BYTES;
+        P.buffer_limit = p->memory_bytes / 2 / sizeof(st_rec);
+        bucket_tris = bucket_tris < 1024 ? 1024 : bucket_tris;
+        P.buffer_limit = P.buffer_limit < 1024 ? 1024 : P.buffer_limit;
+    }
+    hlod_result r = scan_grid(s, &root, &grid);
+    if (r == HLOD_OK)
+        r = plan_buckets(&P, &root, grid, bucket_tris);
+    free(grid);
+    place_ctx c = {&P, &B, 0};
+    if (r == HLOD_OK)
+        r = each_mesh(inputs, n, scratch, 0, p->lg, place_mesh, &c);
+    if (r == HLOD_OK && c.tris != s->tris) {
+        hlod_logf(p->lg, HLOD_LOG_ERROR, "the input changed while it was read (%zu triangles, "
+                  "then %zu)", s->tris, c.tris);
+        r = HLOD_ERR_IO;
+    }
+    if (r == HLOD_OK && P.spill)
+        r = spill_all(&P, p->lg); /* one file to read back from */
+    if (r == HLOD_OK)
+        r = build_all(&B, &P, rep);
+    plan_free(&P);
+    build_free(&B);
     return r;
 }

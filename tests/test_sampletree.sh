@@ -10,6 +10,8 @@
 #     every triangle stored once (tris_total = tris_in), hlod-info says
 #     refine add and method sampletree, --verify passes, the same bytes on
 #     1 and 2 threads, --sample-c changes the store; --shard is refused;
+#     with --memory-mb 1, built out of core (buckets, a spill file that is
+#     removed), every triangle once, verified;
 #   - hlod-export-3dtiles writes refine ADD for it;
 #   - damaged (40 bytes flipped in the payloads) and truncated stores:
 #     --verify exits 1 naming the store; hlod-bench over the damaged one
@@ -75,6 +77,14 @@ ok $? "--sample-c 2 builds another store"
 rc=$?
 [ $rc -ne 0 ] && [ ! -e "$T/cb4.hlod" ] && grep -q "shards" "$T/err"
 ok $? "--shard is refused (exit $rc): $(head -1 "$T/err")"
+# out of core: a memory limit small enough for many buckets and a spill file
+"$BIN/hlod-build" "$T/cb.obj" -o "$T/cbm.hlod" --method sampletree --memory-mb 1 --json --quiet \
+    >"$T/bm.json" && "$BIN/hlod-info" "$T/cbm.hlod" --verify >/dev/null
+ok $? "built out of core and verified"
+[ "$(key tris_total <"$T/bm.json")" = 21632 ] && [ "$(key buckets <"$T/bm.json")" -gt 1 ] &&
+    [ "$(key spill_bytes <"$T/bm.json")" -gt 0 ] && [ "$(key buckets <"$T/b1.json")" = 1 ] &&
+    [ "$(key spill_bytes <"$T/b1.json")" = 0 ] && ! ls "$T"/cbm.hlod.spill-* >/dev/null 2>&1
+ok $? "every triangle once in $(key buckets <"$T/bm.json") buckets, $(key spill_bytes <"$T/bm.json") bytes spilled and removed"
 "$BIN/hlod-info" "$T/cb.hlod" --json >"$T/info.json"
 [ "$(key refine <"$T/info.json")" = add ] && [ "$(key method <"$T/info.json")" = sampletree ]
 ok $? "hlod-info: refine add, method sampletree"

@@ -54,6 +54,9 @@ typedef struct hlod_build_desc {
                                    cell of more triangles splits */
     double sample_c;            /* sampletree: c of m_u = q ln q + c q, in
                                    (0, 1000]; default HLOD_BUILD_SAMPLE_C */
+    size_t memory_mb;           /* sampletree: MiB the build may hold beside the
+                                   input's vertices (docs/sampletree.md); 0
+                                   (default): no limit, one bucket */
     size_t node_tris;           /* N_n (metis); default 2000 */
     double c_tex;               /* c_tex of Lakhia eq. 1, in [0, 1]; default 0.5 */
     uint64_t seed;              /* every choice's seed; default 1 */
@@ -88,6 +91,8 @@ typedef struct hlod_build_report {
     size_t tris_total;          /* triangles in all nodes */
     size_t groups;              /* group nodes above the blocks */
     size_t block_depth;         /* depth of the blocks' hlod_0 nodes */
+    size_t buckets;             /* sampletree: subtrees built one at a time */
+    uint64_t spill_bytes;       /* sampletree: written to the spill file */
 } hlod_build_report;
 
 /* Every field set to its default (0 is a valid c_tex, so zero does not

@@ -55,6 +55,9 @@ static void usage(FILE *fp)
             "  --voxel-tris N         N_v: triangles per voxel (metis, default 500)\n"
             "  --leaf-tris N          N_l: leaf size (metis, default 4000); sampletree:\n"
             "                         a cell of more triangles splits (default 256)\n"
+            "  --memory-mb M          sampletree: MiB the build may hold beside the\n"
+            "                         input's vertices (buckets built one at a time,\n"
+            "                         a spill file beside OUT; default 0: no limit)\n"
             "  --sample-c C           sampletree: c of the sample size\n"
             "                         q ln q + c q (Klein Theorem 1; default 13.8,\n"
             "                         p > 1 - 1e-6), in (0, 1000]\n"
@@ -78,7 +81,8 @@ static void usage(FILE *fp)
             "  --json                 print one JSON object on stdout: blocks, nodes,\n"
             "                         levels, groups, block_depth, tris_in,\n"
             "                         tris_leaf, tris_total, bytes, seconds,\n"
-            "                         peak_rss_bytes (a shard's: its own)\n"
+            "                         peak_rss_bytes (a shard's: its own), buckets\n"
+            "                         and spill_bytes (sampletree; else 0)\n"
             "  --quiet                errors only, no progress bar\n"
             "  -h, --help             show this help\n"
             "\n"
@@ -182,6 +186,10 @@ static int parse(int argc, char **argv, options *o)
             if (!hlod_cli_parse_size(PROG, a, val, 2, 1u << 30, &o->bd.leaf_tris))
                 return 0;
             leaf_given = 1;
+        } else if (!strcmp(a, "--memory-mb")) {
+            NEED_VAL();
+            if (!hlod_cli_parse_size(PROG, a, val, 0, 1u << 24, &o->bd.memory_mb))
+                return 0;
         } else if (!strcmp(a, "--sample-c")) {
             NEED_VAL();
             if (!hlod_cli_parse_double(PROG, a, val, 0, 1000, HLOD_CLI_MIN_OPEN, &o->bd.sample_c))
@@ -305,6 +313,8 @@ int main(int argc, char **argv)
         hlod_json_size(&j, "bytes", bytes);
         hlod_json_double(&j, "seconds", secs);
         hlod_json_size(&j, "peak_rss_bytes", hlod_cli_peak_rss());
+        hlod_json_size(&j, "buckets", rep.buckets);
+        hlod_json_size(&j, "spill_bytes", (size_t)rep.spill_bytes);
         hlod_json_string(&j, "method", opt.bd.method == HLOD_BUILD_METIS        ? "metis"
                                        : opt.bd.method == HLOD_BUILD_SAMPLETREE ? "sampletree"
                                                                                 : "cutplane");
