@@ -4,8 +4,8 @@
 #
 #   - hlod-gen-scene: the chessboard's triangle count (2 g^2, g the multiple
 #     of 8 nearest sqrt(N / 2)), its tiles, both variants, the two-triangle
-#     reference; bad command lines exit 2, an unwritable folder exits 1,
-#     and neither leaves a file;
+#     reference; city copies (3 x the city's triangles); bad command lines
+#     exit 2, an unwritable folder exits 1, and neither leaves a file;
 #   - hlod-build --method sampletree on the board and on the small city:
 #     every triangle stored once (tris_total = tris_in), hlod-info says
 #     refine add and method sampletree, --verify passes, the same bytes on
@@ -23,6 +23,9 @@ SRC=${HLOD_SOURCE_DIR:-.}
 T=$(mktemp -d /tmp/hlod-test-sampletree-XXXXXX)
 trap 'rm -rf "$T"' EXIT
 . "$(dirname "$0")/lib.sh" # pass, fail, ok()
+
+key() { perl -MJSON::PP -e 'local $/; my $j = JSON::PP->new->decode(<STDIN>);
+    my $v = $j->{$ARGV[0]}; print defined $v ? $v : "NaN"' "$1"; }
 
 # ---- hlod-gen-scene ----
 "$BIN/hlod-gen-scene" --kind chessboard --tris 20000 -o "$T/cb.obj" --quiet --tile-tris 2000
@@ -45,6 +48,12 @@ for bad in "--kind city --tris 100 -o $T/x.obj" "--kind chessboard -o $T/x.obj" 
     [ $rc -eq 2 ] && grep -q '^hlod-gen-scene: error:' "$T/err" && ! ls "$T"/x* >/dev/null 2>&1
     ok $? "bad command line '$bad': exit 2 (got $rc), named, nothing written: $(head -1 "$T/err")"
 done
+"$BIN/hlod-gen-scene" --kind city --copies 3 --preset tiny -o "$T/c3.obj" --quiet
+rc=$?
+one=$("$BIN/hlod-gen-city" --preset tiny -o "$T/one.obj" --json --quiet | key tris)
+[ $rc -eq 0 ] && [ "$(grep -c '^f ' "$T/c3.obj")" -eq $((3 * one)) ] &&
+    [ "$(grep -c '^o .*_c2$' "$T/c3.obj")" -gt 0 ] && [ -d "$T/c3_tex" ]
+ok $? "three copies of the tiny city: $((3 * one)) triangles, objects NAME_cK, textures once"
 mkdir -p "$T/ro" && chmod 555 "$T/ro"
 if [ "$(id -u)" != 0 ]; then
     "$BIN/hlod-gen-scene" --kind chessboard --tris 1000 -o "$T/ro/x.obj" --quiet 2>"$T/err"
@@ -60,8 +69,6 @@ else
 fi
 
 # ---- hlod-build --method sampletree ----
-key() { perl -MJSON::PP -e 'local $/; my $j = JSON::PP->new->decode(<STDIN>);
-    my $v = $j->{$ARGV[0]}; print defined $v ? $v : "NaN"' "$1"; }
 "$BIN/hlod-build" "$T/cb.obj" -o "$T/cb.hlod" --method sampletree --threads 1 --json --quiet >"$T/b1.json"
 ok $? "board built"
 [ "$(key tris_in <"$T/b1.json")" = 21632 ] && [ "$(key tris_total <"$T/b1.json")" = 21632 ] &&

@@ -23,6 +23,7 @@
  */
 #include "atomic_file.h"
 #include "cli.h"
+#include "city.h"
 #include "hlod/image.h"
 
 #include <errno.h>
@@ -39,8 +40,8 @@
 static const uint8_t LIGHT[3] = {230, 222, 200}, DARK[3] = {40, 46, 60};
 
 typedef struct options {
-    const char *kind, *out;
-    size_t tris, tile_tris;
+    const char *kind, *out, *preset;
+    size_t tris, tile_tris, copies;
     double size;            /* the board's side, model units */
     int textured, quiet;
 } options;
@@ -49,12 +50,17 @@ static void usage(FILE *fp)
 {
     fprintf(fp,
             "usage: hlod-gen-scene --kind chessboard --tris N -o OUT.obj [options]\n"
+            "       hlod-gen-scene --kind city --copies K -o OUT.obj [--preset P]\n"
             "\n"
             "Writes a scene for scaling runs.  chessboard: a flat board of 8 x 8\n"
             "squares (Klein Fig. 11) of about N triangles in tiles, with OUT.mtl,\n"
             "and OUT-reference.obj, the same board as two textured triangles.\n"
+            "city: K copies of hlod-gen-city's city side by side (its textures\n"
+            "once, in OUT_tex/).\n"
             "\n"
-            "  --kind K          chessboard (the only kind)\n"
+            "  --kind K          chessboard or city\n"
+            "  --copies K        city: copies, 1 to 10000, in rows of ceil(sqrt(K))\n"
+            "  --preset P        city: default (default), small or tiny\n"
             "  --tris N          triangles, about (2 g^2, g a multiple of 8);\n"
             "                    128 to 4e9\n"
             "  -o, --output OUT  the OBJ to write (OUT.mtl and OUT_chess.png beside)\n"
@@ -82,9 +88,22 @@ static int parse(int argc, char **argv, options *o)
         } else if (hlod_cli_match_flag(argc, argv, &i, "--kind", &v)) {
             if (!v)
                 return hlod_cli_usage_error(PROG, "%s needs a value", "--kind") * 0;
-            if (strcmp(v, "chessboard"))
-                return hlod_cli_usage_error(PROG, "--kind: '%s' is not chessboard", v) * 0;
+            if (strcmp(v, "chessboard") && strcmp(v, "city"))
+                return hlod_cli_usage_error(PROG, "--kind: '%s' is not chessboard or city", v) * 0;
             o->kind = v;
+        } else if (hlod_cli_match_flag(argc, argv, &i, "--copies", &v)) {
+            if (!v)
+                return hlod_cli_usage_error(PROG, "%s needs a value", "--copies") * 0;
+            if (!hlod_cli_parse_size(PROG, "--copies", v, 1, 10000, &o->copies))
+                return 0;
+        } else if (hlod_cli_match_flag(argc, argv, &i, "--preset", &v)) {
+            if (!v)
+                return hlod_cli_usage_error(PROG, "%s needs a value", "--preset") * 0;
+            hlod_city_desc probe = {0};
+            if (!hlod_city_preset(v, &probe))
+                return hlod_cli_usage_error(PROG, "--preset: '%s' is not default, small or tiny",
+                                            v) * 0;
+            o->preset = v;
         } else if (hlod_cli_match_flag(argc, argv, &i, "--tris", &v)) {
             if (!v)
                 return hlod_cli_usage_error(PROG, "%s needs a value", "--tris") * 0;
@@ -115,8 +134,14 @@ static int parse(int argc, char **argv, options *o)
     }
     if (!o->kind)
         return hlod_cli_usage_error(PROG, "%s is required (see --help)", "--kind") * 0;
-    if (!o->tris)
+    int city = !strcmp(o->kind, "city");
+    if (!city && !o->tris)
         return hlod_cli_usage_error(PROG, "%s is required (see --help)", "--tris") * 0;
+    if (city && !o->copies)
+        return hlod_cli_usage_error(PROG, "%s is required (see --help)", "--copies") * 0;
+    if (city ? o->tris != 0 : o->copies != 0)
+        return hlod_cli_usage_error(PROG, "%s does not go with this --kind",
+                                    city ? "--tris" : "--copies") * 0;
     if (!o->out)
         return hlod_cli_usage_error(PROG, "%s is required (see --help)", "-o OUT.obj") * 0;
     size_t n = strlen(o->out);
@@ -236,6 +261,125 @@ static void write_reference(FILE *fp, const options *o, const char *mtl)
     fprintf(fp, "f 1/1 2/2 3/3\nf 1/1 3/3 4/4\n");
 }
 
+/* ---- the city, copied ---- */
+
+/* The city's materials, texture paths relative to the OBJ's folder. */
+static void write_city_mtl(FILE *fp, const hlod_mesh *m, const char *obj_path)
+{
+    const char *slash = strrchr(obj_path, '/');
+    size_t dir = slash ? (size_t)(slash - obj_path) + 1 : 0;
+    fprintf(fp, "# hlod-gen-scene city copies\n");
+    for (size_t i = 0; i < m->material_count; i++) {
+        const hlod_material *mt = &m->materials[i];
+        fprintf(fp, "newmtl m%zu\nKd %.6f %.6f %.6f\n", i, mt->diffuse[0], mt->diffuse[1],
+                mt->diffuse[2]);
+        if (mt->texture_path)
+            fprintf(fp, "map_Kd %s\n", strncmp(mt->texture_path, obj_path, dir) ? mt->texture_path
+                                                                             : mt->texture_path + dir);
+        fputc('\n', fp);
+    }
+}
+
+/* Copy k of m, moved by off, its objects named NAME_cK. */
+static int write_city_copy(FILE *fp, const hlod_mesh *m, size_t k, const double off[2],
+                           unsigned long long base)
+{
+    for (size_t v = 0; v < m->vertex_count; v++) {
+        const double *p = &m->positions[3 * v];
+        fprintf(fp, "v %.17g %.17g %.17g\n", p[0] + off[0], p[1] + off[1], p[2]);
+        if (m->uvs)
+            fprintf(fp, "vt %.9g %.9g\n", m->uvs[2 * v], m->uvs[2 * v + 1]);
+    }
+    size_t nobj = m->object_count ? m->object_count : 1;
+    for (size_t o = 0; o < nobj; o++) {
+        size_t t0 = m->object_count ? m->objects[o].first_tri : 0;
+        size_t t1 = t0 + (m->object_count ? m->objects[o].tri_count : m->tri_count);
+        const char *name = m->object_count && m->objects[o].name ? m->objects[o].name : "city";
+        fprintf(fp, "o %s_c%zu\n", name, k);
+        uint32_t cur = UINT32_MAX;
+        for (size_t t = t0; t < t1; t++) {
+            uint32_t mat = m->tri_material ? m->tri_material[t] : 0;
+            if (mat != cur && mat < m->material_count) {
+                fprintf(fp, "usemtl m%u\n", mat);
+                cur = mat;
+            }
+            unsigned long long a = base + m->indices[3 * t] + 1, b = base + m->indices[3 * t + 1] + 1,
+                               c = base + m->indices[3 * t + 2] + 1;
+            if (m->uvs)
+                fprintf(fp, "f %llu/%llu %llu/%llu %llu/%llu\n", a, a, b, b, c, c);
+            else
+                fprintf(fp, "f %llu %llu %llu\n", a, b, c);
+        }
+    }
+    return !ferror(fp);
+}
+
+static int gen_city(const options *o, hlod_cli_progress *bar, const hlod_logger *lg)
+{
+    hlod_city_desc d = {0};
+    hlod_city_preset(o->preset ? o->preset : "default", &d);
+    d.seed = 1;
+    const char *tex_base;
+    char *tex_dir = beside(o->out, "_tex", &tex_base), *mtl_base_path = NULL;
+    const char *mtl_base;
+    mtl_base_path = beside(o->out, ".mtl", &mtl_base);
+    if (!tex_dir || !mtl_base_path) {
+        free(tex_dir);
+        free(mtl_base_path);
+        return 0;
+    }
+    d.texture_dir = tex_dir;
+    d.logger = lg;
+    hlod_mesh city = {0};
+    hlod_city_stats cs;
+    hlod_result r = hlod_city_generate(&d, &city, &cs);
+    hlod_atomic_file fo = {0}, fm = {0};
+    if (r != HLOD_OK)
+        hlod_logf(lg, HLOD_LOG_ERROR, "%s: cannot generate the city: %s", o->out,
+                  hlod_result_str(r));
+    if (r == HLOD_OK)
+        r = hlod_atomic_open(&fm, mtl_base_path, lg);
+    if (r == HLOD_OK)
+        r = hlod_atomic_open(&fo, o->out, lg);
+    if (r == HLOD_OK) {
+        double lo[3], hi[3];
+        hlod_mesh_bounds(&city, lo, hi);
+        double dx = (hi[0] - lo[0]) * 1.05, dy = (hi[1] - lo[1]) * 1.05;
+        size_t cols = (size_t)ceil(sqrt((double)o->copies));
+        write_city_mtl(fm.fp, &city, o->out);
+        fprintf(fo.fp, "# hlod-gen-scene city: %zu copies of %zu triangles\nmtllib %s\n",
+                o->copies, city.tri_count, mtl_base);
+        for (size_t k = 0; k < o->copies && r == HLOD_OK; k++) {
+            double off[2] = {(double)(k % cols) * dx, (double)(k / cols) * dy};
+            if (!write_city_copy(fo.fp, &city, k, off, (unsigned long long)k * city.vertex_count)) {
+                hlod_logf(lg, HLOD_LOG_ERROR, "%s: cannot write: %s", o->out, strerror(errno));
+                r = HLOD_ERR_IO;
+            }
+            hlod_cli_progress_fn(bar, (double)(k + 1), (double)o->copies);
+        }
+    }
+    int committed = 0;
+    if (r == HLOD_OK && (r = hlod_atomic_commit(&fm, lg)) == HLOD_OK)
+        committed = 1;
+    if (r == HLOD_OK)
+        r = hlod_atomic_commit(&fo, lg);
+    hlod_atomic_abort(&fm);
+    hlod_atomic_abort(&fo);
+    if (r != HLOD_OK) {
+        if (committed)
+            unlink(mtl_base_path);
+        hlod_rm_tree(tex_dir);
+    } else if (!o->quiet) {
+        hlod_cli_progress_clear(bar);
+        fprintf(stderr, "%s: %s: %zu copies of a %zu-triangle city, %zu triangles\n", PROG,
+                o->out, o->copies, city.tri_count, o->copies * city.tri_count);
+    }
+    hlod_mesh_free(&city);
+    free(tex_dir);
+    free(mtl_base_path);
+    return r == HLOD_OK;
+}
+
 int main(int argc, char **argv)
 {
     options o;
@@ -245,6 +389,11 @@ int main(int argc, char **argv)
     hlod_cli_progress_begin(&bar, "tiles", !o.quiet);
     hlod_cli_log ls = {PROG, o.quiet ? HLOD_LOG_ERROR : HLOD_LOG_WARN, &bar};
     hlod_logger lg = hlod_cli_logger(&ls);
+    if (!strcmp(o.kind, "city")) {
+        int ok = gen_city(&o, &bar, &lg);
+        hlod_cli_progress_clear(&bar);
+        return ok ? 0 : 1;
+    }
     size_t g = (size_t)llround(sqrt((double)o.tris / 2) / 8) * 8;
     g = g < 8 ? 8 : g;
     const char *mtl_base, *png_base, *ref_base;
