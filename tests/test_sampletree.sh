@@ -3,8 +3,8 @@
 # docs/hlod-gen-scene.md).
 #
 #   - hlod-gen-scene: the chessboard's triangle count (2 g^2, g the multiple
-#     of 8 nearest sqrt(N / 2)), its tiles, both variants, the two-triangle
-#     reference; city copies (3 x the city's triangles); bad command lines
+#     of 8 nearest sqrt(N / 2)), its tiles, both variants, the
+#     64 x 64-quad reference; city copies (3 x the city's triangles); bad command lines
 #     exit 2, an unwritable folder exits 1, and neither leaves a file;
 #   - hlod-build --method sampletree on the board and on the small city:
 #     every triangle stored once (tris_total = tris_in), hlod-info says
@@ -34,8 +34,8 @@ faces=$(grep -c '^f ' "$T/cb.obj") objs=$(grep -c '^o ' "$T/cb.obj")
 # sqrt(10000) = 100 -> g = 104: 21632 triangles; tiles of 31 x 31 quads: 4 x 4, two objects each
 [ "$faces" -eq 21632 ] && [ "$objs" -eq 32 ]
 ok $? "21632 triangles in 32 objects (got $faces in $objs)"
-[ "$(grep -c '^f ' "$T/cb-reference.obj")" -eq 2 ] && [ -s "$T/cb_chess.png" ] && [ -s "$T/cb.mtl" ]
-ok $? "the reference is two triangles; the texture and the materials are beside it"
+[ "$(grep -c '^f ' "$T/cb-reference.obj")" -eq 8192 ] && [ -s "$T/cb_chess.png" ] && [ -s "$T/cb.mtl" ]
+ok $? "the reference is 64 x 64 quads; the texture and the materials are beside it"
 "$BIN/hlod-gen-scene" --kind chessboard --tris 20000 -o "$T/cbt.obj" --textured --quiet
 [ "$(grep -c '^vt ' "$T/cbt.obj")" -eq "$(grep -c '^v ' "$T/cbt.obj")" ] &&
     [ "$(grep -c '^usemtl chess' "$T/cbt.obj")" -gt 0 ]

@@ -76,6 +76,9 @@ static void usage(FILE *fp)
         "  --memory-mb M     memory budget in MiB (default: 25%% of the store's\n"
         "                    payloads in memory, decoded)\n"
         "  --reference       render a full-detail reference per frame: PSNR, SSIM\n"
+        "  --reference-store R  the reference drawn at full detail from store R\n"
+        "                    (e.g. a chessboard's reference board) instead\n"
+        "                    of STORE; implies --reference\n"
         "  --reference-every K  only every K-th frame (default 1); each reference\n"
         "                    is drawn once and reused by every policy and sweep run\n"
         "  --reference-ss S  1, or 2 (default): the reference drawn at 2W x 2H in\n"
@@ -158,6 +161,7 @@ typedef struct options {
     uint32_t width, height;
     long frames;
     int up_y, reference, reference_every, reference_ss, deterministic, plots, json;
+    const char *reference_store; /* the reference drawn from this store instead */
     int backend, jitter_frames, occlusion_check, cone_check, realtime;
     uint64_t save[MAX_SAVE];    /* --save-frames */
     int nsave;
@@ -400,6 +404,10 @@ static int parse_args(int argc, char **argv, options *o)
             if (!parse_policies(v, o))
                 return 2;
         } else if (!strcmp(a, "--reference")) {
+            o->reference = 1;
+        } else if (FLAG("--reference-store")) {
+            NEED("--reference-store");
+            o->reference_store = v;
             o->reference = 1;
         } else if (FLAG("--reference-every")) {
             NEED("--reference-every");
@@ -1033,6 +1041,7 @@ static int write_frame_png(const char *dir, uint64_t f, const char *suffix, cons
 typedef struct context {
     const options *o;
     hlod_store *store;
+    hlod_store *ref_store;      /* --reference-store, or NULL: the measured store */
     hlod_path path;
     const char *path_name;
     gl_target gl;               /* the measured engine's context */
@@ -1160,7 +1169,8 @@ static const uint8_t *reference_image(context *c, uint64_t f)
         rd.logger = c->lg;
         rd.deterministic = 1; /* no loader thread: load_all_leaves loads */
         rd.memory_budget_bytes = UINT64_MAX / 4;
-        hlod_result r = hlod_engine_create(c->store, &rd, &c->ref_engine);
+        hlod_result r = hlod_engine_create(c->ref_store ? c->ref_store : c->store, &rd,
+                                           &c->ref_engine);
         if (r != HLOD_OK) {
             hlod_cli_error(PROG, "%s: cannot start the reference engine: %s", o->store,
                            hlod_result_str(r));
@@ -1656,9 +1666,15 @@ static int open_inputs(context *c)
         hlod_path_free(&c->path);
         return 1;
     }
+    if (o->reference_store && hlod_store_open(o->reference_store, &c->lg, &c->ref_store) != HLOD_OK) {
+        hlod_store_close(c->store);
+        hlod_path_free(&c->path);
+        return 1;
+    }
     if (make_dir(o->out) != 0) {
         hlod_cli_error(PROG, "%s: cannot create the output folder: %s", o->out, strerror(errno));
         hlod_store_close(c->store);
+        hlod_store_close(c->ref_store);
         hlod_path_free(&c->path);
         return 1;
     }
@@ -1833,6 +1849,7 @@ static void teardown(context *c)
     target_destroy(&c->ref_gl);
     target_destroy(&c->gl);
     hlod_store_close(c->store);
+    hlod_store_close(c->ref_store);
     hlod_path_free(&c->path);
 }
 

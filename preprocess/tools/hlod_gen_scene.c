@@ -14,7 +14,7 @@
  * material's colour (the build's blocks keep one colour each).  Textured
  * (--textured): each tile one object mapped onto OUT_chess.png, the board's
  * 8 x 8 squares at 64 pixels each.  Beside it, OUT-reference.obj: the
- * whole board as two triangles mapped onto the same image, the analytic
+ * whole board as 64 x 64 quads mapped onto the same image, the analytic
  * reference of either variant (build it and draw it with full detail:
  * no full-detail render of the big board is needed).
  *
@@ -54,7 +54,7 @@ static void usage(FILE *fp)
             "\n"
             "Writes a scene for scaling runs.  chessboard: a flat board of 8 x 8\n"
             "squares (Klein Fig. 11) of about N triangles in tiles, with OUT.mtl,\n"
-            "and OUT-reference.obj, the same board as two textured triangles.\n"
+            "and OUT-reference.obj, the same board as 64 x 64 textured quads.\n"
             "city: K copies of hlod-gen-city's city side by side (its textures\n"
             "once, in OUT_tex/).\n"
             "\n"
@@ -251,14 +251,28 @@ static int write_board(FILE *fp, const options *o, size_t g, const char *mtl, hl
     return 1;
 }
 
+/* The reference: the board as REF_N x REF_N quads mapped onto the
+ * texture: few enough to draw at any board size, fine enough that the
+ * renderer's per-vertex light matches the board's. */
+#define REF_N 64
+
 static void write_reference(FILE *fp, const options *o, const char *mtl)
 {
     double s = o->size;
-    fprintf(fp, "# hlod-gen-scene chessboard reference: the board as two triangles\n");
+    fprintf(fp, "# hlod-gen-scene chessboard reference: %d x %d textured quads\n", REF_N, REF_N);
     fprintf(fp, "mtllib %s\no board\nusemtl chess\n", mtl);
-    fprintf(fp, "v 0 0 0\nv %.17g 0 0\nv %.17g %.17g 0\nv 0 %.17g 0\n", s, s, s, s);
-    fprintf(fp, "vt 0 0\nvt 1 0\nvt 1 1\nvt 0 1\n");
-    fprintf(fp, "f 1/1 2/2 3/3\nf 1/1 3/3 4/4\n");
+    for (int y = 0; y <= REF_N; y++)
+        for (int x = 0; x <= REF_N; x++) {
+            fprintf(fp, "v %.17g %.17g 0\n", x == REF_N ? s : s * x / REF_N,
+                    y == REF_N ? s : s * y / REF_N);
+            fprintf(fp, "vt %.9g %.9g\n", (double)x / REF_N, (double)y / REF_N);
+        }
+    for (int y = 0; y < REF_N; y++)
+        for (int x = 0; x < REF_N; x++) {
+            int a = y * (REF_N + 1) + x + 1, b = a + 1, c = a + REF_N + 1, d = c + 1;
+            fprintf(fp, "f %d/%d %d/%d %d/%d\nf %d/%d %d/%d %d/%d\n", a, a, b, b, d, d, a, a, d,
+                    d, c, c);
+        }
 }
 
 /* ---- the city, copied ---- */
