@@ -13,7 +13,8 @@
  * The committed one-node, textured-tree and two-roots seeds are format 2's,
  * and the packed-* ones format 3's (the reader still reads both); --seeds
  * leaves them and writes the v4-* seeds, format 4's with the extras table
- * (a node's normal cone; one-sided quads, so the cones bound them).
+ * (a node's normal cone; one-sided quads, so the cones bound them), and
+ * v4-sampletree.hlod, a sample tree's (additive, node colours).
  */
 #include "hlod/store_write.h"
 
@@ -52,9 +53,10 @@ static hlod_result add_quad(hlod_store_writer *w, double x0, double y0, double s
     return hlod_store_writer_add(w, &d, node);
 }
 
-/* roots blocks side by side, each a quad with `children` child quads. */
+/* roots blocks side by side, each a quad with `children` child quads;
+ * sampletree: a sample tree's header (additive) and node colours. */
 static int write_store(const char *dir, const char *name, uint32_t roots, uint32_t children,
-                       int textured, int packed)
+                       int textured, int packed, int sampletree)
 {
     char path[4096];
     snprintf(path, sizeof path, "%s/%s", dir, name);
@@ -64,6 +66,12 @@ static int write_store(const char *dir, const char *name, uint32_t roots, uint32
     wd.build.desired_tris = 2;
     wd.build.level_factor = 2;
     wd.build.c_tex = 0.5;
+    if (sampletree) {
+        wd.build.method = HLOD_STORE_METHOD_SAMPLETREE;
+        wd.build.desired_tris = 0;
+        wd.build.level_factor = 13.8;
+        wd.build.leaf_tris = 2;
+    }
     wd.payload_align = 64;
     if (packed) {
         wd.quant_step = 1.0 / 64;
@@ -94,6 +102,15 @@ static int write_store(const char *dir, const char *name, uint32_t roots, uint32
         hlod_store_writer_abort(w);
         return 1;
     }
+    uint8_t colors[16][4];
+    for (uint32_t k = 0; k < n; k++) {
+        const uint8_t c[4] = {(uint8_t)(40 * k), 120, (uint8_t)(200 - 30 * k), 255};
+        memcpy(colors[k], c, 4);
+    }
+    if (sampletree && hlod_store_writer_set_colors(w, (const uint8_t (*)[4])colors, n) != HLOD_OK) {
+        hlod_store_writer_abort(w);
+        return 1;
+    }
     if (hlod_store_writer_finish(w, nodes, n, NULL) != HLOD_OK)
         return 1;
     printf("%s\n", path);
@@ -107,7 +124,8 @@ int main(int argc, char **argv)
         return 2;
     }
     int bad = 0;
-    bad |= write_store(argv[1], "v4-textured-tree.hlod", 1, 2, 1, 0);
-    bad |= write_store(argv[1], "v4-packed-two-roots.hlod", 2, 1, 0, 1);
+    bad |= write_store(argv[1], "v4-textured-tree.hlod", 1, 2, 1, 0, 0);
+    bad |= write_store(argv[1], "v4-packed-two-roots.hlod", 2, 1, 0, 1, 0);
+    bad |= write_store(argv[1], "v4-sampletree.hlod", 1, 2, 0, 1, 1);
     return bad;
 }
