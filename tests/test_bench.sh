@@ -111,7 +111,7 @@ ok $? "deadline_met and toggles_after_60 agree with frames.csv"
 [ "$(($(wc -l <"$T/run/jitter.csv") - 1))" -eq 120 ] && head -1 "$T/run/jitter.csv" | grep -qx "i,ms"
 ok $? "jitter.csv: one row per replay (120)"
 head -1 "$T/run/frames.csv" |
-    grep -q ",toggles_up_ma35,toggles_down_ma35,pixels_drawn,margin,occlusion_hidden,occlusion_tested,occlusion_culled,occlusion_ms,occlusion_check_psnr,occlusion_check_differing,cone_culled,cone_check_differing$"
+    grep -q ",toggles_up_ma35,toggles_down_ma35,pixels_drawn,margin,occlusion_hidden,occlusion_tested,occlusion_culled,occlusion_ms,occlusion_check_psnr,occlusion_check_differing,cone_culled,cone_check_differing,splats,splat_px$"
 ok $? "frames.csv: the new columns come last, in order"
 for png in frame_time nodes_per_depth toggles memory psnr; do
     head -c 8 "$T/run/$png.png" 2>/dev/null | od -An -tx1 | grep -q "89 50 4e 47" || missing="$missing $png"

@@ -106,6 +106,22 @@ static int parse_shard(const char *val, hlod_build_desc *bd)
     return 1;
 }
 
+/* --method's value into bd->method. */
+static int parse_method(const char *val, hlod_build_desc *bd)
+{
+    if (!strcmp(val, "cutplane"))
+        bd->method = HLOD_BUILD_CUTPLANE;
+    else if (!strcmp(val, "metis"))
+        bd->method = HLOD_BUILD_METIS;
+    else if (!strcmp(val, "sampletree"))
+        bd->method = HLOD_BUILD_SAMPLETREE;
+    else {
+        hlod_cli_error(PROG, "--method: '%s' is not cutplane, metis or sampletree", val);
+        return 0;
+    }
+    return 1;
+}
+
 static int parse(int argc, char **argv, options *o)
 {
     memset(o, 0, sizeof *o);
@@ -145,16 +161,8 @@ static int parse(int argc, char **argv, options *o)
             o->out = val;
         } else if (!strcmp(a, "--method")) {
             NEED_VAL();
-            if (!strcmp(val, "cutplane"))
-                o->bd.method = HLOD_BUILD_CUTPLANE;
-            else if (!strcmp(val, "metis"))
-                o->bd.method = HLOD_BUILD_METIS;
-            else if (!strcmp(val, "sampletree"))
-                o->bd.method = HLOD_BUILD_SAMPLETREE;
-            else {
-                hlod_cli_error(PROG, "--method: '%s' is not cutplane, metis or sampletree", val);
+            if (!parse_method(val, &o->bd))
                 return 0;
-            }
         } else if (!strcmp(a, "--blocks")) {
             NEED_VAL();
             if (!strcmp(val, "objects"))
