@@ -34,6 +34,19 @@
 
 /* ---- records ---- */
 
+/* Reallocates the array *pp (any object pointer, passed by address) to n
+ * elements of elem bytes; 0, *pp untouched, when out of memory.  (Object
+ * pointers share one representation on every platform hlod builds on.) */
+static int grow(void *pp, size_t elem, size_t n)
+{
+    void *old, *q;
+    memcpy(&old, pp, sizeof old);
+    if (!(q = realloc(old, n * elem)))
+        return 0;
+    memcpy(pp, &q, sizeof q);
+    return 1;
+}
+
 typedef struct st_rec {
     double p[9];
     float uv[6];
@@ -76,16 +89,8 @@ static uint32_t tex_slot(st_texes *t, const char *path)
             return (uint32_t)i;
     if (t->n == t->cap) {
         size_t nc = t->cap ? 2 * t->cap : 16;
-        char **p = realloc(t->path, nc * sizeof *p);
-        if (p)
-            t->path = p;
-        hlod_image *im = realloc(t->img, nc * sizeof *im);
-        if (im)
-            t->img = im;
-        int *st = realloc(t->state, nc * sizeof *st);
-        if (st)
-            t->state = st;
-        if (!p || !im || !st)
+        if (!grow(&t->path, sizeof *t->path, nc) || !grow(&t->img, sizeof *t->img, nc) ||
+            !grow(&t->state, sizeof *t->state, nc))
             return NONE;
         t->cap = nc;
     }
@@ -313,13 +318,7 @@ static int tree_reserve_recs(st_tree *t, size_t n)
     size_t nc = t->rcap ? t->rcap : 1024;
     while (nc < n)
         nc *= 2;
-    st_rec *r = realloc(t->rec, nc * sizeof *r);
-    if (r)
-        t->rec = r;
-    double *a = realloc(t->area, nc * sizeof *a);
-    if (a)
-        t->area = a;
-    if (!r || !a)
+    if (!grow(&t->rec, sizeof *t->rec, nc) || !grow(&t->area, sizeof *t->area, nc))
         return 0;
     t->rcap = nc;
     return 1;
@@ -937,13 +936,8 @@ static uint32_t write_node(st_build *B, st_tree *t, uint32_t u, hlod_result *res
 {
     if (B->nout == B->ocap) {
         size_t nc = B->ocap ? 2 * B->ocap : 1024;
-        hlod_store_node *o = realloc(B->out, nc * sizeof *o);
-        if (o)
-            B->out = o;
-        uint8_t (*c)[4] = realloc(B->colors, nc * sizeof *c);
-        if (c)
-            B->colors = c;
-        if (!o || !c || nc >= NONE) {
+        if (nc >= NONE || !grow(&B->out, sizeof *B->out, nc) ||
+            !grow(&B->colors, sizeof *B->colors, nc)) {
             *res = HLOD_ERR_NOMEM;
             return NONE;
         }
@@ -1191,13 +1185,8 @@ static hlod_result spill_all(st_plan *P, const hlod_logger *lg)
             continue;
         if (b->nchunk == b->chunkcap) {
             size_t nc = b->chunkcap ? 2 * b->chunkcap : 8;
-            uint64_t *o = realloc(b->chunk_off, nc * sizeof *o);
-            if (o)
-                b->chunk_off = o;
-            uint32_t *n = realloc(b->chunk_n, nc * sizeof *n);
-            if (n)
-                b->chunk_n = n;
-            if (!o || !n)
+            if (!grow(&b->chunk_off, sizeof *b->chunk_off, nc) ||
+                !grow(&b->chunk_n, sizeof *b->chunk_n, nc))
                 return HLOD_ERR_NOMEM;
             b->chunkcap = nc;
         }
@@ -1611,16 +1600,8 @@ static hlod_result scan_mesh(void *user, const char *path, const hlod_mesh *m)
         return HLOD_OK;
     if (s->nobj == s->objcap) {
         size_t nc = s->objcap ? 2 * s->objcap : 256;
-        double (*a)[3] = realloc(s->olo, nc * sizeof *a);
-        if (a)
-            s->olo = a;
-        double (*b)[3] = realloc(s->ohi, nc * sizeof *b);
-        if (b)
-            s->ohi = b;
-        size_t *t = realloc(s->otris, nc * sizeof *t);
-        if (t)
-            s->otris = t;
-        if (!a || !b || !t)
+        if (!grow(&s->olo, sizeof *s->olo, nc) || !grow(&s->ohi, sizeof *s->ohi, nc) ||
+            !grow(&s->otris, sizeof *s->otris, nc))
             return HLOD_ERR_NOMEM;
         s->objcap = nc;
     }
