@@ -185,8 +185,10 @@ if [ -r "$BUNNY" ]; then
         perl -e 'for my $i (0 .. 20) { my $t = $i * 0.5; my $a = 6.283185307 * $t / 10;
             printf "%g %.6f %.6f 0.5 0 0 0\n", $t, 1.6 * cos($a), 1.6 * sin($a) }' >"$T/orbit.path"
     ok $? "bunny store and orbit path"
+    # deterministic: lakhia's front, and so what cones cull, is the same on
+    # a loaded machine (timed, it coarsened there and culled 0.09 a frame)
     CONE=(--path "$T/orbit.path" --target-ms 33 --width 320 --height 180 --frames 300 --memory-mb 64 --no-plots
-        --jitter-frames 0 --cone-check)
+        --jitter-frames 0 --cone-check --deterministic --set v_time=0.0001 --set fixed_ms=2 --io-mbps 200)
     "$BIN/hlod-bench" "$T/bunny.hlod" "${CONE[@]}" --out "$T/cone" --policy lakhia,okamoto \
         --set cone_cull=1 2>"$T/err" &&
         "$BIN/hlod-bench" "$T/bunny.hlod" "${CONE[@]}" --out "$T/nocone" 2>>"$T/err"
@@ -196,13 +198,17 @@ if [ -r "$BUNNY" ]; then
             print join " ", map { "$_=" . ($j->{$_} // "null") } qw(cone_culled_mean cone_check_differing_max
             cone_check_nodes cone_check_unchecked tris_mean render_waits)' <"$T/$r/summary.json" 2>/dev/null)"
     done
-    [ $rc -eq 0 ] && for r in cone/lakhia cone/okamoto; do
+    good=$((rc == 0))
+    for r in cone/lakhia cone/okamoto; do
         perl -MJSON::PP -e 'local $/; my $j = JSON::PP->new->decode(<STDIN>);
             exit !($j->{cone_culled_mean} > 1 && $j->{cone_check_differing_max} == 0 &&
                    $j->{cone_check_nodes} >= 0.9 * ($j->{cone_check_nodes} + $j->{cone_check_unchecked}) &&
-                   $j->{render_waits} == 0)' <"$T/$r/summary.json" || exit 1
-    done && perl -MJSON::PP -e 'local $/; my $j = JSON::PP->new->decode(<STDIN>);
-        exit !($j->{cone_culled_mean} == 0 && $j->{cone_check_differing_max} == 0)' <"$T/nocone/summary.json"
+                   $j->{render_waits} == 0)' <"$T/$r/summary.json" 2>/dev/null || good=0
+    done
+    perl -MJSON::PP -e 'local $/; my $j = JSON::PP->new->decode(<STDIN>);
+        exit !($j->{cone_culled_mean} == 0 && $j->{cone_check_differing_max} == 0)' \
+        <"$T/nocone/summary.json" 2>/dev/null || good=0
+    [ $good -eq 1 ]
     ok $? "--cone-check on the bunny's orbit: lakhia (cone_cull=1) and okamoto cull, 0 differing pixels, >= 90% of culled nodes drawn in the check; cone_cull=0 culls none ($(head -c 200 "$T/err"))"
 else
     skip "normal cones: $BUNNY missing (data/fetch-meshes.sh)"
