@@ -116,6 +116,17 @@ static const hlod_image *tex_get(st_texes *t, uint32_t i, const hlod_logger *lg)
     return t->state[i] > 0 ? &t->img[i] : NULL;
 }
 
+/* A pixel of `channels` (1..4) channels as RGBA. */
+static void pixel_rgba(const uint8_t *p, int channels, uint8_t out[4])
+{
+    switch (channels) {
+    case 1: out[0] = out[1] = out[2] = p[0]; out[3] = 255; break;
+    case 2: out[0] = out[1] = out[2] = p[0]; out[3] = p[1]; break;
+    case 3: out[0] = p[0]; out[1] = p[1]; out[2] = p[2]; out[3] = 255; break;
+    default: memcpy(out, p, 4); break;
+    }
+}
+
 /* The texture's texel at (u, v), wrapped (v = 0 the bottom row), as RGBA. */
 static void texel(const hlod_image *img, double u, double v, uint8_t out[4])
 {
@@ -124,26 +135,27 @@ static void texel(const hlod_image *img, double u, double v, uint8_t out[4])
     int x = (int)(u * img->width), y = (int)((1 - v) * img->height);
     x = x < 0 ? 0 : x >= img->width ? img->width - 1 : x;
     y = y < 0 ? 0 : y >= img->height ? img->height - 1 : y;
-    const uint8_t *p = img->pixels + ((size_t)y * img->width + x) * img->channels;
-    switch (img->channels) {
-    case 1: out[0] = out[1] = out[2] = p[0]; out[3] = 255; break;
-    case 2: out[0] = out[1] = out[2] = p[0]; out[3] = p[1]; break;
-    case 3: out[0] = p[0]; out[1] = p[1]; out[2] = p[2]; out[3] = 255; break;
-    default: memcpy(out, p, 4); break;
-    }
+    pixel_rgba(img->pixels + ((size_t)y * img->width + x) * img->channels, img->channels, out);
 }
 
-/* Triangle t of mesh m as a record: its material's texture (when m has
- * UVs and the image can be read; its colour the texel under its UV
- * centroid) or its material's colour. */
-static void make_rec(const hlod_mesh *m, size_t t, const char *texture, const float diffuse[4],
+/* The texture slot of a triangle of m with this texture path (NONE
+ * without one, or when m has no UVs): looked up once per material or
+ * block, not per triangle. */
+static uint32_t mesh_slot(st_texes *tx, const hlod_mesh *m, const char *texture)
+{
+    return texture && m->uvs ? tex_slot(tx, texture) : NONE;
+}
+
+/* Triangle t of mesh m as a record: texture slot `slot` (from mesh_slot)
+ * when its image can be read (its colour the texel under the triangle's
+ * UV centroid), else the colour `diffuse`. */
+static void make_rec(const hlod_mesh *m, size_t t, uint32_t slot, const float diffuse[4],
                      st_texes *tx, const hlod_logger *lg, st_rec *r)
 {
     memset(r, 0, sizeof *r);
     for (int k = 0; k < 3; k++)
         memcpy(&r->p[3 * k], &m->positions[3 * (size_t)m->indices[3 * t + k]], 3 * sizeof(double));
     r->tex = NONE;
-    uint32_t slot = texture && m->uvs ? tex_slot(tx, texture) : NONE;
     const hlod_image *img = slot != NONE ? tex_get(tx, slot, lg) : NULL;
     if (img) {
         double u = 0, v = 0;
@@ -654,12 +666,6 @@ typedef struct st_build {
     hlod_st_report rep;
 } st_build;
 
-static int cmp_u32(const void *a, const void *b)
-{
-    uint32_t x = *(const uint32_t *)a, y = *(const uint32_t *)b;
-    return (x > y) - (x < y);
-}
-
 /* Converts img to 4 channels (a new image). */
 static hlod_result to_rgba(const hlod_image *img, hlod_image *out)
 {
@@ -671,16 +677,8 @@ static hlod_result to_rgba(const hlod_image *img, hlod_image *out)
     out->width = img->width;
     out->height = img->height;
     out->channels = 4;
-    for (size_t i = 0; i < px; i++) {
-        const uint8_t *p = img->pixels + i * img->channels;
-        uint8_t *q = out->pixels + 4 * i;
-        switch (img->channels) {
-        case 1: q[0] = q[1] = q[2] = p[0]; q[3] = 255; break;
-        case 2: q[0] = q[1] = q[2] = p[0]; q[3] = p[1]; break;
-        case 3: q[0] = p[0]; q[1] = p[1]; q[2] = p[2]; q[3] = 255; break;
-        default: memcpy(q, p, 4); break;
-        }
-    }
+    for (size_t i = 0; i < px; i++)
+        pixel_rgba(img->pixels + i * img->channels, img->channels, out->pixels + 4 * i);
     return HLOD_OK;
 }
 
@@ -944,7 +942,6 @@ static uint32_t write_node(st_build *B, st_tree *t, uint32_t u, hlod_result *res
         B->ocap = nc;
     }
     const st_node *N = &t->nodes[u];
-    qsort(t->nodes[u].tris, N->n, sizeof *N->tris, cmp_u32);
     hlod_store_node *o = &B->out[B->nout];
     *res = emit_node(B, t, u, o);
     if (*res != HLOD_OK)
@@ -1511,9 +1508,10 @@ hlod_result hlod_build_sampletree(const hlod_st_block *b, size_t nb, const hlod_
         float diffuse[4];
         for (int k = 0; k < 4; k++)
             diffuse[k] = b[i].rgba[k] / 255.0f;
+        uint32_t slot = mesh_slot(&B.tx, m, b[i].texture);
         for (size_t t = 0; t < m->tri_count && r == HLOD_OK; t++) {
             st_rec rec;
-            make_rec(m, t, b[i].texture, diffuse, &B.tx, p->lg, &rec);
+            make_rec(m, t, slot, diffuse, &B.tx, p->lg, &rec);
             if (rec.tex == NONE)
                 memcpy(rec.rgba, b[i].rgba, 4);
             r = place(&P, &rec, p->lg);
@@ -1673,18 +1671,24 @@ static hlod_result place_mesh(void *user, const char *path, const hlod_mesh *m)
     (void)path;
     place_ctx *c = user;
     static const float grey[4] = {0.8f, 0.8f, 0.8f, 1};
-    for (size_t t = 0; t < m->tri_count; t++) {
+    /* each material's texture slot once (a slot lookup compares paths) */
+    uint32_t *slots = malloc((m->material_count + 1) * sizeof *slots);
+    if (!slots)
+        return HLOD_ERR_NOMEM;
+    for (size_t i = 0; i < m->material_count; i++)
+        slots[i] = mesh_slot(&c->B->tx, m, m->materials[i].texture_path);
+    hlod_result r = HLOD_OK;
+    for (size_t t = 0; t < m->tri_count && r == HLOD_OK; t++) {
         uint32_t mat = m->tri_material ? m->tri_material[t] : 0;
         const hlod_material *mt = mat < m->material_count ? &m->materials[mat] : NULL;
         st_rec rec;
-        make_rec(m, t, mt ? mt->texture_path : NULL, mt ? mt->diffuse : grey, &c->B->tx,
-                 c->B->p->lg, &rec);
-        hlod_result r = place(c->P, &rec, c->B->p->lg);
-        if (r != HLOD_OK)
-            return r;
+        make_rec(m, t, mt ? slots[mat] : NONE, mt ? mt->diffuse : grey, &c->B->tx, c->B->p->lg,
+                 &rec);
+        r = place(c->P, &rec, c->B->p->lg);
     }
+    free(slots);
     c->tris += m->tri_count;
-    return HLOD_OK;
+    return r;
 }
 
 hlod_result hlod_build_sampletree_inputs(const hlod_st_scan *s, const char *const *inputs,
