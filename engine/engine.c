@@ -465,7 +465,8 @@ static void draw_occluded(hlod_engine *e, const hlod_camera *cam, const hlod_vie
 
 /* The selection's splats (a sample tree's small nodes, Klein 4.5): each
  * at its box's centre, its colour lit as a face with the node's average
- * normal would be (gl_render.c's headlight and sky), splat_px wide. */
+ * normal would be (gl_render.c's headlight and sky), as wide as the walk's
+ * splat size. */
 static void draw_splats(hlod_engine *e, const hlod_camera *cam)
 {
     const hlod_u32_vec *sp = &e->sel.splats;
@@ -508,7 +509,9 @@ static void draw_splats(hlod_engine *e, const hlod_camera *cam)
         }
         s->rgba[3] = 255;
     }
-    (void)hlod_gpu_splats(e->d.renderer, e->splat_buf, (uint32_t)sp->n, (float)e->d.splat_px);
+    /* the size the walk stopped at (klein-auto's is fractional: rounded up,
+     * so a splat covers its node's box) */
+    (void)hlod_gpu_splats(e->d.renderer, e->splat_buf, (uint32_t)sp->n, (float)ceil(e->sel.splat_px));
 }
 
 static void draw_frame(hlod_engine *e, const hlod_camera *cam, const hlod_view *view)

@@ -90,6 +90,7 @@ typedef struct hlod_selection {
     hlod_u32_vec coned;         /* nodes normal cones culled this frame */
     int additive;               /* the store refines additively (walk_additive) */
     hlod_u32_vec splats;        /* additive: nodes drawn as one splat this frame */
+    double splat_px;            /* ... the splat size they stopped at (klein-auto's varies) */
     double reserved, reserving; /* extra of the last frame's refinements; of this frame's */
     uint32_t cap_hits;          /* refinements the budget bound refused this frame */
     uint32_t slice_denied;      /* refinements near but refused by time slices */

@@ -1162,6 +1162,7 @@ hlod_result hlod_select(hlod_selection *s, struct hlod_residency *res, const hlo
     const double share_ms = in->share_ms;
     s->draw.n = s->level.n = s->next.n = s->refined.n = s->coned.n = s->splats.n = 0;
     s->cap_hits = s->slice_denied = 0;
+    s->splat_px = w->splat_px;
     if (s->additive)
         return walk_additive(w, v) && !w->nomem ? HLOD_OK : HLOD_ERR_NOMEM;
     front fr = {0, in->budget_ms, s->reserving};

@@ -432,6 +432,33 @@ static void splats_leave_no_hole(void)
             CHECKF(fabs(px - 1) < 1e-9, "target %.0f: splat_px %.2f", targets[k], px);
         hlod_engine_destroy(ae);
     }
+    /* klein-auto drawn: the splats take the adapted size, so the board
+     * stays covered as it grows past 1 (20 frames of the 6 ms target) */
+    if (ref && img) {
+        hlod_engine_desc ad = {0};
+        ad.policy = HLOD_POLICY_KLEIN_AUTO;
+        ad.target_ms = 6;
+        ad.memory_budget_bytes = 1ull << 32;
+        ad.time_model = tri_time;
+        ad.renderer = g_r;
+        hlod_engine *ae = NULL;
+        CHECK(hlod_engine_create(s, &ad, &ae) == HLOD_OK);
+        if (ae) {
+            CHECK(hlod_engine_load_all_leaves(ae, &cam) == HLOD_OK);
+            for (int f = 0; f < 20; f++)
+                CHECK(hlod_engine_frame(ae, &cam, 1.0 / 30, &st) == HLOD_OK);
+            CHECK(hlod_osmesa_read_rgb(g_gl, img) == HLOD_OK);
+            size_t holes = 0;
+            for (size_t q = 0; q < W * H; q++)
+                holes += is_bg(img + 3 * q) && !is_bg(ref + 3 * q);
+            printf("REPORT klein-auto drawn: splat_px %.2f, %u splats, %zu of %zu board pixels "
+                   "uncovered\n", st.splat_px, st.splats, holes, board);
+            CHECKF(st.splat_px > 1.5 && holes <= board / 1000,
+                   "klein-auto: splat_px %.2f, %zu of %zu pixels uncovered", st.splat_px, holes,
+                   board);
+            hlod_engine_destroy(ae);
+        }
+    }
     /* klein draws no replacement store, and no other policy a sample tree */
     hlod_engine_desc d = {0};
     d.policy = HLOD_POLICY_LAKHIA;
