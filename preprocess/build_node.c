@@ -110,3 +110,17 @@ void hlod_build_contain(hlod_store_node *all, size_t total)
             }
     }
 }
+
+/* A coordinate past HLOD_BUILD_MAX_COORD, named with its file. */
+hlod_result hlod_build_check_coords(const hlod_mesh *m, const char *path, const hlod_logger *lg)
+{
+    for (size_t v = 0; v < m->vertex_count; v++)
+        for (int k = 0; k < 3; k++)
+            if (!(fabs(m->positions[3 * v + k]) <= HLOD_BUILD_MAX_COORD)) {
+                hlod_logf(lg, HLOD_LOG_ERROR, "%s: vertex %zu: coordinate %c = %g is beyond "
+                          "+-%g, which a store cannot hold", path, v, "xyz"[k],
+                          m->positions[3 * v + k], HLOD_BUILD_MAX_COORD);
+                return HLOD_ERR_NAN;
+            }
+    return HLOD_OK;
+}

@@ -20,6 +20,9 @@ hlod_result hlod_build_add_payload(hlod_store_writer *w, const hlod_mesh *m, con
 /* A group node's payload, error, render flags, no block and no parent. */
 hlod_result hlod_build_add_group(hlod_store_writer *w, const hlod_city_item *g,
                                  hlod_store_node *node);
+/* Refuses (HLOD_ERR_NAN, logged naming path and the vertex) a mesh with a
+ * coordinate beyond HLOD_BUILD_MAX_COORD or not finite. */
+hlod_result hlod_build_check_coords(const hlod_mesh *m, const char *path, const hlod_logger *lg);
 /* Grows each of the total nodes' boxes to hold its descendants' boxes. */
 void hlod_build_contain(hlod_store_node *all, size_t total);
 /* A group node's triangle target, and the number of children a group

@@ -642,20 +642,6 @@ static hlod_result filter_blocks(blocks *bs, size_t first, read_mode *mode)
     return HLOD_OK;
 }
 
-/* A coordinate past HLOD_BUILD_MAX_COORD, named with its file. */
-static hlod_result check_coords(const hlod_mesh *m, const char *path, const hlod_logger *lg)
-{
-    for (size_t v = 0; v < m->vertex_count; v++)
-        for (int k = 0; k < 3; k++)
-            if (!(fabs(m->positions[3 * v + k]) <= HLOD_BUILD_MAX_COORD)) {
-                hlod_logf(lg, HLOD_LOG_ERROR, "%s: vertex %zu: coordinate %c = %g is beyond "
-                          "+-%g, which a store cannot hold", path, v, "xyz"[k],
-                          m->positions[3 * v + k], HLOD_BUILD_MAX_COORD);
-                return HLOD_ERR_NAN;
-            }
-    return HLOD_OK;
-}
-
 /* One OBJ file streamed object by object (a shard's passes). */
 typedef struct stream_ctx {
     const char *path, *base;
@@ -712,7 +698,7 @@ static hlod_result stream_object(void *user, const hlod_obj_info *info, const hl
         *c->tris_in += o->info.tris;
         return HLOD_OK;
     }
-    hlod_result r = check_coords(m, c->path, c->lg);
+    hlod_result r = hlod_build_check_coords(m, c->path, c->lg);
     if (r != HLOD_OK)
         return r;
     *c->tris_in += m->tri_count;
@@ -834,7 +820,7 @@ static hlod_result read_blocks(const hlod_build_desc *d, const char *const *inpu
             return r;
         }
         *tris_in += meshes[i].tri_count;
-        if ((r = check_coords(&meshes[i], inputs[i], lg)) != HLOD_OK)
+        if ((r = hlod_build_check_coords(&meshes[i], inputs[i], lg)) != HLOD_OK)
             return r;
         const char *base = strrchr(inputs[i], '/');
         size_t first = bs->n;

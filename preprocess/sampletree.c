@@ -1579,17 +1579,14 @@ static hlod_result scan_mesh(void *user, const char *path, const hlod_mesh *m)
 {
     scan_ctx *c = user;
     hlod_st_scan *s = c->s;
+    hlod_result r = hlod_build_check_coords(m, path, c->lg);
+    if (r != HLOD_OK)
+        return r;
     double lo[3] = {INFINITY, INFINITY, INFINITY}, hi[3] = {-INFINITY, -INFINITY, -INFINITY};
     for (size_t t = 0; t < m->tri_count; t++)
         for (int k = 0; k < 3; k++) {
             const double *p = &m->positions[3 * (size_t)m->indices[3 * t + k]];
             for (int a = 0; a < 3; a++) {
-                if (!(fabs(p[a]) <= HLOD_BUILD_MAX_COORD)) {
-                    hlod_logf(c->lg, HLOD_LOG_ERROR, "%s: vertex %u: %c = %g is beyond +-%g, "
-                              "which a store cannot hold", path, m->indices[3 * t + k],
-                              "xyz"[a], p[a], HLOD_BUILD_MAX_COORD);
-                    return HLOD_ERR_NAN;
-                }
                 lo[a] = fmin(lo[a], p[a]);
                 hi[a] = fmax(hi[a], p[a]);
             }
