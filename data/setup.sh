@@ -11,6 +11,7 @@ PACKAGES=(
     build-essential cmake pkg-config
     libassimp-dev libopenimageio-dev libmetis-dev
     libosmesa6-dev libegl-dev libegl-mesa0 libglfw3-dev libmeshoptimizer-dev libturbojpeg0-dev
+    libstb-dev libsquish-dev libzstd-dev
     gnuplot-nox libxxhash-dev libfast-float-dev
     clang libclang-rt-14-dev
     xvfb xauth

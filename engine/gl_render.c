@@ -36,6 +36,11 @@
 
 #include "gl_render.h"
 #include "texture.h"
+#include "texture_codec.h"
+
+#ifndef GL_COMPRESSED_RGB_S3TC_DXT1_EXT
+#define GL_COMPRESSED_RGB_S3TC_DXT1_EXT 0x83F0   /* EXT_texture_compression_s3tc */
+#endif
 
 /* Every GL function the renderer calls: (typedef, name without "gl"). */
 #define GL_FUNCS(X)                                                  \
@@ -75,6 +80,8 @@
     X(PFNGLBINDTEXTUREPROC, BindTexture)                             \
     X(PFNGLACTIVETEXTUREPROC, ActiveTexture)                         \
     X(PFNGLTEXIMAGE2DPROC, TexImage2D)                               \
+    X(PFNGLCOMPRESSEDTEXIMAGE2DPROC, CompressedTexImage2D)           \
+    X(PFNGLGETSTRINGIPROC, GetStringi)                               \
     X(PFNGLTEXPARAMETERIPROC, TexParameteri)                         \
     X(PFNGLDELETETEXTURESPROC, DeleteTextures)                       \
     X(PFNGLPIXELSTOREIPROC, PixelStorei)                             \
@@ -121,6 +128,8 @@ struct hlod_renderer {
     int no_culling;             /* hlod_renderer_set_backface_culling(0) */
     float vp[16];               /* this frame's view-projection */
     GLint max_texture;          /* GL_MAX_TEXTURE_SIZE */
+    int s3tc;                   /* EXT_texture_compression_s3tc: BC1 uploads */
+    int software;               /* a software rasteriser (GL_RENDERER) */
     int depth_colors, wireframe;
     float clear[3];
     hlod_depth_view depth_view; /* reads depth in place; NULL: glReadPixels */
@@ -417,6 +426,16 @@ hlod_result hlod_renderer_create(hlod_gl_get_proc get_proc, const hlod_logger *l
     gl->GetIntegerv(GL_MAX_TEXTURE_SIZE, &r->max_texture);
     if (r->max_texture < 1024)
         r->max_texture = 1024;   /* the 3.3 minimum, should the query fail */
+    GLint next = 0;
+    gl->GetIntegerv(GL_NUM_EXTENSIONS, &next);
+    for (GLint i = 0; i < next; i++) {
+        const char *e = (const char *)gl->GetStringi(GL_EXTENSIONS, (GLuint)i);
+        r->s3tc |= e && !strcmp(e, "GL_EXT_texture_compression_s3tc");
+    }
+    const char *name = (const char *)gl->GetString(GL_RENDERER);
+    r->software = name && (strstr(name, "llvmpipe") || strstr(name, "softpipe") ||
+                           strstr(name, "swrast") || strstr(name, "Software"));
+    take_errors(gl);
     if (!build_programs(r)) {
         free(r);
         return HLOD_ERR_UNSUPPORTED;
@@ -503,25 +522,85 @@ static void add_section(const gl_table *gl, GLuint attr, GLint size, GLenum type
  * a plain copy: glGenerateMipmap and an RGB-to-RGBA conversion cost a
  * software GL 2-9x as much on this thread.  Returns the bytes the driver
  * holds, or 0 when the chain cannot be allocated. */
-static uint64_t upload_texture(const gl_table *gl, const hlod_store_payload *p, GLuint tex)
+/* Texels (RGBA from BC1, grey from BC4) of a payload holding blocks, for a
+ * context that cannot take them: the chain in own->tex_memory. */
+static int expand_blocks(hlod_store_payload *own)
+{
+    const uint32_t c = own->tex_channels, oc = c == 3 ? 4 : 1;
+    size_t total = hlod_texture_chain_bytes(own->tex_width, own->tex_height, oc);
+    uint8_t *t = malloc(total);
+    if (!t)
+        return 0;
+    const uint8_t *b = own->pixels;
+    uint8_t *at = t;
+    for (uint32_t l = 0; l < own->tex_levels; l++) {
+        uint32_t lw, lh;
+        hlod_tex_level_size(own->tex_width, own->tex_height, l, &lw, &lh);
+        hlod_bc_decode_level(b, lw, lh, c, at, oc);
+        b += (size_t)((lw + 3) / 4) * ((lh + 3) / 4) * HLOD_BC_BLOCK_BYTES;
+        at += (size_t)lw * lh * oc;
+    }
+    own->pixels = t;
+    own->tex_memory = t;
+    own->tex_channels = oc;
+    own->tex_format = HLOD_TEXFMT_TEXELS;
+    return 1;
+}
+
+/* The stored blocks, level by level (BC1 through S3TC, BC4 as RGTC1). */
+static uint64_t upload_blocks(const gl_table *gl, const hlod_store_payload *p)
+{
+    GLenum fmt = p->tex_channels == 3 ? GL_COMPRESSED_RGB_S3TC_DXT1_EXT : GL_COMPRESSED_RED_RGTC1;
+    const uint8_t *level = p->pixels;
+    uint64_t total = 0;
+    for (uint32_t l = 0; l < p->tex_levels; l++) {
+        uint32_t lw, lh;
+        hlod_tex_level_size(p->tex_width, p->tex_height, l, &lw, &lh);
+        size_t bytes = (size_t)((lw + 3) / 4) * ((lh + 3) / 4) * HLOD_BC_BLOCK_BYTES;
+        gl->CompressedTexImage2D(GL_TEXTURE_2D, (GLint)l, fmt, (GLsizei)lw, (GLsizei)lh, 0,
+                                 (GLsizei)bytes, level);
+        level += bytes;
+        total += bytes;
+    }
+    return total;
+}
+
+static uint64_t upload_texture(const hlod_renderer *r, const hlod_store_payload *p, GLuint tex)
 {
     static const GLenum internal[4] = {GL_R8, GL_RG8, GL_RGBA8, GL_RGBA8};
     static const GLenum format[4] = {GL_RED, GL_RG, GL_RGB, GL_RGBA};
+    const gl_table *gl = &r->gl;
     hlod_store_payload own = *p;
     own.tex_memory = NULL;
-    if (!own.tex_levels && (hlod_texture_prepare(&own) != HLOD_OK || !own.tex_levels))
+    int blocks = own.tex_format == HLOD_TEXFMT_BC;
+    if (blocks && own.tex_channels == 3 && !r->s3tc) {
+        if (!expand_blocks(&own))
+            return 0;
+        blocks = 0;
+    }
+    if (!blocks && !own.tex_levels &&
+        (hlod_texture_prepare(&own) != HLOD_OK || !own.tex_levels))
         return 0;
     int c = (int)own.tex_channels - 1;
     gl->BindTexture(GL_TEXTURE_2D, tex);
     gl->PixelStorei(GL_UNPACK_ALIGNMENT, 1);   /* rows are w * channels bytes */
-    const uint8_t *level = own.pixels;
-    uint32_t w = own.tex_width, h = own.tex_height;
-    for (uint32_t l = 0; l < own.tex_levels; l++) {
-        gl->TexImage2D(GL_TEXTURE_2D, (GLint)l, (GLint)internal[c], (GLsizei)w, (GLsizei)h, 0,
-                       format[c], GL_UNSIGNED_BYTE, level);
-        level += (size_t)w * h * own.tex_channels;
-        w = w > 1 ? w / 2 : 1;
-        h = h > 1 ? h / 2 : 1;
+    uint64_t driver_bytes = 0;
+    if (blocks) {
+        driver_bytes = upload_blocks(gl, &own);
+    } else {
+        const uint8_t *level = own.pixels;
+        uint32_t w = own.tex_width, h = own.tex_height;
+        for (uint32_t l = 0; l < own.tex_levels; l++) {
+            gl->TexImage2D(GL_TEXTURE_2D, (GLint)l, (GLint)internal[c], (GLsizei)w, (GLsizei)h,
+                           0, format[c], GL_UNSIGNED_BYTE, level);
+            level += (size_t)w * h * own.tex_channels;
+            w = w > 1 ? w / 2 : 1;
+            h = h > 1 ? h / 2 : 1;
+        }
+        /* drivers pad RGB8 texels to 4 bytes; the mip chain adds a third */
+        uint64_t texel = c == 2 ? 4 : (uint64_t)c + 1;
+        uint64_t base = (uint64_t)own.tex_width * own.tex_height * texel;
+        driver_bytes = base + base / 3;
     }
     gl->TexParameteri(GL_TEXTURE_2D, GL_TEXTURE_MAX_LEVEL, (GLint)own.tex_levels - 1);
     free(own.tex_memory);
@@ -537,10 +616,7 @@ static uint64_t upload_texture(const gl_table *gl, const hlod_store_payload *p, 
     gl->TexParameteri(GL_TEXTURE_2D, GL_TEXTURE_WRAP_S, GL_REPEAT);
     gl->TexParameteri(GL_TEXTURE_2D, GL_TEXTURE_WRAP_T, GL_REPEAT);
     gl->BindTexture(GL_TEXTURE_2D, 0);
-    /* drivers pad RGB8 texels to 4 bytes; the mip chain adds a third */
-    uint64_t texel = c == 2 ? 4 : (uint64_t)c + 1;
-    uint64_t base = (uint64_t)own.tex_width * own.tex_height * texel;
-    return base + base / 3;
+    return driver_bytes;
 }
 
 /* called from the render thread, context current */
@@ -595,7 +671,7 @@ hlod_result hlod_gpu_upload(hlod_renderer *r, const hlod_store_payload *p, hlod_
     out->bytes = vbo_bytes + ibo_bytes;
     if (textured) {
         gl->GenTextures(1, &out->tex);
-        uint64_t tex_bytes = upload_texture(gl, p, out->tex);
+        uint64_t tex_bytes = upload_texture(r, p, out->tex);
         if (!tex_bytes) {
             take_errors(gl);
             hlod_gpu_release(r, out);
@@ -832,4 +908,17 @@ void hlod_rgb_flip_rows(uint8_t *rgb, uint32_t width, uint32_t height)
             b[i] = t;
         }
     }
+}
+
+/* any thread */
+int hlod_renderer_texture_blocks(const hlod_renderer *r, uint32_t mode)
+{
+    if (!r || mode == 1)
+        return 0;
+    if (mode == 2 && !r->s3tc) {
+        hlod_logf(&r->lg, HLOD_LOG_WARN, "renderer: texture_upload=2 asks for blocks, but the GL "
+                  "has no EXT_texture_compression_s3tc; textures are expanded to texels");
+        return 0;
+    }
+    return r->s3tc && (mode == 2 || !r->software);
 }

@@ -362,7 +362,8 @@ static hlod_result finish_payload(hlod_loader *l, hlod_store_read *rd, hlod_stor
     if (l->cur == rd)
         l->cur = NULL;
     uint64_t t0 = thread_cpu_ns();
-    hlod_result r = hlod_store_read_finish(rd, p);  /* verifies the checksum; zeroes rd */
+    /* verifies the checksum, decodes; zeroes rd */
+    hlod_result r = hlod_store_read_finish_as(rd, l->d.texture_out, p);
     if (r == HLOD_OK && l->d.prepare_textures)
         (void)hlod_texture_prepare(p); /* out of memory: the upload makes the chain */
     atomic_fetch_add_explicit(&l->finish_ns, thread_cpu_ns() - t0, memory_order_relaxed);

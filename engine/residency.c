@@ -137,7 +137,8 @@ hlod_result hlod_residency_load_now(hlod_residency *rs, uint32_t node)
     if (nr->state == HLOD_NODE_BAD)
         return HLOD_ERR_CHECKSUM;
     hlod_store_payload p;
-    hlod_result res = hlod_store_read_node(rs->store, node, rs->d->read_chunk_bytes, &p);
+    hlod_result res = hlod_store_read_node_as(rs->store, node, rs->d->read_chunk_bytes,
+                                              rs->texture_out, &p);
     if (res != HLOD_OK)
         return res;
     if (nr->state == HLOD_NODE_QUEUED)
@@ -616,6 +617,10 @@ hlod_result hlod_residency_init(hlod_residency *rs, const hlod_store *store,
         return HLOD_ERR_NOMEM;
     memset(rs->res, 0, (size_t)rs->node_count * sizeof *rs->res);
     rs->pinned_missing = rs->pinned_count;
+    rs->texture_out = !d->renderer ? HLOD_TEXOUT_PIXELS
+                      : hlod_renderer_texture_blocks(d->renderer, d->texture_upload)
+                          ? HLOD_TEXOUT_BLOCKS
+                          : HLOD_TEXOUT_CHAIN;
     hlod_result r = load_top(rs);
     if (r == HLOD_OK) {
         hlod_loader_desc ld = {0};
@@ -625,6 +630,7 @@ hlod_result hlod_residency_init(hlod_residency *rs, const hlod_store *store,
         ld.hook_user = d->read_hook_user;
         ld.logger = d->logger;
         ld.prepare_textures = d->renderer != NULL;
+        ld.texture_out = rs->texture_out;
         r = hlod_loader_create(store, &ld, &rs->loader);
     }
     if (r != HLOD_OK)

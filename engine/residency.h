@@ -41,6 +41,8 @@ typedef struct hlod_residency {
                                    the tree, or its first levels when the top
                                    takes over half the budget (residency.c) */
     const hlod_engine_desc *d;  /* the engine's settings, read only */
+    int texture_out;            /* HLOD_TEXOUT_*: block-coded textures as the
+                                   renderer takes them (the loader's too) */
     hlod_frame_stats *st;       /* the engine's stats of the current frame */
     uint32_t frame;             /* current frame stamp (1-based; 0 = before any) */
     hlod_loader *loader;

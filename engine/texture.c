@@ -2,6 +2,7 @@
  * texture.c - mip chains built on the loader thread (texture.h).
  */
 #include "texture.h"
+#include "texture_codec.h"
 
 #include <stdlib.h>
 #include <string.h>
@@ -20,25 +21,6 @@ size_t hlod_texture_chain_bytes(uint32_t w, uint32_t h, uint32_t c)
             return total;
         w = half(w);
         h = half(h);
-    }
-}
-
-/* dst (dw x dh) from src (sw x sh), c channels: each texel the rounded mean
- * of its 2x2 source block, clamped at an odd edge. */
-static void downsample(const uint8_t *src, uint32_t sw, uint32_t sh, uint8_t *dst, uint32_t dw,
-                       uint32_t dh, uint32_t c)
-{
-    for (uint32_t y = 0; y < dh; y++) {
-        const uint8_t *r0 = src + (size_t)(2 * y < sh ? 2 * y : sh - 1) * sw * c;
-        const uint8_t *r1 = src + (size_t)(2 * y + 1 < sh ? 2 * y + 1 : sh - 1) * sw * c;
-        uint8_t *out = dst + (size_t)y * dw * c;
-        for (uint32_t x = 0; x < dw; x++) {
-            size_t x0 = (size_t)(2 * x < sw ? 2 * x : sw - 1) * c;
-            size_t x1 = (size_t)(2 * x + 1 < sw ? 2 * x + 1 : sw - 1) * c;
-            for (uint32_t k = 0; k < c; k++)
-                out[(size_t)x * c + k] =
-                    (uint8_t)((r0[x0 + k] + r0[x1 + k] + r1[x0 + k] + r1[x1 + k] + 2) / 4);
-        }
     }
 }
 
@@ -68,7 +50,7 @@ hlod_result hlod_texture_prepare(hlod_store_payload *p)
     while (lw > 1 || lh > 1) {
         uint32_t nw = half(lw), nh = half(lh);
         uint8_t *next = level + (size_t)lw * lh * c;
-        downsample(level, lw, lh, next, nw, nh, c);
+        hlod_tex_downsample(level, lw, lh, next, c);
         level = next;
         lw = nw;
         lh = nh;

@@ -485,6 +485,8 @@ void hlod_build_desc_defaults(hlod_build_desc *d)
     d->compress = 1;
     d->quant_bits = 24;
     d->jpeg_quality = 90;
+    d->texture_blocks = 1;
+    d->texture_min_db = 38;
 }
 
 /* The descriptor's values, each in the range hlod-build's flags allow. */
@@ -514,6 +516,8 @@ static hlod_result check_desc(const hlod_build_desc *d, const hlod_logger *lg)
         bad = "quant_bits is not in [8, 24]";
     else if (d->jpeg_quality > 100)
         bad = "jpeg_quality is over 100";
+    else if (!(d->texture_min_db >= 0 && d->texture_min_db <= 99))
+        bad = "texture_min_db is not in [0, 99]";
     else if (d->shard_count > 65536 || (d->shard_count && (d->shard_index < 1 || d->shard_index > d->shard_count)))
         bad = "shard is not I/N with 1 <= I <= N <= 65536";
     if (!bad)
@@ -1049,6 +1053,12 @@ static hlod_result finish_store(hlod_store_writer *w, const blocks *bs, const bl
         hlod_store_writer_abort(w);
         return HLOD_ERR_NOMEM;
     }
+    hlod_store_texture_stats ts;
+    hlod_store_writer_texture_stats(w, &ts);
+    rep->textures_bc = ts.bc;
+    rep->textures_jpeg = ts.jpeg;
+    rep->textures_raw = ts.raw;
+    rep->texture_db_min = ts.db_min;
     hlod_result r = hlod_store_writer_finish(w, all, (uint32_t)total, index);
     free(all);
     if (store_index && r == HLOD_OK)
@@ -1260,6 +1270,8 @@ static void writer_desc(const hlod_build_desc *d, const input *in, const hlod_lo
         position_grid((const double (*)[3])in->lo, (const double (*)[3])in->hi, in->nb,
                       d->quant_bits, wd);
         wd->jpeg_quality = d->jpeg_quality;
+        wd->texture_blocks = d->texture_blocks != 0;
+        wd->texture_min_db = d->texture_min_db;
         wd->payload_align = HLOD_STORE_MIN_ALIGN;    /* packed payloads are small */
     }
 }
@@ -1358,6 +1370,10 @@ static hlod_result sampletree_store(const hlod_build_desc *d, const char *const 
     rep->tris_total = sr.tris;
     rep->buckets = sr.buckets;
     rep->spill_bytes = sr.spill_bytes;
+    rep->textures_bc = sr.tex.bc;
+    rep->textures_jpeg = sr.tex.jpeg;
+    rep->textures_raw = sr.tex.raw;
+    rep->texture_db_min = sr.tex.db_min;
     return HLOD_OK;
 }
 
@@ -1418,6 +1434,8 @@ hlod_result hlod_build_store(const hlod_build_desc *d, const char *const *inputs
     if (r == HLOD_OK && sharded) {
         ph.tris_in = rep.tris_in;
         ph.jpeg_quality = wd.jpeg_quality;
+        ph.texture_blocks = wd.texture_blocks;
+        ph.texture_min_db = wd.texture_min_db;
         r = start_shard(d, &in, out_path, &ph, store_path, sizeof store_path, lg);
     }
     blocks *bs = &in.bs;

@@ -185,8 +185,8 @@ uint64_t hlod_part_params_hash(const hlod_build_desc *d, size_t tris_in, size_t 
     buf b = {0};
     uint64_t u[] = {(uint64_t)d->method, d->desired_tris, d->voxel_tris, d->leaf_tris, d->node_tris,
                     d->seed, (uint64_t)!!d->city_levels, (uint64_t)!!d->compress, d->quant_bits,
-                    d->jpeg_quality, tris_in, blocks};
-    double f[] = {d->grid, d->level_factor, d->c_tex};
+                    d->jpeg_quality, tris_in, blocks, (uint64_t)!!d->texture_blocks};
+    double f[] = {d->grid, d->level_factor, d->c_tex, d->texture_min_db};
     put(&b, u, sizeof u);
     put(&b, f, sizeof f);
     put(&b, lo, blocks * sizeof *lo);
@@ -568,7 +568,8 @@ static hlod_result check_together(const part *parts, size_t n, const hlod_logger
             h->block_count != h0->block_count || h->cut_level != h0->cut_level ||
             h->levels != h0->levels || h->tris_in != h0->tris_in ||
             h->group_tris != h0->group_tris || h->group_size != h0->group_size ||
-            h->jpeg_quality != h0->jpeg_quality || memcmp(&sh->build, &s0->build, sizeof s0->build) ||
+            h->jpeg_quality != h0->jpeg_quality || h->texture_blocks != h0->texture_blocks ||
+            h->texture_min_db != h0->texture_min_db || memcmp(&sh->build, &s0->build, sizeof s0->build) ||
             sh->quant_step != s0->quant_step ||
             memcmp(sh->quant_origin, s0->quant_origin, sizeof s0->quant_origin) ||
             sh->payload_align != s0->payload_align || sh->payload_codec != s0->payload_codec) {
@@ -757,6 +758,8 @@ static void merged_desc(const part *p0, const hlod_logger *lg, hlod_store_writer
     wd->quant_step = p0->sh.quant_step;
     memcpy(wd->quant_origin, p0->sh.quant_origin, sizeof wd->quant_origin);
     wd->jpeg_quality = p0->h.jpeg_quality;
+    wd->texture_blocks = p0->h.texture_blocks;
+    wd->texture_min_db = p0->h.texture_min_db;
     wd->logger = lg;
 }
 

@@ -52,7 +52,9 @@ typedef struct hlod_part_header {
     uint64_t store_offset, store_size;
     uint64_t section_offset, section_size, section_hash;
     uint64_t file_size;
-    uint8_t reserved[56];
+    double texture_min_db;      /* the writer's texture settings */
+    uint32_t texture_blocks;
+    uint8_t reserved[44];
     uint64_t header_hash;       /* XXH3-64 of the bytes before it */
 } hlod_part_header;
 

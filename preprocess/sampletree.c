@@ -1432,6 +1432,7 @@ static hlod_result finish(st_build *B, hlod_st_report *rep)
         r = hlod_store_writer_set_colors(B->w, (const uint8_t (*)[4])B->colors, (uint32_t)B->nout);
     }
     if (r == HLOD_OK) {
+        hlod_store_writer_texture_stats(B->w, &B->rep.tex);
         r = hlod_store_writer_finish(B->w, B->out, (uint32_t)B->nout, NULL);
         B->w = NULL;
         B->rep.nodes = B->nout;

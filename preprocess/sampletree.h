@@ -60,6 +60,7 @@ typedef struct hlod_st_report {
     size_t buckets;         /* subtrees built one at a time */
     size_t bucket_tris_max; /* triangles of the largest */
     uint64_t spill_bytes;   /* written to the spill file (0: all in memory) */
+    hlod_store_texture_stats tex;   /* how the writer stored the textures */
 } hlod_st_report;
 
 /* Builds the tree over blocks b[0..nb) (held in memory), adds every

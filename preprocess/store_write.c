@@ -63,6 +63,7 @@ struct hlod_store_writer {
     uint8_t (*colors)[4];       /* per node given to finish: its representative
                                    colour (hlod_store_writer_set_colors), or NULL */
     uint32_t color_count;
+    hlod_store_texture_stats tex;   /* guarded by lock */
 };
 
 static uint64_t align_up(uint64_t v, uint64_t a)
@@ -114,10 +115,12 @@ hlod_result hlod_store_writer_open(const char *path, const hlod_store_writer_des
         if (!(desc->quant_step > 0) || !isfinite(desc->quant_step) ||
             frexp(desc->quant_step, &ex) != 0.5 || !isfinite(desc->quant_origin[0]) ||
             !isfinite(desc->quant_origin[1]) || !isfinite(desc->quant_origin[2]) ||
-            desc->jpeg_quality > 100) {
+            desc->jpeg_quality > 100 || desc->texture_blocks > 1 ||
+            !(desc->texture_min_db >= 0 && desc->texture_min_db <= 99)) {
             hlod_logf(lg, HLOD_LOG_ERROR, "%s: position grid step %g is not a positive power of "
-                      "two, its origin is not finite, or JPEG quality %u is over 100", path,
-                      desc->quant_step, desc->jpeg_quality);
+                      "two, its origin is not finite, JPEG quality %u is over 100 or the texture "
+                      "floor %g dB is outside [0, 99]", path,
+                      desc->quant_step, desc->jpeg_quality, desc->texture_min_db);
             return HLOD_ERR_INVALID_ARG;
         }
     }
@@ -414,7 +417,7 @@ static void cache_order(const hlod_store_payload_desc *p, uint32_t *idx, uint32_
  * the quantized positions and the snapped origin (node->flags set). */
 static hlod_result serialize_packed(const hlod_store_writer *w, const hlod_store_payload_desc *p,
                                     hlod_store_node *node, uint8_t **out, uint64_t *out_size,
-                                    double axis[3], double *cone_cos)
+                                    double axis[3], double *cone_cos, hlod_packed_info *info)
 {
     const char *name = w->file.final_path;
     const double q = w->desc.quant_step, *g0 = w->desc.quant_origin;
@@ -468,9 +471,11 @@ static hlod_result serialize_packed(const hlod_store_writer *w, const hlod_store
         .colors = col, .indices = idx, .tex_width = p->tex_width, .tex_height = p->tex_height,
         .tex_channels = p->tex_channels, .pixels = p->pixels,
         .jpeg_quality = (int)w->desc.jpeg_quality,
+        .texture_blocks = (int)w->desc.texture_blocks,
+        .texture_min_db = w->desc.texture_min_db,
     };
     size_t size = 0;
-    r = hlod_payload_pack(&in, out, &size, name, w->lg);
+    r = hlod_payload_pack(&in, out, &size, info, name, w->lg);
     *out_size = size;
 done:
     free(idx);
@@ -488,6 +493,29 @@ static hlod_result store_payload(hlod_store_writer *w, uint8_t *buf, uint64_t si
                                  hlod_store_node *node, const double axis[3], double cone_cos,
                                  int stored);
 
+/* called from any thread: one stored texture of codec HLOD_TEX_* */
+static void count_texture(hlod_store_writer *w, uint32_t codec, double db)
+{
+    pthread_mutex_lock(&w->lock);
+    hlod_store_texture_stats *t = &w->tex;
+    if (codec == HLOD_TEX_BC)
+        t->bc++;
+    else if (codec == HLOD_TEX_JPEG)
+        t->jpeg++;
+    else
+        t->raw++;
+    if (db > 0 && (t->db_min == 0 || db < t->db_min))
+        t->db_min = db;
+    pthread_mutex_unlock(&w->lock);
+}
+
+void hlod_store_writer_texture_stats(const hlod_store_writer *w, hlod_store_texture_stats *out)
+{
+    memset(out, 0, sizeof *out);
+    if (w)
+        *out = w->tex;
+}
+
 hlod_result hlod_store_writer_add(hlod_store_writer *w, const hlod_store_payload_desc *p,
                                   hlod_store_node *node)
 {
@@ -504,7 +532,10 @@ hlod_result hlod_store_writer_add(hlod_store_writer *w, const hlod_store_payload
     uint64_t size = 0;
     double axis[3], cone_cos = -1;
     if (w->desc.quant_step > 0) {
-        r = serialize_packed(w, p, node, &buf, &size, axis, &cone_cos);
+        hlod_packed_info info;
+        r = serialize_packed(w, p, node, &buf, &size, axis, &cone_cos, &info);
+        if (r == HLOD_OK && p->pixels)
+            count_texture(w, info.tex_codec, info.tex_db);
     } else {
         r = serialize_raw(p, node, &buf, &size);
         if (r == HLOD_OK) {
@@ -606,6 +637,12 @@ hlod_result hlod_store_writer_add_copy(hlod_store_writer *w, const hlod_store_no
     if (!buf)
         return HLOD_ERR_NOMEM;
     memcpy(buf, bytes, (size_t)src->payload_size);
+    if ((src->flags & HLOD_NODE_TEXTURE) && w->desc.quant_step > 0 &&
+        src->payload_size >= sizeof(hlod_store_packed_header)) {
+        hlod_store_packed_header ph;
+        memcpy(&ph, buf, sizeof ph);
+        count_texture(w, ph.tex_codec, ph.tex_db);
+    }
     *node = *src;
     node->parent = 0;
     node->first_child = 0;

@@ -255,7 +255,8 @@ static void parts_city_meets_desired_tris(void)
 static void library_errors_leave_nothing(void)
 {
     rec_log log;
-    hlod_build_report rep = {1, 1, 1, 1, 1, 1, 1, 1, 1, 1};
+    hlod_build_report rep;
+    memset(&rep, 1, sizeof rep);
     CHECK(lib_build("missing", "lib-bad.hlod", HLOD_BUILD_CUTPLANE, 1, &rep, &log) == HLOD_ERR_IO);
     CHECKF(strstr(log.last, "missing.obj") && strstr(log.last, "cannot read"), "%s", log.last);
     CHECK(rep.nodes == 0 && rep.blocks == 0);

@@ -166,10 +166,13 @@ static int render_source(hlod_renderer *r, hlod_osmesa *gl, const char *obj, con
 }
 
 /* The store at full detail from cam into out. */
+static uint32_t g_texture_upload;   /* the texture_upload setting render_full uses */
+
 static void render_full(hlod_renderer *r, hlod_osmesa *gl, hlod_store *s, const hlod_camera *cam,
                         uint8_t *out, hlod_frame_stats *st)
 {
     hlod_engine_desc d = {0};
+    d.texture_upload = g_texture_upload;
     d.policy = HLOD_POLICY_FULL;
     d.renderer = r;
     d.deterministic = 1;
@@ -194,7 +197,7 @@ static double coverage(const uint8_t *rgb, const uint8_t bg[3])
 
 static hlod_renderer *g_r;
 static hlod_osmesa *g_gl;
-static hlod_store *g_near, *g_far;
+static hlod_store *g_near, *g_far, *g_blocks, *g_jpeg;
 static const double g_far_origin[3] = {5e5, 4.1e6, 0};
 static char g_obj[2048];
 
@@ -227,6 +230,40 @@ static void full_detail_matches_source(void)
         getenv("HLOD_TEST_SAVE")) {
         save("full", a);
         save("source", b);
+    }
+}
+
+/* Block-coded textures (store format 5): uploaded as blocks or expanded
+ * to texels by the loader, the same picture; and against the same city
+ * stored with JPEG textures, within the builder's 38 dB floor. */
+static void texture_upload_modes_agree(void)
+{
+    static uint8_t a[W * H * 3], b[W * H * 3], c[W * H * 3];
+    hlod_camera cam;
+    double o[3] = {0, 0, 0};
+    city_camera(&cam, o, 70, 40);
+    hlod_frame_stats st;
+    /* llvmpipe samples blocks slower than texels: expanded unless asked */
+    CHECK(hlod_renderer_texture_blocks(g_r, 0) == 0 && hlod_renderer_texture_blocks(g_r, 1) == 0);
+    if (!hlod_renderer_texture_blocks(g_r, 2)) {
+        CHECK_SKIP("this GL has no EXT_texture_compression_s3tc");
+        return;
+    }
+    g_texture_upload = 1;
+    render_full(g_r, g_gl, g_blocks, &cam, a, &st);
+    g_texture_upload = 2;
+    render_full(g_r, g_gl, g_blocks, &cam, b, &st);
+    g_texture_upload = 0;
+    render_full(g_r, g_gl, g_jpeg, &cam, c, &st);
+    double ab = psnr(a, b), ac = psnr(a, c);
+    fprintf(stderr, "  expanded vs blocks: %.2f dB; blocks vs JPEG store: %.2f dB\n", ab, ac);
+    uint8_t bg[3] = {a[0], a[1], a[2]};
+    CHECK(coverage(a, bg) > 0.2);
+    CHECKF(ab >= 45 && ac >= 38, "expanded vs blocks %.2f dB, vs the JPEG store %.2f dB", ab, ac);
+    if (ab < 45 || ac < 38 || getenv("HLOD_TEST_SAVE")) {
+        save("tex-expanded", a);
+        save("tex-blocks", b);
+        save("tex-jpeg", c);
     }
 }
 
@@ -522,19 +559,28 @@ int main(void)
              check_sh("'%s/hlod-build' '%s/near.obj' -o '%s/near.hlod' --desired-tris 300 --quiet", bin,
                 tmp, tmp) == 0 &&
              check_sh("'%s/hlod-build' '%s/far.obj' -o '%s/far.hlod' --desired-tris 300 --quiet", bin,
-                tmp, tmp) == 0;
+                tmp, tmp) == 0 &&
+             check_sh("'%s/hlod-build' '%s/near.obj' -o '%s/blocks.hlod' --desired-tris 300 "
+                      "--texture-min-db 0 --quiet", bin, tmp, tmp) == 0 &&
+             check_sh("'%s/hlod-build' '%s/near.obj' -o '%s/jpeg.hlod' --desired-tris 300 "
+                      "--texture-blocks off --quiet", bin, tmp, tmp) == 0;
     CHECK(ok);
     char p[2048];
     snprintf(p, sizeof p, "%s/near.hlod", tmp);
     CHECK(ok && hlod_store_open(p, NULL, &g_near) == HLOD_OK);
     snprintf(p, sizeof p, "%s/far.hlod", tmp);
     CHECK(ok && hlod_store_open(p, NULL, &g_far) == HLOD_OK);
+    snprintf(p, sizeof p, "%s/blocks.hlod", tmp);
+    CHECK(ok && hlod_store_open(p, NULL, &g_blocks) == HLOD_OK);
+    snprintf(p, sizeof p, "%s/jpeg.hlod", tmp);
+    CHECK(ok && hlod_store_open(p, NULL, &g_jpeg) == HLOD_OK);
     CHECK(hlod_osmesa_create(W, H, NULL, &g_gl) == HLOD_OK);
     CHECK(g_gl && hlod_renderer_create(hlod_osmesa_get_proc(), NULL, &g_r) == HLOD_OK);
-    if (g_near && g_far && g_r) {
+    if (g_near && g_far && g_blocks && g_jpeg && g_r) {
         CHECK(hlod_store_get_header(g_near)->depth_count >= 2);
         RUN(full_detail_matches_source);
         RUN(far_origin_same_image);
+        RUN(texture_upload_modes_agree);
         RUN(generous_target_converges);
         RUN(waited_uploads_go);
         RUN(solid_blocks_cull_invisibly);
@@ -544,6 +590,8 @@ int main(void)
     hlod_osmesa_destroy(g_gl);
     hlod_store_close(g_near);
     hlod_store_close(g_far);
+    hlod_store_close(g_blocks);
+    hlod_store_close(g_jpeg);
     if (check_failures_ == 0)
         check_sh("rm -rf '%s'", tmp);
     return check_done();

@@ -13,12 +13,14 @@
  */
 #include "payload_codec.h"
 #include "store_node.h"
+#include "texture_codec.h"
 
 #include <math.h>
 #include <meshoptimizer.h>
 #include <stdlib.h>
 #include <string.h>
 #include <turbojpeg.h>
+#include <zstd.h>
 
 _Static_assert(sizeof(hlod_store_packed_header) == 128, "packed header layout");
 
@@ -34,6 +36,12 @@ _Static_assert(sizeof(hlod_store_packed_header) == 128, "packed header layout");
 #define MAX_VERTEX_BYTES_PER_BYTE 256u
 #define MAX_TRIS_PER_BYTE 64u
 #define MAX_PIXELS_PER_BYTE 4096u
+/* zstd's ceiling: a frame spends at least 3 bytes per 128 KiB block */
+#define MAX_BC_BYTES_PER_BYTE 65536u
+
+/* zstd level of block-coded textures: on the default city's facades 19
+ * saves a few per cent over 9 at 5x the build time */
+#define BC_ZSTD_LEVEL 9
 
 #define BAD(code, ...)                                  \
     do {                                                \
@@ -90,6 +98,64 @@ static size_t put_vertices(uint8_t *dst, size_t room, const void *v, size_t coun
     return meshopt_encodeVertexBuffer(dst, room, v, count, size);
 }
 
+/* PSNR of a JPEG against the pixels it was made from (0 when it cannot be
+ * decoded, which the caller then treats as unmeasured). */
+static double jpeg_db(const hlod_packed_input *in, const uint8_t *jpeg, unsigned long bytes)
+{
+    size_t n = (size_t)in->tex_width * in->tex_height * in->tex_channels;
+    uint8_t *dec = malloc(n);
+    tjhandle tj = tjInitDecompress();
+    double db = 0;
+    if (dec && tj &&
+        tjDecompress2(tj, jpeg, bytes, dec, (int)in->tex_width, 0, (int)in->tex_height,
+                      in->tex_channels == 1 ? TJPF_GRAY : TJPF_RGB, 0) == 0)
+        db = hlod_tex_psnr(in->pixels, dec, n);
+    if (tj)
+        tjDestroy(tj);
+    free(dec);
+    return db;
+}
+
+/* The block-coded chain of in's texture, zstd-coded into *out (malloc'ed),
+ * and its level 0's PSNR. */
+static hlod_result pack_blocks(const hlod_packed_input *in, uint8_t **out, size_t *bytes,
+                               double *db, const char *name, const hlod_logger *lg)
+{
+    *out = NULL;
+    *bytes = 0;
+    *db = 0;
+    const uint32_t w = in->tex_width, h = in->tex_height, c = in->tex_channels;
+    uint8_t *blocks = NULL, *dec = NULL, *z = NULL;
+    size_t chain = 0;
+    hlod_result r = hlod_bc_encode_chain(in->pixels, w, h, c, &blocks, &chain);
+    if (r == HLOD_ERR_NOMEM)
+        BAD(r, "%s: out of memory coding a %ux%u texture as blocks", name, w, h);
+    if (r != HLOD_OK)
+        BAD(r, "%s: cannot code a %ux%ux%u texture as blocks", name, w, h, c);
+    size_t n = (size_t)w * h * c;
+    dec = malloc(n);
+    if (!dec)
+        BAD(HLOD_ERR_NOMEM, "%s: out of memory coding a %ux%u texture as blocks", name, w, h);
+    hlod_bc_decode_level(blocks, w, h, c, dec, c);
+    *db = hlod_tex_psnr(in->pixels, dec, n);
+    size_t room = ZSTD_compressBound(chain);
+    z = malloc(room);
+    if (!z)
+        BAD(HLOD_ERR_NOMEM, "%s: out of memory coding a %ux%u texture as blocks", name, w, h);
+    size_t zn = ZSTD_compress(z, room, blocks, chain, BC_ZSTD_LEVEL);
+    if (ZSTD_isError(zn))
+        BAD(HLOD_ERR_NOMEM, "%s: zstd cannot code a %ux%u texture: %s", name, w, h,
+            ZSTD_getErrorName(zn));
+    *out = z;
+    *bytes = zn;
+    z = NULL;
+done:
+    free(blocks);
+    free(dec);
+    free(z);
+    return r;
+}
+
 static hlod_result pack_texture(const hlod_packed_input *in, uint8_t **jpeg, unsigned long *bytes,
                                 const char *name, const hlod_logger *lg)
 {
@@ -114,11 +180,69 @@ done:
     return r;
 }
 
+/* How a texture is stored: its codec and bytes (bc: malloc'ed, jpeg:
+ * libturbojpeg's; raw: none, the input's pixels). */
+typedef struct packed_texture {
+    uint32_t codec, levels;
+    double db;
+    uint8_t *bc, *jpeg;
+    size_t bc_bytes;
+    unsigned long jpeg_bytes;
+} packed_texture;
+
+/* Blocks where they reach the floor; under it JPEG where that comes closer
+ * to the source, raw (exact) without JPEG, else the blocks after all. */
+static hlod_result choose_texture(const hlod_packed_input *in, packed_texture *t,
+                                  const char *name, const hlod_logger *lg)
+{
+    hlod_result r = HLOD_OK;
+    size_t raw_tex = (size_t)in->tex_width * in->tex_height * in->tex_channels;
+    int jpeg_ok = in->tex_width <= JPEG_MAX_SIDE && in->tex_height <= JPEG_MAX_SIDE;
+    if (!(in->jpeg_quality > 0 && jpeg_ok) && raw_tex > UINT32_MAX)
+        BAD(HLOD_ERR_INVALID_ARG, "%s: a %ux%ux%u texture is %zu bytes, over the 4 GiB a "
+            "payload section holds", name, in->tex_width, in->tex_height, in->tex_channels,
+            raw_tex);
+    int grey_or_rgb = in->tex_channels == 1 || in->tex_channels == 3;
+    double bc_db = 0;
+    if (in->texture_blocks && grey_or_rgb &&
+        (r = pack_blocks(in, &t->bc, &t->bc_bytes, &bc_db, name, lg)) != HLOD_OK)
+        goto done;
+    t->db = bc_db;
+    if ((!t->bc || bc_db < in->texture_min_db) && in->jpeg_quality > 0 && jpeg_ok &&
+        grey_or_rgb) {
+        if ((r = pack_texture(in, &t->jpeg, &t->jpeg_bytes, name, lg)) != HLOD_OK)
+            goto done;
+        t->db = in->texture_blocks ? jpeg_db(in, t->jpeg, t->jpeg_bytes) : 0;
+        if (t->bc && t->db <= bc_db) {
+            tjFree(t->jpeg);
+            t->jpeg = NULL;
+            t->db = bc_db;
+        }
+    }
+    if (t->bc && !t->jpeg && (bc_db >= in->texture_min_db || in->jpeg_quality > 0)) {
+        t->codec = HLOD_TEX_BC;
+        t->levels = hlod_tex_level_count(in->tex_width, in->tex_height);
+    } else if (t->jpeg) {
+        t->codec = HLOD_TEX_JPEG;
+    } else {
+        t->codec = HLOD_TEX_RAW;
+        t->db = 0;
+    }
+    if (t->codec != HLOD_TEX_BC) {
+        free(t->bc);
+        t->bc = NULL;
+    }
+done:
+    return r;
+}
+
 hlod_result hlod_payload_pack(const hlod_packed_input *in, uint8_t **out, size_t *out_size,
-                              const char *name, const hlod_logger *lg)
+                              hlod_packed_info *info, const char *name, const hlod_logger *lg)
 {
     *out = NULL;
     *out_size = 0;
+    if (info)
+        memset(info, 0, sizeof *info);
     hlod_result r = HLOD_OK;
     const size_t v = in->vertex_count, ic = 3 * (size_t)in->tri_count;
     hlod_store_packed_header ph;
@@ -134,8 +258,7 @@ hlod_result hlod_payload_pack(const hlod_packed_input *in, uint8_t **out, size_t
 
     uint32_t *pos = malloc(12 * v);
     uint32_t *attr = malloc(4 * v);     /* normals, then UVs */
-    uint8_t *jpeg = NULL;
-    unsigned long jpeg_bytes = 0;
+    packed_texture tx = {0};
     uint8_t *buf = NULL;
     if (!pos || !attr)
         BAD(HLOD_ERR_NOMEM, "%s: out of memory packing a payload", name);
@@ -157,24 +280,14 @@ hlod_result hlod_payload_pack(const hlod_packed_input *in, uint8_t **out, size_t
     }
 
     int textured = in->pixels != NULL;
-    if (textured) {
-        size_t raw_tex = (size_t)in->tex_width * in->tex_height * in->tex_channels;
-        int jpeg_ok = in->tex_width <= JPEG_MAX_SIDE && in->tex_height <= JPEG_MAX_SIDE;
-        if (!(in->jpeg_quality > 0 && jpeg_ok) && raw_tex > UINT32_MAX)
-            BAD(HLOD_ERR_INVALID_ARG, "%s: a %ux%ux%u texture is %zu bytes, over the 4 GiB a "
-                "payload section holds", name, in->tex_width, in->tex_height, in->tex_channels,
-                raw_tex);
-        if (in->jpeg_quality > 0 && jpeg_ok && (in->tex_channels == 1 || in->tex_channels == 3)) {
-            r = pack_texture(in, &jpeg, &jpeg_bytes, name, lg);
-            if (r != HLOD_OK)
-                goto done;
-            ph.tex_codec = HLOD_TEX_JPEG;
-        } else {
-            ph.tex_codec = HLOD_TEX_RAW;
-        }
-    }
+    if (textured && (r = choose_texture(in, &tx, name, lg)) != HLOD_OK)
+        goto done;
+    ph.tex_codec = tx.codec;
+    ph.tex_levels = tx.levels;
+    ph.tex_db = (float)tx.db;
     size_t tex_raw = textured ? (size_t)in->tex_width * in->tex_height * in->tex_channels : 0;
-    size_t tex_bytes = ph.tex_codec == HLOD_TEX_JPEG ? (size_t)jpeg_bytes : tex_raw;
+    size_t tex_bytes = ph.tex_codec == HLOD_TEX_JPEG ? (size_t)tx.jpeg_bytes
+                       : ph.tex_codec == HLOD_TEX_BC ? tx.bc_bytes : tex_raw;
     size_t room = sizeof ph + meshopt_encodeVertexBufferBound(v, 12) +
                   (in->normals ? meshopt_encodeVertexBufferBound(v, 4) : 0) +
                   (in->uvs ? meshopt_encodeVertexBufferBound(v, 4) : 0) +
@@ -223,7 +336,8 @@ hlod_result hlod_payload_pack(const hlod_packed_input *in, uint8_t **out, size_t
     sec[HLOD_SEC_INDICES] = n = meshopt_encodeIndexBuffer(buf + at, room - at, in->indices, ic);
     at += n;
     if (textured) {
-        memcpy(buf + at, ph.tex_codec == HLOD_TEX_JPEG ? jpeg : in->pixels, tex_bytes);
+        memcpy(buf + at, ph.tex_codec == HLOD_TEX_JPEG ? tx.jpeg
+                         : ph.tex_codec == HLOD_TEX_BC ? tx.bc : in->pixels, tex_bytes);
         sec[HLOD_SEC_TEXTURE] = tex_bytes;
         at += tex_bytes;
     }
@@ -239,11 +353,16 @@ hlod_result hlod_payload_pack(const hlod_packed_input *in, uint8_t **out, size_t
     *out = buf;
     *out_size = at;
     buf = NULL;
+    if (info) {
+        info->tex_codec = textured ? ph.tex_codec : 0;
+        info->tex_db = ph.tex_db;
+    }
 done:
     free(buf);
     free(pos);
     free(attr);
-    tjFree(jpeg);
+    free(tx.bc);
+    tjFree(tx.jpeg);
     return r;
 }
 
@@ -279,14 +398,109 @@ done:
     return r;
 }
 
-hlod_result hlod_payload_unpack(const uint8_t *buf, size_t size, const hlod_store_node *n,
-                                uint32_t node, double quant_step, uint8_t **out,
-                                const char *name, const hlod_logger *lg)
+/* The block-coded texture section src (bytes) of ph: zstd undone into a new
+ * chain, then made what texout asks into *u (apart) or into dst (level 0
+ * texels inside the raw layout). */
+static hlod_result unpack_blocks(const uint8_t *src, size_t bytes, const hlod_store_packed_header *ph,
+                                 int texout, uint8_t *dst, hlod_unpacked *u, const char *name,
+                                 uint32_t node, const hlod_logger *lg)
 {
-    *out = NULL;
+    hlod_result r = HLOD_OK;
+    const uint32_t w = ph->tex_width, h = ph->tex_height, c = ph->tex_channels;
+    const size_t chain = hlod_bc_chain_bytes(w, h);
+    uint8_t *blocks = NULL, *texels = NULL;
+    unsigned long long fs = ZSTD_getFrameContentSize(src, bytes);
+    if (fs != chain)
+        BAD(HLOD_ERR_FORMAT, "%s: node %u: block texture frame holds %llu bytes, a %ux%u chain "
+            "%zu", name, node, fs, w, h, chain);
+    blocks = malloc(chain);
+    if (!blocks)
+        BAD(HLOD_ERR_NOMEM, "%s: node %u: out of memory decoding its texture", name, node);
+    size_t got = ZSTD_decompress(blocks, chain, src, bytes);
+    if (ZSTD_isError(got) || got != chain)
+        BAD(HLOD_ERR_FORMAT, "%s: node %u: bad block texture stream: %s", name, node,
+            ZSTD_isError(got) ? ZSTD_getErrorName(got) : "short");
+    if (texout == HLOD_TEXOUT_BLOCKS) {
+        u->tex = blocks;
+        u->tex_levels = ph->tex_levels;
+        u->tex_format = HLOD_TEXFMT_BC;
+        u->tex_channels = c;
+        return HLOD_OK;
+    }
+    if (texout == HLOD_TEXOUT_PIXELS) {
+        hlod_bc_decode_level(blocks, w, h, c, dst, c);
+        goto done;
+    }
+    const uint32_t oc = c == 3 ? 4 : 1;
+    size_t total = 0;
+    for (uint32_t l = 0; l < ph->tex_levels; l++) {
+        uint32_t lw, lh;
+        hlod_tex_level_size(w, h, l, &lw, &lh);
+        total += (size_t)lw * lh * oc;
+    }
+    texels = malloc(total);
+    if (!texels)
+        BAD(HLOD_ERR_NOMEM, "%s: node %u: out of memory decoding its texture", name, node);
+    const uint8_t *b = blocks;
+    uint8_t *t = texels;
+    for (uint32_t l = 0; l < ph->tex_levels; l++) {
+        uint32_t lw, lh;
+        hlod_tex_level_size(w, h, l, &lw, &lh);
+        hlod_bc_decode_level(b, lw, lh, c, t, oc);
+        b += (size_t)((lw + 3) / 4) * ((lh + 3) / 4) * HLOD_BC_BLOCK_BYTES;
+        t += (size_t)lw * lh * oc;
+    }
+    u->tex = texels;
+    u->tex_levels = ph->tex_levels;
+    u->tex_format = HLOD_TEXFMT_TEXELS;
+    u->tex_channels = oc;
+    texels = NULL;
+done:
+    free(blocks);
+    free(texels);
+    return r;
+}
+
+/* The packed header's texture fields against its version and counts. */
+static hlod_result check_texture_fields(const hlod_store_packed_header *ph,
+                                        const hlod_store_header *h, const char *name,
+                                        uint32_t node, const hlod_logger *lg)
+{
+    hlod_result r = HLOD_OK;
+    const int textured = (ph->flags & HLOD_NODE_TEXTURE) != 0;
+    const int bc = textured && ph->tex_codec == HLOD_TEX_BC;
+    const uint32_t max_codec = h->version >= 5 ? HLOD_TEX_BC : HLOD_TEX_JPEG;
+    if (textured ? ph->tex_codec > max_codec : ph->tex_codec != 0)
+        BAD(HLOD_ERR_FORMAT, "%s: node %u: unknown texture codec %u", name, node, ph->tex_codec);
+    if (bc ? ph->tex_levels != hlod_tex_level_count(ph->tex_width, ph->tex_height) ||
+                 (ph->tex_channels != 1 && ph->tex_channels != 3)
+           : ph->tex_levels != 0)
+        BAD(HLOD_ERR_FORMAT, "%s: node %u: %u texture levels for a %ux%ux%u texture of codec %u",
+            name, node, ph->tex_levels, ph->tex_width, ph->tex_height, ph->tex_channels,
+            ph->tex_codec);
+    if (!isfinite(ph->tex_db) || ph->tex_db < 0 || (h->version < 5 && ph->tex_db != 0))
+        BAD(HLOD_ERR_FORMAT, "%s: node %u: bad texture PSNR field", name, node);
+    if (textured && ph->tex_codec == HLOD_TEX_JPEG && ph->tex_channels != 1 && ph->tex_channels != 3)
+        BAD(HLOD_ERR_FORMAT, "%s: node %u: a JPEG texture with %u channels", name, node,
+            ph->tex_channels);
+    if (textured && ph->tex_codec == HLOD_TEX_RAW &&
+        ph->section_bytes[HLOD_SEC_TEXTURE] !=
+            (uint64_t)ph->tex_width * ph->tex_height * ph->tex_channels)
+        BAD(HLOD_ERR_FORMAT, "%s: node %u: raw texture of %u bytes for %ux%ux%u", name, node,
+            ph->section_bytes[HLOD_SEC_TEXTURE], ph->tex_width, ph->tex_height, ph->tex_channels);
+done:
+    return r;
+}
+
+hlod_result hlod_payload_unpack(const uint8_t *buf, size_t size, const hlod_store_node *n,
+                                uint32_t node, const hlod_store_header *h, int texout,
+                                hlod_unpacked *out, const char *name, const hlod_logger *lg)
+{
+    memset(out, 0, sizeof *out);
     hlod_result r = HLOD_OK;
     uint8_t *raw = NULL;
     uint32_t *tmp = NULL;
+    const double quant_step = h->quant_step;
     hlod_store_packed_header ph;
     if (size < sizeof ph)
         BAD(HLOD_ERR_FORMAT, "%s: node %u: payload shorter than its header", name, node);
@@ -317,16 +531,9 @@ hlod_result hlod_payload_unpack(const uint8_t *buf, size_t size, const hlod_stor
     if (total != size)
         BAD(HLOD_ERR_FORMAT, "%s: node %u: sections hold %llu bytes, the payload %zu", name,
             node, (unsigned long long)total, size);
-    if (textured ? ph.tex_codec > HLOD_TEX_JPEG : ph.tex_codec != 0)
-        BAD(HLOD_ERR_FORMAT, "%s: node %u: unknown texture codec %u", name, node, ph.tex_codec);
-    if (textured && ph.tex_codec == HLOD_TEX_JPEG && ph.tex_channels != 1 && ph.tex_channels != 3)
-        BAD(HLOD_ERR_FORMAT, "%s: node %u: a JPEG texture with %u channels", name, node,
-            ph.tex_channels);
-    if (textured && ph.tex_codec == HLOD_TEX_RAW &&
-        ph.section_bytes[HLOD_SEC_TEXTURE] !=
-            (uint64_t)ph.tex_width * ph.tex_height * ph.tex_channels)
-        BAD(HLOD_ERR_FORMAT, "%s: node %u: raw texture of %u bytes for %ux%ux%u", name, node,
-            ph.section_bytes[HLOD_SEC_TEXTURE], ph.tex_width, ph.tex_height, ph.tex_channels);
+    if ((r = check_texture_fields(&ph, h, name, node, lg)) != HLOD_OK)
+        goto done;
+    const int bc = textured && ph.tex_codec == HLOD_TEX_BC;
     for (int k = 0; k < 2; k++)
         if (!isfinite(ph.uv_min[k]) || !isfinite(ph.uv_scale[k]) || ph.uv_scale[k] < 0)
             BAD(HLOD_ERR_NAN, "%s: node %u: non-finite UV range", name, node);
@@ -336,10 +543,15 @@ hlod_result hlod_payload_unpack(const uint8_t *buf, size_t size, const hlod_stor
         (uint64_t)ic / 3 > (uint64_t)sb_min(ph.section_bytes[HLOD_SEC_INDICES]) * MAX_TRIS_PER_BYTE ||
         (textured && ph.tex_codec == HLOD_TEX_JPEG &&
          (uint64_t)ph.tex_width * ph.tex_height >
-             (uint64_t)sb_min(ph.section_bytes[HLOD_SEC_TEXTURE]) * MAX_PIXELS_PER_BYTE))
+             (uint64_t)sb_min(ph.section_bytes[HLOD_SEC_TEXTURE]) * MAX_PIXELS_PER_BYTE) ||
+        (bc && (uint64_t)hlod_bc_chain_bytes(ph.tex_width, ph.tex_height) >
+                   (uint64_t)sb_min(ph.section_bytes[HLOD_SEC_TEXTURE]) * MAX_BC_BYTES_PER_BYTE))
         BAD(HLOD_ERR_FORMAT, "%s: node %u: %zu vertices, %zu triangles or a %ux%u texture cannot "
             "come from streams this short", name, node, v, ic / 3, ph.tex_width, ph.tex_height);
-    uint64_t raw_size = hlod_store_node_memory(n);
+    /* a chain kept apart leaves the raw layout without level 0 */
+    const int apart = bc && texout != HLOD_TEXOUT_PIXELS;
+    uint64_t raw_size = hlod_store_node_memory(n) -
+                        (apart ? (uint64_t)ph.tex_width * ph.tex_height * ph.tex_channels : 0);
     raw = malloc((size_t)raw_size);
     tmp = malloc(12 * v);
     if (!raw || !tmp)
@@ -404,14 +616,22 @@ hlod_result hlod_payload_unpack(const uint8_t *buf, size_t size, const hlod_stor
     if (textured) {
         if (ph.tex_codec == HLOD_TEX_RAW)
             memcpy(dst, src, sb[HLOD_SEC_TEXTURE]);
-        else if ((r = unpack_texture(src, sb[HLOD_SEC_TEXTURE], &ph, dst, name, node, lg)) !=
-                 HLOD_OK)
+        else if (bc)
+            r = unpack_blocks(src, sb[HLOD_SEC_TEXTURE], &ph, texout, dst, out, name, node, lg);
+        else
+            r = unpack_texture(src, sb[HLOD_SEC_TEXTURE], &ph, dst, name, node, lg);
+        if (r != HLOD_OK)
             goto done;
     }
-    *out = raw;
+    out->raw = raw;
+    out->raw_size = raw_size;
     raw = NULL;
 done:
     free(raw);
     free(tmp);
+    if (r != HLOD_OK) {
+        free(out->tex);
+        memset(out, 0, sizeof *out);
+    }
     return r;
 }

@@ -715,9 +715,10 @@ static int finite_floats(const float *v, size_t n)
     return 1;
 }
 
-/* Parses buf (size bytes, hash verified) against node n into *p. */
+/* Parses buf (size bytes, hash verified) against node n into *p; apart:
+ * the layout holds no texels (the texture was decoded apart from it). */
 static hlod_result parse_payload(const hlod_store *s, uint32_t node, uint8_t *buf, uint64_t size,
-                                 hlod_store_payload *p)
+                                 int apart, hlod_store_payload *p)
 {
     const hlod_logger *lg = &s->logger;
     const hlod_store_node *n = &s->nodes[node];
@@ -732,8 +733,9 @@ static hlod_result parse_payload(const hlod_store *s, uint32_t node, uint8_t *bu
                                  ph.tex_width, ph.tex_height, ph.tex_channels))
         BAD(HLOD_ERR_FORMAT, "%s: node %u: payload counts disagree with the node table", name,
             node);
+    uint64_t texels = apart ? (uint64_t)ph.tex_width * ph.tex_height * ph.tex_channels : 0;
     if (hlod_store_payload_size(ph.flags, ph.vertex_count, ph.index_count, ph.tex_width,
-                                ph.tex_height, ph.tex_channels) != size)
+                                ph.tex_height, ph.tex_channels) != size + texels)
         BAD(HLOD_ERR_FORMAT, "%s: node %u: payload size disagrees with its counts", name, node);
 
     size_t v = ph.vertex_count, off = sizeof ph;
@@ -763,7 +765,7 @@ static hlod_result parse_payload(const hlod_store *s, uint32_t node, uint8_t *bu
     }
     p->indices = (const uint32_t *)(buf + off);
     off += 4 * (size_t)ph.index_count;
-    if (ph.flags & HLOD_NODE_TEXTURE)
+    if ((ph.flags & HLOD_NODE_TEXTURE) && !apart)
         p->pixels = buf + off;
 
     if (!finite_floats(p->positions, 3 * v) || (p->normals && !finite_floats(p->normals, 3 * v)) ||
@@ -786,6 +788,12 @@ static hlod_result parse_payload(const hlod_store *s, uint32_t node, uint8_t *bu
 /* called from the thread owning rd */
 hlod_result hlod_store_read_finish(hlod_store_read *rd, hlod_store_payload *out)
 {
+    return hlod_store_read_finish_as(rd, HLOD_TEXOUT_PIXELS, out);
+}
+
+/* called from the thread owning rd */
+hlod_result hlod_store_read_finish_as(hlod_store_read *rd, int texout, hlod_store_payload *out)
+{
     if (!out) {
         hlod_store_read_cancel(rd);
         return HLOD_ERR_INVALID_ARG;
@@ -804,17 +812,25 @@ hlod_result hlod_store_read_finish(hlod_store_read *rd, hlod_store_payload *out)
                   s->path, rd->node);
         r = HLOD_ERR_CHECKSUM;
     } else if (s->header.payload_codec == HLOD_STORE_CODEC_PACKED) {
-        uint8_t *raw = NULL;
+        hlod_unpacked u;
         const hlod_store_node *n = &s->nodes[rd->node];
-        r = hlod_payload_unpack(rd->buf, (size_t)rd->size, n, rd->node, s->header.quant_step,
-                                &raw, s->path, &s->logger);
+        r = hlod_payload_unpack(rd->buf, (size_t)rd->size, n, rd->node, &s->header, texout, &u,
+                                s->path, &s->logger);
         if (r == HLOD_OK) {
-            r = parse_payload(s, rd->node, raw, hlod_store_node_memory(n), out);
-            if (r != HLOD_OK)
-                free(raw);
+            r = parse_payload(s, rd->node, u.raw, u.raw_size, u.tex != NULL, out);
+            if (r != HLOD_OK) {
+                free(u.raw);
+                free(u.tex);
+            } else if (u.tex) {
+                out->pixels = u.tex;
+                out->tex_memory = u.tex;
+                out->tex_levels = u.tex_levels;
+                out->tex_format = u.tex_format;
+                out->tex_channels = u.tex_channels;
+            }
         }
     } else {
-        r = parse_payload(s, rd->node, rd->buf, rd->size, out);
+        r = parse_payload(s, rd->node, rd->buf, rd->size, 0, out);
         if (r == HLOD_OK)
             rd->buf = NULL;     /* moved into *out */
     }
@@ -824,6 +840,12 @@ hlod_result hlod_store_read_finish(hlod_store_read *rd, hlod_store_payload *out)
 
 hlod_result hlod_store_read_node(const hlod_store *s, uint32_t node, size_t max_bytes,
                                  hlod_store_payload *out)
+{
+    return hlod_store_read_node_as(s, node, max_bytes, HLOD_TEXOUT_PIXELS, out);
+}
+
+hlod_result hlod_store_read_node_as(const hlod_store *s, uint32_t node, size_t max_bytes,
+                                    int texout, hlod_store_payload *out)
 {
     if (!out)
         return HLOD_ERR_INVALID_ARG;
@@ -843,7 +865,7 @@ hlod_result hlod_store_read_node(const hlod_store *s, uint32_t node, size_t max_
     }
     if (!cached)
         hlod_store_cache_put(&rd);
-    return hlod_store_read_finish(&rd, out);
+    return hlod_store_read_finish_as(&rd, texout, out);
 }
 
 hlod_result hlod_store_read_nodes(const hlod_store *s, uint32_t first, uint32_t count,

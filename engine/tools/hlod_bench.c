@@ -130,7 +130,8 @@ static void usage(FILE *fp)
         "occlusion_ms_mean, overhead_ms_mean, overhead_ms_max,\n"
         "occlusion_check_psnr_min, occlusion_check_differing_max,\n"
         "occlusion_check_bad_frames, cone_culled_mean, cone_check_differing_max,\n"
-        "cone_check_nodes, cone_check_unchecked, splats_mean, policy, path.\n"
+        "cone_check_nodes, cone_check_unchecked, splats_mean, policy, path,\n"
+        "backend, gl_renderer, texture_upload (blocks or expanded).\n"
         "\n"
         "Exit status: 0 success, 1 a run failed, 2 bad command line.\n"
         "\n"
@@ -538,6 +539,7 @@ typedef struct summary {
     uint64_t jitter_frame;                  /* the replayed frame */
     int jitter_count;
     const char *gl_renderer;
+    const char *texture_upload;             /* "blocks" or "expanded" */
 } summary;
 
 /* Frames from this one on count in toggles_after_60 (the issue's still
@@ -846,6 +848,7 @@ static void json_summary(hlod_json *j, const summary *s, const char *policy, con
     hlod_json_int(j, "reference_ss", o->reference_ss);
     hlod_json_string(j, "backend", o->backend == BACKEND_EGL ? "egl" : "osmesa");
     hlod_json_string(j, "gl_renderer", s->gl_renderer);
+    hlod_json_string(j, "texture_upload", s->texture_upload);
 }
 
 static hlod_result write_summary(const char *dir, const summary *s, const char *policy,
@@ -1465,15 +1468,18 @@ static int run_frame(run_state *s, uint64_t f)
 
 /* The run's summary into out, and its frames.csv, summary.json and
  * jitter.csv.  0, or 1 when a file cannot be written. */
-static int write_run(run_state *s, hlod_policy policy, double target_ms, uint32_t depths,
-                     summary *out)
+static int write_run(run_state *s, hlod_policy policy, const hlod_engine_desc *d,
+                     uint32_t depths, summary *out)
 {
+    const double target_ms = d->target_ms;
     context *c = s->c;
     long n = (long)s->total;
     summarise(s->rec, n, target_ms, out);
     summarise_extra(s->rec, n, target_ms, s->jit, s->njit, out);
     out->jitter_frame = s->jitter_frame;
     out->gl_renderer = target_name(&c->gl);
+    out->texture_upload =
+        hlod_renderer_texture_blocks(c->gl.renderer, d->texture_upload) ? "blocks" : "expanded";
     moving_averages(s->rec, n);
     if (write_frames_csv(s->dir, s->rec, n, depths, &c->lg) != HLOD_OK ||
         write_summary(s->dir, out, hlod_policy_name(policy), c->path_name, c->o, &c->lg) !=
@@ -1530,7 +1536,7 @@ static int run(context *c, hlod_policy policy, const char *dir, const setting *e
 
     const hlod_store_header *h = hlod_store_get_header(c->store);
     uint32_t depths = h->depth_count < HLOD_STATS_MAX_DEPTH ? h->depth_count : HLOD_STATS_MAX_DEPTH;
-    status = write_run(&s, policy, d.target_ms, depths, out);
+    status = write_run(&s, policy, &d, depths, out);
     free(s.rec);
     free(s.jit);
     if (!status && o->plots)

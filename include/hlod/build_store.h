@@ -73,6 +73,11 @@ typedef struct hlod_build_desc {
                                    default 24 */
     unsigned jpeg_quality;      /* packed: JPEG quality of textures, 1..100,
                                    default 90; 0 stores textures raw */
+    int texture_blocks;         /* packed: non-zero (default) stores textures
+                                   of 1 or 3 channels as block-coded mips
+                                   (docs/store-format.md) where they reach
+                                   texture_min_db, the rest as JPEG; 0: all JPEG */
+    double texture_min_db;      /* [0, 99], default 38 */
     /* A sharded build (docs/sharded-builds.md): shard_count 0 (default)
      * builds the whole store; 1..65536 builds only shard shard_index
      * (1..shard_count) and writes a part file at the output path instead of
@@ -93,6 +98,10 @@ typedef struct hlod_build_report {
     size_t block_depth;         /* depth of the blocks' hlod_0 nodes */
     size_t buckets;             /* sampletree: subtrees built one at a time */
     uint64_t spill_bytes;       /* sampletree: written to the spill file */
+    /* packed: textures stored as blocks, as JPEG, raw; the lowest PSNR
+     * measured among the first two (0: none measured) */
+    uint64_t textures_bc, textures_jpeg, textures_raw;
+    double texture_db_min;
 } hlod_build_report;
 
 /* Every field set to its default (0 is a valid c_tex, so zero does not

@@ -147,6 +147,8 @@ typedef double (*hlod_time_model)(void *user_data, const struct hlod_frame_stats
       "klein policy: a node whose box projects within splat_px x splat_px pixels is one splat")  \
     X(splats, splats, B, 1, 0, 0, 1, 1,                                                          \
       "klein policy: 1: small nodes are splats; 0: every node is drawn (the reference walk)")   \
+    X(texture_upload, texture_upload, U32, 0, 0, 0, 2, 0,                                        \
+      "block-coded textures: 1 the loader expands them to texels; 2 uploaded as blocks; 0 blocks where the GL samples them natively") \
     X(read_chunk_bytes, read_chunk_bytes, U32, 64u << 10, 1, 0, HLOD_UNBOUNDED, 0,               \
       "the loader reads a payload in steps of this many bytes")                                  \
     X(upload_budget_bytes, upload_budget_bytes, U64, 16ull << 20, 1, 0, HLOD_UNBOUNDED, 1,       \

@@ -34,6 +34,17 @@ void hlod_renderer_set_wireframe(hlod_renderer *r, int on);
 void hlod_renderer_set_backface_culling(hlod_renderer *r, int on);
 void hlod_renderer_set_clear_color(hlod_renderer *r, float red, float green, float blue);
 
+/* How block-coded textures (BC1/BC4, docs/store-format.md) reach this GL,
+ * for the engine's texture_upload setting `mode`: 1 when they are uploaded
+ * as blocks (glCompressedTexImage2D), 0 when the loader expands them to
+ * texels first.  mode 2 asks for blocks, 1 for texels; 0 picks blocks where
+ * the context has EXT_texture_compression_s3tc and is not a software
+ * rasteriser (llvmpipe, softpipe, swrast sample blocks about 2x slower
+ * than texels, docs/runtime.md "Texture upload").  Blocks asked for on a
+ * context without the extension give 0 (logged once).  Any thread; the
+ * answer is fixed at hlod_renderer_create. */
+int hlod_renderer_texture_blocks(const hlod_renderer *r, uint32_t mode);
+
 /* A way for the renderer to read the depth buffer in place instead of
  * copying it (occlusion culling reads it every frame): returns the depth
  * values of the current framebuffer, bottom row first, rows *stride values

@@ -78,6 +78,8 @@
  *              HLOD_NODE_COLORS
  *   indices    meshopt index codec (triangle list)
  *   texture    tex_codec HLOD_TEX_JPEG: a baseline JPEG (1 or 3 channels);
+ *              HLOD_TEX_BC: one zstd frame holding the mip chain's
+ *              BC1 (3 channels) or BC4 (1 channel) blocks, level 0 first;
  *              HLOD_TEX_RAW: the raw pixels; if HLOD_NODE_TEXTURE
  * payload_size = 128 + the sum of section_bytes.
  *
@@ -108,7 +110,8 @@ extern "C" {
 /* ---- format ---- */
 
 #define HLOD_STORE_MAGIC "HLODSTOR"     /* 8 bytes, no terminator on disk */
-#define HLOD_STORE_VERSION 4u       /* 4: the extras table; 3: payload codec; 2: city levels
+#define HLOD_STORE_VERSION 5u       /* 5: block-coded textures (HLOD_TEX_BC); 4: the extras
+                                       table; 3: payload codec; 2: city levels
                                        (block_depth, top_count) */
 #define HLOD_STORE_VERSION_MIN 2u   /* the oldest version this reader reads */
 #define HLOD_STORE_ENDIAN 0x01020304u   /* read back as 0x04030201: wrong byte order */
@@ -282,6 +285,9 @@ typedef struct hlod_store_payload_header {
 /* packed.tex_codec */
 #define HLOD_TEX_RAW 0u
 #define HLOD_TEX_JPEG 1u
+#define HLOD_TEX_BC 2u      /* version 5: the mip chain as BC1 blocks (3 channels) or BC4
+                               blocks (1 channel), tex_levels levels, one zstd frame
+                               (engine/common/texture_codec.h) */
 
 /* Sections of a packed payload, in order. */
 enum {
@@ -308,7 +314,12 @@ typedef struct hlod_store_packed_header {
     float uv_min[2];            /*  48 */
     float uv_scale[2];          /*  56 >= 0, finite */
     uint32_t section_bytes[HLOD_SEC_COUNT]; /* 64; 0 for an absent section */
-    uint32_t reserved[10];      /*  88 zero */
+    uint32_t tex_levels;        /*  88 HLOD_TEX_BC: the full chain's level count; else 0
+                                   (version 5; reserved, 0, before) */
+    float tex_db;               /*  92 PSNR in dB of the stored texture's level 0 against
+                                   its source, measured by the builder; 0: not measured
+                                   (raw textures, stores before version 5) */
+    uint32_t reserved[8];       /*  96 zero */
 } hlod_store_packed_header;
 
 /* Children of node i: [hlod_store_first_child(n, i), hlod_store_child_end(n, i)). */
@@ -430,12 +441,30 @@ typedef struct hlod_store_payload {
     const uint8_t *pixels;      /* w * h * channels or NULL */
     void *memory;
     size_t bytes;
-    /* 0: pixels is the stored texture, one level.  Else the engine's loader
-     * made the mip chain (engine/texture.h): tex_levels levels one after
-     * another from pixels, in tex_memory (its own allocation). */
+    /* 0: pixels is the stored texture, one level.  Else pixels holds the
+     * mip chain, tex_levels levels one after another, in tex_memory (its
+     * own allocation): texels the engine's loader made (engine/texture.h)
+     * or took from stored blocks (HLOD_TEXOUT_CHAIN), or the stored blocks
+     * themselves (tex_format, HLOD_TEXOUT_BLOCKS). */
     uint32_t tex_levels;
     void *tex_memory;
+    /* HLOD_TEXFMT_*: what pixels holds.  Blocks keep the stored channels
+     * (tex_channels 3: BC1, 1: BC4); a texel chain from BC1 has 4 (RGBA). */
+    uint32_t tex_format;
 } hlod_store_payload;
+
+/* hlod_store_payload.tex_format */
+#define HLOD_TEXFMT_TEXELS 0u   /* tex_channels bytes a texel */
+#define HLOD_TEXFMT_BC 1u       /* 8-byte 4x4 blocks: BC1 (3 channels) or BC4 (1) */
+
+/* What hlod_store_read_finish_as makes of a block-coded (HLOD_TEX_BC)
+ * texture; other textures come as level 0 texels in every mode. */
+#define HLOD_TEXOUT_PIXELS 0    /* level 0 as texels, the raw layout's pixels
+                                   (what hlod_store_read_finish gives) */
+#define HLOD_TEXOUT_CHAIN 1     /* the whole chain as texels (RGBA from BC1,
+                                   grey from BC4): a GL without the blocks */
+#define HLOD_TEXOUT_BLOCKS 2    /* the stored blocks, the whole chain: a GL
+                                   that samples them (glCompressedTexImage2D) */
 
 void hlod_store_payload_free(hlod_store_payload *p);   /* p may be zeroed */
 
@@ -480,12 +509,22 @@ hlod_result hlod_store_read_step(hlod_store_read *rd, size_t max_bytes, int *com
  * O(payload size). */
 hlod_result hlod_store_read_finish(hlod_store_read *rd, hlod_store_payload *out);
 
+/* hlod_store_read_finish, with a block-coded texture made into what texout
+ * (HLOD_TEXOUT_*) asks.  With CHAIN or BLOCKS the payload's memory holds no
+ * level-0 texels: the texture lives in tex_memory. */
+hlod_result hlod_store_read_finish_as(hlod_store_read *rd, int texout, hlod_store_payload *out);
+
 /* Abandons a read and frees its buffer (rd may be zeroed). */
 void hlod_store_read_cancel(hlod_store_read *rd);
 
 /* begin + steps of max_bytes + finish, for tools and tests. */
 hlod_result hlod_store_read_node(const hlod_store *s, uint32_t node, size_t max_bytes,
                                  hlod_store_payload *out);
+
+/* hlod_store_read_node, a block-coded texture made what texout asks
+ * (hlod_store_read_finish_as). */
+hlod_result hlod_store_read_node_as(const hlod_store *s, uint32_t node, size_t max_bytes,
+                                    int texout, hlod_store_payload *out);
 
 /* Reads nodes [first, first + count) into out[i] with result results[i]
  * (as hlod_store_read_node each); a URL's with 8 parallel transfers.

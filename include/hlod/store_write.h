@@ -52,6 +52,12 @@ typedef struct hlod_store_writer_desc {
     double quant_step;
     double quant_origin[3];
     uint32_t jpeg_quality;
+    /* packed: 1 stores a texture of 1 or 3 channels as block-coded mips
+     * (BC1/BC4 and zstd, docs/store-format.md) when their level 0 reaches
+     * texture_min_db dB against the texture given, else as JPEG at
+     * jpeg_quality (raw at 0); 0: JPEG or raw as jpeg_quality says. */
+    uint32_t texture_blocks;
+    double texture_min_db;
     const hlod_logger *logger;      /* may be NULL; must outlive the writer
                                        and be thread safe if add is called
                                        from several threads */
@@ -106,6 +112,16 @@ hlod_result hlod_store_writer_add(hlod_store_writer *w, const hlod_store_payload
 hlod_result hlod_store_writer_add_copy(hlod_store_writer *w, const hlod_store_node *src,
                                        const void *bytes, const hlod_store_extra *src_extra,
                                        hlod_store_node *node);
+
+/* How the textures added so far were stored (packed stores; copies
+ * included): block-coded, JPEG, raw, and the lowest PSNR measured among
+ * the block-coded and JPEG ones (0 when none was measured).  Call when no
+ * add is running. */
+typedef struct hlod_store_texture_stats {
+    uint64_t bc, jpeg, raw;
+    double db_min;
+} hlod_store_texture_stats;
+void hlod_store_writer_texture_stats(const hlod_store_writer *w, hlod_store_texture_stats *out);
 
 /* called from the owner thread after every add returned.  nodes[0..count)
  * in any order, each filled by add and then given its parent (an index into

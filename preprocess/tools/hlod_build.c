@@ -6,6 +6,7 @@
  *              [--level-factor F] [--voxel-tris N] [--leaf-tris N]
  *              [--node-tris N] [--c-tex C] [--city-levels on|off] [--threads T]
  *              [--compress on|off] [--quant-bits B] [--jpeg-quality Q]
+ *              [--texture-blocks on|off] [--texture-min-db DB]
  *              [--shard I/N] [--json] [--quiet]
  *
  * The pipeline is the library's (hlod/build_store.h, preprocess/build_store.c);
@@ -68,13 +69,20 @@ static void usage(FILE *fp)
             "                         block's hlod_0 is a root (the paper's layout)\n"
             "  --threads T            build threads (default: every core)\n"
             "  --compress C           on (default): packed payloads (positions on a\n"
-            "                         grid, meshoptimizer codecs, JPEG textures); off:\n"
+            "                         grid, meshoptimizer codecs, block-coded or\n"
+            "                         JPEG textures); off:\n"
             "                         raw floats and pixels\n"
             "  --quant-bits B         packed: the position grid step is the input's\n"
             "                         diagonal / 2^B rounded down to a power of two\n"
             "                         (8..24, default 24)\n"
             "  --jpeg-quality Q       packed: JPEG quality of textures (1..100, default\n"
             "                         90); 0 keeps textures lossless\n"
+            "  --texture-blocks B     packed: on (default): textures of 1 or 3\n"
+            "                         channels as BC1/BC4 mip chains with zstd, GPU-\n"
+            "                         ready (docs/store-format.md); off: all JPEG\n"
+            "  --texture-min-db DB    packed: a texture whose blocks fall under DB dB\n"
+            "                         PSNR against it is stored as JPEG (0..99,\n"
+            "                         default 38)\n"
             "  --shard I/N            build only shard I of N (1 <= I <= N) and write a\n"
             "                         part file at OUT for hlod-merge\n"
             "                         (docs/sharded-builds.md)\n"
@@ -82,7 +90,10 @@ static void usage(FILE *fp)
             "                         levels, groups, block_depth, tris_in,\n"
             "                         tris_leaf, tris_total, bytes, seconds,\n"
             "                         peak_rss_bytes (a shard's: its own), buckets\n"
-            "                         and spill_bytes (sampletree; else 0)\n"
+            "                         and spill_bytes (sampletree; else 0),\n"
+            "                         textures_bc1, textures_jpeg, textures_raw,\n"
+            "                         texture_psnr_min (dB, the worst stored; 0:\n"
+            "                         none measured)\n"
             "  --quiet                errors only, no progress bar\n"
             "  -h, --help             show this help\n"
             "\n"
@@ -119,6 +130,17 @@ static int parse_method(const char *val, hlod_build_desc *bd)
         hlod_cli_error(PROG, "--method: '%s' is not cutplane, metis or sampletree", val);
         return 0;
     }
+    return 1;
+}
+
+/* val of flag as on (1) or off (0) into *out; 0 when it is neither. */
+static int on_off(const char *flag, const char *val, int *out)
+{
+    if (strcmp(val, "on") != 0 && strcmp(val, "off") != 0) {
+        hlod_cli_error(PROG, "%s: '%s' is not on or off", flag, val);
+        return 0;
+    }
+    *out = !strcmp(val, "on");
     return 1;
 }
 
@@ -216,20 +238,12 @@ static int parse(int argc, char **argv, options *o)
                 return 0;
         } else if (!strcmp(a, "--city-levels")) {
             NEED_VAL();
-            if (!strcmp(val, "on") || !strcmp(val, "off")) {
-                o->bd.city_levels = !strcmp(val, "on");
-            } else {
-                hlod_cli_error(PROG, "--city-levels: '%s' is not on or off", val);
+            if (!on_off(a, val, &o->bd.city_levels))
                 return 0;
-            }
         } else if (!strcmp(a, "--compress")) {
             NEED_VAL();
-            if (!strcmp(val, "on") || !strcmp(val, "off")) {
-                o->bd.compress = !strcmp(val, "on");
-            } else {
-                hlod_cli_error(PROG, "--compress: '%s' is not on or off", val);
+            if (!on_off(a, val, &o->bd.compress))
                 return 0;
-            }
         } else if (!strcmp(a, "--quant-bits")) {
             NEED_VAL();
             size_t b;
@@ -242,6 +256,14 @@ static int parse(int argc, char **argv, options *o)
             if (!hlod_cli_parse_size(PROG, a, val, 0, 100, &q))
                 return 0;
             o->bd.jpeg_quality = (unsigned)q;
+        } else if (!strcmp(a, "--texture-blocks")) {
+            NEED_VAL();
+            if (!on_off(a, val, &o->bd.texture_blocks))
+                return 0;
+        } else if (!strcmp(a, "--texture-min-db")) {
+            NEED_VAL();
+            if (!hlod_cli_parse_double(PROG, a, val, 0, 99, 0, &o->bd.texture_min_db))
+                return 0;
         } else if (!strcmp(a, "--shard")) {
             NEED_VAL();
             if (!parse_shard(val, &o->bd))
@@ -323,6 +345,10 @@ int main(int argc, char **argv)
         hlod_json_size(&j, "peak_rss_bytes", hlod_cli_peak_rss());
         hlod_json_size(&j, "buckets", rep.buckets);
         hlod_json_size(&j, "spill_bytes", (size_t)rep.spill_bytes);
+        hlod_json_size(&j, "textures_bc1", (size_t)rep.textures_bc);
+        hlod_json_size(&j, "textures_jpeg", (size_t)rep.textures_jpeg);
+        hlod_json_size(&j, "textures_raw", (size_t)rep.textures_raw);
+        hlod_json_double(&j, "texture_psnr_min", rep.texture_db_min);
         hlod_json_string(&j, "method", opt.bd.method == HLOD_BUILD_METIS        ? "metis"
                                        : opt.bd.method == HLOD_BUILD_SAMPLETREE ? "sampletree"
                                                                                 : "cutplane");

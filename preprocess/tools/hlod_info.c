@@ -39,7 +39,10 @@ static void usage(FILE *fp)
         "  --json        print one JSON object on stdout: nodes, blocks, depths,\n"
         "                block_depth (depth of the blocks' hlod_0 nodes), groups,\n"
         "                nodes_per_depth, tris_per_depth, bytes, payload_bytes,\n"
-        "                texture_bytes, error_min, error_max, verified and more\n"
+        "                texture_bytes, error_min, error_max, textures_bc1,\n"
+        "                textures_jpeg, textures_raw, texture_psnr_min (dB, the\n"
+        "                lowest the builder measured; 0: none; null: a remote\n"
+        "                store without --verify), verified and more\n"
         "  -h, --help    show this help\n"
         "\n"
         "Exit status: 0 valid, 1 unreadable or corrupt, 2 bad command line.\n");
@@ -54,7 +57,46 @@ typedef struct stats {
     depth_stats *depth;         /* header depth_count entries */
     uint64_t tris, leaves, leaf_tris, leaf_payload_bytes, payload_bytes, texture_bytes;
     double error_min, error_max;
+    /* textures by codec, from the packed headers (scanned: 0 when not) */
+    int scanned;
+    uint64_t tex_bc, tex_jpeg, tex_raw;
+    double tex_db_min;          /* lowest measured PSNR; 0: none measured */
 } stats;
+
+/* Reads the packed header of every textured node: how its texture is
+ * stored and the PSNR the builder measured.  0, or 1 on a read error
+ * (logged by the reader, naming the node). */
+static int scan_textures(const hlod_store *s, stats *st)
+{
+    const hlod_store_header *h = hlod_store_get_header(s);
+    const hlod_store_node *nodes = hlod_store_nodes(s);
+    st->scanned = 1;
+    if (h->payload_codec != HLOD_STORE_CODEC_PACKED)
+        return 0;
+    for (uint32_t i = 0; i < h->node_count; i++) {
+        if (!(nodes[i].flags & HLOD_NODE_TEXTURE))
+            continue;
+        hlod_store_read rd;
+        int complete = 0;
+        hlod_store_packed_header ph;
+        if (hlod_store_read_begin(s, i, &rd) != HLOD_OK ||
+            hlod_store_read_step(&rd, sizeof ph, &complete) != HLOD_OK) {
+            hlod_store_read_cancel(&rd);
+            return 1;
+        }
+        memcpy(&ph, rd.buf, sizeof ph);   /* payloads are at least this long */
+        hlod_store_read_cancel(&rd);
+        if (ph.tex_codec == HLOD_TEX_BC)
+            st->tex_bc++;
+        else if (ph.tex_codec == HLOD_TEX_JPEG)
+            st->tex_jpeg++;
+        else
+            st->tex_raw++;
+        if (ph.tex_db > 0 && (st->tex_db_min == 0 || ph.tex_db < st->tex_db_min))
+            st->tex_db_min = ph.tex_db;
+    }
+    return 0;
+}
 
 static int gather(const hlod_store *s, stats *st)
 {
@@ -208,7 +250,14 @@ static int print_json(FILE *fp, const char *file, const hlod_store *s, const sta
         fputs(k ? "," : "", fp);
         json_double(fp, h->bbox_max[k]);
     }
-    fprintf(fp, "],\"verified\":%s}\n", verified ? "true" : "false");
+    if (st->scanned)
+        fprintf(fp, "],\"textures_bc1\":%llu,\"textures_jpeg\":%llu,\"textures_raw\":%llu"
+                ",\"texture_psnr_min\":%.4f", (unsigned long long)st->tex_bc,
+                (unsigned long long)st->tex_jpeg, (unsigned long long)st->tex_raw, st->tex_db_min);
+    else
+        fputs("],\"textures_bc1\":null,\"textures_jpeg\":null,\"textures_raw\":null"
+              ",\"texture_psnr_min\":null", fp);
+    fprintf(fp, ",\"verified\":%s}\n", verified ? "true" : "false");
     return ferror(fp) || fflush(fp) != 0 ? -1 : 0;
 }
 
@@ -245,6 +294,17 @@ static void print_table(FILE *fp, const char *file, const hlod_store *s, const s
                 (double)st->payload_bytes / (double)hlod_store_memory_bytes(s), h->quant_step);
     else
         fprintf(fp, "payloads raw\n");
+    if (st->scanned && st->tex_bc + st->tex_jpeg + st->tex_raw) {
+        fprintf(fp, "textures: %llu block-coded (BC1/BC4 mips, zstd), %llu JPEG, %llu raw; ",
+                (unsigned long long)st->tex_bc, (unsigned long long)st->tex_jpeg,
+                (unsigned long long)st->tex_raw);
+        if (st->tex_db_min > 0)
+            fprintf(fp, "lowest PSNR against the source %.2f dB\n", st->tex_db_min);
+        else
+            fprintf(fp, "lowest PSNR not measured\n");
+    }
+    else if (!st->scanned && (h->flags & HLOD_STORE_TEXTURED))
+        fprintf(fp, "textures: codecs not scanned (a remote store: --verify reads them)\n");
     fprintf(fp, "%5s %9s %12s %12s %14s %14s %12s %12s\n", "depth", "nodes", "tris",
             "tex_tris", "payload_bytes", "texture_bytes", "error_min", "error_max");
     for (uint32_t d = 0; d < h->depth_count; d++) {
@@ -316,6 +376,10 @@ int main(int argc, char **argv)
                            hlod_store_node_count(s));
             goto done;
         }
+    }
+    if ((check || !hlod_store_is_remote(s)) && scan_textures(s, &st) != 0) {
+        hlod_cli_error(PROG, "%s: cannot read the payload headers", file);
+        goto done;
     }
     if (json) {
         if (print_json(stdout, file, s, &st, check) != 0) {

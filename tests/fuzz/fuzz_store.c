@@ -1,7 +1,8 @@
 /*
  * fuzz_store.c - libFuzzer harness for the store reader (engine/common/
  * store_read.c): hlod_store_open, then every node payload through
- * read_begin / read_step / read_finish.
+ * read_begin / read_step / read_finish, and read_finish_as for each way a
+ * block-coded texture can come out (texels, the texel chain, the blocks).
  *
  * The reader opens files by path, so each input is written to one memfd
  * (no disk) and opened as /proc/self/fd/N.  Every input is tried twice:
@@ -77,6 +78,29 @@ static void open_and_read(size_t step)
         (void)sum;
         hlod_store_payload_free(&p);
     }
+    /* the texture chain and the blocks, as the loader asks for them */
+    for (uint32_t i = 0; i < n; i++)
+        for (int mode = HLOD_TEXOUT_CHAIN; mode <= HLOD_TEXOUT_BLOCKS; mode++) {
+            hlod_store_read rd;
+            hlod_store_payload p;
+            int complete = 0;
+            if (hlod_store_read_begin(s, i, &rd) != HLOD_OK)
+                continue;
+            while (!complete)
+                if (hlod_store_read_step(&rd, step, &complete) != HLOD_OK)
+                    break;
+            if (!complete) {
+                hlod_store_read_cancel(&rd);
+                continue;
+            }
+            if (hlod_store_read_finish_as(&rd, mode, &p) != HLOD_OK)
+                continue;
+            uint64_t sum = 0;
+            if (p.pixels)   /* the texture is there, as promised */
+                sum += p.pixels[0];
+            (void)sum;
+            hlod_store_payload_free(&p);
+        }
     /* an out-of-range node is refused */
     hlod_store_read rd;
     if (hlod_store_read_begin(s, n, &rd) != HLOD_ERR_INVALID_ARG)

@@ -12,9 +12,11 @@
  * payloads (docs/store-format.md): every codec stream, a JPEG texture.
  * The committed one-node, textured-tree and two-roots seeds are format 2's,
  * and the packed-* ones format 3's (the reader still reads both); --seeds
- * leaves them and writes the v4-* seeds, format 4's with the extras table
- * (a node's normal cone; one-sided quads, so the cones bound them), and
- * v4-sampletree.hlod, a sample tree's (additive, node colours).
+ * leaves them, and the committed v4-* seeds (format 4's, with the extras
+ * table: a node's normal cone; one-sided quads, so the cones bound them;
+ * v4-sampletree.hlod a sample tree's, additive, with node colours), and
+ * writes v5-blocks-tree.hlod, format 5's with block-coded textures (BC1
+ * mips in a zstd frame) on a 6x5 texture, whose blocks pad an edge.
  */
 #include "hlod/store_write.h"
 
@@ -30,7 +32,9 @@ static hlod_result add_quad(hlod_store_writer *w, double x0, double y0, double s
     float nrm[12] = {0, 0, 1, 0, 0, 1, 0, 0, 1, 0, 0, 1};
     float uv[8] = {0, 0, 1, 0, 1, 1, 0, 1};
     uint8_t col[16] = {200, 10, 10, 255, 10, 200, 10, 255, 10, 10, 200, 255, 90, 90, 90, 255};
-    uint8_t tex[2 * 2 * 3] = {255, 0, 0, 0, 255, 0, 0, 0, 255, 255, 255, 255};
+    uint8_t tex[6 * 5 * 3];
+    for (int i = 0; i < 6 * 5 * 3; i++)
+        tex[i] = (uint8_t)(i * 37 + (int)(x0 * 50));
     uint32_t idx[6] = {0, 1, 2, 0, 2, 3};
     hlod_store_payload_desc d;
     memset(&d, 0, sizeof d);
@@ -44,7 +48,8 @@ static hlod_result add_quad(hlod_store_writer *w, double x0, double y0, double s
     if (textured) {
         d.uvs = uv;
         d.tex_tri_count = 2;
-        d.tex_width = d.tex_height = 2;
+        d.tex_width = textured == 2 ? 6 : 2;
+        d.tex_height = textured == 2 ? 5 : 2;
         d.tex_channels = 3;
         d.pixels = tex;
     } else {
@@ -76,6 +81,7 @@ static int write_store(const char *dir, const char *name, uint32_t roots, uint32
     if (packed) {
         wd.quant_step = 1.0 / 64;
         wd.jpeg_quality = 90;
+        wd.texture_blocks = textured == 2;   /* blocks whatever their PSNR */
     }
     hlod_store_writer *w;
     if (hlod_store_writer_open(path, &wd, &w) != HLOD_OK)
@@ -124,8 +130,6 @@ int main(int argc, char **argv)
         return 2;
     }
     int bad = 0;
-    bad |= write_store(argv[1], "v4-textured-tree.hlod", 1, 2, 1, 0, 0);
-    bad |= write_store(argv[1], "v4-packed-two-roots.hlod", 2, 1, 0, 1, 0);
-    bad |= write_store(argv[1], "v4-sampletree.hlod", 1, 2, 0, 1, 1);
+    bad |= write_store(argv[1], "v5-blocks-tree.hlod", 1, 2, 2, 1, 0);
     return bad;
 }
