@@ -133,23 +133,92 @@ hlod_result hlod_bc_encode_chain(const uint8_t *pixels, uint32_t w, uint32_t h, 
     return HLOD_OK;
 }
 
+/* A 565 colour widened to 8 bits a channel by bit replication. */
+static void rgb565(uint32_t c, uint8_t out[3])
+{
+    uint32_t r = (c >> 11) & 31, g = (c >> 5) & 63, b = c & 31;
+    out[0] = (uint8_t)((r << 3) | (r >> 2));
+    out[1] = (uint8_t)((g << 2) | (g >> 4));
+    out[2] = (uint8_t)((b << 3) | (b >> 2));
+}
+
+/* A BC1 block's palette, RGBA with alpha 255 (what the texel chain holds;
+ * three-colour mode's index 3 is black): as the S3TC extension defines it,
+ * rounded down as libsquish does (texture_squish.cpp decodes the same
+ * bytes; test_texture_codec compares them). */
+static void bc1_palette(const uint8_t *b, uint8_t pal[4][4])
+{
+    uint32_t c0 = b[0] | (uint32_t)b[1] << 8, c1 = b[2] | (uint32_t)b[3] << 8;
+    rgb565(c0, pal[0]);
+    rgb565(c1, pal[1]);
+    for (int k = 0; k < 3; k++) {
+        if (c0 > c1) {
+            pal[2][k] = (uint8_t)((2 * pal[0][k] + pal[1][k]) / 3);
+            pal[3][k] = (uint8_t)((pal[0][k] + 2 * pal[1][k]) / 3);
+        } else {
+            pal[2][k] = (uint8_t)((pal[0][k] + pal[1][k]) / 2);
+            pal[3][k] = 0;
+        }
+    }
+    pal[0][3] = pal[1][3] = pal[2][3] = pal[3][3] = 255;
+}
+
+/* One BC1 block's texels into out (rows of lw texels, out_c = 3 or 4
+ * bytes each), nx x ny of them (an edge block's may be fewer than 4). */
+static void bc1_block(const uint8_t *b, uint8_t *out, uint32_t lw, uint32_t out_c, uint32_t nx,
+                      uint32_t ny)
+{
+    uint8_t pal[4][4];
+    bc1_palette(b, pal);
+    for (uint32_t y = 0; y < ny; y++) {
+        uint32_t row = b[4 + y];
+        uint8_t *d = out + (size_t)y * lw * out_c;
+        if (out_c == 4)
+            for (uint32_t x = 0; x < nx; x++)
+                memcpy(d + 4 * x, pal[(row >> (2 * x)) & 3], 4);
+        else
+            for (uint32_t x = 0; x < nx; x++)
+                memcpy(d + 3 * x, pal[(row >> (2 * x)) & 3], 3);
+    }
+}
+
+/* One BC4 block's values into out (rows of lw bytes), nx x ny of them
+ * (the BC3 alpha block's layout and rounding). */
+static void bc4_block(const uint8_t *b, uint8_t *out, uint32_t lw, uint32_t nx, uint32_t ny)
+{
+    uint8_t pal[8];
+    uint32_t a0 = b[0], a1 = b[1];
+    pal[0] = (uint8_t)a0;
+    pal[1] = (uint8_t)a1;
+    if (a0 > a1) {
+        for (uint32_t i = 1; i < 7; i++)
+            pal[1 + i] = (uint8_t)(((7 - i) * a0 + i * a1) / 7);
+    } else {
+        for (uint32_t i = 1; i < 5; i++)
+            pal[1 + i] = (uint8_t)(((5 - i) * a0 + i * a1) / 5);
+        pal[6] = 0;
+        pal[7] = 255;
+    }
+    uint64_t idx = 0;
+    for (int k = 0; k < 6; k++)
+        idx |= (uint64_t)b[2 + k] << (8 * k);
+    for (uint32_t y = 0; y < ny; y++)
+        for (uint32_t x = 0; x < nx; x++)
+            out[(size_t)y * lw + x] = pal[(idx >> (3 * (4 * y + x))) & 7];
+}
+
 void hlod_bc_decode_level(const uint8_t *blocks, uint32_t lw, uint32_t lh, uint32_t c,
                           uint8_t *out, uint32_t out_c)
 {
-    uint8_t rgba[64];
-    const int bc4 = c == 1;
     for (uint32_t by = 0; by < lh; by += 4)
         for (uint32_t bx = 0; bx < lw; bx += 4) {
-            hlod_bc_decode_block(blocks, bc4, rgba);
+            uint32_t nx = lw - bx < 4 ? lw - bx : 4, ny = lh - by < 4 ? lh - by : 4;
+            uint8_t *d = out + ((size_t)by * lw + bx) * out_c;
+            if (c == 1)
+                bc4_block(blocks, d, lw, nx, ny);
+            else
+                bc1_block(blocks, d, lw, out_c, nx, ny);
             blocks += HLOD_BC_BLOCK_BYTES;
-            for (uint32_t j = 0; j < 16; j++) {
-                uint32_t x = bx + j % 4, y = by + j / 4;
-                if (x >= lw || y >= lh)
-                    continue;
-                uint8_t *d = out + ((size_t)y * lw + x) * out_c;
-                for (uint32_t k = 0; k < out_c; k++)
-                    d[k] = k < 3 ? rgba[4 * j + k] : 255;
-            }
         }
 }
 

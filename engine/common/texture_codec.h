@@ -10,12 +10,16 @@
  * block-coded on its own (a level not a multiple of 4 pads its last blocks
  * with its edge texels).  The chain is then one zstd frame.
  *
- * Blocks are encoded with stb_dxt (Debian libstb, high-quality mode) and
- * decoded with libsquish (Debian libsquish-dev), so the tree holds neither
- * codec.  Decoding follows the format as GL samples it (OpenGL's
+ * Blocks are encoded with stb_dxt (Debian libstb, high-quality mode).
+ * Decoding follows the format as GL samples it (OpenGL's
  * EXT_texture_compression_s3tc and ARB_texture_compression_rgtc): a BC1
  * block whose first colour is not greater than its second is in
- * three-colour mode, index 3 black.
+ * three-colour mode, index 3 black.  The loader decodes with the few lines
+ * here rather than libsquish (Debian libsquish-dev): libsquish decodes a
+ * block at a time into a 16-texel scratch, 4.9 ms a megapixel of RGBA
+ * against 2.4 ms here (one run side by side, 1024^2 level 0, this 2-core
+ * machine under load).  libsquish stays as the reference the tests hold
+ * this decoder to, byte for byte (hlod_bc_decode_block).
  *
  * Reentrant; no global state.
  */
@@ -65,8 +69,9 @@ void hlod_bc_decode_level(const uint8_t *blocks, uint32_t lw, uint32_t lh, uint3
  * 99 (identical bytes give 99). */
 double hlod_tex_psnr(const uint8_t *a, const uint8_t *b, size_t n);
 
-/* One block, through libsquish (texture_squish.cpp): 16 RGBA texels, row
- * by row; bc4 selects BC4 (red in texel byte 0) over BC1. */
+/* One block through libsquish (texture_squish.cpp), the reference the
+ * decoder above is tested against: 16 RGBA texels, row by row; bc4
+ * selects BC4 (red in texel byte 0) over BC1. */
 void hlod_bc_decode_block(const uint8_t *block, int bc4, uint8_t rgba[64]);
 
 #ifdef __cplusplus

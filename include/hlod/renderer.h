@@ -41,8 +41,8 @@ void hlod_renderer_set_clear_color(hlod_renderer *r, float red, float green, flo
  * the context has EXT_texture_compression_s3tc and is not a software
  * rasteriser (llvmpipe, softpipe, swrast sample blocks about 2x slower
  * than texels, docs/runtime.md "Texture upload").  Blocks asked for on a
- * context without the extension give 0 (logged once).  Any thread; the
- * answer is fixed at hlod_renderer_create. */
+ * context without the extension give 0, with a warning through r's
+ * logger.  Any thread; the answer is fixed at hlod_renderer_create. */
 int hlod_renderer_texture_blocks(const hlod_renderer *r, uint32_t mode);
 
 /* A way for the renderer to read the depth buffer in place instead of
