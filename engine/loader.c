@@ -52,6 +52,7 @@
 #include <assert.h>
 #include <errno.h>
 #include <pthread.h>
+#include <sched.h>
 #include <sys/eventfd.h>
 #include <sys/resource.h>
 #include <sys/syscall.h>
@@ -731,7 +732,18 @@ static void *loader_main(void *arg)
     /* Below the render thread: on a machine with few cores the loader's
      * reads, hashing and parsing would otherwise take a core from the
      * rasteriser mid-frame, and frame times would follow the loader. */
-    (void)setpriority(PRIO_PROCESS, (id_t)syscall(SYS_gettid), LOADER_NICE);
+    if (l->d.idle) {
+        /* SCHED_IDLE: CPU time only where no other thread of the machine
+         * wants it (sched(7)); no privilege needed to lower a policy */
+        struct sched_param sp = {0};
+        if (pthread_setschedparam(pthread_self(), SCHED_IDLE, &sp) != 0) {
+            hlod_logf(&l->d.logger, HLOD_LOG_WARN, "%s: the loader cannot run under SCHED_IDLE; "
+                      "it runs at nice 19", hlod_store_path(l->store));
+            (void)setpriority(PRIO_PROCESS, (id_t)syscall(SYS_gettid), 19);
+        }
+    } else {
+        (void)setpriority(PRIO_PROCESS, (id_t)syscall(SYS_gettid), LOADER_NICE);
+    }
     if (l->fetch) {
         http_main(l);
         return NULL;

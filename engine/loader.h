@@ -46,6 +46,8 @@ typedef struct hlod_loader_desc {
     hlod_logger logger;
     int prepare_textures;       /* 1: build each texture's mip chain (texture.h) here,
                                    off the render thread that uploads it */
+    int idle;                   /* 1: the thread runs under SCHED_IDLE (falling back to
+                                   nice 19 where that is refused); 0: at nice 10 */
     int texture_out;            /* HLOD_TEXOUT_*: what a block-coded texture becomes
                                    here (store.h, hlod_store_read_finish_as) */
 } hlod_loader_desc;

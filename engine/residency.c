@@ -629,6 +629,7 @@ hlod_result hlod_residency_init(hlod_residency *rs, const hlod_store *store,
         ld.hook = d->read_hook;
         ld.hook_user = d->read_hook_user;
         ld.logger = d->logger;
+        ld.idle = d->loader_idle > 0;
         ld.prepare_textures = d->renderer != NULL;
         ld.texture_out = rs->texture_out;
         r = hlod_loader_create(store, &ld, &rs->loader);

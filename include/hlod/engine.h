@@ -155,6 +155,8 @@ typedef double (*hlod_time_model)(void *user_data, const struct hlod_frame_stats
       "GL uploads per frame, bytes (at least one upload is made)")                               \
     X(upload_budget_ms, upload_budget_ms, D, 0, 0, 0, HLOD_UNBOUNDED, 1,                         \
       "GL upload time per frame; 0: 10% of target_ms; not when deterministic or timed by a model") \
+    X(loader_idle, loader_idle, B, 0, 0, 0, 1, 0,                                                \
+      "1: the loader thread runs under SCHED_IDLE (only on a core the render thread leaves); 0: at nice 10") \
     X(max_inflight, max_inflight, U32, 32, 1, 0, HLOD_UNBOUNDED, 1,                              \
       "requests handed to the loader at once")                                                   \
     X(v_time, fixed_v_time, D, 1e-4, 0, 1, HLOD_UNBOUNDED, 1,                                    \
