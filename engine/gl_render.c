@@ -526,20 +526,11 @@ static void add_section(const gl_table *gl, GLuint attr, GLint size, GLenum type
  * context that cannot take them: the chain in own->tex_memory. */
 static int expand_blocks(hlod_store_payload *own)
 {
-    const uint32_t c = own->tex_channels, oc = c == 3 ? 4 : 1;
-    size_t total = hlod_texture_chain_bytes(own->tex_width, own->tex_height, oc);
-    uint8_t *t = malloc(total);
+    uint32_t oc = 0;
+    uint8_t *t = hlod_bc_decode_chain(own->pixels, own->tex_width, own->tex_height,
+                                      own->tex_channels, &oc);
     if (!t)
         return 0;
-    const uint8_t *b = own->pixels;
-    uint8_t *at = t;
-    for (uint32_t l = 0; l < own->tex_levels; l++) {
-        uint32_t lw, lh;
-        hlod_tex_level_size(own->tex_width, own->tex_height, l, &lw, &lh);
-        hlod_bc_decode_level(b, lw, lh, c, at, oc);
-        b += (size_t)((lw + 3) / 4) * ((lh + 3) / 4) * HLOD_BC_BLOCK_BYTES;
-        at += (size_t)lw * lh * oc;
-    }
     own->pixels = t;
     own->tex_memory = t;
     own->tex_channels = oc;
@@ -556,7 +547,7 @@ static uint64_t upload_blocks(const gl_table *gl, const hlod_store_payload *p)
     for (uint32_t l = 0; l < p->tex_levels; l++) {
         uint32_t lw, lh;
         hlod_tex_level_size(p->tex_width, p->tex_height, l, &lw, &lh);
-        size_t bytes = (size_t)((lw + 3) / 4) * ((lh + 3) / 4) * HLOD_BC_BLOCK_BYTES;
+        size_t bytes = hlod_bc_level_bytes(lw, lh);
         gl->CompressedTexImage2D(GL_TEXTURE_2D, (GLint)l, fmt, (GLsizei)lw, (GLsizei)lh, 0,
                                  (GLsizei)bytes, level);
         level += bytes;

@@ -431,25 +431,10 @@ static hlod_result unpack_blocks(const uint8_t *src, size_t bytes, const hlod_st
         hlod_bc_decode_level(blocks, w, h, c, dst, c);
         goto done;
     }
-    const uint32_t oc = c == 3 ? 4 : 1;
-    size_t total = 0;
-    for (uint32_t l = 0; l < ph->tex_levels; l++) {
-        uint32_t lw, lh;
-        hlod_tex_level_size(w, h, l, &lw, &lh);
-        total += (size_t)lw * lh * oc;
-    }
-    texels = malloc(total);
+    uint32_t oc = 0;
+    texels = hlod_bc_decode_chain(blocks, w, h, c, &oc);
     if (!texels)
         BAD(HLOD_ERR_NOMEM, "%s: node %u: out of memory decoding its texture", name, node);
-    const uint8_t *b = blocks;
-    uint8_t *t = texels;
-    for (uint32_t l = 0; l < ph->tex_levels; l++) {
-        uint32_t lw, lh;
-        hlod_tex_level_size(w, h, l, &lw, &lh);
-        hlod_bc_decode_level(b, lw, lh, c, t, oc);
-        b += (size_t)((lw + 3) / 4) * ((lh + 3) / 4) * HLOD_BC_BLOCK_BYTES;
-        t += (size_t)lw * lh * oc;
-    }
     u->tex = texels;
     u->tex_levels = ph->tex_levels;
     u->tex_format = HLOD_TEXFMT_TEXELS;

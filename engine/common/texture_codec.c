@@ -34,6 +34,11 @@ static size_t level_blocks(uint32_t lw, uint32_t lh)
     return (size_t)((lw + 3) / 4) * ((lh + 3) / 4);
 }
 
+size_t hlod_bc_level_bytes(uint32_t lw, uint32_t lh)
+{
+    return level_blocks(lw, lh) * HLOD_BC_BLOCK_BYTES;
+}
+
 size_t hlod_bc_chain_bytes(uint32_t w, uint32_t h)
 {
     if (!w || !h)
@@ -220,6 +225,30 @@ void hlod_bc_decode_level(const uint8_t *blocks, uint32_t lw, uint32_t lh, uint3
                 bc1_block(blocks, d, lw, out_c, nx, ny);
             blocks += HLOD_BC_BLOCK_BYTES;
         }
+}
+
+uint8_t *hlod_bc_decode_chain(const uint8_t *blocks, uint32_t w, uint32_t h, uint32_t c,
+                              uint32_t *out_c)
+{
+    const uint32_t oc = c == 3 ? 4 : 1, levels = hlod_tex_level_count(w, h);
+    size_t total = 0;
+    for (uint32_t l = 0; l < levels; l++) {
+        uint32_t lw, lh;
+        hlod_tex_level_size(w, h, l, &lw, &lh);
+        total += (size_t)lw * lh * oc;
+    }
+    uint8_t *texels = malloc(total), *t = texels;
+    if (!texels)
+        return NULL;
+    for (uint32_t l = 0; l < levels; l++) {
+        uint32_t lw, lh;
+        hlod_tex_level_size(w, h, l, &lw, &lh);
+        hlod_bc_decode_level(blocks, lw, lh, c, t, oc);
+        blocks += hlod_bc_level_bytes(lw, lh);
+        t += (size_t)lw * lh * oc;
+    }
+    *out_c = oc;
+    return texels;
 }
 
 double hlod_tex_psnr(const uint8_t *a, const uint8_t *b, size_t n)

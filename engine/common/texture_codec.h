@@ -43,6 +43,9 @@ uint32_t hlod_tex_level_count(uint32_t w, uint32_t h);
 /* Size of level l of a w x h chain: max(1, w >> l) x max(1, h >> l). */
 void hlod_tex_level_size(uint32_t w, uint32_t h, uint32_t l, uint32_t *lw, uint32_t *lh);
 
+/* Bytes of one level's blocks: ceil(lw / 4) * ceil(lh / 4) * 8. */
+size_t hlod_bc_level_bytes(uint32_t lw, uint32_t lh);
+
 /* Bytes of a w x h chain's blocks, all levels; 0 when it would not fit a
  * size_t or w, h is 0. */
 size_t hlod_bc_chain_bytes(uint32_t w, uint32_t h);
@@ -64,6 +67,13 @@ hlod_result hlod_bc_encode_chain(const uint8_t *pixels, uint32_t w, uint32_t h, 
  * 255; BC4: 1).  c is the texture's stored channels (1: BC4, 3: BC1). */
 void hlod_bc_decode_level(const uint8_t *blocks, uint32_t lw, uint32_t lh, uint32_t c,
                           uint8_t *out, uint32_t out_c);
+
+/* The whole chain of a w x h texture's blocks (c = 1: BC4, 3: BC1)
+ * decoded to texels, level after level, in a new malloc'ed buffer: RGBA
+ * (alpha 255) from BC1, grey from BC4; *out_c says which.  NULL when out
+ * of memory. */
+uint8_t *hlod_bc_decode_chain(const uint8_t *blocks, uint32_t w, uint32_t h, uint32_t c,
+                              uint32_t *out_c);
 
 /* PSNR in dB of n bytes against n bytes, 10 log10(255^2 / MSE), at most
  * 99 (identical bytes give 99). */
