@@ -1039,10 +1039,8 @@ static void plan_free(st_plan *P)
     free(P->b);
     free(P->grid_bucket);
     tree_free(&P->upper);
-    if (P->spill) {
-        fclose(P->spill);
-        unlink(P->spill_path);
-    }
+    if (P->spill)
+        fclose(P->spill);   /* unlinked when made */
     memset(P, 0, sizeof *P);
 }
 
@@ -1175,6 +1173,8 @@ static hlod_result spill_all(st_plan *P, const hlod_logger *lg)
                       strerror(errno));
             return HLOD_ERR_IO;
         }
+        /* nameless from here on: a killed build leaves nothing behind */
+        (void)unlink(P->spill_path);
     }
     for (size_t i = 0; i < P->nb; i++) {
         st_bucket *b = &P->b[i];
