@@ -22,8 +22,10 @@
 #    after it).
 #
 # Env: BIN (default build/bin), EVERY (10), ROUNDS (2), WIDTH/HEIGHT
-# (1280x720), MOVING, STILL_RUNS (3).  Prints tables and writes
-# OUTDIR/textures.json.
+# (1280x720), MOVING, STILL_RUNS (3), MEMORY_MB (the loading and still
+# runs' budget; default hlod-bench's, a quarter of the store, at which the
+# default city's moving paths load little after the pinned top).  Prints
+# tables and writes OUTDIR/textures.json.
 set -euo pipefail
 ROOT=$(cd "$(dirname "$0")/../.." && pwd)
 BIN=${BIN:-$ROOT/build/bin}
@@ -38,6 +40,8 @@ W=${WIDTH:-1280}
 H=${HEIGHT:-720}
 MOVING=${MOVING:-fly walk-drive walk-to-fly}
 STILL_RUNS=${STILL_RUNS:-3}
+budget=()
+[ -n "${MEMORY_MB:-}" ] && budget=(--memory-mb "$MEMORY_MB")
 mkdir -p "$out"
 
 now() { date +%s.%N; }
@@ -102,7 +106,7 @@ for p in $MOVING; do
         u=${v#*:}
         d="$out/$p-$s-$u"
         "$BIN/hlod-bench" "$out/$s.hlod" --path "$p" --paths-dir "$paths" --target-ms 33 \
-            --width "$W" --height "$H" --jitter-frames 0 --no-plots --set "texture_upload=$u" \
+            --width "$W" --height "$H" --jitter-frames 0 --no-plots --set "texture_upload=$u" "${budget[@]}" \
             --out "$d" >/dev/null 2>"$d.log"
         read -r mq fq mi fi < <(split "$d" 33)
         rq=$(echo "if ($fq > 0) $mq / $fq else 0" | bc -l)
@@ -122,7 +126,8 @@ for s in jpeg blocks; do
     for r in $(seq "$STILL_RUNS"); do
         d="$out/still-$s-$r"
         "$BIN/hlod-bench" "$out/$s.hlod" --path still --paths-dir "$paths" --target-ms 66 \
-            --width "$W" --height "$H" --jitter-frames 0 --no-plots --out "$d" >/dev/null 2>"$d.log"
+            --width "$W" --height "$H" --jitter-frames 0 --no-plots "${budget[@]}" --out "$d" \
+            >/dev/null 2>"$d.log"
         last=$(awk -F, 'NR == 1 { for (i = 1; i <= NF; i++) c[$i] = i; next }
             $c["wanted_missing"] > 0 { l = $c["frame"] } END { print l == "" ? -1 : l }' "$d/frames.csv")
         printf '%-8s run %d: %s\n' $s "$r" "$last"
