@@ -186,7 +186,8 @@ static hlod_result load_top_batch(hlod_residency *rs, uint32_t first, uint32_t n
 {
     hlod_store_payload p[TOP_BATCH];
     hlod_result res[TOP_BATCH];
-    hlod_result r = hlod_store_read_nodes(rs->store, first, n, rs->d->read_chunk_bytes, p, res);
+    hlod_result r = hlod_store_read_nodes_as(rs->store, first, n, rs->d->read_chunk_bytes,
+                                             rs->texture_out, p, res);
     for (uint32_t k = 0; k < n && r == HLOD_OK; k++) {
         uint32_t node = first + k;
         if (res[k] == HLOD_OK && (res[k] = make_resident(rs, node, &p[k])) == HLOD_OK) {

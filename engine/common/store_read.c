@@ -872,13 +872,20 @@ hlod_result hlod_store_read_nodes(const hlod_store *s, uint32_t first, uint32_t 
                                   size_t max_bytes, hlod_store_payload *out,
                                   hlod_result *results)
 {
+    return hlod_store_read_nodes_as(s, first, count, max_bytes, HLOD_TEXOUT_PIXELS, out, results);
+}
+
+hlod_result hlod_store_read_nodes_as(const hlod_store *s, uint32_t first, uint32_t count,
+                                     size_t max_bytes, int texout, hlod_store_payload *out,
+                                     hlod_result *results)
+{
     if (!s || !out || !results || (uint64_t)first + count > s->header.node_count)
         return HLOD_ERR_INVALID_ARG;
     memset(out, 0, count * sizeof *out);
     hlod_store_fetch *f = NULL;
     if (!s->http || count < 2 || hlod_store_fetch_create(s, 8, &f) != HLOD_OK) {
         for (uint32_t i = 0; i < count; i++)
-            results[i] = hlod_store_read_node(s, first + i, max_bytes, &out[i]);
+            results[i] = hlod_store_read_node_as(s, first + i, max_bytes, texout, &out[i]);
         return HLOD_OK;
     }
     hlod_store_read *rd = calloc(count, sizeof *rd);
@@ -893,7 +900,7 @@ hlod_result hlod_store_read_nodes(const hlod_store *s, uint32_t first, uint32_t 
             uint32_t i = next++;
             results[i] = hlod_store_read_begin(s, first + i, &rd[i]);
             if (results[i] == HLOD_OK && hlod_store_cache_get(&rd[i]))
-                results[i] = hlod_store_read_finish(&rd[i], &out[i]);
+                results[i] = hlod_store_read_finish_as(&rd[i], texout, &out[i]);
             else if (results[i] == HLOD_OK)
                 results[i] = hlod_store_fetch_start(f, &rd[i], UINT64_MAX);
             if (results[i] != HLOD_OK || !rd[i].buf) {
@@ -909,7 +916,7 @@ hlod_result hlod_store_read_nodes(const hlod_store *s, uint32_t first, uint32_t 
             results[i] = ends[e].result;
             if (results[i] == HLOD_OK && rd[i].done == rd[i].size) {
                 hlod_store_cache_put(&rd[i]);
-                results[i] = hlod_store_read_finish(&rd[i], &out[i]);
+                results[i] = hlod_store_read_finish_as(&rd[i], texout, &out[i]);
             }
             else if (results[i] == HLOD_OK)
                 results[i] = hlod_store_fetch_start(f, &rd[i], UINT64_MAX);

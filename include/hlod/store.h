@@ -521,10 +521,13 @@ void hlod_store_read_cancel(hlod_store_read *rd);
 hlod_result hlod_store_read_node(const hlod_store *s, uint32_t node, size_t max_bytes,
                                  hlod_store_payload *out);
 
-/* hlod_store_read_node, a block-coded texture made what texout asks
- * (hlod_store_read_finish_as). */
+/* hlod_store_read_node and hlod_store_read_nodes, a block-coded texture
+ * made what texout asks (hlod_store_read_finish_as). */
 hlod_result hlod_store_read_node_as(const hlod_store *s, uint32_t node, size_t max_bytes,
                                     int texout, hlod_store_payload *out);
+hlod_result hlod_store_read_nodes_as(const hlod_store *s, uint32_t first, uint32_t count,
+                                     size_t max_bytes, int texout, hlod_store_payload *out,
+                                     hlod_result *results);
 
 /* Reads nodes [first, first + count) into out[i] with result results[i]
  * (as hlod_store_read_node each); a URL's with 8 parallel transfers.
