@@ -168,12 +168,19 @@ REF_EVERY=${HLOD_DEMO_REF_EVERY:-20}
 # HLOD_DEMO_BACKEND=egl runs every bench through EGL (the GPU's driver on a
 # machine with one); OSMesa by default.
 BACKEND=${HLOD_DEMO_BACKEND:-osmesa}
+# A quarter of the store in memory, so the runs stream (hlod-bench's own
+# default, the whole store when it fits, would load the city once).
+quarter_mb() {
+    "$ROOT/build/bin/hlod-info" "$STORE" --json |
+        perl -MJSON::PP -e 'local $/; printf "%.3f", JSON::PP->new->decode(<STDIN>)->{memory_bytes} / 4 / 1048576'
+}
 run_bench() { # name, then extra flags
     local name=$1
     shift
     echo
     echo "==> hlod-bench $name"
-    "$BENCHBIN" "$STORE" --paths-dir "$PATHS" --out "$REPORT/$name" --backend "$BACKEND" "$@" ||
+    "$BENCHBIN" "$STORE" --paths-dir "$PATHS" --out "$REPORT/$name" --backend "$BACKEND" \
+        --memory-mb "$(quarter_mb)" "$@" ||
         { echo "demo: error: hlod-bench $name failed" >&2; failed=1; }
 }
 # Every built-in path at 33 ms; each run also replays one frozen selection

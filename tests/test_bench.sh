@@ -73,6 +73,14 @@ perl -MJSON::PP -e 'local $/; my $j = JSON::PP->new->decode(<STDIN>);
     exit !($j->{frames} == 40 && $j->{psnr_mean} > 10 && $j->{ssim_mean} > 0.3 &&
            $j->{peak_resident_bytes} <= $j->{memory_budget_bytes})' <"$T/run/summary.json"
 ok $? "summary values: 40 frames, PSNR and SSIM filled, resident within budget"
+# without --memory-mb a store that fits is given its whole size, and is
+# loaded once (each node at most once, nothing evicted)
+mem=$("$BIN/hlod-info" "$T/city.hlod" --json | sed -n 's/.*"memory_bytes":\([0-9]*\).*/\1/p')
+nodes=$("$BIN/hlod-info" "$T/city.hlod" --json | sed -n 's/.*"nodes":\([0-9]*\).*/\1/p')
+perl -MJSON::PP -e 'local $/; my $j = JSON::PP->new->decode(<STDIN>);
+    exit !($j->{memory_budget_bytes} == $ARGV[0] && $j->{evictions} == 0 && $j->{loads} > 0 &&
+           $j->{loads} <= $ARGV[1])' "$mem" "$nodes" <"$T/run/summary.json"
+ok $? "default budget: the whole store ($mem bytes), loaded once ($nodes nodes at most, no eviction)"
 missing=""
 for k in deadline_met machine_p50_ms machine_p99_ms machine_p99_over_p50 estimate_err_p50 \
     estimate_err_p95 occlusion_culled_mean toggles_after_60; do

@@ -73,8 +73,8 @@ static void usage(FILE *fp)
         "  --dt S            simulated time per frame (default 1/30 s)\n"
         "  --frames N        stop after N frames (default: the whole path)\n"
         "  --policy LIST     " HLOD_POLICY_CHOICES " (comma list; default lakhia)\n"
-        "  --memory-mb M     memory budget in MiB (default: 25%% of the store's\n"
-        "                    payloads in memory, decoded)\n"
+        "  --memory-mb M     memory budget in MiB (default: the whole store decoded,\n"
+        "                    at most a quarter of the machine's memory)\n"
         "  --reference       render a full-detail reference per frame: PSNR, SSIM\n"
         "  --reference-store R  the reference drawn at full detail from store R\n"
         "                    (e.g. a chessboard's reference board) instead\n"
@@ -1246,7 +1246,7 @@ static int run_desc(context *c, hlod_policy policy, const setting *extra, hlod_e
     d->renderer = c->gl.renderer;
     d->logger = c->lg;
     d->memory_budget_bytes = o->memory_mb > 0 ? (uint64_t)(o->memory_mb * 1048576.0)
-                                              : (uint64_t)(0.25 * (double)hlod_store_memory_bytes(c->store));
+                                              : view_default_budget(c->store);
     for (int i = 0; i < o->nsets; i++)
         apply_setting(d, o->sets[i].key, o->sets[i].value);
     if (extra)

@@ -80,7 +80,8 @@ static void usage(FILE *fp)
         "  --height H        window height (default 720)\n"
         "  --target-ms T     target frame time in ms (default 33.3)\n"
         "  --policy P        " HLOD_POLICY_CHOICES " (default lakhia)\n"
-        "  --memory-mb M     memory budget in MiB (default: the engine's, 512)\n"
+        "  --memory-mb M     memory budget in MiB (default: the whole store decoded,\n"
+        "                    at most a quarter of the machine's memory)\n"
         "  --path P          play a camera path instead of free flight: a file,\n"
         "                    or a built-in name (walk, fly, walk-to-fly,\n"
         "                    walk-drive, orbit, still) in --paths-dir; a\n"
@@ -831,8 +832,8 @@ int main(int argc, char **argv)
     d.policy = o.policy;
     d.renderer = v.renderer;
     d.logger = v.lg;
-    if (o.memory_mb > 0)
-        d.memory_budget_bytes = (uint64_t)(o.memory_mb * 1048576.0);
+    d.memory_budget_bytes = o.memory_mb > 0 ? (uint64_t)(o.memory_mb * 1048576.0)
+                                            : view_default_budget(v.store);
     r = hlod_engine_create(v.store, &d, &v.engine);
     if (r != HLOD_OK) {
         hlod_cli_error(PROG, "%s: cannot start the engine: %s", o.store, hlod_result_str(r));

@@ -4,6 +4,7 @@
 #include "view_flags.h"
 
 #include <string.h>
+#include <unistd.h>
 
 #include "cli.h"
 
@@ -55,4 +56,12 @@ int view_flags_parse(const char *prog, int argc, char **argv, int *i, const view
         *f->up_y = v[0] == 'y';
         return 1;
     }
+}
+
+uint64_t view_default_budget(const hlod_store *s)
+{
+    uint64_t whole = hlod_store_memory_bytes(s);
+    long pages = sysconf(_SC_PHYS_PAGES), page = sysconf(_SC_PAGE_SIZE);
+    uint64_t share = pages > 0 && page > 0 ? (uint64_t)pages * (uint64_t)page / 4 : 512ull << 20;
+    return whole < share ? whole : share;
 }

@@ -9,6 +9,8 @@
 
 #include <stdint.h>
 
+#include "hlod/store.h"
+
 typedef struct view_flags {
     uint32_t *width, *height;          /* --width, --height: 16 to 16384 */
     double *target_ms;                 /* --target-ms: > 0 */
@@ -24,5 +26,11 @@ typedef struct view_flags {
  * one of them, and -1 after printing the error when its value is missing
  * or wrong (the tool then exits with status 2). */
 int view_flags_parse(const char *prog, int argc, char **argv, int *i, const view_flags *f);
+
+/* The memory budget when --memory-mb is not given: the whole store
+ * decoded (hlod_store_memory_bytes; a scene that fits is loaded once),
+ * capped at a quarter of the machine's physical memory (the store then
+ * streams within it). */
+uint64_t view_default_budget(const hlod_store *s);
 
 #endif
