@@ -681,7 +681,7 @@ static hlod_select_in select_inputs(hlod_engine *e, double budget, int moved)
                          .budget_ms = budget,
                          .share_ms = budget * m->share_gain};
     hlod_hold_inputs(&e->hold, hlod_policy_has(e->d.policy, HLOD_PT_HOLD), e->frame,
-                     e->d.target_ms, &in);
+                     e->d.target_ms, &e->last_load, &in);
     return in;
 }
 
@@ -696,6 +696,7 @@ static void publish(hlod_engine *e, const hlod_select_in *in, double measured, d
     e->st.margin = m->margin;
     e->st.budget_ms = in->budget_ms;
     hlod_hold_measured(&e->hold, measured, e->d.target_ms);
+    e->last_load = (hlod_front_load){e->st.nodes_drawn, e->st.cost_drawn, e->st.pixels_drawn};
     e->st.share_gain = m->share_gain;
     e->st.estimated_ms =
         hlod_cost_model_predict(m, e->st.nodes_drawn, e->st.cost_drawn, e->st.pixels_drawn) +

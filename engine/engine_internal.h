@@ -50,6 +50,7 @@ struct hlod_engine {
     hlod_hold hold;         /* the still camera's hold (hold.h) */
     int have_front;         /* last_front_ms is set (a frame was selected) */
     double last_front_ms;   /* the last front's estimate, fixed part included */
+    hlod_front_load last_load; /* what the last front drew (the hold's recovery) */
 
     uint32_t frame;         /* current frame stamp (1-based) */
     hlod_frame_stats st;    /* being filled */

@@ -30,10 +30,17 @@ static void take(hlod_hold *h, const hlod_select_in *in, uint32_t frame, double 
     h->slowed = slowed;
 }
 
-void hlod_hold_inputs(hlod_hold *h, int holds, uint32_t frame, double target_ms,
-                      hlod_select_in *in)
+/* The budget the front leaves over under these inputs. */
+static double room(double budget_ms, double draw_ms, double v_time, double pixel_ms,
+                   const hlod_front_load *f)
 {
-    assert(h && in);
+    return budget_ms - (draw_ms * f->draws + v_time * f->cost + pixel_ms * f->pixels);
+}
+
+void hlod_hold_inputs(hlod_hold *h, int holds, uint32_t frame, double target_ms,
+                      const hlod_front_load *front, hlod_select_in *in)
+{
+    assert(h && in && front);
     if (!in->hold_since || !holds) {
         h->since = 0;
         return;
@@ -47,7 +54,8 @@ void hlod_hold_inputs(hlod_hold *h, int holds, uint32_t frame, double target_ms,
         return;
     }
     if (h->slowed && frame - h->taken >= HOLD_RECOVER && h->misses == 0 &&
-        in->budget_ms > h->budget_ms) {
+        room(in->budget_ms, in->draw_ms, in->v_time, in->pixel_ms, front) >
+            room(h->budget_ms, h->draw_ms, h->v_time, h->pixel_ms, front)) {
         take(h, in, frame, target_ms, 1); /* still after a slowdown: may come back further */
         return;
     }

@@ -17,7 +17,10 @@
  * Held inputs give way when the target changes, when HOLD_SLOW_MISSES of
  * the last 16 held frames missed the target (the held front no longer fits
  * the machine), and, after such a slowdown, once HOLD_RECOVER frames in a
- * row met it and the model's budget is larger again.
+ * row met it and the model's inputs leave the held front more room than
+ * the held ones (budget less the front's predicted variable time): a
+ * larger budget with a grown v_time can hold less, and recovery must not
+ * coarsen.
  */
 #ifndef HLOD_ENGINE_HOLD_H
 #define HLOD_ENGINE_HOLD_H
@@ -46,6 +49,11 @@ typedef struct hlod_hold {
     int slowed;         /* taken because the held frames missed */
 } hlod_hold;
 
+/* What the front drew last frame, in the cost model's terms. */
+typedef struct hlod_front_load {
+    double draws, cost, pixels;
+} hlod_front_load;
+
 /* The frame from which the front holds at frame `frame`, the camera having
  * stayed the same still_run frames; 0: it does not hold. */
 static inline uint32_t hlod_hold_since(uint32_t still_run, uint32_t frame)
@@ -55,9 +63,10 @@ static inline uint32_t hlod_hold_since(uint32_t still_run, uint32_t frame)
 
 /* Before the selection of frame `frame` at target_ms: replaces in's
  * budget, share and cost terms with the held ones, or takes them anew
- * (see above).  holds: the policy has HLOD_PT_HOLD. */
+ * (see above).  holds: the policy has HLOD_PT_HOLD; front: what the
+ * held front drew last frame. */
 void hlod_hold_inputs(hlod_hold *h, int holds, uint32_t frame, double target_ms,
-                      hlod_select_in *in);
+                      const hlod_front_load *front, hlod_select_in *in);
 
 /* After a frame measured at measured_ms against target_ms. */
 void hlod_hold_measured(hlod_hold *h, double measured_ms, double target_ms);
