@@ -103,7 +103,7 @@ static double aim_margin(const hlod_engine_desc *d, double median, double sigma,
         l = emp > l ? emp : l;
     }
     double m = exp(l);
-    return m < 0.5 ? 0.5 : m > 4 ? 4 : m;
+    return m < 0.5 ? 0.5 : m > HLOD_MARGIN_MAX ? HLOD_MARGIN_MAX : m;
 }
 
 void hlod_cost_model_init(hlod_cost_model *m, const hlod_engine_desc *d)

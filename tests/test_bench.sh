@@ -82,7 +82,7 @@ perl -MJSON::PP -e 'local $/; my $j = JSON::PP->new->decode(<STDIN>);
            $j->{loads} <= $ARGV[1])' "$mem" "$nodes" <"$T/run/summary.json"
 ok $? "default budget: the whole store ($mem bytes), loaded once ($nodes nodes at most, no eviction)"
 missing=""
-for k in deadline_met machine_p50_ms machine_p99_ms machine_p99_over_p50 estimate_err_p50 \
+for k in deadline_met margin_cap_frames margin_cap_run_max machine_p50_ms machine_p99_ms machine_p99_over_p50 estimate_err_p50 \
     estimate_err_p95 occlusion_culled_mean toggles_after_60; do
     grep -q "\"$k\":" "$T/run/summary.json" || missing="$missing $k"
 done
@@ -93,6 +93,9 @@ perl -MJSON::PP -e 'local $/; my $j = JSON::PP->new->decode(<STDIN>);
     my $num = sub { defined $_[0] && !ref $_[0] && $_[0] =~ /^-?[\d.]+(e[-+]?\d+)?$/i };
     $bad .= " deadline_met" unless $num->($j->{deadline_met}) && $j->{deadline_met} >= 0 &&
         $j->{deadline_met} <= 1;
+    $bad .= " margin_cap" unless $num->($j->{margin_cap_frames}) &&
+        $num->($j->{margin_cap_run_max}) && $j->{margin_cap_run_max} <= $j->{margin_cap_frames} &&
+        $j->{margin_cap_frames} <= $j->{frames};
     $bad .= " machine_p50_ms" unless $num->($j->{machine_p50_ms}) && $j->{machine_p50_ms} > 0;
     $bad .= " machine_p99_ms" unless $num->($j->{machine_p99_ms}) &&
         $j->{machine_p99_ms} >= $j->{machine_p50_ms};

@@ -125,7 +125,8 @@ static void usage(FILE *fp)
         "loader_finish_ms, loader_busy_ms, loader_finish_share,\n"
         "peak_resident_bytes, memory_budget_bytes, missing_wanted_frames,\n"
         "render_waits, bad_nodes, load_failures, traversal_ms_mean, traversal_ms_max,\n"
-        "deadline_met, machine_p50_ms, machine_p99_ms, machine_p99_over_p50,\n"
+        "deadline_met, margin_cap_frames, margin_cap_run_max, machine_p50_ms,\n"
+        "machine_p99_ms, machine_p99_over_p50,\n"
         "estimate_err_p50, estimate_err_p95, occlusion_culled_mean, toggles_after_60,\n"
         "occlusion_ms_mean, overhead_ms_mean, overhead_ms_max,\n"
         "occlusion_check_psnr_min, occlusion_check_differing_max,\n"
@@ -532,6 +533,8 @@ typedef struct summary {
     long long cone_differing_max;           /* --cone-check; -1 without */
     unsigned long long cone_checked, cone_unchecked;
     uint64_t toggles_after_60;              /* up + down over frames 60.. */
+    long margin_cap_frames, margin_cap_run; /* frames with the margin at its cap; the
+                                               longest run of them */
     double occlusion_ms_mean;
     double overhead_mean, overhead_max;     /* traversal + occlusion ms per frame */
     double occ_psnr_min;                    /* --occlusion-check; NAN without */
@@ -552,6 +555,7 @@ static void summarise_extra(const frame_rec *r, long n, double target, const dou
 {
     double *err = malloc((size_t)(n ? n : 1) * sizeof *err);
     size_t nerr = 0;
+    long cap_run = 0;
     s->occ_psnr_min = NAN;
     s->occ_differing_max = s->occ_bad = -1;
     s->cone_differing_max = -1;
@@ -585,6 +589,9 @@ static void summarise_extra(const frame_rec *r, long n, double target, const dou
         }
         if (i >= SETTLED_FRAME)
             s->toggles_after_60 += (uint64_t)st->toggles_up + st->toggles_down;
+        cap_run = st->margin >= HLOD_MARGIN_MAX ? cap_run + 1 : 0;
+        s->margin_cap_frames += cap_run > 0;
+        s->margin_cap_run = cap_run > s->margin_cap_run ? cap_run : s->margin_cap_run;
         if (err && st->measured_ms > 0)
             err[nerr++] = fabs(st->estimated_ms - st->measured_ms) / st->measured_ms;
     }
@@ -808,6 +815,8 @@ static void json_summary(hlod_json *j, const summary *s, const char *policy, con
     hlod_json_double(j, "v_time_final", s->v_time);
     hlod_json_double(j, "fixed_ms_final", s->fixed_ms);
     hlod_json_double(j, "deadline_met", s->deadline_met);
+    hlod_json_int(j, "margin_cap_frames", s->margin_cap_frames);
+    hlod_json_int(j, "margin_cap_run_max", s->margin_cap_run);
     hlod_json_double(j, "machine_p50_ms", s->machine_p50);
     hlod_json_double(j, "machine_p99_ms", s->machine_p99);
     hlod_json_double(j, "machine_p99_over_p50", s->machine_p99 / s->machine_p50);

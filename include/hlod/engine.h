@@ -113,6 +113,8 @@ typedef double (*hlod_time_model)(void *user_data, const struct hlod_frame_stats
  * One row feeds the field, its default, its check, hlod_engine_set,
  * hlod-bench's --set and its help text. */
 #define HLOD_UNBOUNDED HUGE_VAL /* no limit: any finite value passes */
+#define HLOD_MARGIN_MAX 4.0     /* the deadline margin's cap (hlod_frame_stats.margin;
+                                   0.5 is its floor) */
 #define HLOD_ENGINE_SETTINGS(X)                                                                  \
     X(target_ms, target_ms, D, 33.3, 0, 1, 1e6, 1,                                               \
       "c_targetTime: the frame time to meet, ms")                                                \
