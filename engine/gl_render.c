@@ -516,12 +516,6 @@ static void add_section(const gl_table *gl, GLuint attr, GLint size, GLenum type
     *offset += bytes;
 }
 
-/* Texture of 1..4 channels: grey, grey + alpha, RGB, RGBA, with its mip
- * chain.  The loader thread builds the chain (texture.h); a payload that
- * comes without one (read on this thread) gets it here.  Each level is then
- * a plain copy: glGenerateMipmap and an RGB-to-RGBA conversion cost a
- * software GL 2-9x as much on this thread.  Returns the bytes the driver
- * holds, or 0 when the chain cannot be allocated. */
 /* Texels (RGBA from BC1, grey from BC4) of a payload holding blocks, for a
  * context that cannot take them: the chain in own->tex_memory. */
 static int expand_blocks(hlod_store_payload *own)
@@ -556,6 +550,14 @@ static uint64_t upload_blocks(const gl_table *gl, const hlod_store_payload *p)
     return total;
 }
 
+/* Texture of 1..4 channels: grey, grey + alpha, RGB, RGBA, with its mip
+ * chain.  The loader thread builds the chain (texture.h); a payload that
+ * comes without one (read on this thread) gets it here.  Each level is then
+ * a plain copy: glGenerateMipmap and an RGB-to-RGBA conversion cost a
+ * software GL 2-9x as much on this thread.  Block-coded textures
+ * (tex_format HLOD_TEXFMT_BC) are uploaded as their blocks, level by
+ * level, or expanded here on a GL without S3TC.  Returns the bytes the
+ * driver holds, or 0 when the chain cannot be allocated. */
 static uint64_t upload_texture(const hlod_renderer *r, const hlod_store_payload *p, GLuint tex)
 {
     static const GLenum internal[4] = {GL_R8, GL_RG8, GL_RGBA8, GL_RGBA8};
