@@ -27,6 +27,7 @@ missing_flags() {
 
 TOOLS="hlod-gen-city hlod-simplify hlod-build hlod-merge hlod-info hlod-export-3dtiles hlod-bench hlod-view"
 [ -x "$BIN/hlod-bench-simplify" ] && TOOLS="$TOOLS hlod-bench-simplify"
+[ -x "$BIN/hlod-bench-finish" ] && TOOLS="$TOOLS hlod-bench-finish"
 for tool in $TOOLS; do
     page="$SRC/docs/$tool.md"
     if [ ! -x "$BIN/$tool" ] || [ ! -f "$page" ]; then
