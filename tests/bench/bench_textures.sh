@@ -23,9 +23,10 @@
 #
 # Env: BIN (default build/bin), EVERY (10), ROUNDS (2), WIDTH/HEIGHT
 # (1280x720), MOVING, STILL_RUNS (3), MEMORY_MB (the loading and still
-# runs' budget; default hlod-bench's, a quarter of the store, at which the
-# default city's moving paths load little after the pinned top).  Prints
-# tables and writes OUTDIR/textures.json.
+# runs' budget; default hlod-bench's, the whole store where it fits, so
+# nothing streams after the start: give one under the store's size; at a
+# quarter of the default city the moving paths still load little after the
+# pinned top).  Prints tables and writes OUTDIR/textures.json.
 set -euo pipefail
 ROOT=$(cd "$(dirname "$0")/../.." && pwd)
 BIN=${BIN:-$ROOT/build/bin}
