@@ -28,6 +28,7 @@ EVERY=${EVERY:-1}
 W=${WIDTH:-1280}
 H=${HEIGHT:-720}
 mkdir -p "$out"
+. "$ROOT/tests/bench/ref_psnr.sh"
 
 now() { date +%s.%N; }
 build() {   # build NAME FLAGS...: store OUT/NAME.hlod, prints seconds
@@ -71,17 +72,8 @@ for s in raw packed geometry; do
         --width "$W" --height "$H" --jitter-frames 0 --no-plots --out "$out/fly-$s" >/dev/null
 done
 
-psnr() {    # psnr STORE: min and mean PSNR of its references against raw's
-    local min=1000 sum=0 n=0 f p
-    for f in "$out"/walk-raw/frame_*_ref.png; do
-        p=$("$BIN/hlod-bench" --compare "$f" "$out/walk-$1/$(basename "$f")" |
-            sed -n 's/.*"psnr": *\([0-9.e+-]*\|inf\).*/\1/p')
-        [ "$p" = inf ] && p=99
-        sum=$(echo "$sum + $p" | bc -l)
-        n=$((n + 1))
-        min=$(echo "if ($p < $min) $p else $min" | bc -l)
-    done
-    printf '%.2f %.2f %d\n' "$min" "$(echo "$sum / $n" | bc -l)" "$n"
+psnr() { # psnr STORE: min and mean PSNR of its references against raw's
+    ref_psnr "$BIN" "$out/walk-raw" "$out/walk-$1"
 }
 key() { sed -n "s/.*\"$2\": *\([0-9.e+-]*\).*/\1/p" "$out/$1/summary.json"; }
 

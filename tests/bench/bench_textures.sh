@@ -44,6 +44,7 @@ STILL_RUNS=${STILL_RUNS:-3}
 budget=()
 [ -n "${MEMORY_MB:-}" ] && budget=(--memory-mb "$MEMORY_MB")
 mkdir -p "$out"
+. "$ROOT/tests/bench/ref_psnr.sh"
 
 now() { date +%s.%N; }
 declare -A secs=([jpeg]=0 [blocks]=0)
@@ -80,17 +81,9 @@ for s in jpeg blocks; do
         --width "$W" --height "$H" --reference --reference-every "$EVERY" --reference-ss 1 \
         --save-frames "$list" --jitter-frames 0 --no-plots --out "$out/walk-$s" >/dev/null 2>"$out/walk-$s.log"
 done
-min=1000 sum=0 n=0
-for f in "$out"/walk-jpeg/frame_*_ref.png; do
-    p=$("$BIN/hlod-bench" --compare "$f" "$out/walk-blocks/$(basename "$f")" |
-        sed -n 's/.*"psnr": *\([0-9.e+-]*\|inf\).*/\1/p')
-    [ "$p" = inf ] && p=99
-    sum=$(echo "$sum + $p" | bc -l)
-    n=$((n + 1))
-    min=$(echo "if ($p < $min) $p else $min" | bc -l)
-done
+read -r min mean n < <(ref_psnr "$BIN" "$out/walk-jpeg" "$out/walk-blocks")
 printf '== fidelity: walk at full detail, %d frames (every %d): blocks vs JPEG store PSNR min %.2f dB, mean %.2f dB\n' \
-    "$n" "$EVERY" "$min" "$(echo "$sum / $n" | bc -l)"
+    "$n" "$EVERY" "$min" "$mean"
 
 # loading on the moving paths
 split() {   # split RUN_DIR TARGET: misses with loads queued, frames, misses without, frames
@@ -142,7 +135,7 @@ cat >"$out/textures.json" <<EOF
  "jpeg_build_s": $(echo "${secs[jpeg]} / $ROUNDS" | bc -l), "blocks_build_s": $(echo "${secs[blocks]} / $ROUNDS" | bc -l),
  "textures_bc1": $(bkey blocks textures_bc1), "textures_jpeg": $(bkey blocks textures_jpeg),
  "texture_psnr_min": $(bkey blocks texture_psnr_min),
- "walk_frames": $n, "walk_psnr_min": $min, "walk_psnr_mean": $(echo "$sum / $n" | bc -l),
+ "walk_frames": $n, "walk_psnr_min": $min, "walk_psnr_mean": $mean,
  "loading": [${json_rows%,}],
  "still": [${still_rows%,}]}
 EOF
