@@ -44,6 +44,7 @@
  * 80 % of the target.
  */
 #include "cost_model.h"
+#include "sort.h"
 
 #include <assert.h>
 #include <math.h>
@@ -180,7 +181,7 @@ static int cmp_double(const void *pa, const void *pb)
 
 static double median(double *v, uint32_t n)
 {
-    qsort(v, n, sizeof *v, cmp_double);
+    hlod_sort(v, n, sizeof *v, cmp_double);
     return n % 2 ? v[n / 2] : 0.5 * (v[n / 2 - 1] + v[n / 2]);
 }
 
@@ -359,7 +360,7 @@ static void update_margin(hlod_cost_model *m, const hlod_engine_desc *d, int set
     uint32_t nt = past_warmup(m, n), nr = past_warmup(m, n < MISS_W ? n : MISS_W);
     memcpy(tail, e, nt * sizeof *e);
     memcpy(recent, e, nr * sizeof *e);
-    qsort(tail, nt, sizeof *tail, cmp_double);
+    hlod_sort(tail, nt, sizeof *tail, cmp_double);
     robust(e, n, &med, &sigma);
     m->sigma = sigma;
     double want = aim_margin(d, med, sigma, tail, nt, n);

@@ -17,6 +17,7 @@
 
 #include "hlod_clock.h"
 #include "hold.h"
+#include "sort.h"
 #include "policy.h"
 #include "sleeps.h"
 
@@ -355,7 +356,7 @@ static void order_draws(hlod_engine *e, const hlod_camera *cam)
         keys[k].d2 = box > 0 ? box : centre;
         keys[k].node = e->order.v[k];
     }
-    qsort(keys, n, sizeof *keys, cmp_draw_key);
+    hlod_sort(keys, n, sizeof *keys, cmp_draw_key);
     for (size_t k = 0; k < n; k++)
         e->order.v[k] = keys[k].node;
 }

@@ -33,6 +33,7 @@
 
 #include "hlod_clock.h"
 #include "sleeps.h"
+#include "sort.h"
 
 #include <assert.h>
 #include <math.h>
@@ -421,10 +422,16 @@ static int cmp_request(const void *a, const void *b)
  * keys); pinned nodes never. */
 static victim *victims(hlod_residency *rs, const hlod_evict_order *order, size_t *count)
 {
-    victim *v = hlod_mem_alloc(&rs->d->allocator, (rs->resident.n + 1) * sizeof *v);
+    if (rs->victims_cap < rs->resident.n + 1) {
+        size_t cap = rs->resident.n + 1 + rs->resident.n / 2;
+        victim *g = hlod_mem_realloc(&rs->d->allocator, rs->victims, cap * sizeof *g);
+        if (!g)
+            return NULL;
+        rs->victims = g;
+        rs->victims_cap = cap;
+    }
+    victim *v = rs->victims;
     size_t n = 0;
-    if (!v)
-        return NULL;
     for (size_t k = 0; k < rs->resident.n; k++) {
         uint32_t i = rs->resident.v[k];
         if (i < rs->pinned_count || !order->key(order->user, i, &v[n].key))
@@ -432,7 +439,7 @@ static victim *victims(hlod_residency *rs, const hlod_evict_order *order, size_t
         v[n].node = i;
         n++;
     }
-    qsort(v, n, sizeof *v, cmp_victim);
+    hlod_sort(v, n, sizeof *v, cmp_victim);
     *count = n;
     return v;
 }
@@ -483,14 +490,14 @@ void hlod_residency_schedule(hlod_residency *rs, const hlod_evict_order *order)
 {
     assert(rs && rs->d && order && order->key);
     hlod_req_vec *want = &rs->want;
-    if (want->n > 1) /* want->v is NULL until something was wanted: qsort(NULL) is UB */
-        qsort(want->v, want->n, sizeof *want->v, cmp_request);
+    hlod_sort(want->v, want->n, sizeof *want->v, cmp_request);
 
     /* The previous list: queued nodes the traversal stopped asking for stay
      * queued for a few frames (a partial read survives a brief dip), then
      * are dropped and their reservation returned. */
     hlod_req_vec old = rs->post;
-    rs->post = (hlod_req_vec){0};
+    rs->post = rs->post_spare;
+    rs->post.n = 0;
     hlod_req_vec *post = &rs->post;
 
     /* Admitted in two passes, each in priority order: first the nodes a
@@ -536,7 +543,6 @@ void hlod_residency_schedule(hlod_residency *rs, const hlod_evict_order *order)
         nr->posted = rs->frame;
         reserve(rs, node, +1);
     }
-    hlod_mem_free(&rs->d->allocator, vic);
 
     int resort = 0;
     for (size_t k = 0; k < old.n; k++) {
@@ -552,9 +558,9 @@ void hlod_residency_schedule(hlod_residency *rs, const hlod_evict_order *order)
         }
         unqueue(rs, node);
     }
-    hlod_mem_free(&rs->d->allocator, old.v);
+    rs->post_spare = old; /* its storage, for the next frame's list */
     if (resort)
-        qsort(post->v, post->n, sizeof *post->v, cmp_request);
+        hlod_sort(post->v, post->n, sizeof *post->v, cmp_request);
     /* The loader reads in list order: the nodes a refinement waits for
      * first, each part in priority order (as admitted above; the queued
      * nodes of the old list were appended after them). */
@@ -659,6 +665,11 @@ void hlod_residency_destroy(hlod_residency *rs)
     hlod_mem_free(a, rs->pending);
     hlod_mem_free(a, rs->want.v);
     hlod_mem_free(a, rs->post.v);
+    hlod_mem_free(a, rs->post_spare.v);
+    hlod_mem_free(a, rs->victims);
+    rs->post_spare.v = NULL;
+    rs->victims = NULL;
+    rs->victims_cap = 0;
     rs->res = NULL;
     rs->resident.v = NULL;
     rs->pending = NULL;

@@ -55,6 +55,10 @@ typedef struct hlod_residency {
     size_t pending_n, pending_cap;
     hlod_req_vec want;          /* asked for this frame (hlod_residency_want) */
     hlod_req_vec post;          /* what was handed to the loader */
+    hlod_req_vec post_spare;    /* the list before it: its storage is the next
+                                   frame's (no allocation in steady state) */
+    struct victim *victims;     /* eviction candidates' buffer, kept between frames */
+    size_t victims_cap;
     uint64_t bytes_read_prev;   /* the loader's counter at the last frame's end */
     uint64_t cache_hits_prev;   /* the loader's cache hits then */
     uint64_t finish_ns_prev, busy_ns_prev;  /* the loader's CPU-time counters then */

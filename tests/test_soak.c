@@ -347,9 +347,12 @@ static void check_soak(const soak *k, const char *what)
            k->render_paged);
     /* ASan's allocator locks its central free lists and its quarantine;
      * a thread that finds them taken yields or sleeps, as long as the
-     * holder takes (30 ms once, beside another build).  Measured: 1-3
-     * frames of 58,194 with one engine, 7 beside a build, 35-39 of 15,000
-     * with two engines in two threads; the plain build sleeps in none.
+     * holder takes (30 ms once, beside another build).  The render thread
+     * allocates nothing in steady state (engine/sort.h: glibc's qsort
+     * took a buffer each frame, and twin engines then blocked in a median
+     * 7-10 of 3,750 frames each, up to 24); measured since: 0-1 of 3,750
+     * frames per twin (40 twins), the plain build in none.  What is left
+     * is the loader's allocations beside a first use on this thread.
      * The bound (tests/lib.sh's too): 1 + one frame in 200 (a 10 ms sleep
      * every 100th frame fails it). */
     if (span_judges_waits() && SANITIZED)
