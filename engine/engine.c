@@ -515,13 +515,26 @@ static void draw_splats(hlod_engine *e, const hlod_camera *cam)
     (void)hlod_gpu_splats(e->d.renderer, e->splat_buf, (uint32_t)sp->n, (float)ceil(e->sel.splat_px));
 }
 
-static void draw_frame(hlod_engine *e, const hlod_camera *cam, const hlod_view *view)
+/* cam is the frame's camera; at a reduced resolution (dyn_res) the image
+ * is scaled up to out's width and height. */
+static void draw_frame(hlod_engine *e, const hlod_camera *cam, const hlod_camera *out,
+                       const hlod_view *view)
 {
     hlod_renderer *r = e->d.renderer;
     order_draws(e, cam);
-    hlod_gpu_begin(r, cam);
+    int in_place = 0;
+    if (cam->width == out->width && cam->height == out->height) {
+        hlod_gpu_begin(r, cam);
+    } else if (hlod_gpu_begin_scaled(r, cam, out->width, out->height) != HLOD_OK) {
+        /* no framebuffer for it (logged): drawn at full size, without
+         * occlusion (the view is the small one), and full size from now */
+        hlod_gpu_begin(r, out);
+        e->dynres_failed = 1;
+        e->st.res_scale = 1;
+        in_place = 1;
+    }
     e->drawn.n = 0;
-    if (e->d.occlusion > 0 && hlod_policy_has(e->d.policy, HLOD_PT_OCCLUDE)) {
+    if (!in_place && e->d.occlusion > 0 && hlod_policy_has(e->d.policy, HLOD_PT_OCCLUDE)) {
         draw_occluded(e, cam, view);
     } else {
         for (size_t k = 0; k < e->draw_list->n; k++)
@@ -652,13 +665,32 @@ static double frame_upload_ms(const hlod_engine *e)
  * those that do not would otherwise hand the selection two budgets in
  * turn, and marginal nodes would toggle with them.  At least a tenth of
  * the target. */
-static double frame_budget(const hlod_engine *e)
+static double frame_budget(const hlod_engine *e, int *at_floor)
 {
     const hlod_cost_model *m = &e->cost;
     const double target = e->d.target_ms;
     const double reserve = e->d.deterministic || e->d.time_model ? 0 : upload_reserve(e);
     double budget = (target - reserve) / m->margin - m->theta[0];
-    return budget < 0.1 * target ? 0.1 * target : budget;
+    /* below full resolution detail waits at the floor (dynres.h) */
+    *at_floor = budget <= 0.1 * target || e->dynres.step > 0;
+    return *at_floor ? 0.1 * target : budget;
+}
+
+/* The camera this frame is selected and drawn with: cam, or at dyn_res
+ * its width and height scaled (dynres.h). */
+static hlod_camera frame_camera(hlod_engine *e, const hlod_camera *cam)
+{
+    hlod_camera c = *cam;
+    if (e->d.dyn_res <= 0 || e->dynres_failed) {
+        if (e->dynres.step)
+            hlod_dynres_reset(&e->dynres);
+        return c;
+    }
+    double s = hlod_dynres_scale(&e->dynres);
+    long w = lround(cam->width * s), h = lround(cam->height * s);
+    c.width = w > 1 ? (uint32_t)w : 1;
+    c.height = h > 1 ? (uint32_t)h : 1;
+    return c;
 }
 
 /* What the selection is given: the cost model's terms, the budget and
@@ -737,11 +769,13 @@ hlod_result hlod_engine_frame(hlod_engine *e, const hlod_camera *cam, double dt,
     double t_start = hlod_now_ms(), vel[3];
     const long slept0 = hlod_sleeps_now(), excused0 = hlod_sleeps_excused(),
                paged0 = hlod_sleeps_paged();
-    int moved = frame_inputs(e, cam, dt, vel);
+    int moved = frame_inputs(e, cam, dt, vel), at_floor;
     frame_uploads(e);
-    const double upload = frame_upload_ms(e), budget = frame_budget(e);
+    const hlod_camera fcam = frame_camera(e, cam);
+    const double upload = frame_upload_ms(e), budget = frame_budget(e, &at_floor);
+    e->st.res_scale = (double)fcam.width / cam->width;
     hlod_view view;
-    hlod_view_init(&view, cam, vel, e->d.velocity_lookahead_s);
+    hlod_view_init(&view, &fcam, vel, e->d.velocity_lookahead_s);
     view.turn_rad_s = e->turn_rad_s;
     hlod_select_in in = select_inputs(e, budget, moved);
     double t0 = hlod_now_ms();
@@ -751,12 +785,27 @@ hlod_result hlod_engine_frame(hlod_engine *e, const hlod_camera *cam, double dt,
         return r;
     if (e->d.renderer) {
         long x = hlod_excuse_begin(); /* GL may wait for the driver's threads */
-        draw_frame(e, cam, &view);
+        draw_frame(e, &fcam, cam, &view);
         hlod_excuse_end(x);
     }
     double measured = e->d.time_model ? e->d.time_model(e->d.time_model_user, &e->st)
                                       : hlod_now_ms() - t_start;
     publish(e, &in, measured, upload);
+    /* a step changes every pixel count: a still view's hold starts over
+     * with inputs taken at the new size (held, the floor's budget would
+     * outlast the step back to full size) */
+    if (e->d.dyn_res > 0) {
+        /* the frame would miss with no detail at all: the budget at its
+         * floor, or its time less what detail costs in the model (its
+         * draws and triangles; the pixels stay, the fixed part too) still
+         * over the target */
+        const hlod_frame_stats *st = &e->st;
+        double detail = hlod_cost_model_predict(&e->cost, st->nodes_drawn, st->cost_drawn, 0) -
+                        e->cost.theta[0];
+        int coarsest = at_floor || measured - fmax(detail, 0) > e->d.target_ms;
+        if (hlod_dynres_update(&e->dynres, measured, e->d.target_ms, coarsest))
+            e->still_run = 0;
+    }
     learn(e, measured, upload, budget, moved);
     frame_residency(e);
     /* the render thread slept outside GL, synchronous reads and the

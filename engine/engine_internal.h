@@ -15,6 +15,7 @@
 #define HLOD_ENGINE_INTERNAL_H
 
 #include "cost_model.h"
+#include "dynres.h"
 #include "hold.h"
 #include "hlod/engine.h"
 #include "occlusion.h"
@@ -51,6 +52,8 @@ struct hlod_engine {
     int have_front;         /* last_front_ms is set (a frame was selected) */
     double last_front_ms;   /* the last front's estimate, fixed part included */
     hlod_front_load last_load; /* what the last front drew (the hold's recovery) */
+    hlod_dynres dynres;     /* the resolution's steps (dyn_res; dynres.h) */
+    int dynres_failed;      /* the renderer could not draw small: full size */
 
     uint32_t frame;         /* current frame stamp (1-based) */
     hlod_frame_stats st;    /* being filled */

@@ -98,7 +98,17 @@
     X(PFNGLDRAWARRAYSPROC, DrawArrays)                               \
     X(PFNGLFLUSHPROC, Flush)                                         \
     X(PFNGLREADPIXELSPROC, ReadPixels)                               \
-    X(PFNGLFINISHPROC, Finish)
+    X(PFNGLFINISHPROC, Finish)                                       \
+    X(PFNGLGENFRAMEBUFFERSPROC, GenFramebuffers)                     \
+    X(PFNGLDELETEFRAMEBUFFERSPROC, DeleteFramebuffers)               \
+    X(PFNGLBINDFRAMEBUFFERPROC, BindFramebuffer)                     \
+    X(PFNGLCHECKFRAMEBUFFERSTATUSPROC, CheckFramebufferStatus)       \
+    X(PFNGLGENRENDERBUFFERSPROC, GenRenderbuffers)                   \
+    X(PFNGLDELETERENDERBUFFERSPROC, DeleteRenderbuffers)             \
+    X(PFNGLBINDRENDERBUFFERPROC, BindRenderbuffer)                   \
+    X(PFNGLRENDERBUFFERSTORAGEPROC, RenderbufferStorage)             \
+    X(PFNGLFRAMEBUFFERRENDERBUFFERPROC, FramebufferRenderbuffer)     \
+    X(PFNGLBLITFRAMEBUFFERPROC, BlitFramebuffer)
 
 typedef struct gl_table {
 #define GL_MEMBER(type, name) type name;
@@ -134,6 +144,14 @@ struct hlod_renderer {
     float clear[3];
     hlod_depth_view depth_view; /* reads depth in place; NULL: glReadPixels */
     void *depth_view_user;
+    struct {                    /* frames drawn small (hlod_gpu_begin_scaled) */
+        GLuint fbo, rb[2];      /* colour and depth renderbuffers */
+        uint32_t w, h;          /* their size */
+        GLint draw_prev, read_prev; /* bound at begin: the image */
+        uint32_t src_w, src_h, out_w, out_h;
+        int on;                 /* between begin_scaled and end */
+        int failed;             /* could not be made (logged once) */
+    } low;
     struct {                    /* splats (hlod_gpu_splats): one program, one buffer */
         GLuint prog, vao, vbo;
         GLint u_viewproj, u_size;
@@ -448,10 +466,21 @@ hlod_result hlod_renderer_create(hlod_gl_get_proc get_proc, const hlod_logger *l
 }
 
 /* called from the render thread, context current */
+static void delete_low(hlod_renderer *r)
+{
+    if (r->low.fbo)
+        r->gl.DeleteFramebuffers(1, &r->low.fbo);
+    if (r->low.rb[0])
+        r->gl.DeleteRenderbuffers(2, r->low.rb);
+    r->low.fbo = r->low.rb[0] = r->low.rb[1] = 0;
+    r->low.w = r->low.h = 0;
+}
+
 void hlod_renderer_destroy(hlod_renderer *r)
 {
     if (!r)
         return;
+    delete_low(r);
     delete_programs(r);
     free(r);
 }
@@ -821,10 +850,82 @@ hlod_result hlod_gpu_splats(hlod_renderer *r, const hlod_gpu_splat *s, uint32_t 
 }
 
 /* called from the render thread */
+/* The offscreen framebuffer, w x h (made again when the size changes: a
+ * larger one would be cleared whole each frame); 0 when GL cannot make
+ * it. */
+static int ensure_low(hlod_renderer *r, uint32_t w, uint32_t h)
+{
+    const gl_table *gl = &r->gl;
+    if (r->low.fbo && r->low.w == w && r->low.h == h)
+        return 1;
+    delete_low(r);
+    take_errors(gl);
+    gl->GenFramebuffers(1, &r->low.fbo);
+    gl->GenRenderbuffers(2, r->low.rb);
+    gl->BindFramebuffer(GL_FRAMEBUFFER, r->low.fbo);
+    gl->BindRenderbuffer(GL_RENDERBUFFER, r->low.rb[0]);
+    gl->RenderbufferStorage(GL_RENDERBUFFER, GL_RGBA8, (GLsizei)w, (GLsizei)h);
+    gl->FramebufferRenderbuffer(GL_FRAMEBUFFER, GL_COLOR_ATTACHMENT0, GL_RENDERBUFFER,
+                                r->low.rb[0]);
+    gl->BindRenderbuffer(GL_RENDERBUFFER, r->low.rb[1]);
+    gl->RenderbufferStorage(GL_RENDERBUFFER, GL_DEPTH_COMPONENT24, (GLsizei)w, (GLsizei)h);
+    gl->FramebufferRenderbuffer(GL_FRAMEBUFFER, GL_DEPTH_ATTACHMENT, GL_RENDERBUFFER,
+                                r->low.rb[1]);
+    gl->BindRenderbuffer(GL_RENDERBUFFER, 0);
+    GLenum status = gl->CheckFramebufferStatus(GL_FRAMEBUFFER);
+    gl->BindFramebuffer(GL_DRAW_FRAMEBUFFER, (GLuint)r->low.draw_prev);
+    gl->BindFramebuffer(GL_READ_FRAMEBUFFER, (GLuint)r->low.read_prev);
+    GLenum err = take_errors(gl);
+    if (status != GL_FRAMEBUFFER_COMPLETE || err != GL_NO_ERROR) {
+        hlod_logf(&r->lg, HLOD_LOG_WARN,
+                  "renderer: no %ux%u offscreen framebuffer for frames drawn small "
+                  "(status 0x%x, GL error 0x%x); frames stay at full size",
+                  (unsigned)w, (unsigned)h, (unsigned)status, (unsigned)err);
+        delete_low(r);
+        return 0;
+    }
+    r->low.w = w;
+    r->low.h = h;
+    return 1;
+}
+
+hlod_result hlod_gpu_begin_scaled(hlod_renderer *r, const hlod_camera *cam, uint32_t out_w,
+                                  uint32_t out_h)
+{
+    assert(r && cam);
+    if (r->low.failed)
+        return HLOD_ERR_UNSUPPORTED;
+    const gl_table *gl = &r->gl;
+    gl->GetIntegerv(GL_DRAW_FRAMEBUFFER_BINDING, &r->low.draw_prev);
+    gl->GetIntegerv(GL_READ_FRAMEBUFFER_BINDING, &r->low.read_prev);
+    if (!ensure_low(r, cam->width, cam->height)) {
+        r->low.failed = 1;
+        return HLOD_ERR_UNSUPPORTED;
+    }
+    gl->BindFramebuffer(GL_FRAMEBUFFER, r->low.fbo);
+    r->low.on = 1;
+    r->low.src_w = cam->width;
+    r->low.src_h = cam->height;
+    r->low.out_w = out_w;
+    r->low.out_h = out_h;
+    hlod_gpu_begin(r, cam);
+    return HLOD_OK;
+}
+
 void hlod_gpu_end(hlod_renderer *r, int finish)
 {
     assert(r);
     r->gl.BindVertexArray(0);
+    if (r->low.on) {
+        const gl_table *gl = &r->gl;
+        gl->BindFramebuffer(GL_READ_FRAMEBUFFER, r->low.fbo);
+        gl->BindFramebuffer(GL_DRAW_FRAMEBUFFER, (GLuint)r->low.draw_prev);
+        gl->BlitFramebuffer(0, 0, (GLint)r->low.src_w, (GLint)r->low.src_h, 0, 0,
+                            (GLint)r->low.out_w, (GLint)r->low.out_h, GL_COLOR_BUFFER_BIT,
+                            GL_LINEAR);
+        gl->BindFramebuffer(GL_READ_FRAMEBUFFER, (GLuint)r->low.read_prev);
+        r->low.on = 0;
+    }
     if (finish)
         r->gl.Finish();
     else
@@ -841,7 +942,9 @@ void hlod_renderer_set_depth_view(hlod_renderer *r, hlod_depth_view view, void *
 
 const uint32_t *hlod_gpu_depth_view(hlod_renderer *r, uint32_t *stride, uint32_t *mask)
 {
-    return r && r->depth_view ? r->depth_view(r->depth_view_user, stride, mask) : NULL;
+    /* the in-place view is the image's depth, not a small frame's */
+    return r && r->depth_view && !r->low.on ? r->depth_view(r->depth_view_user, stride, mask)
+                                            : NULL;
 }
 
 /* called from the render thread between begin and end */

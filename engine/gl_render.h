@@ -50,6 +50,15 @@ void hlod_gpu_begin(hlod_renderer *r, const hlod_camera *cam);
 void hlod_gpu_draw(hlod_renderer *r, const hlod_gpu_node *g, const double offset[3],
                    uint32_t depth);
 void hlod_gpu_end(hlod_renderer *r, int finish);
+/* As hlod_gpu_begin, for a frame drawn smaller than the image (dyn_res,
+ * engine/dynres.h): the draws go to an offscreen framebuffer of cam's
+ * width x height (RGBA8, 24-bit depth; depth reads read it), and
+ * hlod_gpu_end scales it up, bilinear, to out_w x out_h of the framebuffer
+ * bound at this call, which it binds again.  That framebuffer's depth is
+ * not written.  HLOD_ERR_UNSUPPORTED (logged once) when the offscreen
+ * framebuffer cannot be made: nothing is begun. */
+hlod_result hlod_gpu_begin_scaled(hlod_renderer *r, const hlod_camera *cam, uint32_t out_w,
+                                  uint32_t out_h);
 
 /* One splat: a position relative to the camera and a colour, lit. */
 typedef struct hlod_gpu_splat {

@@ -122,8 +122,15 @@ ok $? "deadline_met and toggles_after_60 agree with frames.csv"
 [ "$(($(wc -l <"$T/run/jitter.csv") - 1))" -eq 120 ] && head -1 "$T/run/jitter.csv" | grep -qx "i,ms"
 ok $? "jitter.csv: one row per replay (120)"
 head -1 "$T/run/frames.csv" |
-    grep -q ",toggles_up_ma35,toggles_down_ma35,pixels_drawn,margin,occlusion_hidden,occlusion_tested,occlusion_culled,occlusion_ms,occlusion_check_psnr,occlusion_check_differing,cone_culled,cone_check_differing,splats,splat_px$"
+    grep -q ",toggles_up_ma35,toggles_down_ma35,pixels_drawn,margin,occlusion_hidden,occlusion_tested,occlusion_culled,occlusion_ms,occlusion_check_psnr,occlusion_check_differing,cone_culled,cone_check_differing,splats,splat_px,res_scale$"
 ok $? "frames.csv: the new columns come last, in order"
+# dyn_res's keys agree with the frames (all at full size without it)
+scaled=$(awk -F, 'NR == 1 { for (i = 1; i <= NF; i++) at[$i] = i; next }
+    { n += $at["res_scale"] < 1 } END { print n + 0 }' "$T/run/frames.csv")
+perl -MJSON::PP -e 'local $/; my $j = JSON::PP->new->decode(<STDIN>);
+    exit !($j->{res_scaled_frames} == $ARGV[0] && $ARGV[0] == 0 && $j->{res_scale_mean} == 1 &&
+           $j->{res_scale_min} == 1)' "$scaled" <"$T/run/summary.json"
+ok $? "res_scale_mean, res_scale_min, res_scaled_frames agree with frames.csv (no dyn_res: 1, 1, 0)"
 for png in frame_time nodes_per_depth toggles memory psnr; do
     head -c 8 "$T/run/$png.png" 2>/dev/null | od -An -tx1 | grep -q "89 50 4e 47" || missing="$missing $png"
 done

@@ -11,7 +11,8 @@
  *     converges to the reference;
  *   - a frame's pixels are not blank;
  *   - culling the back faces of solid blocks changes no visible pixel;
- *   - occlusion culling changes no pixel either.
+ *   - occlusion culling changes no pixel either;
+ *   - a frame drawn at half size (dyn_res) comes back at full size.
  * Failing images are written next to the store for a human to look at.
  */
 #define _GNU_SOURCE /* RUSAGE_THREAD (cpu_span.h, through engine_check.h) */
@@ -399,6 +400,60 @@ static void generous_target_converges(void)
     hlod_engine_destroy(e);
 }
 
+/* dyn_res (engine/dynres.h): a fill-bound machine whose full-size frame
+ * takes 5 x the target (its time falls with the pixels drawn), with the
+ * budget at its floor, steps the resolution down to half;
+ * the frame, drawn at 160 x 120 and scaled up, comes back at full size:
+ * the same pixels covered as at full size (no shift, no hole) and close
+ * to the full-size image, but not equal to it. */
+static double slow_machine(void *user, const hlod_frame_stats *st)
+{
+    double s = st->res_scale > 0 ? st->res_scale : 1;
+    return *(const double *)user * s * s;
+}
+
+static void dyn_res_scales_up(void)
+{
+    static uint8_t a[W * H * 3], b[W * H * 3];
+    hlod_camera cam;
+    double o[3] = {0, 0, 0};
+    city_camera(&cam, o, 70, 40);
+    hlod_frame_stats st;
+    render_full(g_r, g_gl, g_near, &cam, a, &st);
+    double slow = 80; /* 5 x the target at full size, still over it at half */
+    hlod_engine_desc d = {0};
+    d.policy = HLOD_POLICY_FULL;
+    d.renderer = g_r;
+    d.deterministic = 1;
+    d.target_ms = 16;
+    d.fixed_frame_ms = 15; /* the budget at its floor */
+    d.time_model = slow_machine;
+    d.time_model_user = &slow;
+    d.dyn_res = 1;
+    hlod_engine *e = NULL;
+    CHECK(hlod_engine_create(g_near, &d, &e) == HLOD_OK);
+    if (!e)
+        return;
+    CHECK(hlod_engine_load_all_leaves(e, &cam) == HLOD_OK);
+    for (int f = 0; f < 100; f++)
+        CHECK(hlod_engine_frame(e, &cam, 1.0 / 30, &st) == HLOD_OK);
+    CHECK(hlod_osmesa_read_rgb(g_gl, b) == HLOD_OK);
+    hlod_engine_destroy(e);
+    uint8_t bg[3] = {a[0], a[1], a[2]};
+    size_t differ = 0, holes = mask_holes(a, bg, b, bg, W, H, &differ);
+    double p = psnr(a, b);
+    fprintf(stderr, "  half size scaled up vs full size: scale %.2f, PSNR %.2f dB, %zu pixels' "
+            "coverage differs, %zu inside a region\n", st.res_scale, p, differ, holes);
+    CHECKF(st.res_scale == 0.5, "scale %g after 100 frames at 5 x the target", st.res_scale);
+    CHECKF(holes == 0 && differ < (size_t)W * H / 50, "coverage: %zu pixels differ, %zu inside "
+           "a region", differ, holes);
+    CHECKF(p > 22 && p < 60, "PSNR %.2f dB against the full-size frame", p);
+    if (holes || differ >= (size_t)W * H / 50 || !(p > 22 && p < 60) || getenv("HLOD_TEST_SAVE")) {
+        save("full", a);
+        save("dyn_res_half", b);
+    }
+}
+
 /* An upload too big for the frame's upload time waits, each one only so
  * long (residency.h): with an upload budget no upload fits (1 us), each
  * read goes once it has waited 8 frames and fits the room under the target,
@@ -585,6 +640,7 @@ int main(void)
         RUN(waited_uploads_go);
         RUN(solid_blocks_cull_invisibly);
         RUN(occlusion_makes_no_hole);
+        RUN(dyn_res_scales_up);
     }
     hlod_renderer_destroy(g_r);
     hlod_osmesa_destroy(g_gl);

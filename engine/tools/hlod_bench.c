@@ -131,7 +131,8 @@ static void usage(FILE *fp)
         "occlusion_ms_mean, overhead_ms_mean, overhead_ms_max,\n"
         "occlusion_check_psnr_min, occlusion_check_differing_max,\n"
         "occlusion_check_bad_frames, cone_culled_mean, cone_check_differing_max,\n"
-        "cone_check_nodes, cone_check_unchecked, splats_mean, policy, path,\n"
+        "cone_check_nodes, cone_check_unchecked, splats_mean, res_scale_mean,\n"
+        "res_scale_min, res_scaled_frames (dyn_res), policy, path,\n"
         "backend, gl_renderer, texture_upload (blocks or expanded).\n"
         "\n"
         "Exit status: 0 success, 1 a run failed, 2 bad command line.\n"
@@ -530,6 +531,8 @@ typedef struct summary {
     double occlusion_culled_mean;
     double cone_culled_mean;
     double splats_mean;
+    double res_scale_mean, res_scale_min;   /* dyn_res: the frames' scales */
+    long res_scaled_frames;                 /* frames drawn below full size */
     long long cone_differing_max;           /* --cone-check; -1 without */
     unsigned long long cone_checked, cone_unchecked;
     uint64_t toggles_after_60;              /* up + down over frames 60.. */
@@ -581,6 +584,10 @@ static void summarise_extra(const frame_rec *r, long n, double target, const dou
         s->occlusion_culled_mean += st->occlusion_culled;
         s->cone_culled_mean += st->cone_culled;
         s->splats_mean += st->splats;
+        double rs = st->res_scale > 0 ? st->res_scale : 1;
+        s->res_scale_mean += rs;
+        s->res_scale_min = i == 0 || rs < s->res_scale_min ? rs : s->res_scale_min;
+        s->res_scaled_frames += rs < 1;
         if (r[i].cone_differing >= 0) {
             if (r[i].cone_differing > s->cone_differing_max)
                 s->cone_differing_max = r[i].cone_differing;
@@ -602,6 +609,7 @@ static void summarise_extra(const frame_rec *r, long n, double target, const dou
         s->occlusion_culled_mean /= (double)n;
         s->cone_culled_mean /= (double)n;
         s->splats_mean /= (double)n;
+        s->res_scale_mean /= (double)n;
     }
     s->est_err_p50 = s->est_err_p95 = NAN;
     if (err && nerr) {
@@ -730,7 +738,7 @@ static hlod_result write_frames_csv(const char *dir, const frame_rec *r, long n,
                 "ssim,luma_change,ref_luma_change,toggles_up_ma35,toggles_down_ma35,"
                 "pixels_drawn,margin,occlusion_hidden,occlusion_tested,occlusion_culled,"
                 "occlusion_ms,occlusion_check_psnr,occlusion_check_differing,cone_culled,"
-                "cone_check_differing,splats,splat_px\n");
+                "cone_check_differing,splats,splat_px,res_scale\n");
     for (long i = 0; i < n; i++) {
         const hlod_frame_stats *s = &r[i].st;
         fprintf(fp, "%llu,%.6f,%.4f,%.4f,%.9g,%.4f,%.4f,%.4f,%.4f,%.4f,%.4f,%u",
@@ -770,7 +778,8 @@ static hlod_result write_frames_csv(const char *dir, const frame_rec *r, long n,
             fprintf(fp, ",");
         else
             fprintf(fp, ",%lld", r[i].cone_differing);
-        fprintf(fp, ",%u,%.3f\n", s->splats, s->splat_px);
+        fprintf(fp, ",%u,%.3f,%.4f\n", s->splats, s->splat_px,
+                s->res_scale > 0 ? s->res_scale : 1.0);
     }
     return hlod_atomic_commit(&af, lg);
 }
@@ -817,6 +826,9 @@ static void json_summary(hlod_json *j, const summary *s, const char *policy, con
     hlod_json_double(j, "deadline_met", s->deadline_met);
     hlod_json_int(j, "margin_cap_frames", s->margin_cap_frames);
     hlod_json_int(j, "margin_cap_run_max", s->margin_cap_run);
+    hlod_json_double(j, "res_scale_mean", s->res_scale_mean);
+    hlod_json_double(j, "res_scale_min", s->res_scale_min);
+    hlod_json_int(j, "res_scaled_frames", s->res_scaled_frames);
     hlod_json_double(j, "machine_p50_ms", s->machine_p50);
     hlod_json_double(j, "machine_p99_ms", s->machine_p99);
     hlod_json_double(j, "machine_p99_over_p50", s->machine_p99 / s->machine_p50);

@@ -157,6 +157,8 @@ typedef double (*hlod_time_model)(void *user_data, const struct hlod_frame_stats
       "GL uploads per frame, bytes (at least one upload is made)")                               \
     X(upload_budget_ms, upload_budget_ms, D, 0, 0, 0, HLOD_UNBOUNDED, 1,                         \
       "GL upload time per frame; 0: 10% of target_ms; not when deterministic or timed by a model") \
+    X(dyn_res, dyn_res, B, 0, 0, 0, 1, 1,                                                        \
+      "1: when even the budget's floor misses target_ms, frames render smaller and are scaled up (to 0.5 x width and height); 0: never") \
     X(loader_idle, loader_idle, B, 0, 0, 0, 1, 0,                                                \
       "1: the loader thread runs under SCHED_IDLE (only on a core the render thread leaves); 0: at nice 10") \
     X(max_inflight, max_inflight, U32, 32, 1, 0, HLOD_UNBOUNDED, 1,                              \
@@ -250,6 +252,9 @@ typedef struct hlod_frame_stats {
     double upload_ms;            /* CPU time of GL uploads and frees */
     double sse_pixels;           /* current SSE threshold (policy sse) */
     double splat_px;             /* the splat size this frame drew with (klein, klein-auto) */
+    double res_scale;            /* the scale of width and height this frame was selected
+                                    and drawn at, then scaled up to the window (dyn_res;
+                                    docs/runtime.md "Dynamic resolution"); 1: full */
     uint32_t nodes_drawn;
     uint32_t nodes_per_depth[HLOD_STATS_MAX_DEPTH]; /* deeper nodes count in the last */
     uint64_t tris_drawn;
