@@ -287,6 +287,23 @@ perl -MJSON::PP -e '
         return undef unless @r;
         my $m = 0; $m += $_ for @r; $m /= @r; my $q = quant(0.98, @r);
         return $q > 0 ? $m / $q : undef; }
+    # L = E[j] / q98(j) over the frozen replays j (jitter.csv): the most a
+    # controller with a perfect model could average, as a fraction of the
+    # target, while meeting 98 % of deadlines on this machine then
+    sub machine_limit { open my $c, "<", shift or return undef; <$c>; my @m;
+        while (<$c>) { chomp; my (undef, $ms) = split /,/; push @m, $ms if $ms > 0; }
+        return undef unless @m;
+        my $m = 0; $m += $_ for @m; $m /= @m; my $q = quant(0.98, @m);
+        return $q > 0 ? $m / $q : undef; }
+    # the share of frames (60 on) whose front was bound by the budget (its
+    # variable estimate at least 0.9 of it): efficiency is judged only
+    # where that is at least a tenth (else the city, drawn whole or at its
+    # floor, not the time, bounds the detail)
+    sub budget_bound { my $fr = frames(shift) or return undef; my ($n, $b) = (0, 0);
+        for my $x (@$fr[60 .. $#$fr]) {
+            next unless $x->{budget_ms} > 0; $n++;
+            $b++ if $x->{estimated_ms} - $x->{fixed_ms} >= 0.9 * $x->{budget_ms}; }
+        return $n ? $b / $n : undef; }
     sub noise_floor { open my $c, "<", shift or return (); <$c>; my @m;
         while (<$c>) { chomp; my (undef, $ms) = split /,/; push @m, $ms if $ms > 0; }
         return () unless @m;
@@ -314,13 +331,18 @@ perl -MJSON::PP -e '
     my $res = $any ? "$any->{width}x$any->{height}" : "?";
     print $o "City \x27$preset\x27, $res headless ($gl), target 33 ms, budget 25% of the store.\n";
     print $o "machine p50/p99: one frozen selection (the frame in the middle of the run) replayed 120 times in the same run: the machine\x27s own spread.\n\n";
-    print $o "| run | policy | frames | mean ms | p50 ms | p95 ms | p99 ms | machine p50 ms | machine p99 ms | deadline met | within 10% | toggles/frame | PSNR dB | SSIM | peak resident MiB | budget MiB | render waits | traversal ms |\n";
-    print $o "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|\n";
+    print $o "L = E[j]/q98(j) of those replays: the most a controller with a perfect model could average, as a fraction of the target, meeting 98 % of deadlines; efficiency = (mean / target) / L; margin cap: the longest run of frames with the deadline margin at its cap.\n\n";
+    print $o "| run | policy | frames | mean ms | p50 ms | p95 ms | p99 ms | machine p50 ms | machine p99 ms | deadline met | within 10% | toggles/frame | PSNR dB | SSIM | peak resident MiB | budget MiB | render waits | traversal ms | L | efficiency | margin cap frames |\n";
+    print $o "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|\n";
     my $f = sub { my $v = shift; defined $v ? sprintf("%.2f", $v) : "-" };
+    my %eff;
     for my $run (@runs) {
         my ($name, $pol) = @$run;
-        my $j = $s{$pol ? "$name/$pol" : $name} or next;
-        printf $o "| %s | %s | %d | %s | %s | %s | %s | %s | %s | %s | %.0f%% | %.3f | %s | %s | %.0f | %.0f | %d | %.3f |\n",
+        my $k = $pol ? "$name/$pol" : $name;
+        my $j = $s{$k} or next;
+        my $lim = machine_limit("$dir/$k/jitter.csv");
+        $eff{$k} = [$lim, defined $lim ? $j->{frame_ms_mean} / $j->{target_ms} / $lim : undef];
+        printf $o "| %s | %s | %d | %s | %s | %s | %s | %s | %s | %s | %.0f%% | %.3f | %s | %s | %.0f | %.0f | %d | %.3f | %s | %s | %s |\n",
             $name, $j->{policy}, $j->{frames}, $f->($j->{frame_ms_mean}), $f->($j->{frame_ms_p50}),
             $f->($j->{frame_ms_p95}), $f->($j->{frame_ms_p99}), $f->($j->{machine_p50_ms}),
             $f->($j->{machine_p99_ms}),
@@ -328,7 +350,8 @@ perl -MJSON::PP -e '
             100 * $j->{within_10pct}, $j->{toggles_per_frame},
             $f->($j->{psnr_mean}), defined $j->{ssim_mean} ? sprintf("%.3f", $j->{ssim_mean}) : "-",
             $j->{peak_resident_bytes} / 1048576, $j->{memory_budget_bytes} / 1048576,
-            $j->{render_waits}, $j->{traversal_ms_mean};
+            $j->{render_waits}, $j->{traversal_ms_mean}, $f->($eff{$k}[0]), $f->($eff{$k}[1]),
+            $j->{margin_cap_run_max} // "-";
     }
 
     print $o "\n## Targets (issue 17)\n\n| target | measured | |\n|---|---|---|\n";
@@ -342,16 +365,36 @@ perl -MJSON::PP -e '
         my $j = $s{$k}; my $t = $j->{target_ms};
         $row->("$k: deadline_met >= 0.98", sprintf("%.3f", $j->{deadline_met} // -1),
                ($j->{deadline_met} // -1) >= 0.98);
-        my $lim = mean_limit("$dir/$k/frames.csv");
-        $row->("$k: frame_ms_mean >= 0.65 x $t ms", sprintf("%.2f ms (%.2f x)%s", $j->{frame_ms_mean},
-               $j->{frame_ms_mean} / $t, defined $lim ? sprintf(
-                   "; at 98 %% met, this run\x27s E[r]/q98(r) allows at most %.2f x", $lim) : ""),
-               $j->{frame_ms_mean} >= 0.65 * $t);
+        # issue 42: the controller against the machine\x27s own limit L
+        # (the retired "mean >= 0.65 x target" asked more than L allows)
+        my ($lim, $eff) = @{$eff{$k} // []};
+        my $rlim = mean_limit("$dir/$k/frames.csv");
+        my $bound = budget_bound("$dir/$k/frames.csv");
+        my $judged = defined $eff && defined $bound && $bound >= 0.1;
+        $row->("$k: efficiency (mean / target) / L >= 0.9, where the budget bounds the front",
+               defined $eff ? sprintf("%.2f (mean %.2f ms = %.2f x; L %.2f%s; budget-bound in %.0f%% of frames%s)",
+                   $eff, $j->{frame_ms_mean}, $j->{frame_ms_mean} / $t, $lim, defined $rlim ? sprintf(
+                   "; the model\x27s own E[r]/q98(r) %.2f", $rlim) : "", 100 * ($bound // 0),
+                   $judged ? "" : ": the city, not the time, bounds the detail") : "- (no jitter replay)",
+               $judged ? $eff >= 0.9 : undef);
+        $row->("$k: deadline margin at its cap for at most 30 frames in a row",
+               $j->{margin_cap_run_max} // "-",
+               defined $j->{margin_cap_run_max} ? $j->{margin_cap_run_max} <= 30 : undef);
         $row->("$k: render_waits 0", $j->{render_waits}, $j->{render_waits} == 0);
         $row->("$k: peak resident within the budget",
                sprintf("%.0f of %.0f MiB", $j->{peak_resident_bytes} / 1048576,
                        $j->{memory_budget_bytes} / 1048576),
                $j->{peak_resident_bytes} <= $j->{memory_budget_bytes});
+    }
+    {   # the margin over every run of the sweep
+        my ($worst, $at) = (-1, "");
+        for my $f (sort glob("$dir/sweep/*/summary.json")) {
+            my $j = load($f) or next;
+            my $v = $j->{margin_cap_run_max} // next;
+            ($worst, $at) = ($v, $f =~ m{sweep/([^/]+)/} ? $1 : $f) if $v > $worst;
+        }
+        $row->("sweep: deadline margin at its cap for at most 30 frames in a row, every run",
+               $worst >= 0 ? "worst $worst ($at)" : "-", $worst >= 0 ? $worst <= 30 : undef);
     }
     # Spread
     for my $k (@main) {
@@ -455,10 +498,11 @@ perl -MJSON::PP -e '
         my ($e50, $e95) = ($j->{estimate_err_p50}, $j->{estimate_err_p95});
         my @fl = noise_floor("$dir/$k/jitter.csv");
         my $floor = sub { @fl ? sprintf("; the best constant on the frozen replay: %.1f%%", 100 * $fl[$_[0]]) : "" };
-        $row->("$k: estimate_err_p50 <= 5%", $num->($e50) ? sprintf("%.1f%%", 100 * $e50) . $floor->(0) : "-",
-               $num->($e50) ? $e50 <= 0.05 : undef);
-        $row->("$k: estimate_err_p95 <= 20%", $num->($e95) ? sprintf("%.1f%%", 100 * $e95) . $floor->(1) : "-",
-               $num->($e95) ? $e95 <= 0.20 : undef);
+        # retired by issue 42 (the deadline comes first): shown, not judged
+        $row->("$k: estimate_err_p50 (retired: was <= 5%)",
+               $num->($e50) ? sprintf("%.1f%%", 100 * $e50) . $floor->(0) : "-", undef);
+        $row->("$k: estimate_err_p95 (retired: was <= 20%)",
+               $num->($e95) ? sprintf("%.1f%%", 100 * $e95) . $floor->(1) : "-", undef);
     }
     for my $k (@main) {
         my $j = $s{$k};
