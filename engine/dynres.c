@@ -2,6 +2,7 @@
  * dynres.c - resolution steps with their own hysteresis (dynres.h).
  */
 #include "dynres.h"
+#include "sort.h"
 
 #include <string.h>
 
@@ -21,17 +22,18 @@ void hlod_dynres_reset(hlod_dynres *d)
     memset(d, 0, sizeof *d);
 }
 
+static int cmp_double(const void *pa, const void *pb)
+{
+    double a = *(const double *)pa, b = *(const double *)pb;
+    return (a > b) - (a < b);
+}
+
 /* The median of the window (full). */
 static double window_median(const hlod_dynres *d)
 {
     double v[DYNRES_WINDOW];
     memcpy(v, d->ms, sizeof v);
-    for (int i = 1; i < DYNRES_WINDOW; i++) /* insertion: 8 values */
-        for (int j = i; j > 0 && v[j - 1] > v[j]; j--) {
-            double t = v[j];
-            v[j] = v[j - 1];
-            v[j - 1] = t;
-        }
+    hlod_sort(v, DYNRES_WINDOW, sizeof *v, cmp_double);
     return 0.5 * (v[DYNRES_WINDOW / 2 - 1] + v[DYNRES_WINDOW / 2]);
 }
 

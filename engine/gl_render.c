@@ -148,7 +148,7 @@ struct hlod_renderer {
         GLuint fbo, rb[2];      /* colour and depth renderbuffers */
         uint32_t w, h;          /* their size */
         GLint draw_prev, read_prev; /* bound at begin: the image */
-        uint32_t src_w, src_h, out_w, out_h;
+        uint32_t out_w, out_h;  /* the image the frame is scaled up to */
         int on;                 /* between begin_scaled and end */
         int failed;             /* could not be made (logged once) */
     } low;
@@ -904,8 +904,6 @@ hlod_result hlod_gpu_begin_scaled(hlod_renderer *r, const hlod_camera *cam, uint
     }
     gl->BindFramebuffer(GL_FRAMEBUFFER, r->low.fbo);
     r->low.on = 1;
-    r->low.src_w = cam->width;
-    r->low.src_h = cam->height;
     r->low.out_w = out_w;
     r->low.out_h = out_h;
     hlod_gpu_begin(r, cam);
@@ -920,7 +918,7 @@ void hlod_gpu_end(hlod_renderer *r, int finish)
         const gl_table *gl = &r->gl;
         gl->BindFramebuffer(GL_READ_FRAMEBUFFER, r->low.fbo);
         gl->BindFramebuffer(GL_DRAW_FRAMEBUFFER, (GLuint)r->low.draw_prev);
-        gl->BlitFramebuffer(0, 0, (GLint)r->low.src_w, (GLint)r->low.src_h, 0, 0,
+        gl->BlitFramebuffer(0, 0, (GLint)r->low.w, (GLint)r->low.h, 0, 0,
                             (GLint)r->low.out_w, (GLint)r->low.out_h, GL_COLOR_BUFFER_BIT,
                             GL_LINEAR);
         gl->BindFramebuffer(GL_READ_FRAMEBUFFER, (GLuint)r->low.read_prev);
