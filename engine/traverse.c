@@ -267,30 +267,39 @@ static double node_priority(const walk *w, const hlod_view *v, uint32_t i,
 }
 
 /* Whether node i's faces and all its descendants' face away from the eye:
- * its normal cone (axis a, half-angle t < 90 degrees) and the sphere
- * around its box (centre c, radius r) with dot(a, p - eye) >= sin(t) |p -
- * eye| for every point p of it, so that every normal makes at most 90
- * degrees with every view ray (Shirman and Abi-Ezzi's cone test):
- * dot(a, c - eye) - r > sin(t) (|c - eye| + r).  Camera-relative doubles.
- * A node without a cone (two-sided, or its normals spread too wide) never
- * culls. */
+ * its normal cone (axis a, half-angle t < 90 degrees) and the node's box,
+ * which holds every descendant's faces too.  Every face is back-facing
+ * when every view ray to a point p of the box makes at most 90 - t
+ * degrees with a: dot(a, p - eye) >= sin(t) |p - eye| (Shirman and
+ * Abi-Ezzi's cone test).  The points that meet it form a convex cone with
+ * its apex at the eye, so the box lies in it exactly when its eight
+ * corners do: tighter than the test on the sphere around the box, and
+ * still exact.  Camera-relative doubles.  A node without a cone
+ * (two-sided, or its normals spread too wide) never culls. */
 static int cone_hides(const walk *w, const hlod_view *v, uint32_t i)
 {
     const hlod_store_extra *x = &w->s->extras[i];
     if (!(x->flags & HLOD_EXTRA_CONE) || !(x->cone_cos > 0))
         return 0;
     const hlod_store_node *n = &w->nodes[i];
-    double along = 0, c2 = 0, r2 = 0;
-    for (int k = 0; k < 3; k++) {
-        double c = 0.5 * (n->bbox_min[k] + n->bbox_max[k]) - v->eye[k],
-               h = 0.5 * (n->bbox_max[k] - n->bbox_min[k]);
-        along += x->cone_axis[k] * c;
-        c2 += c * c;
-        r2 += h * h;
-    }
-    double r = sqrt(r2), reach = sqrt(c2) + r;
     double sine = sqrt(1 - (double)x->cone_cos * x->cone_cos);
-    return along - r > sine * reach + 1e-7 * reach;
+    double lo[3], hi[3];
+    for (int k = 0; k < 3; k++) {
+        lo[k] = n->bbox_min[k] - v->eye[k];
+        hi[k] = n->bbox_max[k] - v->eye[k];
+    }
+    for (int corner = 0; corner < 8; corner++) {
+        double along = 0, d2 = 0;
+        for (int k = 0; k < 3; k++) {
+            double c = corner >> k & 1 ? hi[k] : lo[k];
+            along += x->cone_axis[k] * c;
+            d2 += c * c;
+        }
+        double d = sqrt(d2);
+        if (!(along > sine * d + 1e-7 * d))
+            return 0;
+    }
+    return 1;
 }
 
 /* Notes node i culled by its cone this frame (once), and asks for it when
@@ -303,6 +312,7 @@ static int note_coned(walk *w, const hlod_view *v, uint32_t i)
         return 1;
     f->coned = w->frame;
     w->st->cone_culled++;
+    w->st->cone_culled_tris += w->nodes[i].tri_count;
     if (!hlod_u32_push(&w->d->allocator, &w->s->coned, i))
         return 0;
     if (!w->d->keep_coned || hlod_residency_state(w->res, i) == HLOD_NODE_RESIDENT)

@@ -53,6 +53,9 @@ typedef struct hlod_build_params {
     size_t voxel_tris;     /* N_v: triangles per voxel at most (metis) */
     size_t leaf_tris;      /* N_l: a part under this is a leaf (metis) */
     size_t node_tris;      /* N_n: triangles of an inner node (metis) */
+    int cone_split;        /* cutplane: within three levels of the leaves, a
+                              piece whose normals spread over 45 degrees is
+                              cut into orientation classes (docs/hlod-build.md) */
     uint64_t seed;         /* METIS seed and any other choice: fixed, so a
                               build is reproducible byte for byte */
     const hlod_logger *logger;

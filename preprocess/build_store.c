@@ -888,6 +888,7 @@ static hlod_result build_blocks(const hlod_build_desc *d, blocks *bs, block_out 
     J.bp.leaf_tris = d->leaf_tris;
     J.bp.node_tris = d->node_tris;
     J.bp.seed = d->seed;
+    J.bp.cone_split = d->cone_split && d->method == HLOD_BUILD_CUTPLANE;
     J.slot = calloc(bs->n, sizeof *J.slot);
     J.ready = calloc(bs->n, 1);
     size_t threads = build_threads(d);
@@ -1258,6 +1259,7 @@ static void writer_desc(const hlod_build_desc *d, const input *in, const hlod_lo
     wd->build.leaf_tris = metis ? d->leaf_tris : 0;
     wd->build.node_tris = metis ? d->node_tris : 0;
     wd->build.c_tex = d->c_tex;
+    wd->build.flags = d->cone_split && d->method == HLOD_BUILD_CUTPLANE ? HLOD_BUILD_CONE_SPLIT : 0;
     if (d->method == HLOD_BUILD_SAMPLETREE) {
         memset(&wd->build, 0, sizeof wd->build);
         wd->build.method = HLOD_STORE_METHOD_SAMPLETREE;

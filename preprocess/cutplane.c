@@ -154,71 +154,77 @@ static hlod_result b_finish(builder *b, piece *out)
     return HLOD_OK;
 }
 
-/* Splits p by the plane x[axis] = c into below (< c side) and above.  Each
- * triangle goes whole to the side of its centroid: no triangle is cut, so
- * the pieces hold exactly the original triangles, and the seam between
- * them is the original edges shared by a triangle on each side.  A vertex
- * used on both sides is locked on both (as are the vertices p had
- * locked), so every node that holds a seam keeps all of its vertices: two
- * nodes at any depths on either side of a seam meet on the same bits, with
- * no T-junction and no crack. */
-static hlod_result split(const piece *p, int axis, double c, piece *below, piece *above)
+/* Splits p into `count` pieces by a label per triangle (label[t] < count).
+ * Each triangle goes whole to its label's piece: no triangle is cut, so
+ * the pieces hold exactly the original triangles, in p's order, and the
+ * seam between two pieces is the original edges shared by triangles of
+ * both.  A vertex used by two pieces or more is locked in each (as are
+ * the vertices p had locked), so every node that holds a seam keeps all
+ * of its vertices: two nodes at any depths on either side of a seam meet
+ * on the same bits, with no T-junction and no crack. */
+static hlod_result split_labels(const piece *p, const uint8_t *label, int count, piece *out)
 {
     const hlod_mesh *m = &p->m;
-    builder side[2];
-    memset(side, 0, sizeof side);
-    side[0].src = side[1].src = m;
     size_t nv = m->vertex_count;
-    uint32_t *map[2] = {malloc(nv * sizeof(uint32_t) + 1), malloc(nv * sizeof(uint32_t) + 1)};
-    uint8_t *use = calloc(nv + 1, 1);      /* bit s: used by a triangle on side s */
-    uint8_t *tside = malloc(m->tri_count + 1);
+    builder *side = calloc((size_t)count, sizeof *side);
+    uint32_t *map = malloc(nv * sizeof(uint32_t) + 1);     /* v -> index in the current side */
+    uint8_t *first = malloc(nv + 1);                        /* v's first label; 255: unused */
+    uint8_t *shared = calloc(nv + 1, 1);                    /* v used by two labels or more */
     hlod_result r = HLOD_ERR_NOMEM;
-    if (!map[0] || !map[1] || !use || !tside)
+    int made = 0;
+    if (!side || !map || !first || !shared)
         goto done;
-    for (size_t t = 0; t < m->tri_count; t++) {
-        const uint32_t *ix = m->indices + 3 * t;
-        double cen = 0;
-        for (int k = 0; k < 3; k++)
-            cen += m->positions[3 * (size_t)ix[k] + axis];
-        int sd = !(cen / 3 < c);
-        tside[t] = (uint8_t)sd;
-        for (int k = 0; k < 3; k++)
-            use[ix[k]] |= (uint8_t)(1u << sd);
+    memset(first, 255, nv);
+    for (size_t t = 0; t < 3 * m->tri_count; t++) {
+        uint32_t v = m->indices[t];
+        uint8_t l = label[t / 3];
+        if (first[v] == 255)
+            first[v] = l;
+        else if (first[v] != l)
+            shared[v] = 1;
     }
-    for (size_t v = 0; v < nv; v++)
-        map[0][v] = map[1][v] = UINT32_MAX;
-    for (size_t t = 0; t < m->tri_count; t++) {
-        const uint32_t *ix = m->indices + 3 * t;
-        int sd = tside[t];
-        uint32_t o[3];
-        for (int k = 0; k < 3; k++) {
-            uint32_t v = ix[k];
-            if (map[sd][v] == UINT32_MAX) {
-                map[sd][v] = (uint32_t)side[sd].nv;
-                if (!b_vertex(&side[sd], m->positions + 3 * (size_t)v,
-                              m->uvs ? m->uvs + 2 * (size_t)v : NULL,
-                              m->normals ? m->normals + 3 * (size_t)v : NULL,
-                              (uint8_t)(p->lock[v] || use[v] == 3)))
-                    goto done;
+    for (int sd = 0; sd < count; sd++) {
+        builder *b = &side[sd];
+        b->src = m;
+        for (size_t v = 0; v < nv; v++)
+            map[v] = UINT32_MAX;
+        for (size_t t = 0; t < m->tri_count; t++) {
+            if (label[t] != sd)
+                continue;
+            const uint32_t *ix = m->indices + 3 * t;
+            uint32_t o[3];
+            for (int k = 0; k < 3; k++) {
+                uint32_t v = ix[k];
+                if (map[v] == UINT32_MAX) {
+                    map[v] = (uint32_t)b->nv;
+                    if (!b_vertex(b, m->positions + 3 * (size_t)v,
+                                  m->uvs ? m->uvs + 2 * (size_t)v : NULL,
+                                  m->normals ? m->normals + 3 * (size_t)v : NULL,
+                                  (uint8_t)(p->lock[v] || shared[v])))
+                        goto done;
+                }
+                o[k] = map[v];
             }
-            o[k] = map[sd][v];
+            if (!b_tri(b, o[0], o[1], o[2]))
+                goto done;
         }
-        if (!b_tri(&side[sd], o[0], o[1], o[2]))
-            goto done;
-    }
-    r = b_finish(&side[0], below);
-    if (r == HLOD_OK) {
-        r = b_finish(&side[1], above);
+        r = b_finish(b, &out[sd]);
         if (r != HLOD_OK)
-            piece_free(below);
+            goto done;
+        made++;
     }
+    r = HLOD_OK;
 done:
-    for (int sd = 0; sd < 2; sd++) {
-        b_free(&side[sd]);
-        free(map[sd]);
-    }
-    free(use);
-    free(tside);
+    if (r != HLOD_OK)
+        for (int i = 0; i < made; i++)
+            piece_free(&out[i]);
+    if (side)
+        for (int sd = 0; sd < count; sd++)
+            b_free(&side[sd]);
+    free(side);
+    free(map);
+    free(first);
+    free(shared);
     return r;
 }
 
@@ -228,9 +234,10 @@ static int cmp_double(const void *a, const void *b)
     return x < y ? -1 : x > y;
 }
 
-/* Cuts p into `count` pieces along its longest axis at triangle-count
- * quantiles of the centroids. */
-static hlod_result cut(const piece *p, int count, piece *out)
+/* Labels p's triangles into `count` slabs along its longest axis, cut at
+ * triangle-count quantiles of the centroids: a triangle goes to the first
+ * slab whose upper cut its centroid is under. */
+static hlod_result slab_labels(const piece *p, int count, uint8_t *label)
 {
     double lo[3], hi[3];
     hlod_mesh_bounds(&p->m, lo, hi);
@@ -239,56 +246,186 @@ static hlod_result cut(const piece *p, int count, piece *out)
         if (hi[k] - lo[k] > hi[axis] - lo[axis])
             axis = k;
     size_t nt = p->m.tri_count;
-    double *cen = malloc((nt ? nt : 1) * sizeof *cen);
-    if (!cen)
+    double *cen = malloc((nt ? 2 * nt : 1) * sizeof *cen), *cut = malloc((size_t)count * sizeof *cut);
+    if (!cen || !cut) {
+        free(cen);
+        free(cut);
         return HLOD_ERR_NOMEM;
+    }
     for (size_t t = 0; t < nt; t++) {
         double s = 0;
         for (int k = 0; k < 3; k++)
             s += p->m.positions[3 * (size_t)p->m.indices[3 * t + k] + axis];
-        cen[t] = s / 3;
+        cen[t] = cen[nt + t] = s / 3;
     }
-    qsort(cen, nt, sizeof *cen, cmp_double);
-    piece rest = {0};
-    const piece *cur = p;
-    hlod_result r = HLOD_OK;
-    int made = 0;
-    for (int i = 1; i < count && r == HLOD_OK; i++) {
-        double c = cen[nt * (size_t)i / (size_t)count];
+    qsort(cen + nt, nt, sizeof *cen, cmp_double);
+    for (int i = 1; i < count; i++) {
+        double c = cen[nt + nt * (size_t)i / (size_t)count];
         if (!(c > lo[axis] && c < hi[axis]))
             c = lo[axis] + (hi[axis] - lo[axis]) * i / count;
-        piece below, above;
-        r = split(cur, axis, c, &below, &above);
-        if (r != HLOD_OK)
-            break;
-        out[made++] = below;
-        if (cur == &rest)
-            piece_free(&rest);
-        rest = above;
-        cur = &rest;
+        cut[i] = c;
     }
-    if (r == HLOD_OK) {
-        if (cur == &rest) {
-            out[made++] = rest;
-        } else {
-            /* count == 1: a copy of p */
-            r = hlod_mesh_copy(&out[made].m, &p->m);
-            out[made].lock = malloc(p->m.vertex_count + 1);
-            if (r == HLOD_OK && out[made].lock) {
-                memcpy(out[made].lock, p->lock, p->m.vertex_count);
-                made++;
-            } else {
-                piece_free(&out[made]);
-                r = HLOD_ERR_NOMEM;
-            }
-        }
-    } else {
-        piece_free(&rest);
+    for (size_t t = 0; t < nt; t++) {
+        int l = 1;
+        while (l < count && !(cen[t] < cut[l]))
+            l++;
+        label[t] = (uint8_t)(l - 1);
     }
     free(cen);
-    if (r != HLOD_OK)
-        for (int i = 0; i < made; i++)
-            piece_free(&out[i]);
+    free(cut);
+    return HLOD_OK;
+}
+
+/* Face t's unit normal through n, its area as the result (0: degenerate). */
+static double face_normal(const hlod_mesh *m, size_t t, double n[3])
+{
+    const double *a = m->positions + 3 * (size_t)m->indices[3 * t],
+                 *b = m->positions + 3 * (size_t)m->indices[3 * t + 1],
+                 *c = m->positions + 3 * (size_t)m->indices[3 * t + 2];
+    double u[3] = {b[0] - a[0], b[1] - a[1], b[2] - a[2]},
+           v[3] = {c[0] - a[0], c[1] - a[1], c[2] - a[2]};
+    n[0] = u[1] * v[2] - u[2] * v[1];
+    n[1] = u[2] * v[0] - u[0] * v[2];
+    n[2] = u[0] * v[1] - u[1] * v[0];
+    double len = sqrt(n[0] * n[0] + n[1] * n[1] + n[2] * n[2]);
+    if (!(len > 0) || !isfinite(len)) {
+        n[0] = n[1] = n[2] = 0;
+        return 0;
+    }
+    for (int k = 0; k < 3; k++)
+        n[k] /= len;
+    return len / 2;
+}
+
+/* The area-weighted mean of the unit normals nrm of the triangles with
+ * label l, normalised; 0 when it vanishes. */
+static int mean_axis(const double *nrm, const double *area, const uint8_t *label, int l,
+                     size_t nt, double axis[3])
+{
+    axis[0] = axis[1] = axis[2] = 0;
+    for (size_t t = 0; t < nt; t++)
+        if (label[t] == l)
+            for (int k = 0; k < 3; k++)
+                axis[k] += area[t] * nrm[3 * t + k];
+    double len = sqrt(axis[0] * axis[0] + axis[1] * axis[1] + axis[2] * axis[2]);
+    if (!(len > 0))
+        return 0;
+    for (int k = 0; k < 3; k++)
+        axis[k] /= len;
+    return 1;
+}
+
+/* Orientation classes for normal cones (--cone-split): when p's faces
+ * spread more than CONE_SPLIT_DEG from their mean normal, labels them
+ * into `count` classes by k-means on the unit sphere (area-weighted
+ * means; seeds the mean normal, then each time the face farthest from
+ * every seed; CONE_SPLIT_ROUNDS Lloyd rounds; ties to the lower index,
+ * so deterministic) and returns 1.  0 with label untouched when the
+ * faces are already that narrow (or all degenerate), -1 on allocation
+ * failure.  The classes' normal cones are narrower than p's, so more of
+ * them face away from any eye (meshlet cone culling's idea, at the tree's
+ * lower levels: docs/hlod-build.md, "Methods"). */
+#define CONE_SPLIT_DEG 45.0
+#define CONE_SPLIT_ROUNDS 10
+static int normal_labels(const piece *p, int count, uint8_t *label)
+{
+    size_t nt = p->m.tri_count;
+    double *nrm = malloc((3 * nt + 1) * sizeof *nrm), *area = malloc((nt + 1) * sizeof *area);
+    double (*seed)[3] = malloc((size_t)count * sizeof *seed);
+    int res = -1;
+    if (!nrm || !area || !seed)
+        goto done;
+    double sum[3] = {0, 0, 0};
+    for (size_t t = 0; t < nt; t++) {
+        area[t] = face_normal(&p->m, t, nrm + 3 * t);
+        for (int k = 0; k < 3; k++)
+            sum[k] += area[t] * nrm[3 * t + k];
+    }
+    res = 0;
+    double slen = sqrt(sum[0] * sum[0] + sum[1] * sum[1] + sum[2] * sum[2]), big = 0;
+    if (slen > 0) {
+        for (int k = 0; k < 3; k++)
+            seed[0][k] = sum[k] / slen;
+        double low = 2;
+        for (size_t t = 0; t < nt; t++)
+            if (area[t] > 0) {
+                double d = nrm[3 * t] * seed[0][0] + nrm[3 * t + 1] * seed[0][1] +
+                           nrm[3 * t + 2] * seed[0][2];
+                low = d < low ? d : low;
+            }
+        if (!(low < cos(CONE_SPLIT_DEG * M_PI / 180)))
+            goto done; /* narrow already */
+    } else {
+        /* the normals cancel out (a closed piece): as wide as can be; the
+         * largest face seeds the classes */
+        for (size_t t = 0; t < nt; t++)
+            if (area[t] > big) {
+                big = area[t];
+                memcpy(seed[0], nrm + 3 * t, sizeof seed[0]);
+            }
+        if (!(big > 0))
+            goto done; /* every face degenerate: slabs */
+    }
+    for (int s = 1; s < count; s++) {
+        double worst = 2;
+        size_t far = 0;
+        for (size_t t = 0; t < nt; t++) {
+            if (!(area[t] > 0))
+                continue;
+            double best = -2;
+            for (int j = 0; j < s; j++) {
+                double d = nrm[3 * t] * seed[j][0] + nrm[3 * t + 1] * seed[j][1] +
+                           nrm[3 * t + 2] * seed[j][2];
+                best = d > best ? d : best;
+            }
+            if (best < worst) {
+                worst = best;
+                far = t;
+            }
+        }
+        memcpy(seed[s], nrm + 3 * far, sizeof seed[s]);
+    }
+    for (int round = 0; round < CONE_SPLIT_ROUNDS; round++) {
+        for (size_t t = 0; t < nt; t++) {
+            int best = 0;
+            double bd = -3;
+            for (int j = 0; j < count; j++) {
+                double d = nrm[3 * t] * seed[j][0] + nrm[3 * t + 1] * seed[j][1] +
+                           nrm[3 * t + 2] * seed[j][2];
+                if (d > bd) {
+                    bd = d;
+                    best = j;
+                }
+            }
+            label[t] = (uint8_t)best;
+        }
+        for (int j = 0; j < count; j++) {
+            double a[3];
+            if (mean_axis(nrm, area, label, j, nt, a))
+                memcpy(seed[j], a, sizeof a);
+        }
+    }
+    res = 1;
+done:
+    free(nrm);
+    free(area);
+    free(seed);
+    return res;
+}
+
+/* Cuts p into `count` pieces: along its longest axis at triangle-count
+ * quantiles of the centroids, or, with cone_split, into orientation
+ * classes where its faces spread wide (normal_labels). */
+static hlod_result cut(const piece *p, int count, int cone_split, piece *out)
+{
+    uint8_t *label = malloc(p->m.tri_count + 1);
+    if (!label)
+        return HLOD_ERR_NOMEM;
+    int byn = cone_split ? normal_labels(p, count, label) : 0;
+    hlod_result r = byn < 0 ? HLOD_ERR_NOMEM : byn ? HLOD_OK : slab_labels(p, count, label);
+    if (r == HLOD_OK)
+        r = split_labels(p, label, count, out);
+    free(label);
     return r;
 }
 
@@ -340,7 +477,10 @@ static hlod_result build_node(hlod_btree *t, piece *p, double s, uint32_t parent
     piece *kids = calloc((size_t)count, sizeof *kids);
     if (!kids)
         return HLOD_ERR_NOMEM;
-    r = cut(p, count, kids);
+    /* orientation classes only within three levels of the leaves: above,
+     * nodes are seen from afar and keep to space */
+    int cone_split = bp->cone_split && s <= bp->level_factor;
+    r = cut(p, count, cone_split, kids);
     if (r != HLOD_OK) {
         free(kids);
         return r;

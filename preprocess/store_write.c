@@ -105,7 +105,8 @@ hlod_result hlod_store_writer_open(const char *path, const hlod_store_writer_des
     }
     const hlod_store_build_info *b = &desc->build;
     if (!(b->c_tex >= 0 && b->c_tex <= 1) || !isfinite(b->level_factor) ||
-        b->level_factor < 0 || b->method > HLOD_STORE_METHOD_SAMPLETREE || b->reserved) {
+        b->level_factor < 0 || b->method > HLOD_STORE_METHOD_SAMPLETREE || (b->flags & ~HLOD_BUILD_KNOWN_FLAGS) ||
+        (b->flags && b->method != HLOD_STORE_METHOD_CUTPLANE)) {
         hlod_logf(lg, HLOD_LOG_ERROR, "%s: bad build parameters (method %u, c_tex %g, level "
                   "factor %g)", path, b->method, b->c_tex, b->level_factor);
         return HLOD_ERR_INVALID_ARG;
@@ -243,45 +244,81 @@ static void cone_store(const double axis[3], double c, float out_axis[3], float 
     *out_cos = f < -1 ? -1.0f : f;
 }
 
-/* The cone of the faces' unit normals: the area-weighted mean as its axis
- * and the widest face from it; cos 2 when no face has an area (nothing to
- * bound), -1 when the normals cancel out.  In double, relative to each
- * face's first corner. */
+/* The cosine of the widest face of p from the unit axis (2: no face with
+ * an area); *far_out, that face's unit normal. */
+static double widest_face(const hlod_store_payload_desc *p, const double axis[3], double far_out[3])
+{
+    double lo = 2;
+    for (size_t t = 0; t < p->tri_count; t++) {
+        double x[3];
+        face_cross(p, t, x);
+        double len = sqrt(x[0] * x[0] + x[1] * x[1] + x[2] * x[2]);
+        if (!(len > 0))
+            continue; /* no area: draws nothing */
+        double d = (x[0] * axis[0] + x[1] * axis[1] + x[2] * axis[2]) / len;
+        if (d < lo) {
+            lo = d;
+            for (int k = 0; k < 3; k++)
+                far_out[k] = x[k] / len;
+        }
+    }
+    return lo;
+}
+
+/* Rounds of the axis's walk towards the widest face (face_cone). */
+#define CONE_AXIS_ROUNDS 24
+
+/* The cone of the faces' unit normals: an axis and the widest face from
+ * it; cos 2 when no face has an area (nothing to bound), -1 when the
+ * normals cancel out.  The axis starts at the area-weighted mean normal
+ * and walks towards the widest face by 1/(i + 2) of the way in round i,
+ * the minimal enclosing ball's iteration (Badoiu and Clarkson), kept
+ * where the widest face is narrowest: the half-angle is never wider than
+ * the mean's, and is often much narrower where the faces lean one way.  In
+ * double, relative to each face's first corner. */
 static void face_cone(const hlod_store_payload_desc *p, double axis[3], double *cos_out)
 {
     double sum[3] = {0, 0, 0};
     int any = 0;
-    for (int pass = 0; pass < 2; pass++) {
-        double lo = 2;
-        for (size_t t = 0; t < p->tri_count; t++) {
-            double x[3];
-            face_cross(p, t, x);
-            double len = sqrt(x[0] * x[0] + x[1] * x[1] + x[2] * x[2]);
-            if (!(len > 0))
-                continue; /* no area: draws nothing */
-            if (pass == 0) {
-                for (int k = 0; k < 3; k++)
-                    sum[k] += x[k];
-                any = 1;
-            } else {
-                double d = (x[0] * axis[0] + x[1] * axis[1] + x[2] * axis[2]) / len;
-                lo = d < lo ? d : lo;
-            }
+    for (size_t t = 0; t < p->tri_count; t++) {
+        double x[3];
+        face_cross(p, t, x);
+        double len = sqrt(x[0] * x[0] + x[1] * x[1] + x[2] * x[2]);
+        if (!(len > 0))
+            continue; /* no area: draws nothing */
+        for (int k = 0; k < 3; k++)
+            sum[k] += x[k];
+        any = 1;
+    }
+    double len = sqrt(sum[0] * sum[0] + sum[1] * sum[1] + sum[2] * sum[2]);
+    if (!any || !(len > 0)) {
+        axis[0] = axis[1] = 0;
+        axis[2] = 1;
+        *cos_out = any ? -1 : 2;
+        return;
+    }
+    for (int k = 0; k < 3; k++)
+        axis[k] = sum[k] / len;
+    double far[3], best = widest_face(p, axis, far), cur[3];
+    memcpy(cur, axis, sizeof cur);
+    double c = best;
+    for (int round = 0; round < CONE_AXIS_ROUNDS && c < 1; round++) {
+        double step = 1.0 / (round + 2), n2 = 0;
+        for (int k = 0; k < 3; k++) {
+            cur[k] += (far[k] - cur[k]) * step;
+            n2 += cur[k] * cur[k];
         }
-        if (pass == 0) {
-            double len = sqrt(sum[0] * sum[0] + sum[1] * sum[1] + sum[2] * sum[2]);
-            if (!any || !(len > 0)) {
-                axis[0] = axis[1] = 0;
-                axis[2] = 1;
-                *cos_out = any ? -1 : 2;
-                return;
-            }
-            for (int k = 0; k < 3; k++)
-                axis[k] = sum[k] / len;
-        } else {
-            *cos_out = lo < -1 ? -1 : lo;
+        if (!(n2 > 1e-24))
+            break;
+        for (int k = 0; k < 3; k++)
+            cur[k] /= sqrt(n2);
+        c = widest_face(p, cur, far);
+        if (c > best) {
+            best = c;
+            memcpy(axis, cur, sizeof cur);
         }
     }
+    *cos_out = best < -1 ? -1 : best;
 }
 
 /* face_cone of the faces a raw payload stores: float offsets from the

@@ -111,16 +111,24 @@ static void bunny_cones_hold_their_faces(void)
         CHECK_SKIP("%s missing: run data/fetch-meshes.sh", in);
         return;
     }
-    const char *cases[4][2] = {{"bunny-cut.hlod", "--desired-tris 450"},
+    const char *cases[5][2] = {{"bunny-cut.hlod", "--desired-tris 450"},
+                               {"bunny-cut-split.hlod", "--desired-tris 450 --cone-split on"},
                                {"bunny-cut-raw.hlod", "--desired-tris 450 --compress off"},
                                {"bunny-metis.hlod", "--method metis --leaf-tris 400 --node-tris 200"},
                                {"bunny-metis-raw.hlod",
                                 "--method metis --leaf-tris 400 --node-tris 200 --compress off"}};
-    for (int k = 0; k < 4; k++) {
+    for (int k = 0; k < 5; k++) {
         CHECKF(build(in, cases[k][0], cases[k][1]) == 0, "hlod-build %s %s", in, cases[k][1]);
         snprintf(path, sizeof path, "%s/%s", tmp, cases[k][0]);
         CHECKF(check_store(path, cases[k][0]) >= 50, "%s: fewer than 50 cones under 90 degrees",
                cases[k][0]);
+        hlod_store *s = NULL;
+        if (hlod_store_open(path, NULL, &s) == HLOD_OK) {
+            uint32_t want = k == 1 ? HLOD_BUILD_CONE_SPLIT : 0;
+            CHECKF(hlod_store_get_header(s)->build.flags == want, "%s: build flags %u, want %u",
+                   cases[k][0], hlod_store_get_header(s)->build.flags, want);
+            hlod_store_close(s);
+        }
     }
 }
 

@@ -352,8 +352,12 @@ hlod_result hlod_store_check_header(const hlod_store_header *h, uint64_t file_si
     if (h->file_size != file_size)
         BAD(HLOD_ERR_FORMAT, "%s: file is %llu bytes, its header says %llu (truncated?)", name,
             (unsigned long long)file_size, (unsigned long long)h->file_size);
-    if (h->build.reserved || (h->version < 4 && (h->extras_size || h->extras_offset)))
+    if ((h->version < 4 && (h->extras_size || h->extras_offset)))
         BAD(HLOD_ERR_FORMAT, "%s: reserved header fields are not zero", name);
+    if ((h->build.flags & ~HLOD_BUILD_KNOWN_FLAGS) || (h->version < 5 && h->build.flags) ||
+        (h->build.flags && h->build.method != HLOD_STORE_METHOD_CUTPLANE))
+        BAD(HLOD_ERR_FORMAT, "%s: unknown build flags 0x%x (method %u, version %u)", name,
+            h->build.flags, h->build.method, h->version);
     if (h->payload_codec > HLOD_STORE_CODEC_PACKED ||
         (h->version < 3 && h->payload_codec != HLOD_STORE_CODEC_RAW))
         BAD(HLOD_ERR_FORMAT, "%s: unknown payload codec %u", name, h->payload_codec);

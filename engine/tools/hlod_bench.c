@@ -130,7 +130,8 @@ static void usage(FILE *fp)
         "estimate_err_p50, estimate_err_p95, occlusion_culled_mean, toggles_after_60,\n"
         "occlusion_ms_mean, overhead_ms_mean, overhead_ms_max,\n"
         "occlusion_check_psnr_min, occlusion_check_differing_max,\n"
-        "occlusion_check_bad_frames, cone_culled_mean, cone_check_differing_max,\n"
+        "occlusion_check_bad_frames, cone_culled_mean, cone_culled_tris_share,\n"
+        "cone_check_differing_max,\n"
         "cone_check_nodes, cone_check_unchecked, splats_mean, res_scale_mean,\n"
         "res_scale_min, res_scaled_frames (dyn_res), policy, path,\n"
         "backend, gl_renderer, texture_upload (blocks or expanded).\n"
@@ -530,6 +531,7 @@ typedef struct summary {
     double est_err_p50, est_err_p95;        /* |estimated - measured| / measured */
     double occlusion_culled_mean;
     double cone_culled_mean;
+    double cone_culled_tris_share;          /* culled nodes' triangles / (drawn + them) */
     double splats_mean;
     double res_scale_mean, res_scale_min;   /* dyn_res: the frames' scales */
     long res_scaled_frames;                 /* frames drawn below full size */
@@ -559,6 +561,7 @@ static void summarise_extra(const frame_rec *r, long n, double target, const dou
     double *err = malloc((size_t)(n ? n : 1) * sizeof *err);
     size_t nerr = 0;
     long cap_run = 0;
+    double coned_tris = 0, all_tris = 0; /* cone_culled_tris_share */
     s->occ_psnr_min = NAN;
     s->occ_differing_max = s->occ_bad = -1;
     s->cone_differing_max = -1;
@@ -583,6 +586,8 @@ static void summarise_extra(const frame_rec *r, long n, double target, const dou
         s->deadline_met += st->measured_ms <= target;
         s->occlusion_culled_mean += st->occlusion_culled;
         s->cone_culled_mean += st->cone_culled;
+        coned_tris += (double)st->cone_culled_tris;
+        all_tris += (double)st->cone_culled_tris + (double)st->tris_drawn;
         s->splats_mean += st->splats;
         double rs = st->res_scale > 0 ? st->res_scale : 1;
         s->res_scale_mean += rs;
@@ -608,6 +613,7 @@ static void summarise_extra(const frame_rec *r, long n, double target, const dou
         s->deadline_met /= (double)n;
         s->occlusion_culled_mean /= (double)n;
         s->cone_culled_mean /= (double)n;
+        s->cone_culled_tris_share = all_tris > 0 ? coned_tris / all_tris : 0;
         s->splats_mean /= (double)n;
         s->res_scale_mean /= (double)n;
     }
@@ -738,7 +744,7 @@ static hlod_result write_frames_csv(const char *dir, const frame_rec *r, long n,
                 "ssim,luma_change,ref_luma_change,toggles_up_ma35,toggles_down_ma35,"
                 "pixels_drawn,margin,occlusion_hidden,occlusion_tested,occlusion_culled,"
                 "occlusion_ms,occlusion_check_psnr,occlusion_check_differing,cone_culled,"
-                "cone_check_differing,splats,splat_px,res_scale\n");
+                "cone_check_differing,splats,splat_px,res_scale,cone_culled_tris\n");
     for (long i = 0; i < n; i++) {
         const hlod_frame_stats *s = &r[i].st;
         fprintf(fp, "%llu,%.6f,%.4f,%.4f,%.9g,%.4f,%.4f,%.4f,%.4f,%.4f,%.4f,%u",
@@ -778,8 +784,8 @@ static hlod_result write_frames_csv(const char *dir, const frame_rec *r, long n,
             fprintf(fp, ",");
         else
             fprintf(fp, ",%lld", r[i].cone_differing);
-        fprintf(fp, ",%u,%.3f,%.4f\n", s->splats, s->splat_px,
-                s->res_scale > 0 ? s->res_scale : 1.0);
+        fprintf(fp, ",%u,%.3f,%.4f,%llu\n", s->splats, s->splat_px,
+                s->res_scale > 0 ? s->res_scale : 1.0, (unsigned long long)s->cone_culled_tris);
     }
     return hlod_atomic_commit(&af, lg);
 }
@@ -850,6 +856,7 @@ static void json_summary(hlod_json *j, const summary *s, const char *policy, con
         hlod_json_int(j, "occlusion_check_bad_frames", s->occ_bad);
     }
     hlod_json_double(j, "cone_culled_mean", s->cone_culled_mean);
+    hlod_json_double(j, "cone_culled_tris_share", s->cone_culled_tris_share);
     hlod_json_double(j, "splats_mean", s->splats_mean);
     if (s->cone_differing_max < 0) {
         hlod_json_string(j, "cone_check_differing_max", NULL);

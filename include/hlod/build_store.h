@@ -59,6 +59,10 @@ typedef struct hlod_build_desc {
                                    (default): no limit, one bucket */
     size_t node_tris;           /* N_n (metis); default 2000 */
     double c_tex;               /* c_tex of Lakhia eq. 1, in [0, 1]; default 0.5 */
+    int cone_split;             /* cutplane: non-zero cuts the pieces within three
+                                   levels of the leaves whose normals spread over
+                                   45 degrees into orientation classes, so normal
+                                   cones cull more (docs/hlod-build.md); default 0 */
     uint64_t seed;              /* every choice's seed; default 1 */
     int city_levels;            /* non-zero (default): group nodes over the
                                    blocks up to one root (docs/store-format.md); 0: every

@@ -293,6 +293,8 @@ typedef struct hlod_frame_stats {
     uint32_t cone_culled;        /* nodes skipped with their subtrees because their normal
                                     cone faced away from the eye (docs/runtime.md, "Normal
                                     cones") */
+    uint64_t cone_culled_tris;   /* triangles of those nodes themselves: what the
+                                    frame would have drawn for them, coarsest */
     uint32_t splats;             /* sample tree nodes drawn as one splat (policy klein;
                                     docs/sampletree.md) */
     double occlusion_ms;         /* CPU time of the depth read-back, pyramid and tests */

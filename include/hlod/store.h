@@ -145,7 +145,7 @@ extern "C" {
  * (docs/hlod-build.md).  Zero where the method does not use one. */
 typedef struct hlod_store_build_info {
     uint32_t method;        /* HLOD_STORE_METHOD_* */
-    uint32_t reserved;      /* 0 */
+    uint32_t flags;         /* HLOD_BUILD_* below; 0 before store version 5 */
     uint64_t desired_tris;  /* C_desiredTri: triangles of each hlod_0 node */
     double level_factor;    /* C_levelFactor; sampletree: the sample
                                constant c of m_u = q ln q + c q */
@@ -154,6 +154,10 @@ typedef struct hlod_store_build_info {
     uint64_t node_tris;     /* N_n */
     double c_tex;           /* c_tex of eq. 1, in [0, 1] */
 } hlod_store_build_info;   /* 56 bytes */
+
+#define HLOD_BUILD_CONE_SPLIT 1u /* cutplane: orientation classes near the
+                                    leaves (hlod-build --cone-split on) */
+#define HLOD_BUILD_KNOWN_FLAGS HLOD_BUILD_CONE_SPLIT
 
 typedef struct hlod_store_header {
     char magic[8];              /*   0 HLOD_STORE_MAGIC */

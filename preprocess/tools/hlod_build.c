@@ -3,7 +3,7 @@
  *
  *   hlod-build INPUT... -o OUT.hlod [--method cutplane|metis]
  *              [--blocks objects|grid:SIZE] [--desired-tris N]
- *              [--level-factor F] [--voxel-tris N] [--leaf-tris N]
+ *              [--level-factor F] [--cone-split on|off] [--voxel-tris N] [--leaf-tris N]
  *              [--node-tris N] [--c-tex C] [--city-levels on|off] [--threads T]
  *              [--compress on|off] [--quant-bits B] [--jpeg-quality Q]
  *              [--texture-blocks on|off] [--texture-min-db DB]
@@ -53,6 +53,10 @@ static void usage(FILE *fp)
             "                         default 4000)\n"
             "  --level-factor F       C_levelFactor: pieces per cut and triangle ratio\n"
             "                         between levels (cutplane, integer >= 2, default 3)\n"
+            "  --cone-split S         cutplane: on cuts pieces within three levels of\n"
+            "                         the leaves into orientation classes where their\n"
+            "                         normals spread over 45 degrees, so normal cones\n"
+            "                         cull more (cone_cull); off (default)\n"
             "  --voxel-tris N         N_v: triangles per voxel (metis, default 500)\n"
             "  --leaf-tris N          N_l: leaf size (metis, default 4000); sampletree:\n"
             "                         a cell of more triangles splits (default 256)\n"
@@ -141,6 +145,30 @@ static int on_off(const char *flag, const char *val, int *out)
         return 0;
     }
     *out = !strcmp(val, "on");
+    return 1;
+}
+
+/* What the flags must agree on once all are read; the defaults that
+ * depend on the method. */
+static int check_options(options *o, int leaf_given)
+{
+    if (!o->n_inputs) {
+        hlod_cli_error(PROG, "no input mesh (see --help)");
+        return 0;
+    }
+    if (!o->out) {
+        hlod_cli_error(PROG, "no output: -o OUT.hlod is required");
+        return 0;
+    }
+    if (o->bd.cone_split && o->bd.method != HLOD_BUILD_CUTPLANE) {
+        hlod_cli_error(PROG, "--cone-split on: only with --method cutplane");
+        return 0;
+    }
+    if (o->bd.method == HLOD_BUILD_SAMPLETREE && !leaf_given)
+        o->bd.leaf_tris = HLOD_BUILD_SAMPLE_LEAF;
+    if (o->bd.method == HLOD_BUILD_METIS && o->bd.node_tris >= o->bd.leaf_tris)
+        hlod_cli_error(PROG, "warning: --node-tris %zu >= --leaf-tris %zu: inner nodes simplify little",
+                       o->bd.node_tris, o->bd.leaf_tris);
     return 1;
 }
 
@@ -256,6 +284,10 @@ static int parse(int argc, char **argv, options *o)
             if (!hlod_cli_parse_size(PROG, a, val, 0, 100, &q))
                 return 0;
             o->bd.jpeg_quality = (unsigned)q;
+        } else if (!strcmp(a, "--cone-split")) {
+            NEED_VAL();
+            if (!on_off(a, val, &o->bd.cone_split))
+                return 0;
         } else if (!strcmp(a, "--texture-blocks")) {
             NEED_VAL();
             if (!on_off(a, val, &o->bd.texture_blocks))
@@ -280,20 +312,7 @@ static int parse(int argc, char **argv, options *o)
         }
 #undef NEED_VAL
     }
-    if (!o->n_inputs) {
-        hlod_cli_error(PROG, "no input mesh (see --help)");
-        return 0;
-    }
-    if (!o->out) {
-        hlod_cli_error(PROG, "no output: -o OUT.hlod is required");
-        return 0;
-    }
-    if (o->bd.method == HLOD_BUILD_SAMPLETREE && !leaf_given)
-        o->bd.leaf_tris = HLOD_BUILD_SAMPLE_LEAF;
-    if (o->bd.method == HLOD_BUILD_METIS && o->bd.node_tris >= o->bd.leaf_tris)
-        hlod_cli_error(PROG, "warning: --node-tris %zu >= --leaf-tris %zu: inner nodes simplify little",
-                       o->bd.node_tris, o->bd.leaf_tris);
-    return 1;
+    return check_options(o, leaf_given);
 }
 
 static void progress(void *user, size_t done, size_t total)
