@@ -159,6 +159,12 @@ static hlod_result check_refine(const hlod_store *store, const hlod_engine_desc 
                   hlod_policy_name(d->policy));
         return HLOD_ERR_INVALID_ARG;
     }
+    if (add && hlod_policy_has(d->policy, HLOD_PT_RZB)) {
+        hlod_logf(&d->logger, HLOD_LOG_ERROR, "engine: the store refines additively (a sample "
+                  "tree): policy rzb samples the leaves of a replacement hierarchy, and a sample "
+                  "tree keeps faces in its inner nodes too");
+        return HLOD_ERR_INVALID_ARG;
+    }
     if (!add && pol) {
         hlod_logf(&d->logger, HLOD_LOG_ERROR, "engine: policy %s draws a sample tree; this "
                   "store refines by replacement (build one with hlod-build --method sampletree)",
@@ -169,6 +175,38 @@ static hlod_result check_refine(const hlod_store *store, const hlod_engine_desc 
 }
 
 /* ---- create / destroy ---- */
+
+/* Policy rzb: every leaf read into the randomized z-buffer's structure
+ * (rzb.h), its faces uploaded for the ranges it rasterises.  A leaf that
+ * cannot be read is left out (logged); only running out of memory fails.
+ * The leaves are not made resident: the structure holds what it draws. */
+static hlod_result rzb_build(hlod_engine *e)
+{
+    e->rzb = hlod_rzb_create(&e->d.allocator);
+    if (!e->rzb)
+        return HLOD_ERR_NOMEM;
+    hlod_result r = HLOD_OK;
+    for (uint32_t i = 0; i < e->node_count && r == HLOD_OK; i++) {
+        if (hlod_store_first_child(e->nodes, i) != hlod_store_child_end(e->nodes, i))
+            continue;
+        hlod_store_payload p;
+        hlod_result lr = hlod_store_read_node(e->store, i, e->d.read_chunk_bytes, &p);
+        if (lr == HLOD_OK) {
+            r = hlod_rzb_add(e->rzb, &e->nodes[i], i, &p);
+            hlod_store_payload_free(&p);
+        } else if (lr == HLOD_ERR_NOMEM) {
+            r = lr;
+        } else {
+            hlod_logf(&e->d.logger, HLOD_LOG_WARN, "%s: leaf %u: %s; rzb leaves it out",
+                      hlod_store_path(e->store), i, hlod_result_str(lr));
+        }
+    }
+    if (r == HLOD_OK)
+        r = hlod_rzb_finish(e->rzb);
+    if (r == HLOD_OK && e->d.renderer)
+        r = hlod_rzb_upload(e->rzb, e->d.renderer);
+    return r;
+}
 
 hlod_result hlod_engine_create(const hlod_store *store, const hlod_engine_desc *desc,
                                hlod_engine **out)
@@ -211,6 +249,8 @@ hlod_result hlod_engine_create(const hlod_store *store, const hlod_engine_desc *
         r = HLOD_ERR_NOMEM;
     if (r == HLOD_OK)
         r = hlod_residency_init(&e->res, store, &e->d, &e->st);
+    if (r == HLOD_OK && hlod_policy_has(e->d.policy, HLOD_PT_RZB))
+        r = rzb_build(e);
     if (r != HLOD_OK) {
         hlod_engine_destroy(e);
         return r;
@@ -231,6 +271,10 @@ void hlod_engine_destroy(hlod_engine *e)
     hlod_mem_free(&e->d.allocator, e->later.v);
     hlod_mem_free(&e->d.allocator, e->order.v);
     hlod_mem_free(&e->d.allocator, e->splat_buf);
+    if (e->d.renderer)
+        hlod_rzb_release(e->rzb, e->d.renderer);
+    hlod_rzb_destroy(e->rzb);
+    hlod_rzb_out_free(&e->d.allocator, &e->rzb_out);
     hlod_allocator a = e->d.allocator;
     hlod_mem_free(&a, e);
 }
@@ -470,6 +514,11 @@ static void draw_occluded(hlod_engine *e, const hlod_camera *cam, const hlod_vie
  * splat size. */
 static void draw_splats(hlod_engine *e, const hlod_camera *cam)
 {
+    if (e->rzb) {
+        /* rzb's rasterised faces, then its points, d x d each (Wand 4.2) */
+        hlod_rzb_draw(e->rzb, e->d.renderer, cam->position, &e->rzb_out, e->d.splat_px);
+        return;
+    }
     const hlod_u32_vec *sp = &e->sel.splats;
     const hlod_store_extra *x = e->sel.extras;
     if (!sp->n || !x)
@@ -751,6 +800,21 @@ static void frame_residency(hlod_engine *e)
     hlod_residency_end_frame(&e->res);
 }
 
+/* Policy rzb's selection: no front; its ranges of faces (one draw each)
+ * and its points, which the stats count. */
+static hlod_result rzb_select(hlod_engine *e, const hlod_view *view)
+{
+    hlod_selection *s = &e->sel;
+    s->draw.n = s->splats.n = s->coned.n = 0;
+    hlod_result r = hlod_rzb_frame(e->rzb, view, e->d.rzb_eps, e->d.splat_px,
+                                   0x9E3779B97F4A7C15ull * e->frame, &e->rzb_out);
+    e->st.nodes_drawn = (uint32_t)e->rzb_out.range_count;
+    e->st.tris_drawn = e->rzb_out.range_tris;
+    e->st.cost_drawn = (double)e->rzb_out.range_tris;
+    e->st.splats = (uint32_t)e->rzb_out.splat_count;
+    return r;
+}
+
 /* The frame in its steps: inputs, load, select, draw, measure and
  * publish, learn, and residency for the next. */
 hlod_result hlod_engine_frame(hlod_engine *e, const hlod_camera *cam, double dt,
@@ -779,7 +843,7 @@ hlod_result hlod_engine_frame(hlod_engine *e, const hlod_camera *cam, double dt,
     view.turn_rad_s = e->turn_rad_s;
     hlod_select_in in = select_inputs(e, budget, moved);
     double t0 = hlod_now_ms();
-    hlod_result r = hlod_select(&e->sel, &e->res, &view, &in);
+    hlod_result r = e->rzb ? rzb_select(e, &view) : hlod_select(&e->sel, &e->res, &view, &in);
     e->st.traversal_ms = hlod_now_ms() - t0;
     if (r != HLOD_OK)
         return r;

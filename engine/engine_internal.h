@@ -20,6 +20,7 @@
 #include "hlod/engine.h"
 #include "occlusion.h"
 #include "residency.h"
+#include "rzb.h"
 #include "selection.h"
 
 struct hlod_engine {
@@ -42,6 +43,8 @@ struct hlod_engine {
     hlod_u32_vec later;         /* scratch: nodes tested before they are drawn */
     struct hlod_gpu_splat *splat_buf; /* the frame's splats for the renderer (engine.c) */
     size_t splat_cap;
+    hlod_rzb *rzb;              /* policy rzb: every leaf in core (rzb.h); else NULL */
+    hlod_rzb_out rzb_out;       /* ... the frame's points and faces to rasterise */
 
     /* camera motion */
     int have_prev;

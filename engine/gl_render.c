@@ -807,6 +807,25 @@ void hlod_gpu_draw(hlod_renderer *r, const hlod_gpu_node *g, const double offset
 }
 
 /* called from the render thread, between begin and end */
+void hlod_gpu_draw_range(hlod_renderer *r, const hlod_gpu_node *g, const double offset[3],
+                         uint32_t first, uint32_t count)
+{
+    assert(r && g && offset);
+    if (!g->vao || !count || first > g->index_count || count > g->index_count - first)
+        return;
+    const gl_table *gl = &r->gl;
+    const float off[3] = {(float)offset[0], (float)offset[1], (float)offset[2]};
+    if (r->culling) {
+        gl->Disable(GL_CULL_FACE);
+        r->culling = 0;
+    }
+    gl->BindVertexArray(g->vao);
+    use(r, (g->flags & HLOD_GPU_NORMALS) != 0, MODE_VERTEX_COLOR, off);
+    gl->DrawElements(GL_TRIANGLES, (GLsizei)count, GL_UNSIGNED_INT,
+                     (const void *)(uintptr_t)(4 * (size_t)first));
+}
+
+/* called from the render thread, between begin and end */
 hlod_result hlod_gpu_splats(hlod_renderer *r, const hlod_gpu_splat *s, uint32_t n, float size_px)
 {
     assert(r && (s || !n));

@@ -50,6 +50,11 @@ void hlod_gpu_begin(hlod_renderer *r, const hlod_camera *cam);
 void hlod_gpu_draw(hlod_renderer *r, const hlod_gpu_node *g, const double offset[3],
                    uint32_t depth);
 void hlod_gpu_end(hlod_renderer *r, int finish);
+/* Draws count indices of g from index first, with their vertex colours
+ * (g's texture, if any, unused), back faces kept: policy rzb's ranges of
+ * faces (rzb.h). */
+void hlod_gpu_draw_range(hlod_renderer *r, const hlod_gpu_node *g, const double offset[3],
+                         uint32_t first, uint32_t count);
 /* As hlod_gpu_begin, for a frame drawn smaller than the image (dyn_res,
  * engine/dynres.h): the draws go to an offscreen framebuffer of cam's
  * width x height (RGBA8, 24-bit depth; depth reads read it), and

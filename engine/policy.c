@@ -25,7 +25,10 @@
  *   klein   a sample tree's walk (traverse.c, walk_additive): no front to
  *           decide, so its function is never asked;
  *   klein-auto  klein, the splat size adapted each frame to the target
- *           (cost_model.c, hlod_cost_model_adapt_splat).
+ *           (cost_model.c, hlod_cost_model_adapt_splat);
+ *   rzb     Wand's randomized z-buffer (rzb.h): every leaf in core, points
+ *           where faces are small; no front, so its function is never
+ *           asked.
  */
 #include "policy.h"
 
@@ -131,6 +134,7 @@ static const hlod_policy_row rows[HLOD_POLICY_COUNT] = {
     [HLOD_POLICY_KLEIN] = {"klein", HLOD_PT_ADDITIVE | HLOD_PT_STREAM, klein_refines},
     [HLOD_POLICY_KLEIN_AUTO] = {"klein-auto", HLOD_PT_ADDITIVE | HLOD_PT_STREAM | HLOD_PT_AUTOSPLAT,
                                 klein_refines},
+    [HLOD_POLICY_RZB] = {"rzb", HLOD_PT_RZB, klein_refines},
 };
 
 const hlod_policy_row *hlod_policy_row_of(hlod_policy p)

@@ -31,6 +31,8 @@ enum {
                                    every visited node, ancestors too, and splats where a
                                    node's box is small (traverse.c, walk_additive) */
     HLOD_PT_AUTOSPLAT = 1u << 10, /* the cost model adapts the splat size to the target */
+    HLOD_PT_RZB = 1u << 11,     /* no front: every leaf in core, drawn as random points or
+                                   rasterised where its faces are large (rzb.h) */
 };
 
 /* What a policy remembers of a node between frames (its own use). */

@@ -59,11 +59,13 @@ typedef enum hlod_policy {
                                node's box projects to at most that (Klein 4.2, 4.5) */
     HLOD_POLICY_KLEIN_AUTO, /* klein with the splat size adapted each frame to meet
                                target_ms (ours, beyond the paper) */
+    HLOD_POLICY_RZB,        /* Wand's randomized z-buffer over the leaves, in core: points
+                               of splat_px where faces are small (docs/rzb.md) */
     HLOD_POLICY_COUNT
 } hlod_policy;
 
 /* The policies a user picks (full draws references), for help texts. */
-#define HLOD_POLICY_CHOICES "lakhia, nohyst, sse, fs93, counter, okamoto, klein, klein-auto"
+#define HLOD_POLICY_CHOICES "lakhia, nohyst, sse, fs93, counter, okamoto, klein, klein-auto, rzb"
 
 const char *hlod_policy_name(hlod_policy p);           /* "lakhia", ... */
 int hlod_policy_parse(const char *name, hlod_policy *out); /* 1 on success */
@@ -146,7 +148,10 @@ typedef double (*hlod_time_model)(void *user_data, const struct hlod_frame_stats
     X(fs93_cost, fs93_cost, B, 0, 0, 0, 1, 1,                                                    \
       "fs93 policy: 1: a node costs max(per-primitive, per-pixel) of the fitted terms; 0: their sum") \
     X(splat_px, splat_px, U32, 1, 1, 0, 64, 1,                                                   \
-      "klein policy: a node whose box projects within splat_px x splat_px pixels is one splat")  \
+      "klein policy: a node whose box projects within splat_px x splat_px pixels is one splat; " \
+      "rzb policy: the points' size d")                                                         \
+    X(rzb_eps, rzb_eps, D, 1.4, 1, 1, 100, 1,                                                    \
+      "rzb policy: a box is sampled at its nearest depth when (z_max / z_min)^2 <= rzb_eps")     \
     X(splats, splats, B, 1, 0, 0, 1, 1,                                                          \
       "klein policy: 1: small nodes are splats; 0: every node is drawn (the reference walk)")   \
     X(texture_upload, texture_upload, U32, 0, 0, 0, 2, 0,                                        \

@@ -1,0 +1,804 @@
+/*
+ * rzb.c - Wand's randomized z-buffer over a store's leaves (rzb.h,
+ * docs/rzb.md).
+ *
+ * Layout: the triangles of each area class in one array, in the depth-
+ * first order of the class's octree (a node's children's triangles, then
+ * its own), with the prefix sums of their areas beside it, so that every
+ * node owns one range and its area is cum[end] - cum[begin] (section
+ * 5.3).  A triangle sits in the deepest octree cell whose loose box (the
+ * cell grown by half its side on every side) holds it; a class's
+ * triangles are within RZB_CLASS_FACTOR in area, so most sit near the
+ * depth where a cell is about their size.  Corners are floats relative to
+ * the class's origin (the centre of its box): a model far from the world
+ * origin is drawn as it is near it.
+ */
+#include "rzb.h"
+
+#include "sort.h"
+
+#include <math.h>
+#include <stdlib.h>
+#include <string.h>
+
+#define RZB_CLASS_FACTOR 4.0 /* areas within a class (Wand 7.1: 2 to 64 alike) */
+#define RZB_MAX_CLASSES 64
+#define RZB_LEAF_TRIS 32     /* an octree cell of more triangles splits */
+#define RZB_MAX_DEPTH 32
+#define RZB_MAX_SAMPLES (8u << 20) /* points a frame at most (the rest are dropped) */
+#define RZB_GREY 204               /* the renderer's colour for faces without one */
+
+typedef struct rzb_tri {
+    float p[3][3];        /* corners relative to the class origin */
+    float n[3];           /* unit face normal */
+    uint8_t rgba[3][4];   /* corner colours */
+    uint32_t leaf;        /* the store node */
+    uint32_t two_sided;   /* drawn both ways: no back-face rejection */
+} rzb_tri;
+
+typedef struct rzb_in {   /* a face as added, before the classes */
+    double p[3][3];
+    double area;
+    float n[3];
+    uint8_t rgba[3][4];
+    uint32_t leaf, two_sided;
+} rzb_in;
+
+typedef struct rzb_node {
+    double lo[3], hi[3];     /* the box of the subtree's faces, world */
+    uint32_t begin, own, end; /* the subtree's range; its own faces [own, end) */
+    uint32_t kid[8];
+    uint32_t kids;
+} rzb_node;
+
+typedef struct rzb_class {
+    hlod_gpu_node gpu;       /* its faces for the rasteriser (hlod_rzb_upload) */
+    double origin[3];
+    double max_area;
+    rzb_tri *tri;
+    double *cum;             /* count + 1 prefix sums, cum[0] = 0 */
+    uint32_t count;
+    rzb_node *node;
+    uint32_t nodes, node_cap;
+} rzb_class;
+
+struct hlod_rzb {
+    const hlod_allocator *a;
+    rzb_in *in;
+    size_t in_count, in_cap;
+    rzb_class cls[RZB_MAX_CLASSES];
+    uint32_t class_count;
+    size_t tri_count;
+    int finished;
+    uint32_t *stack;
+    size_t stack_cap;
+};
+
+hlod_rzb *hlod_rzb_create(const hlod_allocator *a)
+{
+    hlod_rzb *z = hlod_mem_alloc(a, sizeof *z);
+    if (z) {
+        memset(z, 0, sizeof *z);
+        z->a = a;
+    }
+    return z;
+}
+
+void hlod_rzb_destroy(hlod_rzb *z)
+{
+    if (!z)
+        return;
+    for (uint32_t c = 0; c < z->class_count; c++) {
+        hlod_mem_free(z->a, z->cls[c].tri);
+        hlod_mem_free(z->a, z->cls[c].cum);
+        hlod_mem_free(z->a, z->cls[c].node);
+    }
+    hlod_mem_free(z->a, z->in);
+    hlod_mem_free(z->a, z->stack);
+    hlod_mem_free(z->a, z);
+}
+
+void hlod_rzb_out_free(const hlod_allocator *a, hlod_rzb_out *o)
+{
+    if (!o)
+        return;
+    hlod_mem_free(a, o->splats);
+    hlod_mem_free(a, o->ranges);
+    memset(o, 0, sizeof *o);
+}
+
+size_t hlod_rzb_tri_count(const hlod_rzb *z)
+{
+    return z ? z->tri_count : 0;
+}
+
+uint32_t hlod_rzb_class_count(const hlod_rzb *z)
+{
+    return z ? z->class_count : 0;
+}
+
+/* ---- adding faces ---- */
+
+static uint8_t clamp_byte(double v)
+{
+    return (uint8_t)(v <= 0 ? 0 : v >= 255 ? 255 : v + 0.5);
+}
+
+/* The colour of corner v: the vertex colour, else the texel under its UV
+ * (nearest; v = 0 is the bottom row, repeating), else grey. */
+static void corner_color(const hlod_store_payload *p, uint32_t v, int textured, uint8_t out[4])
+{
+    out[3] = 255;
+    if (p->colors) {
+        memcpy(out, p->colors + 4 * (size_t)v, 3);
+        return;
+    }
+    if (textured && p->uvs && p->pixels && p->tex_width && p->tex_height &&
+        p->tex_format == HLOD_TEXFMT_TEXELS && p->tex_channels >= 1) {
+        double u = p->uvs[2 * (size_t)v], t = 1.0 - p->uvs[2 * (size_t)v + 1];
+        u -= floor(u);
+        t -= floor(t);
+        uint32_t x = (uint32_t)(u * p->tex_width), y = (uint32_t)(t * p->tex_height);
+        x = x >= p->tex_width ? p->tex_width - 1 : x;
+        y = y >= p->tex_height ? p->tex_height - 1 : y;
+        const uint8_t *px = p->pixels + ((size_t)y * p->tex_width + x) * p->tex_channels;
+        for (int k = 0; k < 3; k++)
+            out[k] = px[p->tex_channels >= 3 ? k : 0];
+        return;
+    }
+    out[0] = out[1] = out[2] = RZB_GREY;
+}
+
+hlod_result hlod_rzb_add(hlod_rzb *z, const hlod_store_node *n, uint32_t node,
+                         const hlod_store_payload *p)
+{
+    if (!z || !n || !p || z->finished)
+        return HLOD_ERR_INVALID_ARG;
+    uint32_t tris = p->index_count / 3;
+    if (z->in_count + tris > z->in_cap) {
+        size_t cap = z->in_cap ? z->in_cap : 4096;
+        while (cap < z->in_count + tris)
+            cap *= 2;
+        rzb_in *in = hlod_mem_realloc(z->a, z->in, cap * sizeof *in);
+        if (!in)
+            return HLOD_ERR_NOMEM;
+        z->in = in;
+        z->in_cap = cap;
+    }
+    uint32_t two_sided = !(n->render_flags & HLOD_RENDER_SOLID);
+    for (uint32_t t = 0; t < tris; t++) {
+        rzb_in *f = &z->in[z->in_count];
+        for (int k = 0; k < 3; k++) {
+            uint32_t v = p->indices[3 * t + k];
+            for (int a = 0; a < 3; a++)
+                f->p[k][a] = n->origin[a] + (double)p->positions[3 * (size_t)v + a];
+            corner_color(p, v, t < p->tex_tri_count, f->rgba[k]);
+        }
+        double u[3], w[3], x[3];
+        for (int a = 0; a < 3; a++) {
+            u[a] = f->p[1][a] - f->p[0][a];
+            w[a] = f->p[2][a] - f->p[0][a];
+        }
+        x[0] = u[1] * w[2] - u[2] * w[1];
+        x[1] = u[2] * w[0] - u[0] * w[2];
+        x[2] = u[0] * w[1] - u[1] * w[0];
+        double len = sqrt(x[0] * x[0] + x[1] * x[1] + x[2] * x[2]);
+        if (!(len > 0) || !isfinite(len))
+            continue; /* no area: draws nothing */
+        for (int a = 0; a < 3; a++)
+            f->n[a] = (float)(x[a] / len);
+        f->area = len / 2;
+        f->leaf = node;
+        f->two_sided = two_sided;
+        z->in_count++;
+    }
+    return HLOD_OK;
+}
+
+/* ---- the classes and their octrees ---- */
+
+typedef struct build_ctx {
+    hlod_rzb *z;
+    rzb_class *c;
+    const rzb_in *in;
+    uint32_t out;            /* faces placed so far */
+} build_ctx;
+
+static int place(build_ctx *b, uint32_t i)
+{
+    const rzb_in *f = &b->in[i];
+    rzb_tri *t = &b->c->tri[b->out++];
+    for (int k = 0; k < 3; k++)
+        for (int a = 0; a < 3; a++)
+            t->p[k][a] = (float)(f->p[k][a] - b->c->origin[a]);
+    memcpy(t->n, f->n, sizeof t->n);
+    memcpy(t->rgba, f->rgba, sizeof t->rgba);
+    t->leaf = f->leaf;
+    t->two_sided = f->two_sided;
+    return 1;
+}
+
+static uint32_t new_node(build_ctx *b)
+{
+    rzb_class *c = b->c;
+    if (c->nodes == c->node_cap) {
+        uint32_t cap = c->node_cap ? 2 * c->node_cap : 64;
+        rzb_node *n = hlod_mem_realloc(b->z->a, c->node, cap * sizeof *n);
+        if (!n)
+            return UINT32_MAX;
+        c->node = n;
+        c->node_cap = cap;
+    }
+    memset(&c->node[c->nodes], 0, sizeof c->node[0]);
+    return c->nodes++;
+}
+
+/* Whether face i lies within the cube [lo, lo + side] grown by side / 2. */
+static int fits(const rzb_in *f, const double lo[3], double side)
+{
+    for (int k = 0; k < 3; k++)
+        for (int a = 0; a < 3; a++)
+            if (f->p[k][a] < lo[a] - side / 2 || f->p[k][a] > lo[a] + 1.5 * side)
+                return 0;
+    return 1;
+}
+
+/* The subtree over faces idx[0, n) in the cell [lo, lo + side]: children
+ * first (their faces placed), then the node's own. */
+static hlod_result build_cell(build_ctx *b, uint32_t *idx, uint32_t n, const double lo[3],
+                              double side, int depth, uint32_t *id_out)
+{
+    uint32_t id = new_node(b);
+    if (id == UINT32_MAX)
+        return HLOD_ERR_NOMEM;
+    *id_out = id;
+    uint32_t begin = b->out, own_n = n;
+    hlod_result r = HLOD_OK;
+    if (n > RZB_LEAF_TRIS && depth < RZB_MAX_DEPTH) {
+        /* partition idx: each octant's faces that fit its loose cell,
+         * then the rest (the node's own) at the end */
+        uint32_t counts[8] = {0}, start[9];
+        uint8_t *oct = hlod_mem_alloc(b->z->a, n);
+        if (!oct)
+            return HLOD_ERR_NOMEM;
+        double half = side / 2;
+        for (uint32_t k = 0; k < n; k++) {
+            const rzb_in *f = &b->in[idx[k]];
+            int o = 0;
+            double clo[3];
+            for (int a = 0; a < 3; a++) {
+                double cen = (f->p[0][a] + f->p[1][a] + f->p[2][a]) / 3;
+                int hi = cen >= lo[a] + half;
+                o |= hi << a;
+                clo[a] = lo[a] + (hi ? half : 0);
+            }
+            oct[k] = (uint8_t)(fits(f, clo, half) ? o : 8);
+            if (oct[k] < 8)
+                counts[o]++;
+        }
+        start[0] = 0;
+        for (int o = 0; o < 8; o++)
+            start[o + 1] = start[o] + counts[o];
+        own_n = n - start[8];
+        uint32_t *tmp = hlod_mem_alloc(b->z->a, (size_t)n * sizeof *tmp);
+        if (!tmp) {
+            hlod_mem_free(b->z->a, oct);
+            return HLOD_ERR_NOMEM;
+        }
+        uint32_t pos[9];
+        memcpy(pos, start, sizeof pos);
+        for (uint32_t k = 0; k < n; k++)
+            tmp[oct[k] < 8 ? pos[oct[k]]++ : pos[8]++] = idx[k];
+        memcpy(idx, tmp, (size_t)n * sizeof *idx);
+        hlod_mem_free(b->z->a, tmp);
+        hlod_mem_free(b->z->a, oct);
+        /* a cell whose faces all stay or all fit one octant with nothing
+         * gained keeps splitting only while the depth allows */
+        for (int o = 0; o < 8 && r == HLOD_OK; o++) {
+            if (!counts[o])
+                continue;
+            double clo[3];
+            for (int a = 0; a < 3; a++)
+                clo[a] = lo[a] + ((o >> a) & 1 ? half : 0);
+            uint32_t kid;
+            r = build_cell(b, idx + start[o], counts[o], clo, half, depth + 1, &kid);
+            if (r == HLOD_OK) {
+                rzb_node *nd = &b->c->node[id];
+                nd->kid[nd->kids++] = kid;
+            }
+        }
+    }
+    if (r != HLOD_OK)
+        return r;
+    rzb_node *nd = &b->c->node[id];
+    nd->begin = begin;
+    nd->own = b->out;
+    for (uint32_t k = n - own_n; k < n; k++)
+        place(b, idx[k]);
+    nd->end = b->out;
+    /* the box of the faces placed under it */
+    for (int a = 0; a < 3; a++) {
+        nd->lo[a] = INFINITY;
+        nd->hi[a] = -INFINITY;
+    }
+    for (uint32_t k = nd->begin; k < nd->end; k++)
+        for (int v = 0; v < 3; v++)
+            for (int a = 0; a < 3; a++) {
+                double x = b->c->origin[a] + (double)b->c->tri[k].p[v][a];
+                nd->lo[a] = x < nd->lo[a] ? x : nd->lo[a];
+                nd->hi[a] = x > nd->hi[a] ? x : nd->hi[a];
+            }
+    return HLOD_OK;
+}
+
+static hlod_result build_class(hlod_rzb *z, rzb_class *c, uint32_t *idx, uint32_t n)
+{
+    double lo[3] = {INFINITY, INFINITY, INFINITY}, hi[3] = {-INFINITY, -INFINITY, -INFINITY};
+    for (uint32_t k = 0; k < n; k++)
+        for (int v = 0; v < 3; v++)
+            for (int a = 0; a < 3; a++) {
+                double x = z->in[idx[k]].p[v][a];
+                lo[a] = x < lo[a] ? x : lo[a];
+                hi[a] = x > hi[a] ? x : hi[a];
+            }
+    double side = 0;
+    for (int a = 0; a < 3; a++) {
+        c->origin[a] = 0.5 * (lo[a] + hi[a]);
+        side = hi[a] - lo[a] > side ? hi[a] - lo[a] : side;
+    }
+    side = side > 0 ? side * (1 + 1e-9) : 1;
+    double cube[3];
+    for (int a = 0; a < 3; a++)
+        cube[a] = c->origin[a] - side / 2;
+    c->count = n;
+    c->tri = hlod_mem_alloc(z->a, (size_t)n * sizeof *c->tri);
+    c->cum = hlod_mem_alloc(z->a, ((size_t)n + 1) * sizeof *c->cum);
+    if (!c->tri || !c->cum)
+        return HLOD_ERR_NOMEM;
+    build_ctx b = {z, c, z->in, 0};
+    uint32_t root;
+    hlod_result r = build_cell(&b, idx, n, cube, side, 0, &root);
+    if (r != HLOD_OK)
+        return r;
+    /* the prefix sums, in the placed order, from the corners as stored */
+    c->cum[0] = 0;
+    c->max_area = 0;
+    for (uint32_t k = 0; k < n; k++) {
+        double area = hlod_rzb_area(z, (uint32_t)(c - z->cls), k);
+        c->cum[k + 1] = c->cum[k] + area;
+        c->max_area = area > c->max_area ? area : c->max_area;
+    }
+    return HLOD_OK;
+}
+
+typedef struct by_area {
+    double area;
+    uint32_t i;
+} by_area;
+
+static int cmp_area(const void *x, const void *y)
+{
+    const by_area *a = x, *b = y;
+    if (a->area != b->area)
+        return a->area < b->area ? -1 : 1;
+    return a->i < b->i ? -1 : a->i > b->i;
+}
+
+hlod_result hlod_rzb_finish(hlod_rzb *z)
+{
+    if (!z || z->finished)
+        return HLOD_ERR_INVALID_ARG;
+    z->finished = 1;
+    size_t n = z->in_count;
+    if (n > UINT32_MAX / 2)
+        return HLOD_ERR_NOMEM;
+    uint32_t *idx = hlod_mem_alloc(z->a, (n ? n : 1) * sizeof *idx);
+    by_area *order = hlod_mem_alloc(z->a, (n ? n : 1) * sizeof *order);
+    if (!idx || !order) {
+        hlod_mem_free(z->a, idx);
+        hlod_mem_free(z->a, order);
+        return HLOD_ERR_NOMEM;
+    }
+    for (size_t i = 0; i < n; i++)
+        order[i] = (by_area){z->in[i].area, (uint32_t)i};
+    hlod_sort(order, n, sizeof *order, cmp_area);
+    for (size_t i = 0; i < n; i++)
+        idx[i] = order[i].i;
+    hlod_mem_free(z->a, order);
+    /* classes from the smallest area up, each within RZB_CLASS_FACTOR (the
+     * last one takes whatever is left past RZB_MAX_CLASSES) */
+    hlod_result r = HLOD_OK;
+    size_t b = 0;
+    while (b < n && r == HLOD_OK) {
+        double top = z->in[idx[b]].area * RZB_CLASS_FACTOR;
+        size_t e = b;
+        while (e < n && (z->in[idx[e]].area < top || z->class_count == RZB_MAX_CLASSES - 1))
+            e++;
+        r = build_class(z, &z->cls[z->class_count++], idx + b, (uint32_t)(e - b));
+        b = e;
+    }
+    z->tri_count = n;
+    hlod_mem_free(z->a, idx);
+    hlod_mem_free(z->a, z->in);
+    z->in = NULL;
+    z->in_count = z->in_cap = 0;
+    return r;
+}
+
+/* ---- test seams ---- */
+
+uint32_t hlod_rzb_class_size(const hlod_rzb *z, uint32_t c)
+{
+    return c < z->class_count ? z->cls[c].count : 0;
+}
+
+double hlod_rzb_area(const hlod_rzb *z, uint32_t c, uint32_t t)
+{
+    const rzb_tri *f = &z->cls[c].tri[t];
+    double u[3], w[3];
+    for (int a = 0; a < 3; a++) {
+        u[a] = (double)f->p[1][a] - f->p[0][a];
+        w[a] = (double)f->p[2][a] - f->p[0][a];
+    }
+    double x = u[1] * w[2] - u[2] * w[1], y = u[2] * w[0] - u[0] * w[2],
+           q = u[0] * w[1] - u[1] * w[0];
+    return 0.5 * sqrt(x * x + y * y + q * q);
+}
+
+static uint32_t pick_next(const rzb_class *c, uint32_t b, uint32_t e, uint64_t i, uint64_t n,
+                          double u, uint32_t *t);
+
+void hlod_rzb_picks(const hlod_rzb *z, uint32_t c, uint32_t b, uint32_t e, uint64_t seed,
+                    uint32_t n, uint32_t *out)
+{
+    uint64_t rng = seed;
+    uint32_t at = b;
+    for (uint32_t i = 0; i < n; i++) {
+        uint64_t x = (rng += 0x9E3779B97F4A7C15ull);
+        x = (x ^ (x >> 30)) * 0xBF58476D1CE4E5B9ull;
+        x = (x ^ (x >> 27)) * 0x94D049BB133111EBull;
+        x ^= x >> 31;
+        out[i] = pick_next(&z->cls[c], b, e, i, n, (double)(x >> 11) * (1.0 / 9007199254740992.0),
+                           &at);
+    }
+}
+
+uint32_t hlod_rzb_pick(const hlod_rzb *z, uint32_t c, uint32_t b, uint32_t e, double u)
+{
+    const double *cum = z->cls[c].cum;
+    double x = cum[b] + u * (cum[e] - cum[b]);
+    /* the first t in [b, e) with cum[t + 1] > x */
+    uint32_t lo = b, hi = e - 1;
+    while (lo < hi) {
+        uint32_t mid = lo + (hi - lo) / 2;
+        if (cum[mid + 1] > x)
+            hi = mid;
+        else
+            lo = mid + 1;
+    }
+    return lo;
+}
+
+/* Barycentric weights of a uniform point of a triangle from two uniforms
+ * (the square-root method). */
+static void bary(double u1, double u2, double w[3])
+{
+    double s = sqrt(u1);
+    w[0] = 1 - s;
+    w[1] = s * (1 - u2);
+    w[2] = s * u2;
+}
+
+void hlod_rzb_point(const hlod_rzb *z, uint32_t c, uint32_t t, double u1, double u2,
+                    double out[3])
+{
+    const rzb_class *k = &z->cls[c];
+    double w[3];
+    bary(u1, u2, w);
+    for (int a = 0; a < 3; a++)
+        out[a] = k->origin[a] + w[0] * k->tri[t].p[0][a] + w[1] * k->tri[t].p[1][a] +
+                 w[2] * k->tri[t].p[2][a];
+}
+
+/* ---- the frame ---- */
+
+typedef struct frame_ctx {
+    hlod_rzb *z;
+    const hlod_view *v;
+    double eps, d2, lnv, f2;  /* d^2, ln v, focal length^2 (pixels) */
+    uint64_t rng;
+    hlod_rzb_out *out;
+    int nomem;
+} frame_ctx;
+
+static double uniform(frame_ctx *f)
+{
+    /* splitmix64: 53 random bits */
+    uint64_t x = (f->rng += 0x9E3779B97F4A7C15ull);
+    x = (x ^ (x >> 30)) * 0xBF58476D1CE4E5B9ull;
+    x = (x ^ (x >> 27)) * 0x94D049BB133111EBull;
+    x ^= x >> 31;
+    return (double)(x >> 11) * (1.0 / 9007199254740992.0);
+}
+
+static void add_range(frame_ctx *f, uint32_t ci, uint32_t b, uint32_t e)
+{
+    hlod_rzb_out *o = f->out;
+    o->range_tris += e - b;
+    if (o->range_count) {
+        hlod_rzb_range *last = &o->ranges[o->range_count - 1];
+        if (last->cls == ci && last->first + last->count == b) {
+            last->count += e - b;
+            return;
+        }
+    }
+    if (o->range_count == o->range_cap) {
+        size_t cap = o->range_cap ? 2 * o->range_cap : 256;
+        hlod_rzb_range *g = hlod_mem_realloc(f->z->a, o->ranges, cap * sizeof *g);
+        if (!g) {
+            f->nomem = 1;
+            return;
+        }
+        o->ranges = g;
+        o->range_cap = cap;
+    }
+    o->ranges[o->range_count++] = (hlod_rzb_range){ci, b, e - b};
+}
+
+static int grow_splats(frame_ctx *f, size_t more)
+{
+    hlod_rzb_out *o = f->out;
+    if (o->splat_count + more <= o->splat_cap)
+        return 1;
+    size_t cap = o->splat_cap ? o->splat_cap : 4096;
+    while (cap < o->splat_count + more)
+        cap *= 2;
+    hlod_gpu_splat *s = hlod_mem_realloc(f->z->a, o->splats, cap * sizeof *s);
+    if (!s) {
+        f->nomem = 1;
+        return 0;
+    }
+    o->splats = s;
+    o->splat_cap = cap;
+    return 1;
+}
+
+/* The first t in [t, e) with cum[t + 1] > x (x below cum[e]), searched
+ * forward from t by doubling steps, then halving: the picks of a range
+ * come in order, so its prefix sums are read front to back. */
+static uint32_t gallop(const double *cum, uint32_t t, uint32_t e, double x)
+{
+    if (cum[t + 1] > x || t + 1 >= e)
+        return t;
+    uint32_t lo = t, hi = t, step = 1;
+    for (;;) {
+        hi = lo + step < e - 1 ? lo + step : e - 1;
+        if (cum[hi + 1] > x || hi == e - 1)
+            break;
+        lo = hi;
+        step *= 2;
+    }
+    while (lo + 1 < hi) { /* cum[lo + 1] <= x < cum[hi + 1] */
+        uint32_t mid = lo + (hi - lo) / 2;
+        if (cum[mid + 1] > x)
+            hi = mid;
+        else
+            lo = mid;
+    }
+    return hi;
+}
+
+/* The i-th of n picks from [b, e) by area: one uniform point in each of
+ * n equal strata of the range's area, so the picks come in order (each
+ * face is picked with probability n x area / total, as independent picks
+ * are, with fewer gaps between them).  *t: the last pick (b at first). */
+static uint32_t pick_next(const rzb_class *c, uint32_t b, uint32_t e, uint64_t i, uint64_t n,
+                          double u, uint32_t *t)
+{
+    double x = c->cum[b] + ((double)i + u) / (double)n * (c->cum[e] - c->cum[b]);
+    if (!(x < c->cum[e]))
+        x = nextafter(c->cum[e], 0);
+    *t = gallop(c->cum, *t, e, x);
+    return *t;
+}
+
+/* N points of the range [b, e) of class c, back faces rejected, lit as
+ * the renderer lights a face (gl_render.c: headlight and sky). */
+static void sample(frame_ctx *f, uint32_t ci, uint32_t b, uint32_t e, uint64_t n)
+{
+    const rzb_class *c = &f->z->cls[ci];
+    hlod_rzb_out *o = f->out;
+    if (o->splat_count + n > RZB_MAX_SAMPLES)
+        n = o->splat_count < RZB_MAX_SAMPLES ? RZB_MAX_SAMPLES - o->splat_count : 0;
+    if (!n || !grow_splats(f, n))
+        return;
+    double base[3];
+    for (int a = 0; a < 3; a++)
+        base[a] = c->origin[a] - f->v->eye[a];
+    uint32_t at = b;
+    for (uint64_t i = 0; i < n; i++) {
+        uint32_t t = pick_next(c, b, e, i, n, uniform(f), &at);
+        double w[3];
+        bary(uniform(f), uniform(f), w);
+        const rzb_tri *tr = &c->tri[t];
+        double rel[3], d2 = 0, facing = 0;
+        for (int a = 0; a < 3; a++) {
+            rel[a] = base[a] + w[0] * tr->p[0][a] + w[1] * tr->p[1][a] + w[2] * tr->p[2][a];
+            d2 += rel[a] * rel[a];
+            facing -= tr->n[a] * rel[a];
+        }
+        o->samples++;
+        if (facing <= 0 && !tr->two_sided)
+            continue; /* a back face (section 5.3.3) */
+        double dist = sqrt(d2), dot = dist > 0 ? fabs(facing) / dist : 1;
+        double nz = facing < 0 ? -tr->n[2] : tr->n[2];
+        double light = 0.20 + 0.55 * dot + 0.25 * (0.5 + 0.5 * nz);
+        hlod_gpu_splat *s = &o->splats[o->splat_count++];
+        for (int a = 0; a < 3; a++) {
+            s->pos[a] = (float)rel[a];
+            s->rgba[a] = clamp_byte(
+                (w[0] * tr->rgba[0][a] + w[1] * tr->rgba[1][a] + w[2] * tr->rgba[2][a]) * light);
+        }
+        s->rgba[3] = 255;
+    }
+}
+
+/* A selected range of class c, nearest depth zmin: points, or its faces
+ * for the rasteriser where a face may project over d^2 / ln v pixels
+ * (section 7.1) or the box reaches the eye's plane. */
+static void select_range(frame_ctx *f, uint32_t ci, uint32_t b, uint32_t e, double zmin)
+{
+    const rzb_class *c = &f->z->cls[ci];
+    if (b >= e)
+        return;
+    double proj = zmin > 0 ? f->f2 / (zmin * zmin) : INFINITY;
+    if (!(c->max_area * proj <= f->d2 / f->lnv)) {
+        add_range(f, ci, b, e);
+        f->out->boxes_drawn++;
+        return;
+    }
+    double want = ceil((c->cum[e] - c->cum[b]) * proj * f->lnv / f->d2);
+    sample(f, ci, b, e, want < (double)RZB_MAX_SAMPLES ? (uint64_t)want : RZB_MAX_SAMPLES);
+    f->out->boxes_sampled++;
+}
+
+/* Depths (along the view axis) of box [lo, hi]'s nearest and farthest
+ * corners. */
+static void depth_range(const hlod_view *v, const double lo[3], const double hi[3], double *zmin,
+                        double *zmax)
+{
+    *zmin = INFINITY;
+    *zmax = -INFINITY;
+    for (int corner = 0; corner < 8; corner++) {
+        double z = 0;
+        for (int a = 0; a < 3; a++)
+            z -= ((corner >> a & 1 ? hi[a] : lo[a]) - v->eye[a]) * v->toward[a];
+        *zmin = z < *zmin ? z : *zmin;
+        *zmax = z > *zmax ? z : *zmax;
+    }
+}
+
+static void walk_class(frame_ctx *f, uint32_t ci)
+{
+    hlod_rzb *z = f->z;
+    const rzb_class *c = &z->cls[ci];
+    if (!c->nodes)
+        return;
+    size_t sp = 0;
+    z->stack[sp++] = 0;
+    while (sp && !f->nomem) {
+        const rzb_node *nd = &c->node[z->stack[--sp]];
+        if (hlod_view_outside(f->v, nd->lo, nd->hi) > 0)
+            continue;
+        double zmin, zmax;
+        depth_range(f->v, nd->lo, nd->hi, &zmin, &zmax);
+        if (!(zmax > 0))
+            continue; /* behind the eye */
+        int narrow = zmin > 0 && zmax * zmax <= f->eps * zmin * zmin;
+        if (narrow || !nd->kids) {
+            select_range(f, ci, nd->begin, nd->end, zmin);
+            continue;
+        }
+        select_range(f, ci, nd->own, nd->end, zmin);
+        for (uint32_t k = 0; k < nd->kids; k++)
+            z->stack[sp++] = nd->kid[k];
+    }
+}
+
+hlod_result hlod_rzb_frame(hlod_rzb *z, const hlod_view *v, double eps, double d, uint64_t seed,
+                           hlod_rzb_out *out)
+{
+    if (!z || !v || !out || !z->finished || !(eps > 1) || !(d >= 1))
+        return HLOD_ERR_INVALID_ARG;
+    out->splat_count = out->range_count = 0;
+    out->range_tris = 0;
+    out->samples = 0;
+    out->boxes_sampled = out->boxes_drawn = 0;
+    /* the walk's stack: at most 7 more per level below the root */
+    size_t need = 8 * (RZB_MAX_DEPTH + 2);
+    if (z->stack_cap < need) {
+        uint32_t *s = hlod_mem_realloc(z->a, z->stack, need * sizeof *s);
+        if (!s)
+            return HLOD_ERR_NOMEM;
+        z->stack = s;
+        z->stack_cap = need;
+    }
+    double pixels = v->width * v->height;
+    frame_ctx f = {.z = z,
+                   .v = v,
+                   .eps = eps,
+                   .d2 = d * d,
+                   .lnv = log(pixels > 2 ? pixels : 2),
+                   .f2 = v->pixels_per_radian * v->pixels_per_radian,
+                   .rng = seed,
+                   .out = out};
+    for (uint32_t c = 0; c < z->class_count && !f.nomem; c++)
+        walk_class(&f, c);
+    return f.nomem ? HLOD_ERR_NOMEM : HLOD_OK;
+}
+
+/* ---- the rasteriser's part ---- */
+
+/* Class c's faces as a payload: three corners each (relative to the
+ * origin), the face normal at each, the corners' colours. */
+static hlod_result upload_class(hlod_rzb *z, rzb_class *c, hlod_renderer *r)
+{
+    size_t nv = 3 * (size_t)c->count;
+    if (!nv || nv > INT32_MAX)
+        return nv ? HLOD_ERR_NOMEM : HLOD_OK;
+    float *pos = hlod_mem_alloc(z->a, nv * 3 * sizeof *pos);
+    float *nrm = hlod_mem_alloc(z->a, nv * 3 * sizeof *nrm);
+    uint8_t *rgba = hlod_mem_alloc(z->a, nv * 4);
+    uint32_t *idx = hlod_mem_alloc(z->a, nv * sizeof *idx);
+    hlod_result res = HLOD_ERR_NOMEM;
+    if (pos && nrm && rgba && idx) {
+        for (uint32_t t = 0; t < c->count; t++)
+            for (int k = 0; k < 3; k++) {
+                size_t v = 3 * (size_t)t + (size_t)k;
+                memcpy(pos + 3 * v, c->tri[t].p[k], 3 * sizeof *pos);
+                memcpy(nrm + 3 * v, c->tri[t].n, 3 * sizeof *nrm);
+                memcpy(rgba + 4 * v, c->tri[t].rgba[k], 4);
+                idx[v] = (uint32_t)v;
+            }
+        hlod_store_payload p = {.vertex_count = (uint32_t)nv,
+                                .index_count = (uint32_t)nv,
+                                .positions = pos,
+                                .normals = nrm,
+                                .colors = rgba,
+                                .indices = idx};
+        res = hlod_gpu_upload(r, &p, &c->gpu);
+    }
+    hlod_mem_free(z->a, pos);
+    hlod_mem_free(z->a, nrm);
+    hlod_mem_free(z->a, rgba);
+    hlod_mem_free(z->a, idx);
+    return res;
+}
+
+hlod_result hlod_rzb_upload(hlod_rzb *z, hlod_renderer *r)
+{
+    if (!z || !r || !z->finished)
+        return HLOD_ERR_INVALID_ARG;
+    hlod_result res = HLOD_OK;
+    for (uint32_t c = 0; c < z->class_count && res == HLOD_OK; c++)
+        res = upload_class(z, &z->cls[c], r);
+    return res;
+}
+
+void hlod_rzb_release(hlod_rzb *z, hlod_renderer *r)
+{
+    for (uint32_t c = 0; z && r && c < z->class_count; c++)
+        hlod_gpu_release(r, &z->cls[c].gpu);
+}
+
+void hlod_rzb_draw(const hlod_rzb *z, hlod_renderer *r, const double eye[3],
+                   const hlod_rzb_out *out, double d)
+{
+    for (size_t k = 0; k < out->range_count; k++) {
+        const hlod_rzb_range *g = &out->ranges[k];
+        const rzb_class *c = &z->cls[g->cls];
+        double off[3] = {c->origin[0] - eye[0], c->origin[1] - eye[1], c->origin[2] - eye[2]};
+        hlod_gpu_draw_range(r, &c->gpu, off, 3 * g->first, 3 * g->count);
+    }
+    (void)hlod_gpu_splats(r, out->splats, (uint32_t)out->splat_count, (float)d);
+}

@@ -1,0 +1,105 @@
+/*
+ * rzb.h - Wand's randomized z-buffer (Wand, Fischer, Peter, Meyer auf der
+ * Heide, Strasser, "The Randomized z-Buffer Algorithm", SIGGRAPH 2001;
+ * docs/rzb.md): the policy rzb draws a store's leaves in core as random
+ * surface points, chosen with probability proportional to area, into the
+ * frame's depth buffer, so that its time grows with the logarithm of the
+ * scene, not with its triangles.
+ *
+ * Built once from every leaf's payload (hlod_rzb_add, hlod_rzb_finish):
+ * the triangles in area classes (each within a factor RZB_CLASS_FACTOR),
+ * one loose octree per class whose nodes own a range of one prefix-sum
+ * array of areas in depth-first order (section 5.3).  Each frame
+ * (hlod_rzb_frame) selects the boxes in the frustum whose depth range is
+ * narrow, (z_max / z_min)^2 <= eps, and for each either draws samples,
+ * A f^2 / z_min^2 ln v / d^2 of them (section 4.1; f the focal length in
+ * pixels, v the viewport's pixels, d the splat size), or, where one of its
+ * triangles may project over d^2 / ln v pixels, draws its faces with the
+ * rasteriser (section 7.1), so the method is never much slower than the
+ * rasteriser: in depth-first order a box's faces are one range of its
+ * class's buffer, one draw.  Render thread only.
+ */
+#ifndef HLOD_ENGINE_RZB_H
+#define HLOD_ENGINE_RZB_H
+
+#include "gl_render.h"
+#include "alloc.h"
+#include "hlod/store.h"
+#include "selection.h"
+
+#include <stddef.h>
+#include <stdint.h>
+
+typedef struct hlod_rzb hlod_rzb;
+
+/* An empty structure; NULL on allocation failure. */
+hlod_rzb *hlod_rzb_create(const hlod_allocator *a);
+void hlod_rzb_destroy(hlod_rzb *z);
+
+/* Adds the faces of leaf `node` (its store record n, its payload p, read
+ * with level-0 texels): corners in world doubles, colours from the
+ * payload's vertex colours, else its texture at the corner (nearest
+ * texel), else the renderer's grey.  Faces without area draw nothing and
+ * are left out.  HLOD_ERR_NOMEM on allocation failure. */
+hlod_result hlod_rzb_add(hlod_rzb *z, const hlod_store_node *n, uint32_t node,
+                         const hlod_store_payload *p);
+
+/* Builds the classes, octrees and prefix sums; no add after it. */
+hlod_result hlod_rzb_finish(hlod_rzb *z);
+
+/* Uploads each class's faces as one buffer for the ranges drawn by the
+ * rasteriser (corners lit with the face normal, the corners' colours:
+ * textures are not drawn); hlod_rzb_release gives them back (before the
+ * renderer goes).  HLOD_ERR_NOMEM when memory or GL memory runs out. */
+hlod_result hlod_rzb_upload(hlod_rzb *z, hlod_renderer *r);
+void hlod_rzb_release(hlod_rzb *z, hlod_renderer *r);
+
+/* Triangles held (after hlod_rzb_finish), and area classes. */
+size_t hlod_rzb_tri_count(const hlod_rzb *z);
+uint32_t hlod_rzb_class_count(const hlod_rzb *z);
+
+/* A range of one class's faces, drawn by the rasteriser. */
+typedef struct hlod_rzb_range {
+    uint32_t cls, first, count;
+} hlod_rzb_range;
+
+/* One frame's output, kept between frames (its arrays grow). */
+typedef struct hlod_rzb_out {
+    hlod_gpu_splat *splats;    /* camera-relative points, lit */
+    size_t splat_count, splat_cap;
+    hlod_rzb_range *ranges;    /* faces to rasterise (adjacent ones merged) */
+    size_t range_count, range_cap;
+    uint64_t range_tris;       /* their faces */
+    uint64_t samples;          /* points drawn, back faces rejected included */
+    uint32_t boxes_sampled, boxes_drawn; /* selected boxes, by how */
+} hlod_rzb_out;
+
+void hlod_rzb_out_free(const hlod_allocator *a, hlod_rzb_out *o);
+
+/* Selects and samples for view v (eps > 1, d >= 1 pixels), with the
+ * frame's seed (the same seed, view and structure give the same points).
+ * HLOD_ERR_NOMEM on allocation failure (the output is then partial). */
+hlod_result hlod_rzb_frame(hlod_rzb *z, const hlod_view *v, double eps, double d, uint64_t seed,
+                           hlod_rzb_out *out);
+
+/* Draws out's ranges (uploaded) and then its points, d x d pixels, for
+ * the eye at `eye`, between hlod_gpu_begin and hlod_gpu_end. */
+void hlod_rzb_draw(const hlod_rzb *z, hlod_renderer *r, const double eye[3],
+                   const hlod_rzb_out *out, double d);
+
+/* Test seams (tests/test_rzb.c): the index, within class c's array, of
+ * the triangle a uniform u in [0, 1) picks from the range [b, e) by
+ * area; n picks from it as hlod_rzb_frame makes them for one box (in
+ * area order, one per stratum, from the seed); and a point of triangle t
+ * of class c from two uniforms, as hlod_rzb_frame draws them (world
+ * doubles). */
+uint32_t hlod_rzb_pick(const hlod_rzb *z, uint32_t c, uint32_t b, uint32_t e, double u);
+void hlod_rzb_picks(const hlod_rzb *z, uint32_t c, uint32_t b, uint32_t e, uint64_t seed,
+                    uint32_t n, uint32_t *out);
+void hlod_rzb_point(const hlod_rzb *z, uint32_t c, uint32_t t, double u1, double u2,
+                    double out[3]);
+/* Class c's triangle count and the area of its triangle t. */
+uint32_t hlod_rzb_class_size(const hlod_rzb *z, uint32_t c);
+double hlod_rzb_area(const hlod_rzb *z, uint32_t c, uint32_t t);
+
+#endif

@@ -1,0 +1,325 @@
+/*
+ * test_rzb.c - Wand's randomized z-buffer (engine/rzb.h, docs/rzb.md):
+ * - the sampler: 10 faces of unequal area (one class), 10^5 picks, as a
+ *   frame makes them and one by one, pass a chi-square test against area
+ *   (p >= 0.01); picks uniform over the faces fail it;
+ * - a point is uniform over its face (chi-square over the four halved
+ *   sub-triangles) and lies on it;
+ * - every face with an area is held once; classes keep areas within 4x;
+ * - a flat board of 819k faces filling a 160x120 view, rzb at d = 1 and 2
+ *   leaves at most 3 pixels uncovered (the paper: about 1), every face
+ *   sampled, none rasterised; the same seed gives the same points;
+ * - with every face large, rzb rasterises them all and draws the image
+ *   policy full draws (PSNR >= 40 dB);
+ * - faces seen from behind, one-sided, give no point.
+ */
+#include "check.h"
+#include "rzb.h"
+#include "store_fixture.h"
+
+#include "hlod/engine.h"
+#include "hlod/metrics.h"
+#include "hlod/renderer.h"
+#include "hlod/store.h"
+
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <unistd.h>
+
+#define W 160
+#define H 120
+
+static char g_dir[256];
+static hlod_osmesa *g_gl;
+static hlod_renderer *g_r;
+static const hlod_allocator g_alloc; /* malloc */
+
+/* Ten faces in the plane z = 0 with areas 1.0, 1.2, ... 2.8 (one class),
+ * added as one one-sided leaf. */
+static hlod_rzb *ten_faces(double *area)
+{
+    float pos[30 * 3];
+    uint32_t idx[30];
+    for (int t = 0; t < 10; t++) {
+        area[t] = 1.0 + 0.2 * t;
+        double x0 = 10.0 * t, w = 2 * area[t]; /* base w, height 1 */
+        float v[3][3] = {{(float)x0, 0, 0}, {(float)(x0 + w), 0, 0}, {(float)x0, 1, 0}};
+        memcpy(pos + 9 * t, v, sizeof v);
+        for (int k = 0; k < 3; k++)
+            idx[3 * t + k] = (uint32_t)(3 * t + k);
+    }
+    hlod_store_node n = {0};
+    n.render_flags = HLOD_RENDER_SOLID;
+    hlod_store_payload p = {0};
+    p.vertex_count = 30;
+    p.index_count = 30;
+    p.positions = pos;
+    p.indices = idx;
+    hlod_rzb *z = hlod_rzb_create(&g_alloc);
+    CHECK(z && hlod_rzb_add(z, &n, 0, &p) == HLOD_OK && hlod_rzb_finish(z) == HLOD_OK);
+    return z;
+}
+
+static double chi2_of(const uint32_t *count, const double *want, int k)
+{
+    double c = 0;
+    for (int j = 0; j < k; j++)
+        c += (count[j] - want[j]) * (count[j] - want[j]) / want[j];
+    return c;
+}
+
+static void picks_follow_area(void)
+{
+    double area[10];
+    hlod_rzb *z = ten_faces(area);
+    if (!z)
+        return;
+    CHECK(hlod_rzb_class_count(z) == 1 && hlod_rzb_class_size(z, 0) == 10);
+    /* the class array is in octree order: map its faces back by area */
+    double total = 0, want[10];
+    for (uint32_t t = 0; t < 10; t++)
+        total += hlod_rzb_area(z, 0, t);
+    const uint32_t n = 100000;
+    for (uint32_t t = 0; t < 10; t++)
+        want[t] = n * hlod_rzb_area(z, 0, t) / total;
+    uint32_t *pick = malloc(n * sizeof *pick), strat[10] = {0}, indep[10] = {0}, unif[10] = {0};
+    CHECK(pick != NULL);
+    if (!pick)
+        return;
+    hlod_rzb_picks(z, 0, 0, 10, 7, n, pick);
+    uint64_t s = 12345;
+    for (uint32_t i = 0; i < n; i++) {
+        strat[pick[i]]++;
+        s = s * 6364136223846793005ull + 1442695040888963407ull;
+        double u = (double)(s >> 11) / 9007199254740992.0;
+        indep[hlod_rzb_pick(z, 0, 0, 10, u)]++;
+        unif[(uint32_t)(u * 10)]++;
+    }
+    double c_strat = chi2_of(strat, want, 10), c_indep = chi2_of(indep, want, 10),
+           c_unif = chi2_of(unif, want, 10);
+    printf("REPORT sampler: chi2 %.3f (a frame's picks), %.2f (independent picks), %.0f "
+           "(uniform over faces); p >= 0.01 below 21.67 at 9 dof\n", c_strat, c_indep, c_unif);
+    /* 9 degrees of freedom: p >= 0.01 is chi2 <= 21.666 */
+    CHECKF(c_strat <= 21.666, "a frame's picks: chi2 %.3f", c_strat);
+    CHECKF(c_indep <= 21.666, "independent picks: chi2 %.3f", c_indep);
+    CHECKF(c_unif > 1000, "uniform picks pass as area-weighted: chi2 %.1f", c_unif);
+    free(pick);
+    hlod_rzb_destroy(z);
+}
+
+/* Points of one face: on it, and as many in each of its four halved
+ * sub-triangles (equal areas). */
+static void points_are_uniform_on_the_face(void)
+{
+    double area[10];
+    hlod_rzb *z = ten_faces(area);
+    if (!z)
+        return;
+    /* face 0 of the class, whichever it is: its corners from three points */
+    double a[3], b[3], c[3];
+    hlod_rzb_point(z, 0, 0, 0, 0, a); /* u1 = 0: corner 0 */
+    hlod_rzb_point(z, 0, 0, 1, 0, b); /* u1 = 1, u2 = 0: corner 1 */
+    hlod_rzb_point(z, 0, 0, 1, 1, c); /* corner 2 */
+    uint32_t count[4] = {0};
+    int off = 0;
+    uint64_t s = 99;
+    const uint32_t n = 40000;
+    for (uint32_t i = 0; i < n; i++) {
+        double u[2], p[3];
+        for (int k = 0; k < 2; k++) {
+            s = s * 6364136223846793005ull + 1442695040888963407ull;
+            u[k] = (double)(s >> 11) / 9007199254740992.0;
+        }
+        hlod_rzb_point(z, 0, 0, u[0], u[1], p);
+        /* barycentric coordinates in the plane z = 0 */
+        double d = (b[0] - a[0]) * (c[1] - a[1]) - (c[0] - a[0]) * (b[1] - a[1]);
+        double l1 = ((p[0] - a[0]) * (c[1] - a[1]) - (c[0] - a[0]) * (p[1] - a[1])) / d;
+        double l2 = ((b[0] - a[0]) * (p[1] - a[1]) - (p[0] - a[0]) * (b[1] - a[1])) / d;
+        double l0 = 1 - l1 - l2;
+        off += l0 < -1e-9 || l1 < -1e-9 || l2 < -1e-9 || fabs(p[2]) > 1e-9;
+        /* the corner triangles of the midpoint split, else the middle one */
+        count[l0 > 0.5 ? 0 : l1 > 0.5 ? 1 : l2 > 0.5 ? 2 : 3]++;
+    }
+    double want[4] = {n / 4.0, n / 4.0, n / 4.0, n / 4.0};
+    double chi2 = chi2_of(count, want, 4);
+    printf("REPORT points: chi2 %.3f over the four sub-triangles (p >= 0.01 below 11.34), %d "
+           "off the face\n", chi2, off);
+    CHECKF(off == 0, "%d points off their face", off);
+    CHECKF(chi2 <= 11.345, "points not uniform on the face: chi2 %.3f", chi2);
+    hlod_rzb_destroy(z);
+}
+
+/* A camera looking straight down at (cx, cy) from height h. */
+static void down_camera(hlod_camera *cam, double cx, double cy, double h)
+{
+    const double eye[3] = {cx, cy, h}, at[3] = {cx, cy, 0}, up[3] = {0, 1, 0};
+    CHECK(hlod_camera_look_at(cam, eye, at, up, 60, 0.1, 1e4, W, H) == HLOD_OK);
+}
+
+/* One frame of store `path` under policy pol, splat size d, into rgb. */
+static int render(const char *path, hlod_policy pol, uint32_t d, const hlod_camera *cam,
+                  uint8_t *rgb, hlod_frame_stats *st)
+{
+    hlod_store *s = NULL;
+    if (hlod_store_open(path, NULL, &s) != HLOD_OK)
+        return 0;
+    hlod_engine_desc desc = {0};
+    desc.policy = pol;
+    desc.renderer = g_r;
+    desc.deterministic = 1;
+    desc.splat_px = d;
+    desc.memory_budget_bytes = 1ull << 32;
+    hlod_engine *e = NULL;
+    int ok = hlod_engine_create(s, &desc, &e) == HLOD_OK &&
+             (pol != HLOD_POLICY_FULL || hlod_engine_load_all_leaves(e, cam) == HLOD_OK) &&
+             hlod_engine_frame(e, cam, 1.0 / 30, st) == HLOD_OK &&
+             hlod_osmesa_read_rgb(g_gl, rgb) == HLOD_OK;
+    hlod_engine_destroy(e);
+    hlod_store_close(s);
+    return ok;
+}
+
+static int is_bg(const uint8_t *p)
+{
+    return p[0] == 255 && p[1] == 0 && p[2] == 255;
+}
+
+/* The board (4 roots of 100 m side by side along x) seen from above fills
+ * the view: 64 leaves a root of 80 x 80 quads, 0.05 px^2 a face. */
+static void fine_board_is_covered(void)
+{
+    char path[512];
+    snprintf(path, sizeof path, "%s/fine.hlod", g_dir);
+    fixture_opts o = {.roots = 1, .depth = 3, .grid = 80, .size = 100};
+    o.origin[0] = 5e6; /* far from the world origin, as a city may be */
+    CHECK(fixture_write(path, &o, NULL) == HLOD_OK);
+    hlod_camera cam;
+    down_camera(&cam, 5e6 + 50, 50, 50);
+    uint8_t *img = malloc(W * H * 3), *again = malloc(W * H * 3);
+    CHECK(img && again);
+    const uint32_t sizes[2] = {1, 2};
+    for (int k = 0; k < 2 && img && again; k++) {
+        hlod_frame_stats st, st2;
+        CHECK(render(path, HLOD_POLICY_RZB, sizes[k], &cam, img, &st));
+        size_t holes = 0;
+        for (size_t p = 0; p < W * H; p++)
+            holes += is_bg(img + 3 * p);
+        printf("REPORT d = %u: %u points, %llu faces rasterised, %zu of %d pixels uncovered\n",
+               sizes[k], st.splats, (unsigned long long)st.tris_drawn, holes, W * H);
+        CHECKF(holes <= 3, "d = %u: %zu pixels uncovered", sizes[k], holes);
+        CHECKF(st.splats > 1000 && st.tris_drawn == 0, "d = %u: %u points, %llu faces rasterised",
+               sizes[k], st.splats, (unsigned long long)st.tris_drawn);
+        CHECK(render(path, HLOD_POLICY_RZB, sizes[k], &cam, again, &st2));
+        CHECKF(st2.splats == st.splats && memcmp(img, again, W * H * 3) == 0,
+               "d = %u: the same frame drew another image", sizes[k]);
+    }
+    free(img);
+    free(again);
+}
+
+/* Large faces (a 4 x 4 grid a leaf) are rasterised, all of them: the
+ * image is full's. */
+static void large_faces_draw_as_full(void)
+{
+    char path[512];
+    snprintf(path, sizeof path, "%s/coarse.hlod", g_dir);
+    fixture_opts o = {.roots = 1, .depth = 1, .grid = 4, .size = 100};
+    CHECK(fixture_write(path, &o, NULL) == HLOD_OK);
+    hlod_camera cam;
+    down_camera(&cam, 50, 50, 40);
+    uint8_t *a = malloc(W * H * 3), *b = malloc(W * H * 3);
+    hlod_frame_stats sa, sb;
+    CHECK(a && b && render(path, HLOD_POLICY_FULL, 1, &cam, a, &sa) &&
+          render(path, HLOD_POLICY_RZB, 1, &cam, b, &sb));
+    double psnr = 0;
+    if (a && b)
+        CHECK(hlod_psnr_rgb8(a, b, W, H, &psnr) == HLOD_OK);
+    printf("REPORT large faces: rzb rasterised %llu faces in %u draws, %u points; %.1f dB "
+           "against full (%llu faces)\n", (unsigned long long)sb.tris_drawn, sb.nodes_drawn,
+           sb.splats, psnr, (unsigned long long)sa.tris_drawn);
+    CHECKF(sb.splats == 0 && sb.tris_drawn >= 2 * 4 * 4, "rzb: %u points, %llu faces", sb.splats,
+           (unsigned long long)sb.tris_drawn);
+    CHECKF(psnr >= 40, "rzb's image %.1f dB from full's", psnr);
+    free(a);
+    free(b);
+}
+
+/* One-sided faces seen from behind give no point; two-sided ones do. */
+static void back_faces_give_no_point(void)
+{
+    for (int solid = 0; solid < 2; solid++) {
+        enum { G = 200 };
+        float *pos = malloc(sizeof(float) * 3 * (G + 1) * (G + 1));
+        uint32_t *idx = malloc(sizeof(uint32_t) * 6 * G * G);
+        CHECK(pos && idx);
+        if (!pos || !idx)
+            return;
+        for (int j = 0; j <= G; j++)
+            for (int i = 0; i <= G; i++) {
+                float *v = pos + 3 * (j * (G + 1) + i);
+                v[0] = (float)i / 2;
+                v[1] = (float)j / 2;
+                v[2] = 0;
+            }
+        grid_quads(idx, G, G);
+        hlod_store_node n = {0};
+        n.render_flags = solid ? HLOD_RENDER_SOLID : 0;
+        hlod_store_payload p = {0};
+        p.vertex_count = (G + 1) * (G + 1);
+        p.index_count = 6 * G * G;
+        p.positions = pos;
+        p.indices = idx;
+        hlod_rzb *z = hlod_rzb_create(&g_alloc);
+        CHECK(z && hlod_rzb_add(z, &n, 0, &p) == HLOD_OK && hlod_rzb_finish(z) == HLOD_OK);
+        CHECK(hlod_rzb_tri_count(z) == 2 * G * G);
+        /* from below the plane (it faces +z), far: every face small */
+        hlod_camera cam;
+        const double eye[3] = {50, 50, -2000}, at[3] = {50, 50, 0}, up[3] = {0, 1, 0};
+        CHECK(hlod_camera_look_at(&cam, eye, at, up, 60, 0.1, 1e5, W, H) == HLOD_OK);
+        double still[3] = {0, 0, 0};
+        hlod_view v;
+        hlod_view_init(&v, &cam, still, 0);
+        hlod_rzb_out out = {0};
+        CHECK(hlod_rzb_frame(z, &v, 1.4, 1, 1, &out) == HLOD_OK);
+        printf("REPORT from behind, %s: %llu points drawn, %zu kept\n",
+               solid ? "one-sided" : "two-sided", (unsigned long long)out.samples,
+               out.splat_count);
+        CHECK(out.samples > 100 && out.range_count == 0);
+        if (solid)
+            CHECKF(out.splat_count == 0, "one-sided: %zu points kept from behind", out.splat_count);
+        else
+            CHECKF(out.splat_count == out.samples, "two-sided: %zu of %llu kept", out.splat_count,
+                   (unsigned long long)out.samples);
+        hlod_rzb_out_free(&g_alloc, &out);
+        hlod_rzb_destroy(z);
+        free(pos);
+        free(idx);
+    }
+}
+
+int main(void)
+{
+    snprintf(g_dir, sizeof g_dir, "/tmp/hlod_test_rzb_XXXXXX");
+    if (!mkdtemp(g_dir)) {
+        perror("mkdtemp");
+        return 1;
+    }
+    RUN(picks_follow_area);
+    RUN(points_are_uniform_on_the_face);
+    RUN(back_faces_give_no_point);
+    if (hlod_osmesa_create(W, H, NULL, &g_gl) == HLOD_OK &&
+        hlod_renderer_create(hlod_osmesa_get_proc(), NULL, &g_r) == HLOD_OK) {
+        hlod_renderer_set_clear_color(g_r, 1, 0, 1);
+        RUN(fine_board_is_covered);
+        RUN(large_faces_draw_as_full);
+    } else {
+        CHECK(0); /* OSMesa is installed by the test command */
+    }
+    hlod_renderer_destroy(g_r);
+    hlod_osmesa_destroy(g_gl);
+    if (check_failures_ == 0)
+        check_sh("rm -rf '%s'", g_dir);
+    return check_done();
+}
