@@ -80,6 +80,7 @@
     X(PFNGLBINDTEXTUREPROC, BindTexture)                             \
     X(PFNGLACTIVETEXTUREPROC, ActiveTexture)                         \
     X(PFNGLTEXIMAGE2DPROC, TexImage2D)                               \
+    X(PFNGLTEXSUBIMAGE2DPROC, TexSubImage2D)                         \
     X(PFNGLCOMPRESSEDTEXIMAGE2DPROC, CompressedTexImage2D)           \
     X(PFNGLGETSTRINGIPROC, GetStringi)                               \
     X(PFNGLTEXPARAMETERIPROC, TexParameteri)                         \
@@ -157,6 +158,11 @@ struct hlod_renderer {
         GLint u_viewproj, u_size;
         size_t cap;             /* splats the buffer holds */
     } splat;
+    struct {                    /* a frame splatted on the CPU (hlod_gpu_composite) */
+        GLuint prog, vao, tex[2]; /* colour (RGBA8), depth (R32F) */
+        GLint u_color, u_depth;
+        uint32_t w, h;          /* the textures' size */
+    } comp;
 };
 
 /* The shaders come in variants chosen per draw (compiled once): NORMALS
@@ -252,6 +258,27 @@ static const char *splat_fragment_src =
     "out vec4 o_color;\n"
     "void main() {\n"
     "    o_color = vec4(v_color.rgb, 1.0);\n"
+    "}\n";
+
+/* A frame splatted on the CPU: each pixel with a depth under 1 written
+ * with its colour and depth, depth tested (one triangle over the
+ * viewport). */
+static const char *comp_vertex_src =
+    "void main() {\n"
+    "    vec2 p = vec2(gl_VertexID == 1 ? 3.0 : -1.0, gl_VertexID == 2 ? 3.0 : -1.0);\n"
+    "    gl_Position = vec4(p, 0.0, 1.0);\n"
+    "}\n";
+
+static const char *comp_fragment_src =
+    "uniform sampler2D u_color;\n"
+    "uniform sampler2D u_depth;\n"
+    "out vec4 o_color;\n"
+    "void main() {\n"
+    "    ivec2 q = ivec2(gl_FragCoord.xy);\n"
+    "    float d = texelFetch(u_depth, q, 0).r;\n"
+    "    if (d >= 1.0) discard;\n"
+    "    gl_FragDepth = d;\n"
+    "    o_color = vec4(texelFetch(u_color, q, 0).rgb, 1.0);\n"
     "}\n";
 
 /* Depth-colour mode: one colour per hierarchy level, cycling. */
@@ -378,6 +405,13 @@ static void delete_programs(hlod_renderer *r)
     if (r->splat.vao)
         r->gl.DeleteVertexArrays(1, &r->splat.vao);
     memset(&r->splat, 0, sizeof r->splat);
+    if (r->comp.prog)
+        r->gl.DeleteProgram(r->comp.prog);
+    if (r->comp.vao)
+        r->gl.DeleteVertexArrays(1, &r->comp.vao);
+    if (r->comp.tex[0])
+        r->gl.DeleteTextures(2, r->comp.tex);
+    memset(&r->comp, 0, sizeof r->comp);
 }
 
 static int build_splat_program(hlod_renderer *r)
@@ -864,6 +898,74 @@ hlod_result hlod_gpu_splats(hlod_renderer *r, const hlod_gpu_splat *s, uint32_t 
     if (e != GL_NO_ERROR) {
         hlod_logf(&r->lg, HLOD_LOG_ERROR, "renderer: %u splats: GL error %#x", n, e);
         return e == GL_OUT_OF_MEMORY ? HLOD_ERR_NOMEM : HLOD_ERR_UNSUPPORTED;
+    }
+    return HLOD_OK;
+}
+
+/* The composite pass's program, vertex array and textures at w x h
+ * (made again when the size changes); 0 when GL cannot make them. */
+static int ensure_comp(hlod_renderer *r, uint32_t w, uint32_t h)
+{
+    const gl_table *gl = &r->gl;
+    if (!r->comp.prog) {
+        GLuint prog = link_program(r, "", comp_vertex_src, comp_fragment_src);
+        if (!prog)
+            return 0;
+        r->comp.prog = prog;
+        r->comp.u_color = gl->GetUniformLocation(prog, "u_color");
+        r->comp.u_depth = gl->GetUniformLocation(prog, "u_depth");
+        gl->GenVertexArrays(1, &r->comp.vao);
+        gl->GenTextures(2, r->comp.tex);
+    }
+    if (r->comp.w == w && r->comp.h == h)
+        return 1;
+    const GLint fmt[2] = {GL_RGBA8, GL_R32F};
+    const GLenum pix[2] = {GL_RGBA, GL_RED}, type[2] = {GL_UNSIGNED_BYTE, GL_FLOAT};
+    for (int k = 0; k < 2; k++) {
+        gl->BindTexture(GL_TEXTURE_2D, r->comp.tex[k]);
+        gl->TexParameteri(GL_TEXTURE_2D, GL_TEXTURE_MIN_FILTER, GL_NEAREST);
+        gl->TexParameteri(GL_TEXTURE_2D, GL_TEXTURE_MAG_FILTER, GL_NEAREST);
+        gl->TexImage2D(GL_TEXTURE_2D, 0, fmt[k], (GLsizei)w, (GLsizei)h, 0, pix[k], type[k], NULL);
+    }
+    r->comp.w = w;
+    r->comp.h = h;
+    return take_errors(gl) == GL_NO_ERROR;
+}
+
+/* called from the render thread, between begin and end */
+hlod_result hlod_gpu_composite(hlod_renderer *r, const uint8_t *rgba, const float *depth,
+                               uint32_t w, uint32_t h)
+{
+    assert(r && rgba && depth && w && h);
+    const gl_table *gl = &r->gl;
+    if (!ensure_comp(r, w, h)) {
+        hlod_logf(&r->lg, HLOD_LOG_ERROR, "renderer: cannot make the %ux%u composite pass", w, h);
+        r->comp.w = r->comp.h = 0;
+        return HLOD_ERR_UNSUPPORTED;
+    }
+    gl->PixelStorei(GL_UNPACK_ALIGNMENT, 4);
+    const void *src[2] = {rgba, depth};
+    const GLenum pix[2] = {GL_RGBA, GL_RED}, type[2] = {GL_UNSIGNED_BYTE, GL_FLOAT};
+    for (int k = 0; k < 2; k++) {
+        gl->ActiveTexture(GL_TEXTURE0 + (GLenum)k);
+        gl->BindTexture(GL_TEXTURE_2D, r->comp.tex[k]);
+        gl->TexSubImage2D(GL_TEXTURE_2D, 0, 0, 0, (GLsizei)w, (GLsizei)h, pix[k], type[k], src[k]);
+    }
+    gl->UseProgram(r->comp.prog);
+    r->cur = NULL;
+    gl->Uniform1i(r->comp.u_color, 0);
+    gl->Uniform1i(r->comp.u_depth, 1);
+    if (r->culling) {
+        gl->Disable(GL_CULL_FACE);
+        r->culling = 0;
+    }
+    gl->BindVertexArray(r->comp.vao);
+    gl->DrawArrays(GL_TRIANGLES, 0, 3);
+    gl->ActiveTexture(GL_TEXTURE0);
+    GLenum e = take_errors(gl);
+    if (e != GL_NO_ERROR) {
+        hlod_logf(&r->lg, HLOD_LOG_ERROR, "renderer: composite %ux%u: GL error %#x", w, h, e);
+        return HLOD_ERR_UNSUPPORTED;
     }
     return HLOD_OK;
 }

@@ -50,6 +50,12 @@ void hlod_gpu_begin(hlod_renderer *r, const hlod_camera *cam);
 void hlod_gpu_draw(hlod_renderer *r, const hlod_gpu_node *g, const double offset[3],
                    uint32_t depth);
 void hlod_gpu_end(hlod_renderer *r, int finish);
+/* Writes a frame splatted on the CPU over what is drawn: each pixel whose
+ * depth (window depth, rows bottom up, w x h: the viewport) is under 1,
+ * with its RGBA8 colour, depth tested against the frame (policy rzb's C
+ * splatter, rzb.h).  HLOD_ERR_UNSUPPORTED (logged) when GL cannot. */
+hlod_result hlod_gpu_composite(hlod_renderer *r, const uint8_t *rgba, const float *depth,
+                               uint32_t w, uint32_t h);
 /* Draws count indices of g from index first, with their vertex colours
  * (g's texture, if any, unused), back faces kept: policy rzb's ranges of
  * faces (rzb.h). */

@@ -62,6 +62,24 @@ typedef struct rzb_class {
     uint32_t nodes, node_cap;
 } rzb_class;
 
+/* A cached point: snapped to its cell's centre (relative to the class
+ * origin), its face's normal and two-sidedness, its unlit colour. */
+typedef struct cache_pt {
+    float p[3];
+    int16_t n[3];
+    uint8_t rgb[3];
+    uint8_t two_sided;
+} cache_pt; /* 24 bytes */
+
+typedef struct rzb_cache rzb_cache;
+struct rzb_cache {
+    uint64_t key;        /* class, node and own-faces flag, + 1; 0: a free slot */
+    int level;           /* cells of 2^level model units */
+    uint32_t used;       /* the frame it was last drawn */
+    uint32_t count;
+    cache_pt *pt;
+};
+
 struct hlod_rzb {
     const hlod_allocator *a;
     rzb_in *in;
@@ -72,6 +90,8 @@ struct hlod_rzb {
     int finished;
     uint32_t *stack;
     size_t stack_cap;
+    struct rzb_cache *cache;   /* sample caches by box (section 7.2), open addressing */
+    size_t cache_slots, cache_used, cache_bytes, cache_limit;
 };
 
 hlod_rzb *hlod_rzb_create(const hlod_allocator *a)
@@ -95,6 +115,9 @@ void hlod_rzb_destroy(hlod_rzb *z)
     }
     hlod_mem_free(z->a, z->in);
     hlod_mem_free(z->a, z->stack);
+    for (size_t i = 0; i < z->cache_slots; i++)
+        hlod_mem_free(z->a, z->cache[i].pt);
+    hlod_mem_free(z->a, z->cache);
     hlod_mem_free(z->a, z);
 }
 
@@ -104,6 +127,8 @@ void hlod_rzb_out_free(const hlod_allocator *a, hlod_rzb_out *o)
         return;
     hlod_mem_free(a, o->splats);
     hlod_mem_free(a, o->ranges);
+    hlod_mem_free(a, o->rgba);
+    hlod_mem_free(a, o->depth);
     memset(o, 0, sizeof *o);
 }
 
@@ -508,6 +533,9 @@ typedef struct frame_ctx {
     double eps, d2, lnv, f2;  /* d^2, ln v, focal length^2 (pixels) */
     uint64_t rng;
     hlod_rzb_out *out;
+    int splat_c;               /* points splatted here (out->rgba, out->depth) */
+    uint32_t frame;            /* stamp for the caches' LRU */
+    double d;                  /* their size, pixels */
     int nomem;
 } frame_ctx;
 
@@ -602,51 +630,330 @@ static uint32_t pick_next(const rzb_class *c, uint32_t b, uint32_t e, uint64_t i
     return *t;
 }
 
+/* The C splatter: the point at camera-relative rel, projected as GL does
+ * (the view's camera-relative view-projection, the viewport, depth range
+ * [0, 1]), written d x d pixels wide where it is nearer than what is
+ * there: the pixels whose centres lie in the d x d square around it, as
+ * GL rasterises a point. */
+static void splat(frame_ctx *f, const double rel[3], const uint8_t col[4])
+{
+    const double *m = f->v->vp;
+    double x = m[0] * rel[0] + m[4] * rel[1] + m[8] * rel[2] + m[12],
+           y = m[1] * rel[0] + m[5] * rel[1] + m[9] * rel[2] + m[13],
+           zc = m[2] * rel[0] + m[6] * rel[1] + m[10] * rel[2] + m[14],
+           wc = m[3] * rel[0] + m[7] * rel[1] + m[11] * rel[2] + m[15];
+    if (!(wc > 0) || zc < -wc || zc > wc)
+        return; /* behind the eye, or past the near or far plane */
+    hlod_rzb_out *o = f->out;
+    double xw = (x / wc * 0.5 + 0.5) * o->w, yw = (y / wc * 0.5 + 0.5) * o->h, half = 0.5 * f->d;
+    if (!(xw > -f->d && xw < o->w + f->d && yw > -f->d && yw < o->h + f->d))
+        return;
+    float z = (float)(zc / wc * 0.5 + 0.5);
+    long x0 = (long)ceil(xw - half - 0.5), y0 = (long)ceil(yw - half - 0.5), n = (long)f->d;
+    long x1 = x0 + n < (long)o->w ? x0 + n : (long)o->w, y1 = y0 + n < (long)o->h ? y0 + n : (long)o->h;
+    x0 = x0 > 0 ? x0 : 0;
+    y0 = y0 > 0 ? y0 : 0;
+    for (long py = y0; py < y1; py++)
+        for (long px = x0; px < x1; px++) {
+            size_t p = (size_t)py * o->w + (size_t)px;
+            if (z < o->depth[p]) {
+                o->depth[p] = z;
+                memcpy(o->rgba + 4 * p, col, 4);
+            }
+        }
+}
+
+/* The C splatter's frame at the view's size, cleared (depth 1). */
+static int clear_frame(frame_ctx *f)
+{
+    hlod_rzb_out *o = f->out;
+    uint32_t w = (uint32_t)f->v->width, h = (uint32_t)f->v->height;
+    size_t n = (size_t)w * h;
+    if (n > o->pix_cap) {
+        uint8_t *c = hlod_mem_realloc(f->z->a, o->rgba, 4 * n);
+        if (c)
+            o->rgba = c;
+        float *d = c ? hlod_mem_realloc(f->z->a, o->depth, n * sizeof *d) : NULL;
+        if (d)
+            o->depth = d;
+        if (!c || !d)
+            return 0;
+        o->pix_cap = n;
+    }
+    o->w = w;
+    o->h = h;
+    memset(o->rgba, 0, 4 * n);
+    for (size_t p = 0; p < n; p++)
+        o->depth[p] = 1.0f;
+    return 1;
+}
+
 /* N points of the range [b, e) of class c, back faces rejected, lit as
  * the renderer lights a face (gl_render.c: headlight and sky). */
+/* One point at camera-relative rel of a face with unit normal n and base
+ * colour base: dropped when it faces away and is one-sided (section
+ * 5.3.3), else lit as the renderer lights a face and drawn. */
+static void emit(frame_ctx *f, const double rel[3], const float n[3], const double base[3],
+                 int two_sided)
+{
+    hlod_rzb_out *o = f->out;
+    double d2 = 0, facing = 0;
+    for (int a = 0; a < 3; a++) {
+        d2 += rel[a] * rel[a];
+        facing -= n[a] * rel[a];
+    }
+    o->samples++;
+    if (facing <= 0 && !two_sided)
+        return;
+    double dist = sqrt(d2), dot = dist > 0 ? fabs(facing) / dist : 1;
+    double nz = facing < 0 ? -n[2] : n[2];
+    double light = 0.20 + 0.55 * dot + 0.25 * (0.5 + 0.5 * nz);
+    uint8_t col[4] = {clamp_byte(base[0] * light), clamp_byte(base[1] * light),
+                      clamp_byte(base[2] * light), 255};
+    if (f->splat_c) {
+        splat(f, rel, col);
+        o->splat_count++; /* counted, landed or not, as a GL point is */
+        return;
+    }
+    hlod_gpu_splat *s = &o->splats[o->splat_count++];
+    for (int a = 0; a < 3; a++)
+        s->pos[a] = (float)rel[a];
+    memcpy(s->rgba, col, 4);
+}
+
+/* Makes room for n more points (fewer past RZB_MAX_SAMPLES); the count. */
+static uint64_t room(frame_ctx *f, uint64_t n)
+{
+    hlod_rzb_out *o = f->out;
+    if (o->samples + n > RZB_MAX_SAMPLES)
+        n = o->samples < RZB_MAX_SAMPLES ? RZB_MAX_SAMPLES - o->samples : 0;
+    if (!n || (!f->splat_c && !grow_splats(f, n)))
+        return 0;
+    return n;
+}
+
+/* The i-th of n points of range [b, e) of class c: its face t, its
+ * position relative to the class origin and its colour. */
+static uint32_t draw_point(frame_ctx *f, const rzb_class *c, uint32_t b, uint32_t e, uint64_t i,
+                           uint64_t n, uint32_t *at, double p[3], double col[3])
+{
+    uint32_t t = pick_next(c, b, e, i, n, uniform(f), at);
+    double w[3];
+    bary(uniform(f), uniform(f), w);
+    const rzb_tri *tr = &c->tri[t];
+    for (int a = 0; a < 3; a++) {
+        p[a] = w[0] * tr->p[0][a] + w[1] * tr->p[1][a] + w[2] * tr->p[2][a];
+        col[a] = w[0] * tr->rgba[0][a] + w[1] * tr->rgba[1][a] + w[2] * tr->rgba[2][a];
+    }
+    return t;
+}
+
+/* N fresh points of the range [b, e) of class c. */
 static void sample(frame_ctx *f, uint32_t ci, uint32_t b, uint32_t e, uint64_t n)
 {
     const rzb_class *c = &f->z->cls[ci];
-    hlod_rzb_out *o = f->out;
-    if (o->splat_count + n > RZB_MAX_SAMPLES)
-        n = o->splat_count < RZB_MAX_SAMPLES ? RZB_MAX_SAMPLES - o->splat_count : 0;
-    if (!n || !grow_splats(f, n))
-        return;
+    n = room(f, n);
     double base[3];
     for (int a = 0; a < 3; a++)
         base[a] = c->origin[a] - f->v->eye[a];
     uint32_t at = b;
     for (uint64_t i = 0; i < n; i++) {
-        uint32_t t = pick_next(c, b, e, i, n, uniform(f), &at);
-        double w[3];
-        bary(uniform(f), uniform(f), w);
-        const rzb_tri *tr = &c->tri[t];
-        double rel[3], d2 = 0, facing = 0;
-        for (int a = 0; a < 3; a++) {
-            rel[a] = base[a] + w[0] * tr->p[0][a] + w[1] * tr->p[1][a] + w[2] * tr->p[2][a];
-            d2 += rel[a] * rel[a];
-            facing -= tr->n[a] * rel[a];
-        }
-        o->samples++;
-        if (facing <= 0 && !tr->two_sided)
-            continue; /* a back face (section 5.3.3) */
-        double dist = sqrt(d2), dot = dist > 0 ? fabs(facing) / dist : 1;
-        double nz = facing < 0 ? -tr->n[2] : tr->n[2];
-        double light = 0.20 + 0.55 * dot + 0.25 * (0.5 + 0.5 * nz);
-        hlod_gpu_splat *s = &o->splats[o->splat_count++];
-        for (int a = 0; a < 3; a++) {
-            s->pos[a] = (float)rel[a];
-            s->rgba[a] = clamp_byte(
-                (w[0] * tr->rgba[0][a] + w[1] * tr->rgba[1][a] + w[2] * tr->rgba[2][a]) * light);
-        }
-        s->rgba[3] = 255;
+        double p[3], col[3], rel[3];
+        uint32_t t = draw_point(f, c, b, e, i, n, &at, p, col);
+        for (int a = 0; a < 3; a++)
+            rel[a] = base[a] + p[a];
+        emit(f, rel, c->tri[t].n, col, (int)c->tri[t].two_sided);
     }
+}
+
+/* ---- sample caches (section 7.2) ---- */
+
+static uint64_t mix64(uint64_t x)
+{
+    x = (x ^ (x >> 30)) * 0xBF58476D1CE4E5B9ull;
+    x = (x ^ (x >> 27)) * 0x94D049BB133111EBull;
+    return x ^ (x >> 31);
+}
+
+/* The slot of key in the table (linear probing): its entry, or the free
+ * slot where it would go. */
+static rzb_cache *cache_slot(hlod_rzb *z, uint64_t key)
+{
+    size_t mask = z->cache_slots - 1, i = mix64(key) & mask;
+    while (z->cache[i].key && z->cache[i].key != key)
+        i = (i + 1) & mask;
+    return &z->cache[i];
+}
+
+/* Frees slot i and closes the gap behind it (backward shift), so every
+ * key stays reachable from its home slot. */
+static void cache_remove(hlod_rzb *z, size_t i)
+{
+    size_t mask = z->cache_slots - 1;
+    z->cache_bytes -= (size_t)z->cache[i].count * sizeof(cache_pt);
+    hlod_mem_free(z->a, z->cache[i].pt);
+    z->cache[i] = (rzb_cache){0};
+    z->cache_used--;
+    for (size_t j = (i + 1) & mask; z->cache[j].key; j = (j + 1) & mask) {
+        size_t home = mix64(z->cache[j].key) & mask;
+        /* j's entry may move into the hole at i if its home is not in (i, j] */
+        if ((j > i && (home <= i || home > j)) || (j < i && home <= i && home > j)) {
+            z->cache[i] = z->cache[j];
+            z->cache[j] = (rzb_cache){0};
+            i = j;
+        }
+    }
+}
+
+/* Evicts the least recently drawn caches, never this frame's, until the
+ * caches fit the limit. */
+static void cache_trim(hlod_rzb *z, uint32_t frame)
+{
+    while (z->cache_bytes > z->cache_limit) {
+        size_t worst = SIZE_MAX;
+        for (size_t i = 0; i < z->cache_slots; i++)
+            if (z->cache[i].key && z->cache[i].used != frame &&
+                (worst == SIZE_MAX || z->cache[i].used < z->cache[worst].used))
+                worst = i;
+        if (worst == SIZE_MAX)
+            return;
+        cache_remove(z, worst);
+    }
+}
+
+/* A table with room for one more entry (at most half full). */
+static int cache_grow(hlod_rzb *z)
+{
+    if (2 * (z->cache_used + 1) <= z->cache_slots)
+        return 1;
+    size_t slots = z->cache_slots ? 2 * z->cache_slots : 1024;
+    rzb_cache *old = z->cache, *t = hlod_mem_alloc(z->a, slots * sizeof *t);
+    if (!t)
+        return 0;
+    memset(t, 0, slots * sizeof *t);
+    size_t old_slots = z->cache_slots;
+    z->cache = t;
+    z->cache_slots = slots;
+    for (size_t i = 0; i < old_slots; i++)
+        if (old[i].key)
+            *cache_slot(z, old[i].key) = old[i];
+    hlod_mem_free(z->a, old);
+    return 1;
+}
+
+/* The points of a new cache at `level`: n fresh points of the range,
+ * without back-face rejection (a cache serves every side), each snapped
+ * to the centre of its cell, one a cell (a scratch hash set of cells). */
+static int cache_fill(frame_ctx *f, const rzb_class *c, uint32_t b, uint32_t e, uint64_t n,
+                      int level, rzb_cache *out)
+{
+    hlod_rzb *z = f->z;
+    double side = ldexp(1.0, level);
+    size_t slots = 64;
+    while (slots < 2 * n)
+        slots *= 2;
+    uint64_t *seen = hlod_mem_alloc(z->a, slots * sizeof *seen);
+    cache_pt *pt = hlod_mem_alloc(z->a, (n ? n : 1) * sizeof *pt);
+    if (!seen || !pt) {
+        hlod_mem_free(z->a, seen);
+        hlod_mem_free(z->a, pt);
+        return 0;
+    }
+    memset(seen, 0, slots * sizeof *seen);
+    uint32_t at = b, count = 0;
+    for (uint64_t i = 0; i < n; i++) {
+        double p[3], col[3];
+        uint32_t t = draw_point(f, c, b, e, i, n, &at, p, col);
+        int64_t cell[3];
+        for (int a = 0; a < 3; a++)
+            cell[a] = (int64_t)floor(p[a] / side);
+        uint64_t key = mix64((uint64_t)cell[0] * 0x9E3779B97F4A7C15ull ^
+                             (uint64_t)cell[1] * 0xC2B2AE3D27D4EB4Full ^ (uint64_t)cell[2]) | 1;
+        size_t s = key & (slots - 1);
+        while (seen[s] && seen[s] != key)
+            s = (s + 1) & (slots - 1);
+        if (seen[s])
+            continue; /* the cell has its point (a rare hash clash drops one more) */
+        seen[s] = key;
+        cache_pt *q = &pt[count++];
+        const rzb_tri *tr = &c->tri[t];
+        for (int a = 0; a < 3; a++) {
+            q->p[a] = (float)((cell[a] + 0.5) * side);
+            q->n[a] = (int16_t)lrint(tr->n[a] * 32767.0);
+            q->rgb[a] = clamp_byte(col[a]);
+        }
+        q->two_sided = (uint8_t)tr->two_sided;
+    }
+    hlod_mem_free(z->a, seen);
+    cache_pt *fit = hlod_mem_realloc(z->a, pt, (count ? count : 1) * sizeof *pt);
+    out->pt = fit ? fit : pt;
+    out->count = count;
+    out->level = level;
+    return 1;
+}
+
+/* A selected range drawn from its cache (made or made again when its
+ * cells no longer fit the view: over d pixels at the box's nearest depth,
+ * or four times smaller than needed). */
+static void cached(frame_ctx *f, uint32_t ci, uint32_t node, int own, uint32_t b, uint32_t e,
+                   double zmin, uint64_t n)
+{
+    hlod_rzb *z = f->z;
+    const rzb_class *c = &z->cls[ci];
+    /* a cell whose side projects within d pixels at zmin: its diagonal
+     * within sqrt(3) d (Wand 7.2) */
+    int level = (int)floor(log2(zmin * f->d / sqrt(f->f2)));
+    uint64_t key = (((uint64_t)ci << 40) | ((uint64_t)node << 1) | (uint64_t)own) + 1;
+    if (!cache_grow(z)) {
+        sample(f, ci, b, e, n);
+        return;
+    }
+    rzb_cache *slot = cache_slot(z, key);
+    if (slot->key && (slot->level > level || slot->level < level - 2)) {
+        cache_remove(z, (size_t)(slot - z->cache));
+        slot = cache_slot(z, key);
+    }
+    if (!slot->key) {
+        /* four times the points a fresh frame draws: its cells project
+         * within d / 2 to d pixels, so each gets about ln v of them, and
+         * few stay empty */
+        uint64_t fill = 4 * n < RZB_MAX_SAMPLES ? 4 * n : RZB_MAX_SAMPLES;
+        rzb_cache fresh = {0};
+        if (!cache_fill(f, c, b, e, fill, level, &fresh)) {
+            f->nomem = 1;
+            return;
+        }
+        fresh.key = key;
+        slot = cache_slot(z, key); /* unchanged: nothing was added since */
+        *slot = fresh;
+        z->cache_used++;
+        z->cache_bytes += (size_t)fresh.count * sizeof(cache_pt);
+        f->out->cache_fills++;
+    }
+    slot->used = f->frame;
+    uint64_t m = room(f, slot->count);
+    double base[3];
+    for (int a = 0; a < 3; a++)
+        base[a] = c->origin[a] - f->v->eye[a];
+    for (uint64_t i = 0; i < m; i++) {
+        const cache_pt *q = &slot->pt[i];
+        double rel[3], col[3];
+        float nrm[3];
+        for (int a = 0; a < 3; a++) {
+            rel[a] = base[a] + q->p[a];
+            nrm[a] = (float)(q->n[a] / 32767.0);
+            col[a] = q->rgb[a];
+        }
+        emit(f, rel, nrm, col, q->two_sided);
+    }
+    f->out->cache_points += m;
 }
 
 /* A selected range of class c, nearest depth zmin: points, or its faces
  * for the rasteriser where a face may project over d^2 / ln v pixels
  * (section 7.1) or the box reaches the eye's plane. */
-static void select_range(frame_ctx *f, uint32_t ci, uint32_t b, uint32_t e, double zmin)
+static void select_range(frame_ctx *f, uint32_t ci, uint32_t node, int own, uint32_t b,
+                         uint32_t e, double zmin)
 {
     const rzb_class *c = &f->z->cls[ci];
     if (b >= e)
@@ -658,7 +965,11 @@ static void select_range(frame_ctx *f, uint32_t ci, uint32_t b, uint32_t e, doub
         return;
     }
     double want = ceil((c->cum[e] - c->cum[b]) * proj * f->lnv / f->d2);
-    sample(f, ci, b, e, want < (double)RZB_MAX_SAMPLES ? (uint64_t)want : RZB_MAX_SAMPLES);
+    uint64_t n = want < (double)RZB_MAX_SAMPLES ? (uint64_t)want : RZB_MAX_SAMPLES;
+    if (f->z->cache_limit)
+        cached(f, ci, node, own, b, e, zmin, n);
+    else
+        sample(f, ci, b, e, n);
     f->out->boxes_sampled++;
 }
 
@@ -687,7 +998,8 @@ static void walk_class(frame_ctx *f, uint32_t ci)
     size_t sp = 0;
     z->stack[sp++] = 0;
     while (sp && !f->nomem) {
-        const rzb_node *nd = &c->node[z->stack[--sp]];
+        uint32_t id = z->stack[--sp];
+        const rzb_node *nd = &c->node[id];
         if (hlod_view_outside(f->v, nd->lo, nd->hi) > 0)
             continue;
         double zmin, zmax;
@@ -696,24 +1008,37 @@ static void walk_class(frame_ctx *f, uint32_t ci)
             continue; /* behind the eye */
         int narrow = zmin > 0 && zmax * zmax <= f->eps * zmin * zmin;
         if (narrow || !nd->kids) {
-            select_range(f, ci, nd->begin, nd->end, zmin);
+            select_range(f, ci, id, 0, nd->begin, nd->end, zmin);
             continue;
         }
-        select_range(f, ci, nd->own, nd->end, zmin);
+        select_range(f, ci, id, 1, nd->own, nd->end, zmin);
         for (uint32_t k = 0; k < nd->kids; k++)
             z->stack[sp++] = nd->kid[k];
     }
 }
 
-hlod_result hlod_rzb_frame(hlod_rzb *z, const hlod_view *v, double eps, double d, uint64_t seed,
+void hlod_rzb_set_cache(hlod_rzb *z, size_t bytes)
+{
+    if (!z)
+        return;
+    z->cache_limit = bytes;
+    cache_trim(z, UINT32_MAX);
+}
+
+size_t hlod_rzb_cache_bytes(const hlod_rzb *z)
+{
+    return z ? z->cache_bytes : 0;
+}
+
+hlod_result hlod_rzb_frame(hlod_rzb *z, const hlod_view *v, const hlod_rzb_params *p,
                            hlod_rzb_out *out)
 {
-    if (!z || !v || !out || !z->finished || !(eps > 1) || !(d >= 1))
+    if (!z || !v || !p || !out || !z->finished || !(p->eps > 1) || !(p->d >= 1))
         return HLOD_ERR_INVALID_ARG;
     out->splat_count = out->range_count = 0;
     out->range_tris = 0;
-    out->samples = 0;
-    out->boxes_sampled = out->boxes_drawn = 0;
+    out->samples = out->cache_points = 0;
+    out->boxes_sampled = out->boxes_drawn = out->cache_fills = 0;
     /* the walk's stack: at most 7 more per level below the root */
     size_t need = 8 * (RZB_MAX_DEPTH + 2);
     if (z->stack_cap < need) {
@@ -726,14 +1051,22 @@ hlod_result hlod_rzb_frame(hlod_rzb *z, const hlod_view *v, double eps, double d
     double pixels = v->width * v->height;
     frame_ctx f = {.z = z,
                    .v = v,
-                   .eps = eps,
-                   .d2 = d * d,
+                   .eps = p->eps,
+                   .d2 = p->d * p->d,
                    .lnv = log(pixels > 2 ? pixels : 2),
                    .f2 = v->pixels_per_radian * v->pixels_per_radian,
-                   .rng = seed,
-                   .out = out};
+                   .rng = p->seed,
+                   .out = out,
+                   .splat_c = p->splat_c,
+                   .frame = p->frame,
+                   .d = p->d};
+    out->splatted = p->splat_c;
+    if (p->splat_c && !clear_frame(&f))
+        return HLOD_ERR_NOMEM;
     for (uint32_t c = 0; c < z->class_count && !f.nomem; c++)
         walk_class(&f, c);
+    cache_trim(z, p->frame);
+    out->cache_bytes = z->cache_bytes;
     return f.nomem ? HLOD_ERR_NOMEM : HLOD_OK;
 }
 
@@ -800,5 +1133,8 @@ void hlod_rzb_draw(const hlod_rzb *z, hlod_renderer *r, const double eye[3],
         double off[3] = {c->origin[0] - eye[0], c->origin[1] - eye[1], c->origin[2] - eye[2]};
         hlod_gpu_draw_range(r, &c->gpu, off, 3 * g->first, 3 * g->count);
     }
-    (void)hlod_gpu_splats(r, out->splats, (uint32_t)out->splat_count, (float)d);
+    if (out->splatted && out->w && out->h)
+        (void)hlod_gpu_composite(r, out->rgba, out->depth, out->w, out->h);
+    else if (!out->splatted)
+        (void)hlod_gpu_splats(r, out->splats, (uint32_t)out->splat_count, (float)d);
 }

@@ -71,19 +71,50 @@ typedef struct hlod_rzb_out {
     size_t range_count, range_cap;
     uint64_t range_tris;       /* their faces */
     uint64_t samples;          /* points drawn, back faces rejected included */
+    uint64_t cache_points;     /* ... of them from caches */
+    uint32_t cache_fills;      /* caches made this frame */
+    size_t cache_bytes;        /* the caches' points after the frame */
+    /* the C splatter's frame (splat_c): colour and window depth per pixel,
+     * rows bottom up, depth 1 where no point landed; splat_count then
+     * counts the points kept, and splats is unused */
+    uint8_t *rgba;
+    float *depth;
+    uint32_t w, h;
+    size_t pix_cap;
+    int splatted;
     uint32_t boxes_sampled, boxes_drawn; /* selected boxes, by how */
 } hlod_rzb_out;
 
 void hlod_rzb_out_free(const hlod_allocator *a, hlod_rzb_out *o);
 
-/* Selects and samples for view v (eps > 1, d >= 1 pixels), with the
- * frame's seed (the same seed, view and structure give the same points).
- * HLOD_ERR_NOMEM on allocation failure (the output is then partial). */
-hlod_result hlod_rzb_frame(hlod_rzb *z, const hlod_view *v, double eps, double d, uint64_t seed,
+/* Sample caches (Wand 7.2): a selected box's points are kept, snapped to
+ * a grid whose cells project within d pixels at the box's nearest depth,
+ * one a cell, and drawn again while the cells fit (made again when they
+ * would project over d pixels, or four times finer than needed); the
+ * least recently drawn are dropped past `bytes` (0: no caches, every
+ * point fresh; the default). */
+void hlod_rzb_set_cache(hlod_rzb *z, size_t bytes);
+size_t hlod_rzb_cache_bytes(const hlod_rzb *z);
+
+typedef struct hlod_rzb_params {
+    double eps;      /* a box is selected when (z_max / z_min)^2 <= eps; > 1 */
+    double d;        /* the points' size, pixels; >= 1 */
+    uint64_t seed;   /* the frame's points (the same seed, view and
+                        structure give the same points) */
+    uint32_t frame;  /* stamp: the caches' recency */
+    int splat_c;     /* the points are splatted here, d x d pixels each, into
+                        out's colour and depth (the C splatter), else listed
+                        for GL points */
+} hlod_rzb_params;
+
+/* Selects and samples for view v.  HLOD_ERR_NOMEM on allocation failure
+ * (the output is then partial). */
+hlod_result hlod_rzb_frame(hlod_rzb *z, const hlod_view *v, const hlod_rzb_params *p,
                            hlod_rzb_out *out);
 
-/* Draws out's ranges (uploaded) and then its points, d x d pixels, for
- * the eye at `eye`, between hlod_gpu_begin and hlod_gpu_end. */
+/* Draws out's ranges (uploaded) and then its points, d x d pixels (as GL
+ * points, or the C splatter's frame composited), for the eye at `eye`,
+ * between hlod_gpu_begin and hlod_gpu_end. */
 void hlod_rzb_draw(const hlod_rzb *z, hlod_renderer *r, const double eye[3],
                    const hlod_rzb_out *out, double d);
 

@@ -14,6 +14,7 @@
  * - faces seen from behind, one-sided, give no point.
  */
 #include "check.h"
+#include "engine_internal.h"
 #include "rzb.h"
 #include "store_fixture.h"
 
@@ -158,9 +159,10 @@ static void down_camera(hlod_camera *cam, double cx, double cy, double h)
     CHECK(hlod_camera_look_at(cam, eye, at, up, 60, 0.1, 1e4, W, H) == HLOD_OK);
 }
 
-/* One frame of store `path` under policy pol, splat size d, into rgb. */
-static int render(const char *path, hlod_policy pol, uint32_t d, const hlod_camera *cam,
-                  uint8_t *rgb, hlod_frame_stats *st)
+/* One frame of store `path` under policy pol, splat size d (rzb: points
+ * splatted in C, or GL points), into rgb. */
+static int render_as(const char *path, hlod_policy pol, uint32_t d, int splat_c,
+                     const hlod_camera *cam, uint8_t *rgb, hlod_frame_stats *st)
 {
     hlod_store *s = NULL;
     if (hlod_store_open(path, NULL, &s) != HLOD_OK)
@@ -170,6 +172,7 @@ static int render(const char *path, hlod_policy pol, uint32_t d, const hlod_came
     desc.renderer = g_r;
     desc.deterministic = 1;
     desc.splat_px = d;
+    desc.rzb_splat_c = splat_c ? 1 : -1; /* a flag: 0 would be the default */
     desc.memory_budget_bytes = 1ull << 32;
     hlod_engine *e = NULL;
     int ok = hlod_engine_create(s, &desc, &e) == HLOD_OK &&
@@ -179,6 +182,12 @@ static int render(const char *path, hlod_policy pol, uint32_t d, const hlod_came
     hlod_engine_destroy(e);
     hlod_store_close(s);
     return ok;
+}
+
+static int render(const char *path, hlod_policy pol, uint32_t d, const hlod_camera *cam,
+                  uint8_t *rgb, hlod_frame_stats *st)
+{
+    return render_as(path, pol, d, 1, cam, rgb, st);
 }
 
 static int is_bg(const uint8_t *p)
@@ -197,26 +206,99 @@ static void fine_board_is_covered(void)
     CHECK(fixture_write(path, &o, NULL) == HLOD_OK);
     hlod_camera cam;
     down_camera(&cam, 5e6 + 50, 50, 50);
-    uint8_t *img = malloc(W * H * 3), *again = malloc(W * H * 3);
-    CHECK(img && again);
+    uint8_t *img = malloc(W * H * 3), *again = malloc(W * H * 3), *gl = malloc(W * H * 3);
+    CHECK(img && again && gl);
     const uint32_t sizes[2] = {1, 2};
-    for (int k = 0; k < 2 && img && again; k++) {
-        hlod_frame_stats st, st2;
-        CHECK(render(path, HLOD_POLICY_RZB, sizes[k], &cam, img, &st));
-        size_t holes = 0;
-        for (size_t p = 0; p < W * H; p++)
-            holes += is_bg(img + 3 * p);
-        printf("REPORT d = %u: %u points, %llu faces rasterised, %zu of %d pixels uncovered\n",
-               sizes[k], st.splats, (unsigned long long)st.tris_drawn, holes, W * H);
-        CHECKF(holes <= 3, "d = %u: %zu pixels uncovered", sizes[k], holes);
-        CHECKF(st.splats > 1000 && st.tris_drawn == 0, "d = %u: %u points, %llu faces rasterised",
-               sizes[k], st.splats, (unsigned long long)st.tris_drawn);
-        CHECK(render(path, HLOD_POLICY_RZB, sizes[k], &cam, again, &st2));
-        CHECKF(st2.splats == st.splats && memcmp(img, again, W * H * 3) == 0,
-               "d = %u: the same frame drew another image", sizes[k]);
+    for (int k = 0; k < 2 && img && again && gl; k++) {
+        for (int c = 0; c < 2; c++) {
+            hlod_frame_stats st, st2;
+            uint8_t *out = c ? img : gl;
+            CHECK(render_as(path, HLOD_POLICY_RZB, sizes[k], c, &cam, out, &st));
+            size_t holes = 0;
+            for (size_t p = 0; p < W * H; p++)
+                holes += is_bg(out + 3 * p);
+            printf("REPORT d = %u, %s: %u points, %llu faces rasterised, %zu of %d pixels "
+                   "uncovered\n", sizes[k], c ? "C splatter" : "GL points", st.splats,
+                   (unsigned long long)st.tris_drawn, holes, W * H);
+            CHECKF(holes <= 3, "d = %u, splat_c %d: %zu pixels uncovered", sizes[k], c, holes);
+            CHECKF(st.splats > 1000 && st.tris_drawn == 0,
+                   "d = %u: %u points, %llu faces rasterised", sizes[k], st.splats,
+                   (unsigned long long)st.tris_drawn);
+            CHECK(render_as(path, HLOD_POLICY_RZB, sizes[k], c, &cam, again, &st2));
+            CHECKF(st2.splats == st.splats && memcmp(out, again, W * H * 3) == 0,
+                   "d = %u, splat_c %d: the same frame drew another image", sizes[k], c);
+        }
+        /* the same points: the C splatter's pixels are GL's */
+        double psnr = 0;
+        CHECK(hlod_psnr_rgb8(img, gl, W, H, &psnr) == HLOD_OK);
+        printf("REPORT d = %u: the C splatter's image %.1f dB from GL points'\n", sizes[k], psnr);
+        CHECKF(psnr >= 40, "d = %u: C splatter %.1f dB from GL points", sizes[k], psnr);
     }
     free(img);
     free(again);
+    free(gl);
+}
+
+/* With sample caches, a second frame from the same view draws every point
+ * from them, far fewer than fresh (one a cell instead of ln v a pixel),
+ * and still covers the board but for a few pixels (a point sits at its
+ * cell's centre, up to half a cell off the surface). */
+static void caches_serve_the_next_frame(void)
+{
+    char path[512];
+    snprintf(path, sizeof path, "%s/fine.hlod", g_dir); /* fine_board_is_covered's */
+    hlod_store *s = NULL;
+    CHECK(hlod_store_open(path, NULL, &s) == HLOD_OK);
+    if (!s)
+        return;
+    hlod_camera cam;
+    down_camera(&cam, 5e6 + 50, 50, 50);
+    hlod_engine_desc desc = {0};
+    desc.policy = HLOD_POLICY_RZB;
+    desc.renderer = g_r;
+    desc.deterministic = 1;
+    hlod_engine *e = NULL;
+    hlod_frame_stats st;
+    /* fresh points: no caches (the default) */
+    CHECK(hlod_engine_create(s, &desc, &e) == HLOD_OK);
+    CHECK(e && hlod_engine_frame(e, &cam, 1.0 / 30, &st) == HLOD_OK);
+    uint64_t fresh = e ? e->rzb_out.samples : 0;
+    hlod_engine_destroy(e);
+    e = NULL;
+    desc.rzb_cache_mb = 64;
+    uint8_t *img = malloc(W * H * 3);
+    CHECK(img && hlod_engine_create(s, &desc, &e) == HLOD_OK);
+    for (int k = 0; k < 2 && e && img; k++) {
+        CHECK(hlod_engine_frame(e, &cam, 1.0 / 30, &st) == HLOD_OK);
+        const hlod_rzb_out *o = &e->rzb_out;
+        if (k == 0) {
+            CHECKF(o->cache_fills > 0, "frame 1 made %u caches", o->cache_fills);
+            continue;
+        }
+        CHECK(hlod_osmesa_read_rgb(g_gl, img) == HLOD_OK);
+        size_t holes = 0;
+        for (size_t p = 0; p < W * H; p++)
+            holes += is_bg(img + 3 * p);
+        printf("REPORT caches: frame 2 drew %llu points from %zu bytes of caches (%u made "
+               "again), fresh points %llu; %zu of %d pixels uncovered\n",
+               (unsigned long long)o->samples, o->cache_bytes, o->cache_fills,
+               (unsigned long long)fresh, holes, W * H);
+        CHECKF(o->cache_fills == 0 && o->cache_points == o->samples && o->samples > 1000,
+               "frame 2: %u caches made, %llu of %llu points from caches", o->cache_fills,
+               (unsigned long long)o->cache_points, (unsigned long long)o->samples);
+        CHECKF(3 * o->samples < fresh, "cached points %llu, fresh %llu",
+               (unsigned long long)o->samples, (unsigned long long)fresh);
+        CHECKF(holes <= W * H / 200, "from caches: %zu pixels uncovered", holes);
+    }
+    /* a smaller limit drops the least recently drawn */
+    if (e) {
+        hlod_rzb_set_cache(e->rzb, 1 << 10);
+        CHECKF(hlod_rzb_cache_bytes(e->rzb) <= (1 << 10), "caches at %zu bytes over a 1 KiB limit",
+               hlod_rzb_cache_bytes(e->rzb));
+    }
+    hlod_engine_destroy(e);
+    hlod_store_close(s);
+    free(img);
 }
 
 /* Large faces (a 4 x 4 grid a leaf) are rasterised, all of them: the
@@ -282,7 +364,8 @@ static void back_faces_give_no_point(void)
         hlod_view v;
         hlod_view_init(&v, &cam, still, 0);
         hlod_rzb_out out = {0};
-        CHECK(hlod_rzb_frame(z, &v, 1.4, 1, 1, &out) == HLOD_OK);
+        hlod_rzb_params prm = {.eps = 1.4, .d = 1, .seed = 1, .frame = 1};
+        CHECK(hlod_rzb_frame(z, &v, &prm, &out) == HLOD_OK);
         printf("REPORT from behind, %s: %llu points drawn, %zu kept\n",
                solid ? "one-sided" : "two-sided", (unsigned long long)out.samples,
                out.splat_count);
@@ -313,6 +396,7 @@ int main(void)
         hlod_renderer_create(hlod_osmesa_get_proc(), NULL, &g_r) == HLOD_OK) {
         hlod_renderer_set_clear_color(g_r, 1, 0, 1);
         RUN(fine_board_is_covered);
+        RUN(caches_serve_the_next_frame);
         RUN(large_faces_draw_as_full);
     } else {
         CHECK(0); /* OSMesa is installed by the test command */

@@ -152,6 +152,10 @@ typedef double (*hlod_time_model)(void *user_data, const struct hlod_frame_stats
       "rzb policy: the points' size d")                                                         \
     X(rzb_eps, rzb_eps, D, 1.4, 1, 1, 100, 1,                                                    \
       "rzb policy: a box is sampled at its nearest depth when (z_max / z_min)^2 <= rzb_eps")     \
+    X(rzb_splat_c, rzb_splat_c, B, 1, 0, 0, 1, 1,                                                \
+      "rzb policy: 1: points splatted in C into a depth and colour frame; 0: as GL points")      \
+    X(rzb_cache_mb, rzb_cache_mb, U32, 0, 0, 0, 65536, 1,                                        \
+      "rzb policy: MiB of sample caches (Wand 7.2), least recently drawn dropped; 0: none")     \
     X(splats, splats, B, 1, 0, 0, 1, 1,                                                          \
       "klein policy: 1: small nodes are splats; 0: every node is drawn (the reference walk)")   \
     X(texture_upload, texture_upload, U32, 0, 0, 0, 2, 0,                                        \
