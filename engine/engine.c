@@ -165,6 +165,13 @@ static hlod_result check_refine(const hlod_store *store, const hlod_engine_desc 
                   "tree keeps faces in its inner nodes too");
         return HLOD_ERR_INVALID_ARG;
     }
+    const hlod_store_extra *x = hlod_store_extras(store);
+    if (add && hlod_policy_has(d->policy, HLOD_PT_CUBES) &&
+        (!x || !hlod_store_get_header(store)->node_count || !(x[0].flags & HLOD_EXTRA_CUBE))) {
+        hlod_logf(&d->logger, HLOD_LOG_ERROR, "engine: policy cubes draws colour cubes; this "
+                  "store's nodes carry none (build one with hlod-build --method cubes)");
+        return HLOD_ERR_INVALID_ARG;
+    }
     if (!add && pol) {
         hlod_logf(&d->logger, HLOD_LOG_ERROR, "engine: policy %s draws a sample tree; this "
                   "store refines by replacement (build one with hlod-build --method sampletree)",
@@ -509,6 +516,76 @@ static void draw_occluded(hlod_engine *e, const hlod_camera *cam, const hlod_vie
     e->st.occlusion_ms = t2 - t0;
 }
 
+/* The light gl_render.c's shader gives a face of unit normal n seen from
+ * rel (the face relative to the eye, d its length): headlight and sky. */
+static double face_light(const double n[3], const double rel[3], double d)
+{
+    double dot = 0;
+    for (int a = 0; a < 3; a++)
+        dot -= n[a] * rel[a] / d;
+    double nz = dot < 0 ? -n[2] : n[2]; /* back faces are lit like front faces */
+    return 0.20 + 0.55 * fabs(dot) + 0.25 * (0.5 + 0.5 * nz);
+}
+
+/* The selection's colour cubes (policy cubes; Chamberlain 3), in the
+ * walk's back-to-front order: each cube's faces that face the eye, two
+ * triangles each, lit as the geometry is, blended over what is drawn
+ * (docs/cubes.md). */
+static void draw_cubes(hlod_engine *e, const hlod_camera *cam)
+{
+    const hlod_u32_vec *sp = &e->sel.splats;
+    const hlod_store_extra *x = e->sel.extras;
+    if (!sp->n || !x)
+        return;
+    size_t need = 18 * sp->n; /* three faces of six corners at most */
+    if (e->splat_cap < need) {
+        hlod_gpu_splat *b = hlod_mem_realloc(&e->d.allocator, e->splat_buf, need * sizeof *b);
+        if (!b)
+            return; /* the frame goes without its cubes */
+        e->splat_buf = b;
+        e->splat_cap = need;
+    }
+    size_t nv = 0;
+    for (size_t k = 0; k < sp->n; k++) {
+        const hlod_store_node *n = &e->nodes[sp->v[k]];
+        double lo[3], hi[3];
+        for (int a = 0; a < 3; a++) {
+            lo[a] = n->bbox_min[a] - cam->position[a];
+            hi[a] = n->bbox_max[a] - cam->position[a];
+        }
+        for (int f = 0; f < 6; f++) {
+            const uint8_t *c = x[sp->v[k]].cube[f];
+            const int a = f / 2, plus = !(f & 1), u = (a + 1) % 3, w = (a + 2) % 3;
+            double plane = plus ? hi[a] : lo[a];
+            /* seen only from its own side: the eye (0) beyond its plane */
+            if (!c[3] || (plus ? plane >= 0 : plane <= 0))
+                continue;
+            double nrm[3] = {0, 0, 0}, mid[3];
+            nrm[a] = plus ? 1 : -1;
+            mid[a] = plane;
+            mid[u] = 0.5 * (lo[u] + hi[u]);
+            mid[w] = 0.5 * (lo[w] + hi[w]);
+            double d = sqrt(mid[0] * mid[0] + mid[1] * mid[1] + mid[2] * mid[2]);
+            double light = d > 0 ? face_light(nrm, mid, d) : 1;
+            uint8_t rgba[4];
+            for (int q = 0; q < 3; q++) {
+                double val = c[q] * light;
+                rgba[q] = (uint8_t)(val > c[3] ? c[3] : val + 0.5); /* premultiplied */
+            }
+            rgba[3] = c[3];
+            static const int corner[6][2] = {{0, 0}, {1, 0}, {1, 1}, {0, 0}, {1, 1}, {0, 1}};
+            for (int q = 0; q < 6; q++) {
+                hlod_gpu_splat *s = &e->splat_buf[nv++];
+                s->pos[a] = (float)plane;
+                s->pos[u] = (float)(corner[q][0] ? hi[u] : lo[u]);
+                s->pos[w] = (float)(corner[q][1] ? hi[w] : lo[w]);
+                memcpy(s->rgba, rgba, 4);
+            }
+        }
+    }
+    (void)hlod_gpu_blended(e->d.renderer, e->splat_buf, (uint32_t)nv);
+}
+
 /* The selection's splats (a sample tree's small nodes, Klein 4.5): each
  * at its box's centre, its colour lit as a face with the node's average
  * normal would be (gl_render.c's headlight and sky), as wide as the walk's
@@ -518,6 +595,10 @@ static void draw_splats(hlod_engine *e, const hlod_camera *cam)
     if (e->rzb) {
         /* rzb's rasterised faces, then its points, d x d each (Wand 4.2) */
         hlod_rzb_draw(e->rzb, e->d.renderer, cam->position, &e->rzb_out, e->d.splat_px);
+        return;
+    }
+    if (hlod_policy_has(e->d.policy, HLOD_PT_CUBES)) {
+        draw_cubes(e, cam);
         return;
     }
     const hlod_u32_vec *sp = &e->sel.splats;
@@ -760,6 +841,8 @@ static hlod_select_in select_inputs(hlod_engine *e, double budget, int moved)
                          .sse_pixels = m->sse_pixels,
                          .splat_px = hlod_policy_has(e->d.policy, HLOD_PT_AUTOSPLAT)
                                          ? m->splat_px
+                                         : hlod_policy_has(e->d.policy, HLOD_PT_CUBES)
+                                         ? e->d.cube_px
                                          : e->d.splat_px,
                          .budget_ms = budget,
                          .share_ms = budget * m->share_gain};

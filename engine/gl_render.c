@@ -92,6 +92,8 @@
     X(PFNGLENABLEPROC, Enable)                                       \
     X(PFNGLDISABLEPROC, Disable)                                     \
     X(PFNGLDEPTHFUNCPROC, DepthFunc)                                 \
+    X(PFNGLDEPTHMASKPROC, DepthMask)                                 \
+    X(PFNGLBLENDFUNCPROC, BlendFunc)                                 \
     X(PFNGLCULLFACEPROC, CullFace)                                   \
     X(PFNGLFRONTFACEPROC, FrontFace)                                 \
     X(PFNGLPOLYGONMODEPROC, PolygonMode)                             \
@@ -257,7 +259,7 @@ static const char *splat_fragment_src =
     "in vec4 v_color;\n"
     "out vec4 o_color;\n"
     "void main() {\n"
-    "    o_color = vec4(v_color.rgb, 1.0);\n"
+    "    o_color = v_color;\n"
     "}\n";
 
 /* A frame splatted on the CPU: each pixel with a depth under 1 written
@@ -859,12 +861,9 @@ void hlod_gpu_draw_range(hlod_renderer *r, const hlod_gpu_node *g, const double 
                      (const void *)(uintptr_t)(4 * (size_t)first));
 }
 
-/* called from the render thread, between begin and end */
-hlod_result hlod_gpu_splats(hlod_renderer *r, const hlod_gpu_splat *s, uint32_t n, float size_px)
+/* The splats' vertex array bound, its buffer holding s[0..n). */
+static void splat_buffer(hlod_renderer *r, const hlod_gpu_splat *s, uint32_t n)
 {
-    assert(r && (s || !n));
-    if (!n)
-        return HLOD_OK;
     const gl_table *gl = &r->gl;
     if (!r->splat.vao) {
         gl->GenVertexArrays(1, &r->splat.vao);
@@ -890,6 +889,39 @@ hlod_result hlod_gpu_splats(hlod_renderer *r, const hlod_gpu_splat *s, uint32_t 
     gl->UseProgram(r->splat.prog);
     r->cur = NULL;
     gl->UniformMatrix4fv(r->splat.u_viewproj, 1, GL_FALSE, r->vp);
+}
+
+/* called from the render thread, between begin and end */
+hlod_result hlod_gpu_blended(hlod_renderer *r, const hlod_gpu_splat *v, uint32_t n)
+{
+    assert(r && (v || !n));
+    if (n < 3)
+        return HLOD_OK;
+    const gl_table *gl = &r->gl;
+    splat_buffer(r, v, n);
+    gl->Uniform1f(r->splat.u_size, 1);
+    gl->Enable(GL_BLEND);
+    gl->BlendFunc(GL_ONE, GL_ONE_MINUS_SRC_ALPHA);
+    gl->DepthMask(GL_FALSE);
+    gl->DrawArrays(GL_TRIANGLES, 0, (GLsizei)(n - n % 3));
+    gl->DepthMask(GL_TRUE);
+    gl->Disable(GL_BLEND);
+    GLenum e = take_errors(gl);
+    if (e != GL_NO_ERROR) {
+        hlod_logf(&r->lg, HLOD_LOG_ERROR, "renderer: %u blended corners: GL error %#x", n, e);
+        return e == GL_OUT_OF_MEMORY ? HLOD_ERR_NOMEM : HLOD_ERR_UNSUPPORTED;
+    }
+    return HLOD_OK;
+}
+
+/* called from the render thread, between begin and end */
+hlod_result hlod_gpu_splats(hlod_renderer *r, const hlod_gpu_splat *s, uint32_t n, float size_px)
+{
+    assert(r && (s || !n));
+    if (!n)
+        return HLOD_OK;
+    const gl_table *gl = &r->gl;
+    splat_buffer(r, s, n);
     gl->Uniform1f(r->splat.u_size, size_px);
     gl->Enable(GL_PROGRAM_POINT_SIZE);
     gl->DrawArrays(GL_POINTS, 0, (GLsizei)n);

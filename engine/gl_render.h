@@ -82,6 +82,13 @@ typedef struct hlod_gpu_splat {
  * HLOD_ERR_NOMEM, HLOD_ERR_UNSUPPORTED (logged) on a GL error. */
 hlod_result hlod_gpu_splats(hlod_renderer *r, const hlod_gpu_splat *s, uint32_t n, float size_px);
 
+/* Draws n / 3 triangles of the given corners (camera-relative) and
+ * premultiplied colours, unlit, blended over the frame (one, one minus
+ * source alpha), depth tested without writing depth, in the order given
+ * (colour cubes, docs/cubes.md).  Between begin and end.
+ * HLOD_ERR_NOMEM, HLOD_ERR_UNSUPPORTED (logged) on a GL error. */
+hlod_result hlod_gpu_blended(hlod_renderer *r, const hlod_gpu_splat *v, uint32_t n);
+
 /* Waits for the draws so far (glFinish), between begin and end: what
  * follows is timed without the GPU's work. */
 void hlod_gpu_wait(hlod_renderer *r);

@@ -28,7 +28,10 @@
  *           (cost_model.c, hlod_cost_model_adapt_splat);
  *   rzb     Wand's randomized z-buffer (rzb.h): every leaf in core, points
  *           where faces are small; no front, so its function is never
- *           asked.
+ *           asked;
+ *   cubes   Chamberlain's colour cubes: klein's walk over a store whose
+ *           nodes carry cubes, children back to front, a node within
+ *           cube_px drawn as its blended cube (docs/cubes.md).
  */
 #include "policy.h"
 
@@ -135,6 +138,7 @@ static const hlod_policy_row rows[HLOD_POLICY_COUNT] = {
     [HLOD_POLICY_KLEIN_AUTO] = {"klein-auto", HLOD_PT_ADDITIVE | HLOD_PT_STREAM | HLOD_PT_AUTOSPLAT,
                                 klein_refines},
     [HLOD_POLICY_RZB] = {"rzb", HLOD_PT_RZB, klein_refines},
+    [HLOD_POLICY_CUBES] = {"cubes", HLOD_PT_ADDITIVE | HLOD_PT_STREAM | HLOD_PT_CUBES, klein_refines},
 };
 
 const hlod_policy_row *hlod_policy_row_of(hlod_policy p)

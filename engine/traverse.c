@@ -1081,6 +1081,41 @@ static int fs93_plan_front(walk *w, const hlod_view *v, double budget)
  * children, so the reverse order sums bottom up. */
 /* ---- additive stores (a sample tree; docs/sampletree.md) ---- */
 
+/* Pushes children [c0, c1) on the walk's stack so that they pop back to
+ * front: the farthest box centre from the eye first (an octree's cells
+ * do not overlap, so this orders them; Chamberlain 3).  More than 64
+ * children (never in an octree) go in index order. */
+static int push_back_to_front(walk *w, const hlod_view *v, uint32_t c0, uint32_t c1)
+{
+    uint32_t id[64];
+    double d2[64];
+    uint32_t n = c1 - c0 <= 64 ? c1 - c0 : 0;
+    for (uint32_t k = 0; k < n; k++) {
+        const hlod_store_node *c = &w->nodes[c0 + k];
+        double s = 0;
+        for (int a = 0; a < 3; a++) {
+            double x = 0.5 * (c->bbox_min[a] + c->bbox_max[a]) - v->eye[a];
+            s += x * x;
+        }
+        uint32_t at = k;
+        while (at > 0 && d2[at - 1] > s) { /* nearest first: pushed first, popped last */
+            d2[at] = d2[at - 1];
+            id[at] = id[at - 1];
+            at--;
+        }
+        d2[at] = s;
+        id[at] = c0 + k;
+    }
+    for (uint32_t k = 0; k < n; k++)
+        if (!hlod_u32_push(&w->d->allocator, &w->s->level, id[k]))
+            return 0;
+    if (!n)
+        for (uint32_t c = c1; c-- > c0;)
+            if (!hlod_u32_push(&w->d->allocator, &w->s->level, c))
+                return 0;
+    return 1;
+}
+
 /* Klein 4.2 and 4.5: depth-first from the roots, every node whose box
  * meets the frustum (and that normal cones do not cull) is drawn, its
  * ancestors with it; where a node's box projects within splat_px x
@@ -1090,11 +1125,15 @@ static int fs93_plan_front(walk *w, const hlod_view *v, double budget)
  * walk goes on below it: a missing node thins the picture, it leaves no
  * hole where its ancestors or descendants are in.  Policy full draws
  * every node (no splats): the sample tree's reference; so does klein
- * with splats off, streaming as klein does. */
+ * with splats off, streaming as klein does.  Policy cubes (Chamberlain
+ * 3) walks the same way over colour cubes: children back to front, and
+ * a node within cube_px is its cube, listed in that order. */
 static int walk_additive(walk *w, const hlod_view *v)
 {
     hlod_selection *s = w->s;
     const int full = w->d->policy == HLOD_POLICY_FULL || w->d->splats < 0;
+    const int cubes = (w->policy->traits & HLOD_PT_CUBES) != 0;
+    const uint32_t stand_in = cubes ? HLOD_EXTRA_CUBE : HLOD_EXTRA_COLOR;
     const double px = w->splat_px;
     hlod_u32_vec *stack = &s->level;
     stack->n = 0;
@@ -1121,7 +1160,7 @@ static int walk_additive(walk *w, const hlod_view *v)
         f->priority = 1 + f->pix;
         f->priced = w->frame;
         if (!full && front && raw[2] - raw[0] <= px && raw[3] - raw[1] <= px && s->extras &&
-            (s->extras[i].flags & HLOD_EXTRA_COLOR)) {
+            (s->extras[i].flags & stand_in)) {
             if (!hlod_u32_push(&w->d->allocator, &s->splats, i))
                 return 0;
             w->st->splats++;
@@ -1137,6 +1176,11 @@ static int walk_additive(walk *w, const hlod_view *v)
                 return 0;
         }
         uint32_t c0 = hlod_store_first_child(w->nodes, i), c1 = hlod_store_child_end(w->nodes, i);
+        if (cubes && c1 - c0 > 1) {
+            if (!push_back_to_front(w, v, c0, c1))
+                return 0;
+            continue;
+        }
         for (uint32_t c = c1; c-- > c0;)
             if (!hlod_u32_push(&w->d->allocator, stack, c))
                 return 0;

@@ -494,12 +494,13 @@ static hlod_result check_desc(const hlod_build_desc *d, const hlod_logger *lg)
 {
     const char *bad = NULL;
     if (d->method != HLOD_BUILD_CUTPLANE && d->method != HLOD_BUILD_METIS &&
-        d->method != HLOD_BUILD_SAMPLETREE)
-        bad = "method is not cutplane, metis or sampletree";
+        d->method != HLOD_BUILD_SAMPLETREE && d->method != HLOD_BUILD_CUBES)
+        bad = "method is not cutplane, metis, sampletree or cubes";
     else if (!(d->sample_c > 0 && d->sample_c <= 1000))
         bad = "sample_c is not in (0, 1000]";
-    else if (d->method == HLOD_BUILD_SAMPLETREE && d->shard_count)
-        bad = "a sample tree is built whole (no shards)";
+    else if ((d->method == HLOD_BUILD_SAMPLETREE || d->method == HLOD_BUILD_CUBES) &&
+             d->shard_count)
+        bad = "a sample tree or colour cubes are built whole (no shards)";
     else if (d->memory_mb > (1u << 24))
         bad = "memory_mb is over 2^24";
     else if (!(isfinite(d->grid) && d->grid >= 0 && d->grid <= 1e12))
@@ -873,7 +874,8 @@ static size_t build_threads(const hlod_build_desc *d)
 /* City levels are built over more than one block unless turned off. */
 static int want_levels(const hlod_build_desc *d, size_t blocks)
 {
-    return d->city_levels && blocks >= 2 && d->method != HLOD_BUILD_SAMPLETREE;
+    return d->city_levels && blocks >= 2 && d->method != HLOD_BUILD_SAMPLETREE &&
+           d->method != HLOD_BUILD_CUBES;
 }
 
 /* Builds every block on the worker threads and streams their nodes into
@@ -1260,10 +1262,11 @@ static void writer_desc(const hlod_build_desc *d, const input *in, const hlod_lo
     wd->build.node_tris = metis ? d->node_tris : 0;
     wd->build.c_tex = d->c_tex;
     wd->build.flags = d->cone_split && d->method == HLOD_BUILD_CUTPLANE ? HLOD_BUILD_CONE_SPLIT : 0;
-    if (d->method == HLOD_BUILD_SAMPLETREE) {
+    if (d->method == HLOD_BUILD_SAMPLETREE || d->method == HLOD_BUILD_CUBES) {
+        int cubes = d->method == HLOD_BUILD_CUBES;
         memset(&wd->build, 0, sizeof wd->build);
-        wd->build.method = HLOD_STORE_METHOD_SAMPLETREE;
-        wd->build.level_factor = d->sample_c;
+        wd->build.method = cubes ? HLOD_STORE_METHOD_CUBES : HLOD_STORE_METHOD_SAMPLETREE;
+        wd->build.level_factor = cubes ? 0 : d->sample_c;
         wd->build.leaf_tris = d->leaf_tris;
         wd->build.c_tex = d->c_tex;
     }
@@ -1356,13 +1359,15 @@ static hlod_result sampletree_store(const hlod_build_desc *d, const char *const 
     }
     char spill[4096 + 32];
     snprintf(spill, sizeof spill, "%.4096s.spill-%d", out_path, (int)getpid());
-    hlod_st_params p = {d->sample_c, d->leaf_tris, d->seed, d->memory_mb << 20, lg};
+    hlod_st_params p = {d->sample_c, d->leaf_tris, d->seed, d->memory_mb << 20, lg,
+                        d->method == HLOD_BUILD_CUBES};
     hlod_st_report sr;
     r = hlod_build_sampletree_inputs(scan, inputs, n, scratch, spill, &p, w, &sr);
     rep->tris_in = hlod_st_scan_tris(scan);
     hlod_st_scan_free(scan);
     if (r != HLOD_OK) {
-        hlod_logf(lg, HLOD_LOG_ERROR, "%s: sample tree: %s", out_path, hlod_result_str(r));
+        hlod_logf(lg, HLOD_LOG_ERROR, "%s: %s: %s", out_path,
+                  p.cubes ? "colour cubes" : "sample tree", hlod_result_str(r));
         return r;
     }
     rep->blocks = 1;
@@ -1417,7 +1422,7 @@ hlod_result hlod_build_store(const hlod_build_desc *d, const char *const *inputs
             }
         }
     }
-    if (r == HLOD_OK && d->method == HLOD_BUILD_SAMPLETREE) {
+    if (r == HLOD_OK && (d->method == HLOD_BUILD_SAMPLETREE || d->method == HLOD_BUILD_CUBES)) {
         r = sampletree_store(d, inputs, n, scratch[0] ? scratch : NULL, out_path, lg, &rep);
         free(meshes);
         if (scratch[0])

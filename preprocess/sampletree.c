@@ -16,6 +16,7 @@
 
 #include "build.h"
 #include "build_node.h"
+#include "cubes.h"
 #include "hlod/image.h"
 #include "hlod/mesh_io.h"
 
@@ -30,7 +31,8 @@
 #define NONE UINT32_MAX
 #define GRID_LEVEL 6            /* the plan's count grid: 64^3 cells */
 #define GRID_N (1u << GRID_LEVEL)
-#define TRI_BYTES 320           /* what a triangle of a bucket costs to build, about */
+#define TRI_BYTES 320
+#define CUBE_TRIS 6             /* a colour cube drawn: three faces, two triangles each */           /* what a triangle of a bucket costs to build, about */
 
 /* ---- records ---- */
 
@@ -285,6 +287,8 @@ typedef struct st_node {
     uint8_t color[4];
     hist *H;                    /* done: its subtree's colour histogram */
     int done;                   /* sampled already (a bucket's root in the upper tree) */
+    double lo[3], hi[3];        /* colour cubes: its subtree's triangles' box */
+    hlod_cube cube;             /* ... and that box's six faces */
 } st_node;
 
 typedef struct st_tree {
@@ -360,6 +364,10 @@ static uint32_t node_add(st_tree *t, const st_cell *cell, uint32_t parent)
     memset(n, 0, sizeof *n);
     n->cell = *cell;
     n->parent = parent;
+    for (int a = 0; a < 3; a++) {
+        n->lo[a] = INFINITY;    /* no geometry yet */
+        n->hi[a] = -INFINITY;
+    }
     return (uint32_t)t->count++;
 }
 
@@ -392,7 +400,7 @@ static int has_kids(const st_node *n)
  * triangles would all go into one octant, none staying, is that octant
  * instead. */
 static hlod_result split(st_tree *t, uint32_t u, uint32_t *ids, size_t n, uint8_t *oct,
-                         size_t leaf_tris)
+                         size_t leaf_tris, int cubes)
 {
     for (;;) {
         st_node *N = &t->nodes[u];
@@ -419,6 +427,10 @@ static hlod_result split(st_tree *t, uint32_t u, uint32_t *ids, size_t n, uint8_
                 used++;
                 only = o;
             }
+        /* colour cubes stop where drawing the triangles costs no more
+         * than drawing the children's cubes would (Chamberlain 4) */
+        if (cubes && n <= CUBE_TRIS * (size_t)used)
+            break;
         if (used == 1 && own == 0) {
             N->cell = child_cell(&N->cell, only);
             continue;
@@ -457,7 +469,8 @@ static hlod_result split(st_tree *t, uint32_t u, uint32_t *ids, size_t n, uint8_
             if (k == NONE || !push_u32(&t->nodes[u].kids, &t->nodes[u].nkids,
                                        &t->nodes[u].kcap, k))
                 return HLOD_ERR_NOMEM;
-            hlod_result r = split(t, k, ids + start[o + 1], cnt[o], oct + start[o + 1], leaf_tris);
+            hlod_result r = split(t, k, ids + start[o + 1], cnt[o], oct + start[o + 1], leaf_tris,
+                                  cubes);
             if (r != HLOD_OK)
                 return r;
         }
@@ -496,6 +509,17 @@ static uint64_t cell_seed(uint64_t seed, const st_cell *c)
     }
     return s;
 }
+
+typedef struct st_build {
+    const hlod_st_params *p;
+    st_texes tx;
+    hlod_store_writer *w;
+    hlod_store_node *out;       /* written nodes; parent NONE until known */
+    uint8_t (*colors)[4];
+    uint8_t (*cubes)[6][4];     /* colour cubes (p->cubes): per written node */
+    size_t nout, ocap;
+    hlod_st_report rep;
+} st_build;
 
 /* Node u's draws over its pool (its own list, then each child's): the
  * distinct triangles drawn from children move up; a child with children
@@ -572,8 +596,124 @@ static hlod_result draw_up(st_tree *t, uint32_t u, double c, uint64_t seed)
 
 /* Node u's subtree: its children's samples first, then u's own draws; H
  * receives the subtree's colour histogram. */
-static hlod_result sample(st_tree *t, uint32_t u, hist *H, double c, uint64_t seed)
+/* ---- colour cubes ---- */
+
+typedef struct cube_ctx {
+    st_build *B;
+    const st_tree *t;
+    const uint32_t *ids;        /* the node's records, in the order given to the faces */
+} cube_ctx;
+
+/* A record's colour at barycentric weights w: its texture's texel there,
+ * else its own colour. */
+static void rec_color(void *user, size_t i, const double w[3], float rgb[3])
 {
+    const cube_ctx *c = user;
+    const st_rec *r = &c->t->rec[c->ids[i]];
+    uint8_t px[4];
+    memcpy(px, r->rgba, 4);
+    const hlod_image *img = r->tex != NONE ? tex_get(&c->B->tx, r->tex, c->B->p->lg) : NULL;
+    if (img)
+        texel(img, w[0] * r->uv[0] + w[1] * r->uv[2] + w[2] * r->uv[4],
+              w[0] * r->uv[1] + w[1] * r->uv[3] + w[2] * r->uv[5], px);
+    for (int k = 0; k < 3; k++)
+        rgb[k] = px[k] / 255.0f;
+}
+
+/* Node u's box (its triangles' and its children's) and its cube: its own
+ * triangles seen through each face, composited with its children's
+ * cubes (Chamberlain 4).  Its children's are made already. */
+static hlod_result node_cube(st_build *B, st_tree *t, uint32_t u)
+{
+    st_node *N = &t->nodes[u];
+    uint32_t nk = N->nkids;
+    double (*P)[9] = malloc(((size_t)N->n + 1) * sizeof *P);
+    hlod_cube *kc = malloc(((size_t)nk + 1) * sizeof *kc);
+    double (*klo)[3] = malloc(((size_t)nk + 1) * sizeof *klo),
+           (*khi)[3] = malloc(((size_t)nk + 1) * sizeof *khi);
+    hlod_result r = P && kc && klo && khi ? HLOD_OK : HLOD_ERR_NOMEM;
+    if (r == HLOD_OK) {
+        double lo[3] = {INFINITY, INFINITY, INFINITY}, hi[3] = {-INFINITY, -INFINITY, -INFINITY};
+        for (uint32_t i = 0; i < N->n; i++) {
+            memcpy(P[i], t->rec[N->tris[i]].p, sizeof P[i]);
+            for (int k = 0; k < 9; k++) {
+                lo[k % 3] = fmin(lo[k % 3], P[i][k]);
+                hi[k % 3] = fmax(hi[k % 3], P[i][k]);
+            }
+        }
+        uint32_t m = 0;
+        for (uint32_t k = 0; k < nk; k++) {
+            const st_node *C = &t->nodes[N->kids[k]];
+            if (!(C->lo[0] <= C->hi[0]))
+                continue; /* an empty bucket's cell: no geometry, no face */
+            kc[m] = C->cube;
+            memcpy(klo[m], C->lo, sizeof klo[m]);
+            memcpy(khi[m], C->hi, sizeof khi[m]);
+            m++;
+            for (int a = 0; a < 3; a++) {
+                lo[a] = fmin(lo[a], C->lo[a]);
+                hi[a] = fmax(hi[a], C->hi[a]);
+            }
+        }
+        memcpy(N->lo, lo, sizeof lo);
+        memcpy(N->hi, hi, sizeof hi);
+        cube_ctx cc = {B, t, N->tris};
+        hlod_cube_in in = {.tris = P, .stride = sizeof *P, .n = N->n, .color = rec_color,
+                           .user = &cc, .kids = kc, .kid_lo = (const double (*)[3])klo,
+                           .kid_hi = (const double (*)[3])khi, .nkids = m};
+        memcpy(in.lo, lo, sizeof lo);
+        memcpy(in.hi, hi, sizeof hi);
+        hlod_cube_faces(&in, &N->cube);
+    }
+    free(P);
+    free(kc);
+    free(klo);
+    free(khi);
+    return r;
+}
+
+/* One triangle out of u's subtree, every node left holding one but u
+ * when u has no children (its parent then drops it); NONE when none can
+ * go (what is below u is written already). */
+static uint32_t take_one(st_tree *t, uint32_t u)
+{
+    st_node *N = &t->nodes[u];
+    if (N->n >= 2 || (N->n == 1 && !has_kids(N)))
+        return N->tris[--N->n];
+    uint32_t order[8], m = N->nkids < 8 ? N->nkids : 8;
+    for (uint32_t k = 0; k < m; k++)
+        order[k] = k;
+    /* the child holding most first */
+    for (uint32_t k = 1; k < m; k++)
+        for (uint32_t j = k; j > 0 && t->nodes[N->kids[order[j]]].n >
+                                      t->nodes[N->kids[order[j - 1]]].n; j--) {
+            uint32_t x = order[j];
+            order[j] = order[j - 1];
+            order[j - 1] = x;
+        }
+    for (uint32_t k = 0; k < m; k++) {
+        uint32_t c = t->nodes[u].kids[order[k]];
+        if (t->nodes[c].done)
+            continue;
+        uint32_t x = take_one(t, c);
+        if (x == NONE)
+            continue;
+        const st_node *C = &t->nodes[c];
+        if (!C->n && !has_kids(C)) { /* emptied: it goes */
+            st_node *P = &t->nodes[u];
+            for (uint32_t j = order[k]; j + 1 < P->nkids; j++)
+                P->kids[j] = P->kids[j + 1];
+            P->nkids--;
+        }
+        return x;
+    }
+    return NONE;
+}
+
+static hlod_result sample(st_build *B, st_tree *t, uint32_t u, hist *H)
+{
+    const double c = B->p->c;
+    const uint64_t seed = B->p->seed;
     if (t->nodes[u].done) {
         memcpy(H, t->nodes[u].H, sizeof *H);
         return HLOD_OK;
@@ -592,7 +732,7 @@ static hlod_result sample(st_tree *t, uint32_t u, hist *H, double c, uint64_t se
         if (!CH)
             return HLOD_ERR_NOMEM;
         for (uint32_t k = 0; k < t->nodes[u].nkids; k++) {
-            hlod_result r = sample(t, t->nodes[u].kids[k], CH, c, seed);
+            hlod_result r = sample(B, t, t->nodes[u].kids[k], CH);
             if (r != HLOD_OK) {
                 free(CH);
                 return r;
@@ -606,6 +746,25 @@ static hlod_result sample(st_tree *t, uint32_t u, hist *H, double c, uint64_t se
     }
     N = &t->nodes[u];
     hist_median(H, N->color);
+    if (B->p->cubes) {
+        /* nothing is drawn up: each triangle stays where it sits; an
+         * empty child (an empty bucket's cell) goes */
+        uint32_t kept = 0;
+        for (uint32_t k = 0; k < N->nkids; k++) {
+            const st_node *C = &t->nodes[N->kids[k]];
+            if (C->n || has_kids(C))
+                N->kids[kept++] = N->kids[k];
+        }
+        N->nkids = kept;
+        /* a store node holds a triangle: one straddling nothing comes up
+         * from below (it is drawn a little earlier, never twice) */
+        if (!N->n && has_kids(N)) {
+            uint32_t x = take_one(t, u);
+            if (x == NONE || !push_u32(&t->nodes[u].tris, &t->nodes[u].n, &t->nodes[u].cap, x))
+                return x == NONE ? HLOD_ERR_EMPTY : HLOD_ERR_NOMEM;
+        }
+        return node_cube(B, t, u);
+    }
     if (!N->nkids)
         return HLOD_OK;
     hlod_result r = draw_up(t, u, c, seed);
@@ -656,15 +815,6 @@ static hlod_result sample(st_tree *t, uint32_t u, hist *H, double c, uint64_t se
 
 /* ---- payloads ---- */
 
-typedef struct st_build {
-    const hlod_st_params *p;
-    st_texes tx;
-    hlod_store_writer *w;
-    hlod_store_node *out;       /* written nodes; parent NONE until known */
-    uint8_t (*colors)[4];
-    size_t nout, ocap;
-    hlod_st_report rep;
-} st_build;
 
 /* Converts img to 4 channels (a new image). */
 static hlod_result to_rgba(const hlod_image *img, hlod_image *out)
@@ -935,7 +1085,8 @@ static uint32_t write_node(st_build *B, st_tree *t, uint32_t u, hlod_result *res
     if (B->nout == B->ocap) {
         size_t nc = B->ocap ? 2 * B->ocap : 1024;
         if (nc >= NONE || !grow(&B->out, sizeof *B->out, nc) ||
-            !grow(&B->colors, sizeof *B->colors, nc)) {
+            !grow(&B->colors, sizeof *B->colors, nc) ||
+            (B->p->cubes && !grow(&B->cubes, sizeof *B->cubes, nc))) {
             *res = HLOD_ERR_NOMEM;
             return NONE;
         }
@@ -949,6 +1100,8 @@ static uint32_t write_node(st_build *B, st_tree *t, uint32_t u, hlod_result *res
     o->parent = NONE;
     o->block = 0;
     memcpy(B->colors[B->nout], t->nodes[u].color, 4);
+    if (B->p->cubes)
+        hlod_cube_pack(&t->nodes[u].cube, B->cubes[B->nout]);
     B->rep.tris += N->n;
     if (has_kids(N))
         B->rep.tris_inner += N->n;
@@ -1335,13 +1488,13 @@ static hlod_result build_bucket(st_build *B, st_plan *P, st_bucket *b)
     if (r == HLOD_OK) {
         for (size_t i = 0; i < t.nrec; i++)
             ids[i] = (uint32_t)i;
-        r = split(&t, 0, ids, t.nrec, oct, B->p->leaf_tris);
+        r = split(&t, 0, ids, t.nrec, oct, B->p->leaf_tris, B->p->cubes);
     }
     free(ids);
     free(oct);
     hist *H = r == HLOD_OK ? malloc(sizeof *H) : NULL;
     if (r == HLOD_OK)
-        r = H ? sample(&t, 0, H, B->p->c, B->p->seed) : HLOD_ERR_NOMEM;
+        r = H ? sample(B, &t, 0, H) : HLOD_ERR_NOMEM;
     if (r == HLOD_OK)
         r = write_tree(B, &t, 0, 1);
     if (r == HLOD_OK) {
@@ -1358,6 +1511,9 @@ static hlod_result build_bucket(st_build *B, st_plan *P, st_bucket *b)
         un->cell = root->cell;  /* a single-octant cell shrinks */
         un->area = root->area;
         memcpy(un->color, root->color, 4);
+        un->cube = root->cube;
+        memcpy(un->lo, root->lo, sizeof un->lo);
+        memcpy(un->hi, root->hi, sizeof un->hi);
         un->H = H;
         H = NULL;
         un->done = 1;
@@ -1384,7 +1540,7 @@ static hlod_result build_upper(st_build *B, st_plan *P)
     hist *H = malloc(sizeof *H);
     if (!H)
         return HLOD_ERR_NOMEM;
-    hlod_result r = sample(U, 0, H, B->p->c, B->p->seed);
+    hlod_result r = sample(B, U, 0, H);
     free(H);
     if (r != HLOD_OK)
         return r;
@@ -1431,6 +1587,8 @@ static hlod_result finish(st_build *B, hlod_st_report *rep)
         hlod_build_contain(B->out, B->nout);
         r = hlod_store_writer_set_colors(B->w, (const uint8_t (*)[4])B->colors, (uint32_t)B->nout);
     }
+    if (r == HLOD_OK && B->p->cubes)
+        r = hlod_store_writer_set_cubes(B->w, (const uint8_t (*)[6][4])B->cubes, (uint32_t)B->nout);
     if (r == HLOD_OK) {
         hlod_store_writer_texture_stats(B->w, &B->rep.tex);
         r = hlod_store_writer_finish(B->w, B->out, (uint32_t)B->nout, NULL);
@@ -1448,6 +1606,7 @@ static void build_free(st_build *B)
         hlod_store_writer_abort(B->w);
     free(B->out);
     free(B->colors);
+    free(B->cubes);
     texes_free(&B->tx);
 }
 

@@ -50,6 +50,8 @@ typedef struct hlod_st_params {
     uint64_t seed;          /* the draws' seed: the same seed, the same store */
     size_t memory_bytes;    /* what the build may hold (buckets, buffers); 0: no limit */
     const hlod_logger *lg;
+    int cubes;              /* Chamberlain's colour cubes instead: no draws, each
+                               triangle where it sits, every node's six faces */
 } hlod_st_params;
 
 typedef struct hlod_st_report {

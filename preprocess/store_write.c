@@ -62,6 +62,8 @@ struct hlod_store_writer {
     double quant_error;         /* half a grid cell's diagonal; 0 when raw */
     uint8_t (*colors)[4];       /* per node given to finish: its representative
                                    colour (hlod_store_writer_set_colors), or NULL */
+    uint8_t (*cubes)[6][4];     /* ... its colour cube (hlod_store_writer_set_cubes) */
+    uint32_t cube_count;
     uint32_t color_count;
     hlod_store_texture_stats tex;   /* guarded by lock */
 };
@@ -105,7 +107,7 @@ hlod_result hlod_store_writer_open(const char *path, const hlod_store_writer_des
     }
     const hlod_store_build_info *b = &desc->build;
     if (!(b->c_tex >= 0 && b->c_tex <= 1) || !isfinite(b->level_factor) ||
-        b->level_factor < 0 || b->method > HLOD_STORE_METHOD_SAMPLETREE || (b->flags & ~HLOD_BUILD_KNOWN_FLAGS) ||
+        b->level_factor < 0 || b->method > HLOD_STORE_METHOD_LAST || (b->flags & ~HLOD_BUILD_KNOWN_FLAGS) ||
         (b->flags && b->method != HLOD_STORE_METHOD_CUTPLANE)) {
         hlod_logf(lg, HLOD_LOG_ERROR, "%s: bad build parameters (method %u, c_tex %g, level "
                   "factor %g)", path, b->method, b->c_tex, b->level_factor);
@@ -160,6 +162,7 @@ void hlod_store_writer_abort(hlod_store_writer *w)
     pthread_mutex_destroy(&w->lock);
     free(w->records);
     free(w->colors);
+    free(w->cubes);
     free(w);
 }
 
@@ -943,6 +946,34 @@ static void subtree_cones(hlod_store_writer *w, const hlod_store_node *table, ui
             memset(&x[pos], 0, sizeof x[pos]);
 }
 
+/* The per-node colours and colour cubes given before finish, into the
+ * extras records (index: the given order's node in the table);
+ * HLOD_ERR_INVALID_ARG (logged) when a count is not the table's. */
+static hlod_result given_extras(const hlod_store_writer *w, const char *name, uint32_t count,
+                                const uint32_t *index, hlod_store_extra *extras)
+{
+    const hlod_logger *lg = w->desc.logger;
+    if (w->colors && w->color_count != count) {
+        hlod_logf(lg, HLOD_LOG_ERROR, "%s: %u node colours for %u nodes", name, w->color_count,
+                  count);
+        return HLOD_ERR_INVALID_ARG;
+    }
+    if (w->cubes && w->cube_count != count) {
+        hlod_logf(lg, HLOD_LOG_ERROR, "%s: %u colour cubes for %u nodes", name, w->cube_count,
+                  count);
+        return HLOD_ERR_INVALID_ARG;
+    }
+    for (uint32_t k = 0; w->colors && k < count; k++) {
+        memcpy(extras[index[k]].color, w->colors[k], 4);
+        extras[index[k]].flags |= HLOD_EXTRA_COLOR;
+    }
+    for (uint32_t k = 0; w->cubes && k < count; k++) {
+        memcpy(extras[index[k]].cube, w->cubes[k], sizeof w->cubes[k]);
+        extras[index[k]].flags |= HLOD_EXTRA_CUBE;
+    }
+    return HLOD_OK;
+}
+
 /* called from the owner thread */
 hlod_result hlod_store_writer_finish(hlod_store_writer *w, const hlod_store_node *nodes,
                                      uint32_t count, uint32_t *store_index)
@@ -1020,7 +1051,8 @@ hlod_result hlod_store_writer_finish(hlod_store_writer *w, const hlod_store_node
             h.depth_count = t->depth + 1;
         if (t->flags & HLOD_NODE_TEXTURE)
             h.flags |= HLOD_STORE_TEXTURED;
-        if (h.build.method == HLOD_STORE_METHOD_SAMPLETREE)
+        if (h.build.method == HLOD_STORE_METHOD_SAMPLETREE ||
+            h.build.method == HLOD_STORE_METHOD_CUBES)
             h.flags |= HLOD_STORE_ADDITIVE;
         h.payload_bytes += t->payload_size;
         for (int k = 0; k < 3; k++) {
@@ -1036,18 +1068,8 @@ hlod_result hlod_store_writer_finish(hlod_store_writer *w, const hlod_store_node
         goto fail;
     }
     subtree_cones(w, table, count, extras);
-    if (w->colors) {
-        if (w->color_count != count) {
-            hlod_logf(lg, HLOD_LOG_ERROR, "%s: %u node colours for %u nodes", name,
-                      w->color_count, count);
-            r = HLOD_ERR_INVALID_ARG;
-            goto fail;
-        }
-        for (uint32_t k = 0; k < count; k++) {
-            memcpy(extras[index[k]].color, w->colors[k], 4);
-            extras[index[k]].flags |= HLOD_EXTRA_COLOR;
-        }
-    }
+    if ((r = given_extras(w, name, count, index, extras)) != HLOD_OK)
+        goto fail;
     hlod_store_extras_header xh;
     memset(&xh, 0, sizeof xh);
     memcpy(xh.magic, HLOD_EXTRAS_MAGIC, 8);
@@ -1109,5 +1131,23 @@ hlod_result hlod_store_writer_set_colors(hlod_store_writer *w, const uint8_t (*c
         return HLOD_ERR_NOMEM;
     memcpy(w->colors, colors, (size_t)count * sizeof *w->colors);
     w->color_count = count;
+    return HLOD_OK;
+}
+
+hlod_result hlod_store_writer_set_cubes(hlod_store_writer *w, const uint8_t (*cubes)[6][4],
+                                        uint32_t count)
+{
+    if (!w || (!cubes && count))
+        return HLOD_ERR_INVALID_ARG;
+    free(w->cubes);
+    w->cubes = NULL;
+    w->cube_count = 0;
+    if (!count)
+        return HLOD_OK;
+    w->cubes = malloc((size_t)count * sizeof *w->cubes);
+    if (!w->cubes)
+        return HLOD_ERR_NOMEM;
+    memcpy(w->cubes, cubes, (size_t)count * sizeof *w->cubes);
+    w->cube_count = count;
     return HLOD_OK;
 }

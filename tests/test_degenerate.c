@@ -303,9 +303,10 @@ static int run_views(const hlod_store *s, const hlod_engine_desc *base, const vi
     int bad = 0;
     for (int pol = 0; pol < HLOD_POLICY_COUNT; pol++) {
         if (pol == HLOD_POLICY_FULL || pol == HLOD_POLICY_KLEIN || pol == HLOD_POLICY_KLEIN_AUTO ||
-            pol == HLOD_POLICY_RZB)
-            continue; /* full: references only, it loads every leaf; klein: sample trees
-                         only (test_sampletree); rzb: no front, faces (test_rzb) */
+            pol == HLOD_POLICY_RZB || pol == HLOD_POLICY_CUBES)
+            continue; /* full: references only, it loads every leaf; klein, cubes: additive
+                         stores only (test_sampletree, test_cubes); rzb: no front, faces
+                         (test_rzb) */
         hlod_engine_desc d = *base;
         d.policy = (hlod_policy)pol;
         hlod_engine *e = NULL;
@@ -439,9 +440,10 @@ static void all_siblings_outside(void)
     CHECK(run_views(s, &d, views, n, 10, "siblings outside") == 0);
     for (int pol = 0; pol < HLOD_POLICY_COUNT; pol++) {
         if (pol == HLOD_POLICY_FULL || pol == HLOD_POLICY_KLEIN || pol == HLOD_POLICY_KLEIN_AUTO ||
-            pol == HLOD_POLICY_RZB)
-            continue; /* full: references only, it loads every leaf; klein: sample trees
-                         only (test_sampletree); rzb: no front, faces (test_rzb) */
+            pol == HLOD_POLICY_RZB || pol == HLOD_POLICY_CUBES)
+            continue; /* full: references only, it loads every leaf; klein, cubes: additive
+                         stores only (test_sampletree, test_cubes); rzb: no front, faces
+                         (test_rzb) */
         d.policy = (hlod_policy)pol;
         hlod_engine *e = NULL;
         CHECK(hlod_engine_create(s, &d, &e) == HLOD_OK);
@@ -496,9 +498,10 @@ static int run_machine(const hlod_store *s, hlod_engine_desc d, fixed_machine *m
     d.time_model_user = m;
     for (int pol = 0; pol < HLOD_POLICY_COUNT; pol++) {
         if (pol == HLOD_POLICY_FULL || pol == HLOD_POLICY_KLEIN || pol == HLOD_POLICY_KLEIN_AUTO ||
-            pol == HLOD_POLICY_RZB)
-            continue; /* full: references only, it loads every leaf; klein: sample trees
-                         only (test_sampletree); rzb: no front, faces (test_rzb) */
+            pol == HLOD_POLICY_RZB || pol == HLOD_POLICY_CUBES)
+            continue; /* full: references only, it loads every leaf; klein, cubes: additive
+                         stores only (test_sampletree, test_cubes); rzb: no front, faces
+                         (test_rzb) */
         d.policy = (hlod_policy)pol;
         hlod_engine *e = NULL;
         CHECK(hlod_engine_create(s, &d, &e) == HLOD_OK);

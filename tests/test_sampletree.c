@@ -152,7 +152,7 @@ static hlod_result build_board(const hlod_mesh m[2], const char *path, size_t le
     hlod_st_block b[2] = {{&m[0], NULL, {0}}, {&m[1], NULL, {0}}};
     memcpy(b[0].rgba, LIGHT, 4);
     memcpy(b[1].rgba, DARK, 4);
-    hlod_st_params p = {13.8, leaf, seed, 0, NULL};
+    hlod_st_params p = {13.8, leaf, seed, 0, NULL, 0};
     hlod_st_report rep;
     return hlod_build_sampletree(b, 2, &p, w, &rep);
 }

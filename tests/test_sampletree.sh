@@ -13,6 +13,9 @@
 #     with --memory-mb 1, built out of core (buckets, a spill file that is
 #     removed), every triangle once, verified;
 #   - hlod-export-3dtiles writes refine ADD for it;
+#   - hlod-build --method cubes: every triangle once, the same bytes on 1
+#     and 2 threads, out of core with --memory-mb 1, hlod-info says method
+#     cubes and refine add, --shard refused;
 #   - damaged (40 bytes flipped in the payloads) and truncated stores:
 #     --verify exits 1 naming the store; hlod-bench over the damaged one
 #     runs walk to its end, exit 0, bad nodes counted, render_waits 0
@@ -102,6 +105,26 @@ ok $? "hlod-info --verify passes"
     ! grep -q '"REPLACE"' "$T/tiles/tileset.json"
 ok $? "3D Tiles: refine ADD"
 
+# ---- hlod-build --method cubes (docs/cubes.md) ----
+"$BIN/hlod-build" "$T/cb.obj" -o "$T/cc.hlod" --method cubes --threads 1 --json --quiet >"$T/c1.json" &&
+    "$BIN/hlod-build" "$T/cb.obj" -o "$T/cc2.hlod" --method cubes --threads 2 --quiet &&
+    cmp -s "$T/cc.hlod" "$T/cc2.hlod"
+ok $? "colour cubes built, the same bytes on 1 and 2 threads"
+[ "$(key tris_total <"$T/c1.json")" = 21632 ] && [ "$(key method <"$T/c1.json")" = cubes ]
+ok $? "colour cubes: every triangle stored once: $(tr -d '\n' <"$T/c1.json" | cut -c1-120)"
+"$BIN/hlod-build" "$T/cb.obj" -o "$T/ccm.hlod" --method cubes --memory-mb 1 --json --quiet \
+    >"$T/cm.json" && "$BIN/hlod-info" "$T/ccm.hlod" --verify >/dev/null &&
+    [ "$(key tris_total <"$T/cm.json")" = 21632 ] && [ "$(key buckets <"$T/cm.json")" -gt 1 ]
+ok $? "colour cubes out of core: $(key buckets <"$T/cm.json") buckets, verified"
+"$BIN/hlod-info" "$T/cc.hlod" --json >"$T/cinfo.json" && "$BIN/hlod-info" "$T/cc.hlod" >"$T/cinfo.txt"
+[ "$(key refine <"$T/cinfo.json")" = add ] && [ "$(key method <"$T/cinfo.json")" = cubes ] &&
+    grep -q "^build: method cubes, leaf cells of at most 64 triangles" "$T/cinfo.txt"
+ok $? "hlod-info: refine add, method cubes: $(sed -n 2p "$T/cinfo.txt")"
+"$BIN/hlod-build" "$T/cb.obj" -o "$T/cc4.hlod" --method cubes --shard 1/2 --quiet 2>"$T/err"
+rc=$?
+[ $rc -ne 0 ] && [ ! -e "$T/cc4.hlod" ]
+ok $? "colour cubes: --shard is refused (exit $rc): $(head -1 "$T/err")"
+
 # ---- damaged and truncated ----
 "$BIN/hlod-gen-city" --preset small -o "$T/city.obj" --paths "$T/paths" --quiet &&
     "$BIN/hlod-build" "$T/city.obj" -o "$T/city.hlod" --method sampletree --quiet
@@ -129,6 +152,14 @@ waits=$(key render_waits <"$T/dmg/summary.json" 2>/dev/null)
 gframes=$(key frames <"$T/good/summary.json" 2>/dev/null)
 [ $rc -eq 0 ] && [ "$frames" = "$gframes" ] && [ "$bad" -gt 0 ] 2>/dev/null && waits_ok "$waits" "$frames"
 ok $? "hlod-bench (klein) over it: exit $rc, $frames of $gframes frames, bad_nodes $bad, render_waits $waits"
+# colour cubes of the small city, drawn by hlod-bench's default for them (cubes)
+"$BIN/hlod-build" "$T/city.obj" -o "$T/cityc.hlod" --method cubes --quiet &&
+    "$BIN/hlod-bench" "$T/cityc.hlod" --path walk --paths-dir "$T/paths" --out "$T/cub" \
+        --width 160 --height 90 --dt 0.25 --jitter-frames 0 --no-plots 2>"$T/cub.err" >/dev/null
+rc=$?
+cframes=$(key frames <"$T/cub/summary.json" 2>/dev/null) cpol=$(key policy <"$T/cub/summary.json" 2>/dev/null)
+[ $rc -eq 0 ] && [ "$cframes" = "$gframes" ] && [ "$cpol" = cubes ]
+ok $? "hlod-bench over the city's colour cubes: exit $rc, policy $cpol, $cframes of $gframes frames: $(head -1 "$T/cub.err")"
 size=$(stat -c %s "$T/city.hlod")
 head -c $((size / 2)) "$T/city.hlod" >"$T/cut.hlod"
 "$BIN/hlod-info" "$T/cut.hlod" --verify >/dev/null 2>"$T/err"

@@ -278,7 +278,8 @@ hlod_result hlod_store_validate(const hlod_store_header *h, const hlod_store_nod
             (unsigned long long)h->payload_bytes, (unsigned long long)payload_bytes);
     if (((h->flags & HLOD_STORE_TEXTURED) != 0) != textured ||
         (h->flags & ~(HLOD_STORE_TEXTURED | HLOD_STORE_ADDITIVE)) ||
-        ((h->flags & HLOD_STORE_ADDITIVE) != 0) != (h->build.method == HLOD_STORE_METHOD_SAMPLETREE))
+        ((h->flags & HLOD_STORE_ADDITIVE) != 0) != (h->build.method == HLOD_STORE_METHOD_SAMPLETREE ||
+                                                 h->build.method == HLOD_STORE_METHOD_CUBES))
         BAD(HLOD_ERR_FORMAT, "%s: header flags %#x disagree with the nodes or the method", name,
             h->flags);
     for (int k = 0; k < 3; k++)
@@ -395,7 +396,7 @@ hlod_result hlod_store_check_header(const hlod_store_header *h, uint64_t file_si
                 "the node table (%llu bytes)", name, (unsigned long long)h->extras_offset,
                 (unsigned long long)ex, (unsigned long long)file_size);
     }
-    if (h->build.method > HLOD_STORE_METHOD_SAMPLETREE)
+    if (h->build.method > HLOD_STORE_METHOD_LAST)
         BAD(HLOD_ERR_FORMAT, "%s: unknown build method %u", name, h->build.method);
     if (!isfinite(h->build.level_factor) || h->build.level_factor < 0 ||
         !finite3d(h->bbox_min) || !finite3d(h->bbox_max))

@@ -1905,9 +1905,12 @@ int main(int argc, char **argv)
     c.lg = hlod_cli_logger(&log_state);
     if (open_inputs(&c) != 0)
         return 1;
-    /* a sample tree is drawn by klein unless --policy says otherwise */
+    /* a sample tree is drawn by klein, colour cubes by cubes, unless
+     * --policy says otherwise */
     if (!o.policy_given && (hlod_store_get_header(c.store)->flags & HLOD_STORE_ADDITIVE))
-        o.policies[0] = HLOD_POLICY_KLEIN;
+        o.policies[0] = hlod_store_get_header(c.store)->build.method == HLOD_STORE_METHOD_CUBES
+                            ? HLOD_POLICY_CUBES
+                            : HLOD_POLICY_KLEIN;
     rc = setup_gl(&c);
     if (rc == 0) {
         prepare_frames(&c);

@@ -788,7 +788,8 @@ int main(int argc, char **argv)
     }
     const hlod_store_header *h = hlod_store_get_header(v.store);
     if (!o.policy_given && (h->flags & HLOD_STORE_ADDITIVE))
-        o.policy = HLOD_POLICY_KLEIN; /* a sample tree */
+        o.policy = h->build.method == HLOD_STORE_METHOD_CUBES ? HLOD_POLICY_CUBES
+                                                              : HLOD_POLICY_KLEIN;
     v.depths = h->depth_count < HLOD_STATS_MAX_DEPTH ? h->depth_count : HLOD_STATS_MAX_DEPTH;
     init_camera(&v, h);
 

@@ -30,14 +30,19 @@ extern "C" {
 typedef enum hlod_build_method {
     HLOD_BUILD_CUTPLANE = 0,    /* Lakhia III-A */
     HLOD_BUILD_METIS = 1,       /* Okamoto 4.1 */
-    HLOD_BUILD_SAMPLETREE = 2   /* Klein 4-5: a randomized sample tree that
+    HLOD_BUILD_SAMPLETREE = 2,  /* Klein 4-5: a randomized sample tree that
                                    refines additively (docs/sampletree.md) */
+    HLOD_BUILD_CUBES = 3        /* Chamberlain 3-4: an octree of colour cubes,
+                                   additive, every triangle where it sits
+                                   (docs/cubes.md) */
 } hlod_build_method;
 
 /* The sample constant c of Klein's Theorem 1: p = exp(-exp(-c)) > 1 - 1e-6. */
 #define HLOD_BUILD_SAMPLE_C 13.8
 /* The sample tree's leaf size when none is given (hlod-build). */
 #define HLOD_BUILD_SAMPLE_LEAF 256
+/* The colour cubes' leaf size when none is given (hlod-build; docs/cubes.md). */
+#define HLOD_BUILD_CUBES_LEAF 64
 
 /* Input coordinates beyond this magnitude are refused (naming the file and
  * the vertex): past it a double no longer holds a tenth of a millimetre. */

@@ -61,11 +61,14 @@ typedef enum hlod_policy {
                                target_ms (ours, beyond the paper) */
     HLOD_POLICY_RZB,        /* Wand's randomized z-buffer over the leaves, in core: points
                                of splat_px where faces are small (docs/rzb.md) */
+    HLOD_POLICY_CUBES,      /* Chamberlain's colour cubes: a node whose box projects within
+                               cube_px is drawn as its blended cube (docs/cubes.md) */
     HLOD_POLICY_COUNT
 } hlod_policy;
 
 /* The policies a user picks (full draws references), for help texts. */
-#define HLOD_POLICY_CHOICES "lakhia, nohyst, sse, fs93, counter, okamoto, klein, klein-auto, rzb"
+#define HLOD_POLICY_CHOICES \
+    "lakhia, nohyst, sse, fs93, counter, okamoto, klein, klein-auto, rzb, cubes"
 
 const char *hlod_policy_name(hlod_policy p);           /* "lakhia", ... */
 int hlod_policy_parse(const char *name, hlod_policy *out); /* 1 on success */
@@ -156,6 +159,8 @@ typedef double (*hlod_time_model)(void *user_data, const struct hlod_frame_stats
       "rzb policy: 1: points splatted in C into a depth and colour frame; 0: as GL points")      \
     X(rzb_cache_mb, rzb_cache_mb, U32, 0, 0, 0, 65536, 1,                                        \
       "rzb policy: MiB of sample caches (Wand 7.2), least recently drawn dropped; 0: none")     \
+    X(cube_px, cube_px, U32, 1, 1, 0, 64, 1,                                                     \
+      "cubes policy: a node whose box projects within cube_px x cube_px pixels is drawn as its colour cube") \
     X(splats, splats, B, 1, 0, 0, 1, 1,                                                          \
       "klein policy: 1: small nodes are splats; 0: every node is drawn (the reference walk)")   \
     X(texture_upload, texture_upload, U32, 0, 0, 0, 2, 0,                                        \

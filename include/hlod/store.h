@@ -131,8 +131,10 @@ extern "C" {
 #define HLOD_STORE_ADDITIVE 2u          /* nodes refine additively: a node's
                                            children add to what it draws, its
                                            ancestors stay drawn (the sample
-                                           tree; set iff build.method is
-                                           HLOD_STORE_METHOD_SAMPLETREE) */
+                                           tree and the colour cubes; set iff
+                                           build.method is
+                                           HLOD_STORE_METHOD_SAMPLETREE or
+                                           HLOD_STORE_METHOD_CUBES) */
 
 /* header.method: how the hierarchy was partitioned */
 #define HLOD_STORE_METHOD_OTHER 0u
@@ -140,6 +142,9 @@ extern "C" {
 #define HLOD_STORE_METHOD_METIS 2u      /* Okamoto 4.1 */
 #define HLOD_STORE_METHOD_SAMPLETREE 3u /* Klein 4-5: a randomized sample tree
                                            (docs/sampletree.md); additive */
+#define HLOD_STORE_METHOD_CUBES 4u      /* Chamberlain 3-4: an octree of colour
+                                           cubes (docs/cubes.md); additive */
+#define HLOD_STORE_METHOD_LAST 4u
 
 /* The build parameters, recorded so tools can show how a store was made
  * (docs/hlod-build.md).  Zero where the method does not use one. */

@@ -151,6 +151,15 @@ hlod_result hlod_store_writer_finish(hlod_store_writer *w, const hlod_store_node
 hlod_result hlod_store_writer_set_colors(hlod_store_writer *w, const uint8_t (*colors)[4],
                                          uint32_t count);
 
+/* called from the owner thread before finish: cubes[k] holds the six
+ * colour-cube faces (premultiplied RGBA8, +x -x +y -y +z -z) of the node
+ * finish will get as nodes[k], made over that node's box; finish stores
+ * them in the extras table (HLOD_EXTRA_CUBE) and refuses a count other
+ * than its own.  Copied; count 0 clears it.  HLOD_ERR_INVALID_ARG,
+ * HLOD_ERR_NOMEM. */
+hlod_result hlod_store_writer_set_cubes(hlod_store_writer *w, const uint8_t (*cubes)[6][4],
+                                        uint32_t count);
+
 /* called from the owner thread: removes the temporary file, frees w
  * (NULL is fine).  No add may be in flight. */
 void hlod_store_writer_abort(hlod_store_writer *w);

@@ -43,9 +43,11 @@ static void usage(FILE *fp)
             "\n"
             "  -o, --output OUT       the store to write (required)\n"
             "  --method M             cutplane (Lakhia III-A, default), metis\n"
-            "                         (Okamoto 4.1) or sampletree (Klein 4-5: a\n"
+            "                         (Okamoto 4.1), sampletree (Klein 4-5: a\n"
             "                         randomized sample tree, additive;\n"
-            "                         docs/sampletree.md)\n"
+            "                         docs/sampletree.md) or cubes (Chamberlain 3-4:\n"
+            "                         an octree of colour cubes, additive;\n"
+            "                         docs/cubes.md)\n"
             "  --blocks B             objects (default: each input object is a block)\n"
             "                         or grid:SIZE (square cells of SIZE model units\n"
             "                         in x and y; z is up)\n"
@@ -58,9 +60,10 @@ static void usage(FILE *fp)
             "                         normals spread over 45 degrees, so normal cones\n"
             "                         cull more (cone_cull); off (default)\n"
             "  --voxel-tris N         N_v: triangles per voxel (metis, default 500)\n"
-            "  --leaf-tris N          N_l: leaf size (metis, default 4000); sampletree:\n"
-            "                         a cell of more triangles splits (default 256)\n"
-            "  --memory-mb M          sampletree: MiB the build may hold beside the\n"
+            "  --leaf-tris N          N_l: leaf size (metis, default 4000); sampletree\n"
+            "                         and cubes: a cell of more triangles splits\n"
+            "                         (default 256; cubes 64)\n"
+            "  --memory-mb M          sampletree and cubes: MiB the build may hold beside the\n"
             "                         input's vertices (buckets built one at a time,\n"
             "                         a spill file beside OUT; default 0: no limit)\n"
             "  --sample-c C           sampletree: c of the sample size\n"
@@ -130,8 +133,10 @@ static int parse_method(const char *val, hlod_build_desc *bd)
         bd->method = HLOD_BUILD_METIS;
     else if (!strcmp(val, "sampletree"))
         bd->method = HLOD_BUILD_SAMPLETREE;
+    else if (!strcmp(val, "cubes"))
+        bd->method = HLOD_BUILD_CUBES;
     else {
-        hlod_cli_error(PROG, "--method: '%s' is not cutplane, metis or sampletree", val);
+        hlod_cli_error(PROG, "--method: '%s' is not cutplane, metis, sampletree or cubes", val);
         return 0;
     }
     return 1;
@@ -166,6 +171,8 @@ static int check_options(options *o, int leaf_given)
     }
     if (o->bd.method == HLOD_BUILD_SAMPLETREE && !leaf_given)
         o->bd.leaf_tris = HLOD_BUILD_SAMPLE_LEAF;
+    if (o->bd.method == HLOD_BUILD_CUBES && !leaf_given)
+        o->bd.leaf_tris = HLOD_BUILD_CUBES_LEAF;
     if (o->bd.method == HLOD_BUILD_METIS && o->bd.node_tris >= o->bd.leaf_tris)
         hlod_cli_error(PROG, "warning: --node-tris %zu >= --leaf-tris %zu: inner nodes simplify little",
                        o->bd.node_tris, o->bd.leaf_tris);
@@ -370,6 +377,7 @@ int main(int argc, char **argv)
         hlod_json_double(&j, "texture_psnr_min", rep.texture_db_min);
         hlod_json_string(&j, "method", opt.bd.method == HLOD_BUILD_METIS        ? "metis"
                                        : opt.bd.method == HLOD_BUILD_SAMPLETREE ? "sampletree"
+                                       : opt.bd.method == HLOD_BUILD_CUBES      ? "cubes"
                                                                                 : "cutplane");
         hlod_json_size(&j, "threads", opt.bd.threads);
         if (opt.bd.shard_count) {

@@ -18,12 +18,18 @@
  * reference of either variant (build it and draw it with full detail:
  * no full-detail render of the big board is needed).
  *
+ *   hlod-gen-scene --kind tree|molecule --tris N -o OUT.obj [--quiet]
+ *
+ * Chamberlain et al.'s two test models (Table 2), made procedurally
+ * (scenes.h): a tree of about N triangles, a molecule of N / 800 spheres.
+ *
  * Files are written through temporary files and renamed; a failure leaves
  * none of them.
  */
 #include "atomic_file.h"
 #include "cli.h"
 #include "city.h"
+#include "scenes.h"
 #include "hlod/image.h"
 
 #include <errno.h>
@@ -43,7 +49,7 @@ typedef struct options {
     const char *kind, *out, *preset;
     size_t tris, tile_tris, copies;
     double size;            /* the board's side, model units */
-    int textured, quiet;
+    int textured, quiet, tile_given, size_given;
 } options;
 
 static void usage(FILE *fp)
@@ -51,14 +57,18 @@ static void usage(FILE *fp)
     fprintf(fp,
             "usage: hlod-gen-scene --kind chessboard --tris N -o OUT.obj [options]\n"
             "       hlod-gen-scene --kind city --copies K -o OUT.obj [--preset P]\n"
+            "       hlod-gen-scene --kind tree|molecule --tris N -o OUT.obj\n"
             "\n"
             "Writes a scene for scaling runs.  chessboard: a flat board of 8 x 8\n"
             "squares (Klein Fig. 11) of about N triangles in tiles, with OUT.mtl,\n"
             "and OUT-reference.obj, the same board as 64 x 64 textured quads.\n"
             "city: K copies of hlod-gen-city's city side by side (its textures\n"
-            "once, in OUT_tex/).\n"
+            "once, in OUT_tex/).  tree and molecule: Chamberlain's test models\n"
+            "(colour cubes, Table 2), made procedurally: a tree of about N\n"
+            "triangles (leaves as quads), a ball of N / 800 spheres of 800\n"
+            "triangles; materials in OUT.mtl.\n"
             "\n"
-            "  --kind K          chessboard or city\n"
+            "  --kind K          chessboard, city, tree or molecule\n"
             "  --copies K        city: copies, 1 to 10000, in rows of ceil(sqrt(K))\n"
             "  --preset P        city: default (default), small or tiny\n"
             "  --tris N          triangles, about (2 g^2, g a multiple of 8);\n"
@@ -88,8 +98,10 @@ static int parse(int argc, char **argv, options *o)
         } else if (hlod_cli_match_flag(argc, argv, &i, "--kind", &v)) {
             if (!v)
                 return hlod_cli_usage_error(PROG, "%s needs a value", "--kind") * 0;
-            if (strcmp(v, "chessboard") && strcmp(v, "city"))
-                return hlod_cli_usage_error(PROG, "--kind: '%s' is not chessboard or city", v) * 0;
+            if (strcmp(v, "chessboard") && strcmp(v, "city") && strcmp(v, "tree") &&
+                strcmp(v, "molecule"))
+                return hlod_cli_usage_error(
+                           PROG, "--kind: '%s' is not chessboard, city, tree or molecule", v) * 0;
             o->kind = v;
         } else if (hlod_cli_match_flag(argc, argv, &i, "--copies", &v)) {
             if (!v)
@@ -114,11 +126,13 @@ static int parse(int argc, char **argv, options *o)
                 return hlod_cli_usage_error(PROG, "%s needs a value", "--tile-tris") * 0;
             if (!hlod_cli_parse_size(PROG, "--tile-tris", v, 2, 1u << 30, &o->tile_tris))
                 return 0;
+            o->tile_given = 1;
         } else if (hlod_cli_match_flag(argc, argv, &i, "--size", &v)) {
             if (!v)
                 return hlod_cli_usage_error(PROG, "%s needs a value", "--size") * 0;
             if (!hlod_cli_parse_double(PROG, "--size", v, 0, 1e7, HLOD_CLI_MIN_OPEN, &o->size))
                 return 0;
+            o->size_given = 1;
         } else if (hlod_cli_match_flag(argc, argv, &i, "-o", &v) ||
                    hlod_cli_match_flag(argc, argv, &i, "--output", &v)) {
             if (!v)
@@ -142,6 +156,10 @@ static int parse(int argc, char **argv, options *o)
     if (city ? o->tris != 0 : o->copies != 0)
         return hlod_cli_usage_error(PROG, "%s does not go with this --kind",
                                     city ? "--tris" : "--copies") * 0;
+    int model = !strcmp(o->kind, "tree") || !strcmp(o->kind, "molecule");
+    if (model && (o->textured || o->tile_given || o->size_given))
+        return hlod_cli_usage_error(PROG, "--textured, --tile-tris and --size go with "
+                                    "--kind chessboard only, not %s", o->kind) * 0;
     if (!o->out)
         return hlod_cli_usage_error(PROG, "%s is required (see --help)", "-o OUT.obj") * 0;
     size_t n = strlen(o->out);
@@ -282,7 +300,7 @@ static void write_city_mtl(FILE *fp, const hlod_mesh *m, const char *obj_path)
 {
     const char *slash = strrchr(obj_path, '/');
     size_t dir = slash ? (size_t)(slash - obj_path) + 1 : 0;
-    fprintf(fp, "# hlod-gen-scene city copies\n");
+    fprintf(fp, "# hlod-gen-scene materials\n");
     for (size_t i = 0; i < m->material_count; i++) {
         const hlod_material *mt = &m->materials[i];
         fprintf(fp, "newmtl m%zu\nKd %.6f %.6f %.6f\n", i, mt->diffuse[0], mt->diffuse[1],
@@ -294,9 +312,10 @@ static void write_city_mtl(FILE *fp, const hlod_mesh *m, const char *obj_path)
     }
 }
 
-/* Copy k of m, moved by off, its objects named NAME_cK. */
-static int write_city_copy(FILE *fp, const hlod_mesh *m, size_t k, const double off[2],
-                           unsigned long long base)
+/* m moved by off, its objects named NAME_cK (copy k of a city), or NAME
+ * when suffix is NULL; base: the vertices written before. */
+static int write_mesh(FILE *fp, const hlod_mesh *m, const char *suffix, const double off[2],
+                      unsigned long long base)
 {
     for (size_t v = 0; v < m->vertex_count; v++) {
         const double *p = &m->positions[3 * v];
@@ -309,7 +328,7 @@ static int write_city_copy(FILE *fp, const hlod_mesh *m, size_t k, const double 
         size_t t0 = m->object_count ? m->objects[o].first_tri : 0;
         size_t t1 = t0 + (m->object_count ? m->objects[o].tri_count : m->tri_count);
         const char *name = m->object_count && m->objects[o].name ? m->objects[o].name : "city";
-        fprintf(fp, "o %s_c%zu\n", name, k);
+        fprintf(fp, "o %s%s\n", name, suffix ? suffix : "");
         uint32_t cur = UINT32_MAX;
         for (size_t t = t0; t < t1; t++) {
             uint32_t mat = m->tri_material ? m->tri_material[t] : 0;
@@ -365,7 +384,9 @@ static int gen_city(const options *o, hlod_cli_progress *bar, const hlod_logger 
                 o->copies, city.tri_count, mtl_base);
         for (size_t k = 0; k < o->copies && r == HLOD_OK; k++) {
             double off[2] = {(double)(k % cols) * dx, (double)(k / cols) * dy};
-            if (!write_city_copy(fo.fp, &city, k, off, (unsigned long long)k * city.vertex_count)) {
+            char suffix[32];
+            snprintf(suffix, sizeof suffix, "_c%zu", k);
+            if (!write_mesh(fo.fp, &city, suffix, off, (unsigned long long)k * city.vertex_count)) {
                 hlod_logf(lg, HLOD_LOG_ERROR, "%s: cannot write: %s", o->out, strerror(errno));
                 r = HLOD_ERR_IO;
             }
@@ -394,6 +415,53 @@ static int gen_city(const options *o, hlod_cli_progress *bar, const hlod_logger 
     return r == HLOD_OK;
 }
 
+/* A tree or a molecule (scenes.h), with its materials beside it. */
+static int gen_model(const options *o, const hlod_logger *lg)
+{
+    int tree = !strcmp(o->kind, "tree");
+    if (!tree && o->tris / 800 > (UINT32_MAX - 1) / 402) {
+        hlod_logf(lg, HLOD_LOG_ERROR, "%s: %zu triangles of spheres: more vertices than one "
+                  "mesh indexes", o->out, o->tris);
+        return 0;
+    }
+    const char *mtl_base;
+    char *mtl = beside(o->out, ".mtl", &mtl_base);
+    hlod_mesh m = {0};
+    hlod_result r = mtl ? (tree ? hlod_scene_tree(o->tris, 1, &m) : hlod_scene_molecule(o->tris, 1, &m))
+                        : HLOD_ERR_NOMEM;
+    if (r != HLOD_OK)
+        hlod_logf(lg, HLOD_LOG_ERROR, "%s: cannot make the %s: %s", o->out, o->kind,
+                  hlod_result_str(r));
+    hlod_atomic_file fo = {0}, fm = {0};
+    if (r == HLOD_OK)
+        r = hlod_atomic_open(&fm, mtl, lg);
+    if (r == HLOD_OK)
+        r = hlod_atomic_open(&fo, o->out, lg);
+    if (r == HLOD_OK) {
+        write_city_mtl(fm.fp, &m, o->out);
+        fprintf(fo.fp, "# hlod-gen-scene %s: %zu triangles\nmtllib %s\n", o->kind, m.tri_count,
+                mtl_base);
+        if (!write_mesh(fo.fp, &m, NULL, (const double[2]){0, 0}, 0)) {
+            hlod_logf(lg, HLOD_LOG_ERROR, "%s: cannot write: %s", o->out, strerror(errno));
+            r = HLOD_ERR_IO;
+        }
+    }
+    int committed = 0;
+    if (r == HLOD_OK && (r = hlod_atomic_commit(&fm, lg)) == HLOD_OK)
+        committed = 1;
+    if (r == HLOD_OK)
+        r = hlod_atomic_commit(&fo, lg);
+    hlod_atomic_abort(&fm);
+    hlod_atomic_abort(&fo);
+    if (r != HLOD_OK && committed)
+        unlink(mtl);
+    if (r == HLOD_OK && !o->quiet)
+        fprintf(stderr, "%s: %s: a %s of %zu triangles\n", PROG, o->out, o->kind, m.tri_count);
+    hlod_mesh_free(&m);
+    free(mtl);
+    return r == HLOD_OK;
+}
+
 int main(int argc, char **argv)
 {
     options o;
@@ -403,6 +471,11 @@ int main(int argc, char **argv)
     hlod_cli_progress_begin(&bar, "tiles", !o.quiet);
     hlod_cli_log ls = {PROG, o.quiet ? HLOD_LOG_ERROR : HLOD_LOG_WARN, &bar};
     hlod_logger lg = hlod_cli_logger(&ls);
+    if (!strcmp(o.kind, "tree") || !strcmp(o.kind, "molecule")) {
+        int ok = gen_model(&o, &lg);
+        hlod_cli_progress_clear(&bar);
+        return ok ? 0 : 1;
+    }
     if (!strcmp(o.kind, "city")) {
         int ok = gen_city(&o, &bar, &lg);
         hlod_cli_progress_clear(&bar);

@@ -175,6 +175,7 @@ static const char *method_name(uint32_t m)
     return m == HLOD_STORE_METHOD_CUTPLANE ? "cutplane"
          : m == HLOD_STORE_METHOD_METIS    ? "metis"
          : m == HLOD_STORE_METHOD_SAMPLETREE ? "sampletree"
+         : m == HLOD_STORE_METHOD_CUBES    ? "cubes"
                                            : "other";
 }
 
@@ -273,6 +274,9 @@ static void print_table(FILE *fp, const char *file, const hlod_store *s, const s
     if (b->method == HLOD_STORE_METHOD_SAMPLETREE)
         fprintf(fp, "build: method sampletree, c %g, leaf cells of at most %llu triangles, "
                 "c_tex %g\n", b->level_factor, (unsigned long long)b->leaf_tris, b->c_tex);
+    else if (b->method == HLOD_STORE_METHOD_CUBES)
+        fprintf(fp, "build: method cubes, leaf cells of at most %llu triangles, c_tex %g\n",
+                (unsigned long long)b->leaf_tris, b->c_tex);
     else
         fprintf(fp, "build: method %s, C_desiredTri %llu, C_levelFactor %g, N_v %llu, N_l %llu, "
                 "N_n %llu, c_tex %g%s\n", method_name(b->method),
