@@ -13,12 +13,15 @@
 # each built with hlod-build --method cubes.  Each distance runs a still
 # camera for FRAMES frames (default 120) under full (every node, no cubes)
 # and under cubes, side by side, then the jitter of the machine in the
-# same run (--jitter-frames); frame times are medians of the second half
-# of the frames (the first half loads the store).  PSNR: each against the full-detail reference (hlod-bench
+# same run (--jitter-frames); frame_ms_p50 is the median of the settled
+# frames, those after the last with a wanted node missing (empty when
+# fewer than 10 are left: raise FRAMES).  PSNR: each against the full-detail reference (hlod-bench
 # --reference, supersampled) every 10th frame.  "full" is klein's
 # reference walk (--set splats=0: every node drawn).  Env: BIN (build/bin), TREE_TRIS, MOL_TRIS, FRAMES, DISTANCES
 # ("1.75 3.5 7 14"), MODELS ("tree molecule"), LEAF_TRIS (hlod-build
-# --leaf-tris, 64).
+# --leaf-tris, 64; MOL_LEAF_TRIS for the molecule, the same by default).
+# missing_half and missing_last: wanted nodes not resident at the half
+# and at the end.
 #
 # Three runs per distance: "geometry", the model as geometry alone (the
 # same builder with one leaf: every triangle in one node, drawn by one
@@ -34,19 +37,20 @@ FRAMES=${FRAMES:-120}
 DISTANCES=${DISTANCES:-1.75 3.5 7 14}
 MODELS=${MODELS:-tree molecule}
 LEAF_TRIS=${LEAF_TRIS:-64}
+MOL_LEAF_TRIS=${MOL_LEAF_TRIS:-$LEAF_TRIS}
 mkdir -p "$out" || exit 1
 csv="$out/cubes.csv"
-echo "model,tris,radii,policy,frame_ms_p50,frame_ms_mean,tris_mean,cubes_mean,psnr_mean,machine_p50_ms,machine_p99_ms" >"$csv"
+echo "model,tris,radii,policy,frame_ms_p50,settled_frames,frame_ms_mean,tris_mean,cubes_mean,psnr_mean,machine_p50_ms,machine_p99_ms,missing_half,missing_last" >"$csv"
 key() { perl -MJSON::PP -e 'local $/; my $j = JSON::PP->new->decode(<STDIN>);
     my $v = $j->{$ARGV[0]}; print defined $v ? (ref $v ? join(" ", @$v) : $v) : ""' "$1" <"$2"; }
 for model in $MODELS; do
-    tris=$TREE_TRIS
-    [ "$model" = molecule ] && tris=$MOL_TRIS
+    tris=$TREE_TRIS leaf=$LEAF_TRIS
+    [ "$model" = molecule ] && tris=$MOL_TRIS leaf=$MOL_LEAF_TRIS
     dir="$out/$model"
     mkdir -p "$dir" || exit 1
     if [ ! -s "$dir/$model.hlod" ]; then
         "$BIN/hlod-gen-scene" --kind "$model" --tris "$tris" -o "$dir/$model.obj" --quiet &&
-            "$BIN/hlod-build" "$dir/$model.obj" -o "$dir/$model.hlod" --method cubes --leaf-tris "$LEAF_TRIS" --json \
+            "$BIN/hlod-build" "$dir/$model.obj" -o "$dir/$model.hlod" --method cubes --leaf-tris "$leaf" --json \
                 --quiet >"$dir/build.json" ||
             { echo "bench_cubes: cannot build the $model" >&2; exit 1; }
     fi
@@ -81,9 +85,18 @@ for model in $MODELS; do
                 >/dev/null 2>"$run.err" ||
                 { echo "bench_cubes: $model $r $pol failed: $(head -c 300 "$run.err")" >&2; continue; }
             s="$run/summary.json"
-            p50=$(perl -e 'my @t; <STDIN>; while (<STDIN>) { my @f = split /,/; push @t, $f[2] if $f[0] >= $ARGV[0] / 2 }
-                @t = sort { $a <=> $b } @t; print @t ? $t[int(@t / 2)] : ""' "$FRAMES" <"$run/frames.csv")
-            echo "$model,$tris,$r,$pol,$p50,$(key frame_ms_mean "$s"),$(key tris_mean "$s"),$(key splats_mean "$s"),$(key psnr_mean "$s"),$(key machine_p50_ms "$s"),$(key machine_p99_ms "$s")" >>"$csv"
+            # the median over the settled frames: after the last frame with a
+            # wanted node missing (at least 10 of them, else none), and
+            # the wanted nodes still missing at the half and at the end
+            read -r p50 settled miss < <(perl -e 'my $hdr = <STDIN>; chomp $hdr; my @h = split /,/, $hdr;
+                my ($c) = grep { $h[$_] eq "wanted_missing" } 0 .. $#h; my (@rows, $last, $half, $end);
+                while (<STDIN>) { my @f = split /,/; push @rows, [$f[0], $f[2], $f[$c]];
+                    $last = $#rows if $f[$c] > 0; $half = $f[$c] if $f[0] == int($ARGV[0] / 2); $end = $f[$c] }
+                my @t = sort { $a <=> $b } map { $_->[1] } @rows[(defined $last ? $last + 1 : 0) .. $#rows];
+                printf "%s %d %s,%s\n", @t >= 10 ? $t[int(@t / 2)] : "-", scalar @t, $half // "", $end // ""' \
+                "$FRAMES" <"$run/frames.csv")
+            [ "$p50" = - ] && p50=
+            echo "$model,$tris,$r,$pol,$p50,$settled,$(key frame_ms_mean "$s"),$(key tris_mean "$s"),$(key splats_mean "$s"),$(key psnr_mean "$s"),$(key machine_p50_ms "$s"),$(key machine_p99_ms "$s"),$miss" >>"$csv"
         done
     done
 done
