@@ -17,6 +17,10 @@
 #include "hlod/image.h"
 #include "hlod/mesh.h"
 
+#include <stdatomic.h>
+#include <stdint.h>
+#include <time.h>
+
 #define HLOD_BNODE_NONE UINT32_MAX
 
 typedef struct hlod_bnode {
@@ -46,6 +50,29 @@ void hlod_btree_free(hlod_btree *t);
  * into t->nodes. */
 uint32_t hlod_btree_add(hlod_btree *t);
 
+/* CPU time the block builders spent in their parts, summed over threads
+ * (hlod-build --json stage_cpu_seconds), in nanoseconds. */
+typedef struct hlod_build_timing {
+    _Atomic uint64_t simplify_ns;       /* hlod_simplify */
+    _Atomic uint64_t error_ns;          /* hlod_node_error: the certified errors */
+    _Atomic uint64_t node_texture_ns;   /* hlod_node_texture: the nodes' atlases */
+} hlod_build_timing;
+
+/* This thread's CPU time, ns. */
+static inline uint64_t hlod_thread_ns(void)
+{
+    struct timespec ts;
+    clock_gettime(CLOCK_THREAD_CPUTIME_ID, &ts);
+    return (uint64_t)ts.tv_sec * 1000000000u + (uint64_t)ts.tv_nsec;
+}
+
+/* Adds the thread's CPU time since t0 to *c (c NULL: nothing). */
+static inline void hlod_timing_add(_Atomic uint64_t *c, uint64_t t0)
+{
+    if (c)
+        atomic_fetch_add(c, hlod_thread_ns() - t0);
+}
+
 typedef struct hlod_build_params {
     size_t desired_tris;   /* C_desiredTri: triangles of hlod_0 (cutplane) */
     double level_factor;   /* C_levelFactor: pieces per split and triangle
@@ -59,6 +86,7 @@ typedef struct hlod_build_params {
     uint64_t seed;         /* METIS seed and any other choice: fixed, so a
                               build is reproducible byte for byte */
     const hlod_logger *logger;
+    hlod_build_timing *timing;  /* NULL: not timed */
 } hlod_build_params;
 
 /* Lakhia III-A.  block: one block's triangles (materials/objects ignored

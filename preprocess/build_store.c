@@ -27,6 +27,7 @@
 #include "atomic_file.h"
 
 #include "build.h"
+#include "hlod_clock.h"
 #include "city_levels.h"
 #include "build_node.h"
 #include "part.h"
@@ -325,6 +326,8 @@ typedef struct job {
     size_t next;            /* next block to build (under turn_mu) */
     atomic_size_t done_blocks;
     atomic_int failed;
+    hlod_build_timing timing;   /* the builders' parts */
+    _Atomic uint64_t texture_read_ns, tree_ns, store_ns; /* the workers' steps */
     /* Payloads go into the store in block order, whatever thread finishes
      * first, so the same input gives a byte-identical store.  A finished
      * tree waits in its slot; whichever worker finds the next block's tree
@@ -400,7 +403,9 @@ static void emit_ready(job *J)
     while (J->turn < J->bs->n && J->ready[J->turn]) {
         size_t bi = J->turn;
         pthread_mutex_unlock(&J->turn_mu);
+        uint64_t t0 = hlod_thread_ns();
         hlod_result r = atomic_load(&J->failed) ? HLOD_OK : emit_block(J, bi, &J->slot[bi]);
+        hlod_timing_add(&J->store_ns, t0);
         if (r != HLOD_OK) {
             hlod_logf(J->lg, HLOD_LOG_ERROR, "block %s: cannot store: %s", J->bs->b[bi].name, hlod_result_str(r));
             atomic_store(&J->failed, 1);
@@ -430,6 +435,7 @@ static void *worker(void *arg)
         hlod_image tex = {0};
         const hlod_image *texp = NULL;
         hlod_result r = HLOD_OK;
+        uint64_t t0 = hlod_thread_ns();
         if (b->texture) {
             r = hlod_image_read(b->texture, &tex, J->lg);
             if (r == HLOD_OK)
@@ -442,13 +448,17 @@ static void *worker(void *arg)
                 r = HLOD_OK;
             }
         }
+        hlod_timing_add(&J->texture_read_ns, t0);
         b->solid = hlod_mesh_is_solid(&b->mesh);
         hlod_btree t = {0};
         hlod_build_params bp = J->bp;
         bp.logger = J->lg;
+        bp.timing = &J->timing;
+        t0 = hlod_thread_ns();
         if (r == HLOD_OK)
             r = J->desc->method == HLOD_BUILD_METIS ? hlod_build_metis(&b->mesh, texp, &bp, &t)
                                                     : hlod_build_cutplane(&b->mesh, texp, &bp, &t);
+        hlod_timing_add(&J->tree_ns, t0);
         if (r != HLOD_OK) {
             hlod_logf(J->lg, HLOD_LOG_ERROR, "block %s (%zu triangles): %s", b->name, b->mesh.tri_count,
                       hlod_result_str(r));
@@ -881,7 +891,8 @@ static int want_levels(const hlod_build_desc *d, size_t blocks)
 /* Builds every block on the worker threads and streams their nodes into
  * w; the calling thread reports progress. */
 static hlod_result build_blocks(const hlod_build_desc *d, blocks *bs, block_out *outs,
-                                hlod_store_writer *w, int keep_top, const hlod_logger *lg)
+                                hlod_store_writer *w, int keep_top, const hlod_logger *lg,
+                                hlod_build_report *rep)
 {
     job J = {.desc = d, .bs = bs, .out = outs, .w = w, .lg = lg, .keep_top = keep_top};
     J.bp.desired_tris = d->desired_tris;
@@ -918,6 +929,12 @@ static hlod_result build_blocks(const hlod_build_desc *d, blocks *bs, block_out 
     for (size_t i = 0; i < started; i++)
         pthread_join(th[i], NULL);
     free(th);
+    rep->cpu_texture_read_s = atomic_load(&J.texture_read_ns) * 1e-9;
+    rep->cpu_tree_s = atomic_load(&J.tree_ns) * 1e-9;
+    rep->cpu_simplify_s = atomic_load(&J.timing.simplify_ns) * 1e-9;
+    rep->cpu_error_s = atomic_load(&J.timing.error_ns) * 1e-9;
+    rep->cpu_node_texture_s = atomic_load(&J.timing.node_texture_ns) * 1e-9;
+    rep->cpu_store_s = atomic_load(&J.store_ns) * 1e-9;
     pthread_mutex_destroy(&J.turn_mu);
     pthread_cond_destroy(&J.turn_cv);
     for (size_t b = 0; b < bs->n; b++)
@@ -1339,9 +1356,12 @@ static hlod_result sampletree_store(const hlod_build_desc *d, const char *const 
                                     const hlod_logger *lg, hlod_build_report *rep)
 {
     hlod_st_scan *scan = NULL;
+    double t0 = hlod_now_s();
     hlod_result r = hlod_st_scan_inputs(inputs, n, scratch, lg, &scan);
     if (r != HLOD_OK)
         return r;
+    rep->stage_read_s = hlod_now_s() - t0;
+    t0 = hlod_now_s();
     double lo[1][3], hi[1][3];
     hlod_st_scan_box(scan, lo[0], hi[0]);
     input in = {0};
@@ -1370,6 +1390,7 @@ static hlod_result sampletree_store(const hlod_build_desc *d, const char *const 
                   p.cubes ? "colour cubes" : "sample tree", hlod_result_str(r));
         return r;
     }
+    rep->stage_blocks_s = hlod_now_s() - t0;
     rep->blocks = 1;
     rep->nodes = sr.nodes;
     rep->levels = sr.levels;
@@ -1432,6 +1453,7 @@ hlod_result hlod_build_store(const hlod_build_desc *d, const char *const *inputs
         return r;
     }
     /* the blocks and the group tree, from the blocks' boxes before any is built */
+    double t_stage = hlod_now_s();
     if (r == HLOD_OK)
         r = meshes ? read_input(d, inputs, n, meshes, scratch[0] ? scratch : NULL, &in, &ph,
                                 &rep.tris_in, lg) : HLOD_ERR_NOMEM;
@@ -1460,10 +1482,16 @@ hlod_result hlod_build_store(const hlod_build_desc *d, const char *const *inputs
     {
         if (r == HLOD_OK && !(outs = calloc(bs->n ? bs->n : 1, sizeof *outs)))
             r = HLOD_ERR_NOMEM;
+        rep.stage_read_s = hlod_now_s() - t_stage;
+        t_stage = hlod_now_s();
         if (r == HLOD_OK)
-            r = build_blocks(d, bs, outs, w, in.levels, lg);
+            r = build_blocks(d, bs, outs, w, in.levels, lg, &rep);
+        rep.stage_blocks_s = hlod_now_s() - t_stage;
+        t_stage = hlod_now_s();
         if (r == HLOD_OK && in.levels)
             r = build_levels(d, &in.plan, to, bs, in.gid, outs, w, &T, &tops, lg);
+        rep.stage_levels_s = hlod_now_s() - t_stage;
+        t_stage = hlod_now_s();
         if (r == HLOD_OK) {
             r = finish_store(w, bs, outs, &T, sharded ? store_path : out_path, &rep,
                              sharded ? &store_index : NULL, lg);
@@ -1476,6 +1504,7 @@ hlod_result hlod_build_store(const hlod_build_desc *d, const char *const *inputs
             if (r == HLOD_OK)
                 store_path[0] = 0;
         }
+        rep.stage_finish_s = hlod_now_s() - t_stage;
     }
     free(store_index);
     if (tops)

@@ -453,16 +453,22 @@ static hlod_result build_node(hlod_btree *t, piece *p, double s, uint32_t parent
         d.target_tris = d.target_tris ? d.target_tris : 1;
         d.vertex_lock = p->lock;
         d.logger = bp->logger;
+        uint64_t t0 = hlod_thread_ns();
         r = hlod_simplify(&p->m, &d, &node_mesh, NULL);
+        hlod_timing_add(bp->timing ? &bp->timing->simplify_ns : NULL, t0);
     }
     if (r != HLOD_OK)
         return r;
     double err = 0;
+    uint64_t t1 = hlod_thread_ns();
     if (s > 1)
         r = hlod_node_error(&node_mesh, &p->m, &err);
+    hlod_timing_add(bp->timing ? &bp->timing->error_ns : NULL, t1);
     hlod_image img = {0};
+    t1 = hlod_thread_ns();
     if (r == HLOD_OK && tex)
         r = hlod_node_texture(tex, &node_mesh, s > 1 ? s : 1, &img);
+    hlod_timing_add(bp->timing ? &bp->timing->node_texture_ns : NULL, t1);
     if (r != HLOD_OK) {
         hlod_mesh_free(&node_mesh);
         return r;

@@ -116,6 +116,7 @@ typedef struct builder {
 
     idx_t *map;           /* nvox scratch, -1 between uses */
     size_t metis_fallbacks, overfull_voxels;
+    hlod_build_timing *timing;  /* NULL: not timed */
 } builder;
 
 /* ---------- small helpers ---------- */
@@ -1018,7 +1019,10 @@ static hlod_result node_mesh(builder *b, const leaves *L, uint32_t pi, hlod_mesh
         d.vertex_lock = lock;
         d.logger = b->lg;
         hlod_simplify_stats st;
-        if ((r = hlod_simplify(&u, &d, &meshes[pi], &st)) != HLOD_OK)
+        uint64_t t0 = hlod_thread_ns();
+        r = hlod_simplify(&u, &d, &meshes[pi], &st);
+        hlod_timing_add(b->timing ? &b->timing->simplify_ns : NULL, t0);
+        if (r != HLOD_OK)
             goto done;
         if (st.tris_out > b->nn)
             hlod_logf(b->lg, HLOD_LOG_DEBUG, "metis: node %u kept %zu triangles of %zu (target %zu)", pi,
@@ -1031,7 +1035,10 @@ static hlod_result node_mesh(builder *b, const leaves *L, uint32_t pi, hlod_mesh
      * monotone: a node is never claimed better than what it replaces */
     if ((r = submesh(b->m, tris, ntris, remap, &orig)) != HLOD_OK)
         goto done;
-    if ((r = hlod_node_error(&meshes[pi], &orig, &errors[pi])) != HLOD_OK)
+    uint64_t t1 = hlod_thread_ns();
+    r = hlod_node_error(&meshes[pi], &orig, &errors[pi]);
+    hlod_timing_add(b->timing ? &b->timing->error_ns : NULL, t1);
+    if (r != HLOD_OK)
         goto done;
     for (int c = 0; c < 2; c++)
         if (errors[pt->child[c]] > errors[pi])
@@ -1092,6 +1099,7 @@ hlod_result hlod_build_metis(const hlod_mesh *block, const hlod_image *tex, cons
     builder b = {0};
     b.m = block;
     b.lg = p->logger;
+    b.timing = p->timing;
     b.nl = p->leaf_tris ? p->leaf_tris : DEFAULT_LEAF_TRIS;
     b.nn = p->node_tris ? p->node_tris : DEFAULT_NODE_TRIS;
     b.nv_max = p->voxel_tris ? p->voxel_tris : DEFAULT_VOXEL_TRIS;
@@ -1153,7 +1161,10 @@ hlod_result hlod_build_metis(const hlod_mesh *block, const hlod_image *tex, cons
          * because it rewrites the UVs the parents were built from */
         if (tex && nd->mesh.tri_count) {
             double factor = (double)nd->source_tris / (double)nd->mesh.tri_count;
-            if ((r = hlod_node_texture(tex, &nd->mesh, factor, &nd->tex)) != HLOD_OK)
+            uint64_t t0 = hlod_thread_ns();
+            r = hlod_node_texture(tex, &nd->mesh, factor, &nd->tex);
+            hlod_timing_add(p->timing ? &p->timing->node_texture_ns : NULL, t0);
+            if (r != HLOD_OK)
                 goto done;
         }
     }

@@ -76,7 +76,22 @@ single() {
     local city=$1 method=$2
     local extra=()
     [ "$method" = cutplane ] && extra=(--desired-tris 450)
-    "$BIN/hlod-build" "$T/$city.obj" -o "$T/$city-$method.hlod" --method "$method" "${extra[@]}" --quiet
+    "$BIN/hlod-build" "$T/$city.obj" -o "$T/$city-$method.hlod" --method "$method" "${extra[@]}" --quiet \
+        --json >"$T/$city-$method.build.json"
+}
+
+# stages_add_up FILE: hlod-build --json's stage times: the stages within the
+# run's wall time, the parts of a block tree within the tree, each part
+# measured (> 0), and CPU time over the process
+stages_add_up() {
+    perl -MJSON::PP -e 'local $/; open my $f, "<", $ARGV[0] or die; my $j = JSON::PP->new->decode(<$f>);
+        my ($s, $c) = ($j->{stage_seconds}, $j->{stage_cpu_seconds});
+        my $sum = 0; $sum += $s->{$_} for qw(read blocks levels finish);
+        my $parts = $c->{simplify} + $c->{error} + $c->{node_textures};
+        printf "stages %.2f of %.2f s; tree %.2f cpu s (simplify %.2f, error %.2f, atlases %.2f), store %.2f, cpu %.2f\n",
+            $sum, $j->{seconds}, $c->{tree}, $c->{simplify}, $c->{error}, $c->{node_textures}, $c->{store}, $j->{cpu_seconds};
+        exit !($sum > 0.5 * $j->{seconds} && $sum <= $j->{seconds} + 0.01 && $c->{simplify} > 0 && $c->{error} > 0 &&
+            $c->{store} > 0 && $parts <= $c->{tree} + 0.01 && $c->{tree} <= $j->{cpu_seconds} + 0.01)' "$1"
 }
 
 key() { sed -n "s/.*\"$2\": *\([0-9.]*\).*/\1/p" "$1"; }
@@ -99,6 +114,8 @@ NS="1 3 8"
 for method in cutplane metis; do
     single small $method
     ok $? "single build, small city, $method"
+    msg=$(stages_add_up "$T/small-$method.build.json")
+    ok $? "--json stage times, $method: $msg"
     [ "$QUICK" = 1 ] && [ $method = metis ] && break
     # metis at N = 3 alone: N = 1 and 8 take the merge through the same
     # code for either method (cutplane's runs cover them)

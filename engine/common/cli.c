@@ -28,6 +28,15 @@ double hlod_cli_now(void)
     return hlod_now_s();
 }
 
+double hlod_cli_cpu_seconds(void)
+{
+    struct rusage ru;
+    if (getrusage(RUSAGE_SELF, &ru) != 0)
+        return 0;
+    return (double)ru.ru_utime.tv_sec + ru.ru_utime.tv_usec * 1e-6 + (double)ru.ru_stime.tv_sec +
+           ru.ru_stime.tv_usec * 1e-6;
+}
+
 size_t hlod_cli_peak_rss(void)
 {
     struct rusage ru;
@@ -268,6 +277,17 @@ void hlod_json_begin(hlod_json *j, FILE *fp)
     j->fp = fp;
     j->count = 0;
     fputc('{', fp);
+}
+
+void hlod_json_object(hlod_json *j, const char *key, hlod_json *inner)
+{
+    json_key(j, key);
+    hlod_json_begin(inner, j->fp);
+}
+
+void hlod_json_object_end(hlod_json *inner)
+{
+    fputc('}', inner->fp);
 }
 
 void hlod_json_double(hlod_json *j, const char *key, double v)

@@ -113,6 +113,11 @@ void hlod_json_int(hlod_json *j, const char *key, long long v);
 void hlod_json_bool(hlod_json *j, const char *key, int v);
 void hlod_json_string(hlod_json *j, const char *key, const char *v); /* NULL -> null */
 int hlod_json_end(hlod_json *j);
+/* A member `key` of j that is an object: writes `"key": {` and starts
+ * inner on j's stream; its members follow on inner, then
+ * hlod_json_object_end(inner) writes "}". */
+void hlod_json_object(hlod_json *j, const char *key, hlod_json *inner);
+void hlod_json_object_end(hlod_json *inner);
 
 /* ---- measurement ---- */
 
@@ -122,5 +127,9 @@ double hlod_cli_now(void);
 /* Peak resident set size of this process so far, in bytes (getrusage
  * ru_maxrss); 0 if unknown. */
 size_t hlod_cli_peak_rss(void);
+
+/* CPU seconds this process has used so far, user and system, all its
+ * threads (getrusage); 0 if unknown. */
+double hlod_cli_cpu_seconds(void);
 
 #endif

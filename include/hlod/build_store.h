@@ -111,6 +111,17 @@ typedef struct hlod_build_report {
      * measured among the first two (0: none measured) */
     uint64_t textures_bc, textures_jpeg, textures_raw;
     double texture_db_min;
+    /* wall seconds of each stage (hlod-build --json stage_seconds): reading
+     * the input into blocks (sampletree, cubes: the first pass), building
+     * and writing the blocks' trees (sampletree, cubes: the whole rest),
+     * the city levels above them, the node table and the rename */
+    double stage_read_s, stage_blocks_s, stage_levels_s, stage_finish_s;
+    /* CPU seconds summed over the block threads (stage_cpu_seconds):
+     * texture files read, the block trees (which include the next three),
+     * the simplifier, the certified errors, the node atlases, and the
+     * payloads encoded and written */
+    double cpu_texture_read_s, cpu_tree_s, cpu_simplify_s, cpu_error_s, cpu_node_texture_s,
+        cpu_store_s;
 } hlod_build_report;
 
 /* Every field set to its default (0 is a valid c_tex, so zero does not

@@ -380,6 +380,22 @@ int main(int argc, char **argv)
                                        : opt.bd.method == HLOD_BUILD_CUBES      ? "cubes"
                                                                                 : "cutplane");
         hlod_json_size(&j, "threads", opt.bd.threads);
+        hlod_json st;
+        hlod_json_object(&j, "stage_seconds", &st);
+        hlod_json_double(&st, "read", rep.stage_read_s);
+        hlod_json_double(&st, "blocks", rep.stage_blocks_s);
+        hlod_json_double(&st, "levels", rep.stage_levels_s);
+        hlod_json_double(&st, "finish", rep.stage_finish_s);
+        hlod_json_object_end(&st);
+        hlod_json_object(&j, "stage_cpu_seconds", &st);
+        hlod_json_double(&st, "texture_read", rep.cpu_texture_read_s);
+        hlod_json_double(&st, "tree", rep.cpu_tree_s);
+        hlod_json_double(&st, "simplify", rep.cpu_simplify_s);
+        hlod_json_double(&st, "error", rep.cpu_error_s);
+        hlod_json_double(&st, "node_textures", rep.cpu_node_texture_s);
+        hlod_json_double(&st, "store", rep.cpu_store_s);
+        hlod_json_object_end(&st);
+        hlod_json_double(&j, "cpu_seconds", hlod_cli_cpu_seconds());
         if (opt.bd.shard_count) {
             hlod_json_size(&j, "shard_index", opt.bd.shard_index);
             hlod_json_size(&j, "shard_count", opt.bd.shard_count);
