@@ -59,7 +59,8 @@ static hlod_result add_quad(hlod_store_writer *w, double x0, double y0, double s
 }
 
 /* roots blocks side by side, each a quad with `children` child quads;
- * sampletree: a sample tree's header (additive) and node colours. */
+ * sampletree: a sample tree's header (additive) and node colours; 2:
+ * colour cubes' (additive, node colours and cubes). */
 static int write_store(const char *dir, const char *name, uint32_t roots, uint32_t children,
                        int textured, int packed, int sampletree)
 {
@@ -72,9 +73,9 @@ static int write_store(const char *dir, const char *name, uint32_t roots, uint32
     wd.build.level_factor = 2;
     wd.build.c_tex = 0.5;
     if (sampletree) {
-        wd.build.method = HLOD_STORE_METHOD_SAMPLETREE;
+        wd.build.method = sampletree == 2 ? HLOD_STORE_METHOD_CUBES : HLOD_STORE_METHOD_SAMPLETREE;
         wd.build.desired_tris = 0;
-        wd.build.level_factor = 13.8;
+        wd.build.level_factor = sampletree == 2 ? 0 : 13.8;
         wd.build.leaf_tris = 2;
     }
     wd.payload_align = 64;
@@ -117,6 +118,17 @@ static int write_store(const char *dir, const char *name, uint32_t roots, uint32
         hlod_store_writer_abort(w);
         return 1;
     }
+    uint8_t cubes[16][6][4];
+    for (uint32_t k = 0; k < n; k++)
+        for (int f = 0; f < 6; f++) {
+            const uint8_t c[4] = {(uint8_t)(20 * f), (uint8_t)(30 * k), 90, (uint8_t)(255 - 20 * f)};
+            memcpy(cubes[k][f], c, 4);
+        }
+    if (sampletree == 2 &&
+        hlod_store_writer_set_cubes(w, (const uint8_t (*)[6][4])cubes, n) != HLOD_OK) {
+        hlod_store_writer_abort(w);
+        return 1;
+    }
     if (hlod_store_writer_finish(w, nodes, n, NULL) != HLOD_OK)
         return 1;
     printf("%s\n", path);
@@ -131,5 +143,6 @@ int main(int argc, char **argv)
     }
     int bad = 0;
     bad |= write_store(argv[1], "v5-blocks-tree.hlod", 1, 2, 2, 1, 0);
+    bad |= write_store(argv[1], "v5-cubes.hlod", 1, 2, 0, 1, 2);
     return bad;
 }
