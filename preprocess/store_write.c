@@ -1116,22 +1116,28 @@ fail:
     return r;
 }
 
+/* A per-node table given before finish: *dst becomes a copy of
+ * src[0..count) of elem bytes each (count 0: none), *n its count. */
+static hlod_result set_table(void *dst, uint32_t *n, const void *src, uint32_t count, size_t elem)
+{
+    void *old, *copy = NULL;
+    memcpy(&old, dst, sizeof old);
+    if (count && !(copy = malloc((size_t)count * elem)))
+        return HLOD_ERR_NOMEM;
+    if (count)
+        memcpy(copy, src, (size_t)count * elem);
+    free(old);
+    memcpy(dst, &copy, sizeof copy);
+    *n = count;
+    return HLOD_OK;
+}
+
 hlod_result hlod_store_writer_set_colors(hlod_store_writer *w, const uint8_t (*colors)[4],
                                          uint32_t count)
 {
     if (!w || (!colors && count))
         return HLOD_ERR_INVALID_ARG;
-    free(w->colors);
-    w->colors = NULL;
-    w->color_count = 0;
-    if (!count)
-        return HLOD_OK;
-    w->colors = malloc((size_t)count * sizeof *w->colors);
-    if (!w->colors)
-        return HLOD_ERR_NOMEM;
-    memcpy(w->colors, colors, (size_t)count * sizeof *w->colors);
-    w->color_count = count;
-    return HLOD_OK;
+    return set_table(&w->colors, &w->color_count, colors, count, sizeof *w->colors);
 }
 
 hlod_result hlod_store_writer_set_cubes(hlod_store_writer *w, const uint8_t (*cubes)[6][4],
@@ -1139,15 +1145,5 @@ hlod_result hlod_store_writer_set_cubes(hlod_store_writer *w, const uint8_t (*cu
 {
     if (!w || (!cubes && count))
         return HLOD_ERR_INVALID_ARG;
-    free(w->cubes);
-    w->cubes = NULL;
-    w->cube_count = 0;
-    if (!count)
-        return HLOD_OK;
-    w->cubes = malloc((size_t)count * sizeof *w->cubes);
-    if (!w->cubes)
-        return HLOD_ERR_NOMEM;
-    memcpy(w->cubes, cubes, (size_t)count * sizeof *w->cubes);
-    w->cube_count = count;
-    return HLOD_OK;
+    return set_table(&w->cubes, &w->cube_count, cubes, count, sizeof *w->cubes);
 }
