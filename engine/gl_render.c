@@ -900,6 +900,10 @@ hlod_result hlod_gpu_blended(hlod_renderer *r, const hlod_gpu_splat *v, uint32_t
     const gl_table *gl = &r->gl;
     splat_buffer(r, v, n);
     gl->Uniform1f(r->splat.u_size, 1);
+    if (r->culling) { /* a solid node's culling, left on: the faces are two-sided */
+        gl->Disable(GL_CULL_FACE);
+        r->culling = 0;
+    }
     gl->Enable(GL_BLEND);
     gl->BlendFunc(GL_ONE, GL_ONE_MINUS_SRC_ALPHA);
     gl->DepthMask(GL_FALSE);

@@ -213,8 +213,8 @@ hlod_result hlod_scene_tree(size_t tris, uint64_t seed, hlod_mesh *out)
     static const char *const names[3] = {"bark", "leaf", "leaf_light"};
     enum { DEPTH = 5, TIPS = 243 };     /* 3^5 twigs */
     memset(out, 0, sizeof *out);
-    if (tris < 2000)
-        tris = 2000;
+    if (tris < 8000)
+        tris = 8000;    /* the bark alone is 5,824 */
     g_state = seed * 0x9E3779B97F4A7C15ull + 1;
     builder b = {0};
     twig tips[TIPS];

@@ -16,7 +16,7 @@
 #include <stddef.h>
 #include <stdint.h>
 
-/* A tree of about `tris` triangles (at least 2,000): a trunk and five
+/* A tree of about `tris` triangles (at least 8,000): a trunk and five
  * levels of branches, three to a fork, as 8-sided tubes (bark), and the
  * rest as leaves, single quads in two greens around the twigs' ends.
  * About 10 model units tall, the trunk's foot at the origin, z up.

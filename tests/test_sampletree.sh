@@ -51,6 +51,23 @@ for bad in "--kind city --tris 100 -o $T/x.obj" "--kind chessboard -o $T/x.obj" 
     [ $rc -eq 2 ] && grep -q '^hlod-gen-scene: error:' "$T/err" && ! ls "$T"/x* >/dev/null 2>&1
     ok $? "bad command line '$bad': exit 2 (got $rc), named, nothing written: $(head -1 "$T/err")"
 done
+# Chamberlain's models (colour cubes): the molecule's spheres of 800
+# triangles, the tree's bark and leaves, bad combinations refused
+"$BIN/hlod-gen-scene" --kind molecule --tris 8000 -o "$T/mol.obj" --quiet &&
+    "$BIN/hlod-gen-scene" --kind tree --tris 10000 -o "$T/tree.obj" --quiet
+ok $? "molecule and tree written"
+mf=$(grep -c '^f ' "$T/mol.obj") tf=$(grep -c '^f ' "$T/tree.obj")
+[ "$mf" -eq 8000 ] && [ "$(grep -c '^newmtl' "$T/mol.mtl")" -eq 4 ] &&
+    [ "$tf" -ge 9999 ] && [ "$tf" -le 10000 ] && grep -q '^o bark' "$T/tree.obj" &&
+    grep -q '^o leaves_0' "$T/tree.obj"
+ok $? "10 spheres of 800 triangles ($mf), a tree of 10000 ($tf) with bark and leaves"
+for bad in "--kind tree -o $T/y.obj" "--kind molecule --tris 8000 --textured -o $T/y.obj" \
+    "--kind tree --tris 5000 --copies 2 -o $T/y.obj"; do
+    "$BIN/hlod-gen-scene" $bad --quiet 2>"$T/err"
+    rc=$?
+    [ $rc -eq 2 ] && ! ls "$T"/y* >/dev/null 2>&1
+    ok $? "bad command line '$bad': exit 2 (got $rc): $(head -1 "$T/err")"
+done
 "$BIN/hlod-gen-scene" --kind city --copies 3 --preset tiny -o "$T/c3.obj" --quiet
 rc=$?
 one=$("$BIN/hlod-gen-city" --preset tiny -o "$T/one.obj" --json --quiet | key tris)
