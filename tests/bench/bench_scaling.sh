@@ -12,7 +12,16 @@
 #   klein-1, klein-4  the sample tree, policy klein, splat_px 1 and 4;
 #   full              the same sample tree, every node drawn (klein with
 #                     splats 0: the reference walk, no splats);
-#   hlod              cutplane on the textured board, lakhia at TARGET ms.
+#   hlod              cutplane on the textured board, lakhia at TARGET ms;
+#   rzb-2             Wand's randomized z-buffer (policy rzb, d = 2, the C
+#                     splatter; docs/rzb.md) over cutplane on the
+#                     two-colour board (rzb draws corner colours, so not
+#                     the textured one);
+#   cubes             Chamberlain's colour cubes (hlod-build --method
+#                     cubes, policy cubes; docs/cubes.md).
+# Every path run is scored against the board's analytic reference (the
+# 64 x 64-quad board built into a store, hlod-bench --reference-store,
+# supersampled) every 20th frame: psnr_mean.
 # Each method runs twice: the low path (FRAMES frames: a moving camera,
 # whose loads a big store does not finish), and a still view from the
 # path's start (VIEW_FRAMES frames, enough for the loads to settle: its
@@ -20,7 +29,8 @@
 # converged frame time, view_p50_ms, and its spread, view_p99_ms).
 # Writes OUTDIR/scaling.csv (method, tris, build_s, store_bytes,
 # frame_ms_mean, frame_ms_p50, machine_p50_ms, machine_p99_ms, tris_mean,
-# splats_mean, view_p50_ms, view_p99_ms, view_tris, view_missing), and
+# splats_mean, view_p50_ms, view_p99_ms, view_tris, view_missing,
+# psnr_mean), and
 # OUTDIR/scaling.png (log-log converged frame time against triangles per
 # method, error bars from the machine's p50 to p99) when gnuplot is there.
 # Boards and stores are kept in OUTDIR/N/.
@@ -45,7 +55,7 @@ perl -e 'for my $i (0 .. 40) { my $t = $i * 0.5; my $x = 20 + 4 * $i; my $y = 10
     printf "%.2f %.3f %.3f 6 %.3f %.3f 0\n", $t, $x, $y, $x + 12, $y + 30 }' >"$out/low.path"
 printf "0 20 10 6 32 40 0\n100 20 10 6 32 40 0\n" >"$out/view.path"
 csv="$out/scaling.csv"
-echo "method,tris,build_s,store_bytes,frame_ms_mean,frame_ms_p50,machine_p50_ms,machine_p99_ms,tris_mean,splats_mean,view_p50_ms,view_p99_ms,view_tris,view_missing" >"$csv"
+echo "method,tris,build_s,store_bytes,frame_ms_mean,frame_ms_p50,machine_p50_ms,machine_p99_ms,tris_mean,splats_mean,view_p50_ms,view_p99_ms,view_tris,view_missing,psnr_mean" >"$csv"
 key() { perl -MJSON::PP -e 'local $/; my $j = JSON::PP->new->decode(<STDIN>);
     my $v = $j->{$ARGV[0]}; print defined $v ? $v : ""' "$1" <"$2"; }
 row() { # METHOD N BUILD_JSON STORE RUN_DIR
@@ -54,7 +64,8 @@ row() { # METHOD N BUILD_JSON STORE RUN_DIR
     echo "$1,$(key tris_in "$3"),$(key seconds "$3"),$(stat -c %s "$4"),$(key frame_ms_mean "$s")," \
         "$(key frame_ms_p50 "$s"),$(key machine_p50_ms "$s"),$(key machine_p99_ms "$s")," \
         "$(key tris_mean "$s"),$(key splats_mean "$s"),$(key machine_p50_ms "$v")," \
-        "$(key machine_p99_ms "$v"),$(mid "$5-view" tris_drawn),$(mid "$5-view" wanted_missing)" |
+        "$(key machine_p99_ms "$v"),$(mid "$5-view" tris_drawn),$(mid "$5-view" wanted_missing)," \
+        "$(key psnr_mean "$s")" |
         tr -d ' ' >>"$csv"
 }
 # mid DIR COLUMN: COLUMN of DIR/frames.csv at the frame the jitter replays
@@ -68,7 +79,8 @@ bench() { # STORE RUN_DIR ARGS...: the low path, then the still view
     shift 2
     "$BIN/hlod-bench" "$st" --path "$out/low.path" --target-ms "$TARGET" --out "$dir" \
         --width 640 --height 480 --frames "$FRAMES" --jitter-frames "$JITTER" --no-plots \
-        --memory-mb 8192 --set max_inflight=256 "$@" 2>"$dir.err" >/dev/null &&
+        --memory-mb 8192 --set max_inflight=256 --reference --reference-every 20 \
+        --reference-store "$ref" "$@" 2>"$dir.err" >/dev/null &&
         "$BIN/hlod-bench" "$st" --path "$out/view.path" --target-ms "$TARGET" --out "$dir-view" \
             --width 640 --height 480 --frames "$VIEW_FRAMES" --jitter-frames "$JITTER" \
             --no-plots --memory-mb 8192 --set max_inflight=256 "$@" 2>"$dir-view.err" >/dev/null ||
@@ -85,6 +97,11 @@ for n in "${SIZES[@]}"; do
         --json --quiet >"$d/st.json" ||
         exit 1
     "$BIN/hlod-build" "$d/tboard.obj" -o "$d/hlod.hlod" --json --quiet >"$d/hlod.json" || exit 1
+    "$BIN/hlod-build" "$d/board.obj" -o "$d/flat.hlod" --json --quiet >"$d/flat.json" || exit 1
+    "$BIN/hlod-build" "$d/board.obj" -o "$d/cubes.hlod" --method cubes --memory-mb "$MEMORY_MB" \
+        --json --quiet >"$d/cubes.json" || exit 1
+    ref="$d/ref.hlod"
+    "$BIN/hlod-build" "$d/board-reference.obj" -o "$ref" --quiet || exit 1
     for i in 1 4; do
         bench "$d/st.hlod" "$d/klein-$i" --policy klein --set splat_px=$i &&
             row "klein-$i" "$n" "$d/st.json" "$d/st.hlod" "$d/klein-$i"
@@ -93,6 +110,10 @@ for n in "${SIZES[@]}"; do
         row full "$n" "$d/st.json" "$d/st.hlod" "$d/full"
     bench "$d/hlod.hlod" "$d/hlod" --policy lakhia &&
         row hlod "$n" "$d/hlod.json" "$d/hlod.hlod" "$d/hlod"
+    bench "$d/flat.hlod" "$d/rzb-2" --policy rzb --set splat_px=2 &&
+        row rzb-2 "$n" "$d/flat.json" "$d/flat.hlod" "$d/rzb-2"
+    bench "$d/cubes.hlod" "$d/cubes" --policy cubes &&
+        row cubes "$n" "$d/cubes.json" "$d/cubes.hlod" "$d/cubes"
     column -s, -t <"$csv"
 done
 if command -v gnuplot >/dev/null; then
@@ -105,7 +126,7 @@ set key top left
 set xlabel "triangles"
 set ylabel "frame time of the still view once loaded, ms (bars: p50 to p99)"
 set title "Chessboard at 640x480 (Klein Fig. 11)"
-plot for [m in "klein-1 klein-4 full hlod"] "$csv" using (strcol(1) eq m ? \$2 : 1/0):11:11:12 \
+plot for [m in "klein-1 klein-4 full hlod rzb-2 cubes"] "$csv" using (strcol(1) eq m ? \$2 : 1/0):11:11:12 \
     with yerrorlines title m
 GP
 fi
