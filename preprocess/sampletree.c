@@ -31,8 +31,8 @@
 #define NONE UINT32_MAX
 #define GRID_LEVEL 6            /* the plan's count grid: 64^3 cells */
 #define GRID_N (1u << GRID_LEVEL)
-#define TRI_BYTES 320
-#define CUBE_TRIS 6             /* a colour cube drawn: three faces, two triangles each */           /* what a triangle of a bucket costs to build, about */
+#define TRI_BYTES 320           /* what a triangle of a bucket costs to build, about */
+#define CUBE_TRIS 6             /* a colour cube drawn: three faces, two triangles each */
 
 /* ---- records ---- */
 
@@ -594,8 +594,6 @@ static hlod_result draw_up(st_tree *t, uint32_t u, double c, uint64_t seed)
     return r;
 }
 
-/* Node u's subtree: its children's samples first, then u's own draws; H
- * receives the subtree's colour histogram. */
 /* ---- colour cubes ---- */
 
 typedef struct cube_ctx {
@@ -710,6 +708,8 @@ static uint32_t take_one(st_tree *t, uint32_t u)
     return NONE;
 }
 
+/* Node u's subtree: its children's samples first, then u's own draws (or,
+ * for colour cubes, its cube); H receives the subtree's colour histogram. */
 static hlod_result sample(st_build *B, st_tree *t, uint32_t u, hist *H)
 {
     const double c = B->p->c;
