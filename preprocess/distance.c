@@ -283,6 +283,7 @@ void hlod_dgrid_free(hlod_dgrid *g)
     free(g->cell_start);
     free(g->cell_tris);
     free(g->tris);
+    free(g->box);
     free(g->stamp);
     free(g->occupied);
     memset(g, 0, sizeof *g);
@@ -290,6 +291,23 @@ void hlod_dgrid_free(hlod_dgrid *g)
 
 /* The triangles relative to origin, with their normals and Gram
  * matrices; lo/hi get their bounds. */
+/* t's bounding box in floats, rounded outwards: never nearer to a point
+ * than the box in doubles, so a test against it rejects no triangle the
+ * exact box would keep. */
+static void tri_box(const hlod_dgrid_tri *t, float out[6])
+{
+    for (int k = 0; k < 3; k++) {
+        double lo = dmin(t->a[k], dmin(t->b[k], t->c[k])), hi = dmax(t->a[k], dmax(t->b[k], t->c[k]));
+        float fl = (float)lo, fh = (float)hi;
+        if ((double)fl > lo)
+            fl = nextafterf(fl, -INFINITY);
+        if ((double)fh < hi)
+            fh = nextafterf(fh, INFINITY);
+        out[k] = fl;
+        out[3 + k] = fh;
+    }
+}
+
 static void prepare_tris(hlod_dgrid_tri *raw, const double *positions, const uint32_t *indices,
                          size_t tri_count, const double origin[3], double lo[3], double hi[3])
 {
@@ -467,6 +485,10 @@ hlod_result hlod_dgrid_build(hlod_dgrid *g, const double *positions, const uint3
     raw = NULL;
     key = NULL;
     memset(g->cell_start, 0, (cells + 1) * sizeof *g->cell_start);
+    if (!(g->box = malloc(tri_count * sizeof *g->box)))
+        goto nomem_fill;
+    for (size_t i = 0; i < tri_count; i++)
+        tri_box(&g->tris[i], g->box[i]);
 
     /* Two passes, count then fill: a CSR layout with no per-cell allocation. */
     size_t total = 0;
@@ -538,11 +560,10 @@ static inline void test_cell(hlod_dgrid *g, const double p[3], size_t cell, doub
             continue;
         /* So does the distance to its bounding box: it rejects the
          * coplanar neighbours on a facade, where the plane test cannot. */
+        const float *bx = g->box[ti];
         double box2 = 0;
         for (int k = 0; k < 3; k++) {
-            double lo = t->a[k] < t->b[k] ? t->a[k] : t->b[k], hi = t->a[k] < t->b[k] ? t->b[k] : t->a[k];
-            lo = t->c[k] < lo ? t->c[k] : lo;
-            hi = t->c[k] > hi ? t->c[k] : hi;
+            double lo = bx[k], hi = bx[3 + k];
             double e = p[k] < lo ? lo - p[k] : p[k] > hi ? p[k] - hi : 0;
             box2 += e * e;
         }

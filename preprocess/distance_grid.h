@@ -44,6 +44,8 @@ typedef struct hlod_dgrid {
     uint32_t *cell_start;   /* n0*n1*n2 + 1 offsets into cell_tris */
     uint32_t *cell_tris;
     hlod_dgrid_tri *tris;   /* in cell order, not input order */
+    float (*box)[6];        /* per triangle: its bounding box (lo xyz, hi xyz),
+                               rounded outwards to floats */
     size_t tri_count;
     /* Occupancy pyramid: level l has level_n[l] blocks of 2^l cells a side
      * (level 0 is the grid); occupied[level_first[l] + block] is non-zero
