@@ -32,7 +32,8 @@
 # splats_mean, view_p50_ms, view_p99_ms, view_tris, view_missing,
 # psnr_mean), and
 # OUTDIR/scaling.png (log-log converged frame time against triangles per
-# method, error bars from the machine's p50 to p99) when gnuplot is there.
+# method, error bars from the machine's p50 to p99, from the per-method
+# rows in OUTDIR/scaling-METHOD.dat) when gnuplot is there.
 # Boards and stores are kept in OUTDIR/N/.
 # Env: BIN (build/bin), FRAMES (120), VIEW_FRAMES (400), TARGET (33),
 # JITTER (60), MEMORY_MB (0: build in core; else hlod-build --memory-mb).
@@ -117,6 +118,11 @@ for n in "${SIZES[@]}"; do
     column -s, -t <"$csv"
 done
 if command -v gnuplot >/dev/null; then
+    # one file per method, its rows in size order, so each line joins its points
+    methods="klein-1 klein-4 full hlod rzb-2 cubes"
+    for m in $methods; do
+        awk -F, -v m="$m" 'NR > 1 && $1 == m' "$csv" | sort -t, -k2,2n >"$out/scaling-$m.dat"
+    done
     gnuplot <<GP
 set terminal pngcairo size 900,600
 set output "$out/scaling.png"
@@ -126,8 +132,7 @@ set key top left
 set xlabel "triangles"
 set ylabel "frame time of the still view once loaded, ms (bars: p50 to p99)"
 set title "Chessboard at 640x480 (Klein Fig. 11)"
-plot for [m in "klein-1 klein-4 full hlod rzb-2 cubes"] "$csv" using (strcol(1) eq m ? \$2 : 1/0):11:11:12 \
-    with yerrorlines title m
+plot for [m in "$methods"] "$out/scaling-".m.".dat" using 2:11:11:12 with yerrorlines title m
 GP
 fi
 echo "wrote $csv"
