@@ -516,17 +516,6 @@ static void draw_occluded(hlod_engine *e, const hlod_camera *cam, const hlod_vie
     e->st.occlusion_ms = t2 - t0;
 }
 
-/* The light gl_render.c's shader gives a face of unit normal n seen from
- * rel (the face relative to the eye, d its length): headlight and sky. */
-static double face_light(const double n[3], const double rel[3], double d)
-{
-    double dot = 0;
-    for (int a = 0; a < 3; a++)
-        dot -= n[a] * rel[a] / d;
-    double nz = dot < 0 ? -n[2] : n[2]; /* back faces are lit like front faces */
-    return 0.20 + 0.55 * fabs(dot) + 0.25 * (0.5 + 0.5 * nz);
-}
-
 /* The selection's colour cubes (policy cubes; Chamberlain 3), in the
  * walk's back-to-front order: each cube's faces that face the eye, two
  * triangles each, lit as the geometry is, blended over what is drawn
@@ -566,7 +555,8 @@ static void draw_cubes(hlod_engine *e, const hlod_camera *cam)
             mid[u] = 0.5 * (lo[u] + hi[u]);
             mid[w] = 0.5 * (lo[w] + hi[w]);
             double d = sqrt(mid[0] * mid[0] + mid[1] * mid[1] + mid[2] * mid[2]);
-            double light = d > 0 ? face_light(nrm, mid, d) : 1;
+            /* the face is seen from its own side: its normal faces the eye */
+            double light = d > 0 ? hlod_gpu_light(-mid[a] * nrm[a] / d, nrm[2]) : 1;
             uint8_t rgba[4];
             for (int q = 0; q < 3; q++) {
                 double val = c[q] * light;
@@ -632,7 +622,7 @@ static void draw_splats(hlod_engine *e, const hlod_camera *cam)
             dot = 1;
             nz = d > 0 ? -rel[2] / d : 1;
         }
-        double light = 0.20 + 0.55 * fabs(dot) + 0.25 * (0.5 + 0.5 * nz);
+        double light = hlod_gpu_light(dot, nz);
         hlod_gpu_splat *s = &e->splat_buf[k];
         for (int a = 0; a < 3; a++) {
             s->pos[a] = (float)rel[a];

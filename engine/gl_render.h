@@ -21,6 +21,8 @@
 #include "hlod/renderer.h"
 #include "hlod/store.h"
 
+#include <math.h>
+
 typedef struct hlod_gpu_node {
     uint32_t vao, vbo, ibo, tex;    /* GL names; 0 = none */
     uint32_t index_count;
@@ -72,6 +74,16 @@ hlod_result hlod_gpu_begin_scaled(hlod_renderer *r, const hlod_camera *cam, uint
                                   uint32_t out_h);
 
 /* One splat: a position relative to the camera and a colour, lit. */
+/* The light gl_render.c's shaders give a face: a headlight and a sky
+ * term.  dot: the cosine between its normal and the direction to the
+ * eye; nz: its normal's z, both taken from the eye's side (a back face's
+ * normal flipped).  For what the CPU lights as the shaders would (splats,
+ * colour cubes, rzb's points). */
+static inline double hlod_gpu_light(double dot, double nz)
+{
+    return 0.20 + 0.55 * fabs(dot) + 0.25 * (0.5 + 0.5 * nz);
+}
+
 typedef struct hlod_gpu_splat {
     float pos[3];
     uint8_t rgba[4];

@@ -707,7 +707,7 @@ static void emit(frame_ctx *f, const double rel[3], const float n[3], const doub
         return;
     double dist = sqrt(d2), dot = dist > 0 ? fabs(facing) / dist : 1;
     double nz = facing < 0 ? -n[2] : n[2];
-    double light = 0.20 + 0.55 * dot + 0.25 * (0.5 + 0.5 * nz);
+    double light = hlod_gpu_light(dot, nz);
     uint8_t col[4] = {clamp_byte(base[0] * light), clamp_byte(base[1] * light),
                       clamp_byte(base[2] * light), 255};
     if (f->splat_c) {
