@@ -23,6 +23,7 @@ typedef struct builder {
     hlod_mesh m;
     size_t vcap, tcap, ocap;
     int failed;
+    uint64_t rng;           /* xorshift state: each call its own, no globals */
 } builder;
 
 static int grow(builder *b, size_t nv, size_t nt)
@@ -119,14 +120,12 @@ static hlod_result finish(builder *b, const float (*colors)[3], size_t nmat, con
     return HLOD_OK;
 }
 
-static uint64_t g_state;
-
-static double rnd(void)
+static double rnd(builder *b)
 {
-    g_state ^= g_state << 13;
-    g_state ^= g_state >> 7;
-    g_state ^= g_state << 17;
-    return (double)(g_state >> 11) / 9007199254740992.0;
+    b->rng ^= b->rng << 13;
+    b->rng ^= b->rng >> 7;
+    b->rng ^= b->rng << 17;
+    return (double)(b->rng >> 11) / 9007199254740992.0;
 }
 
 static void normalize(double v[3])
@@ -194,15 +193,15 @@ static void branch(builder *b, const double p[3], const double d[3], double len,
     }
     double u[3], v[3];
     frame(d, u, v);
-    double phase = 2 * M_PI * rnd();
+    double phase = 2 * M_PI * rnd(b);
     for (int k = 0; k < 3; k++) {
-        double az = phase + 2 * M_PI * k / 3 + 0.3 * (rnd() - 0.5), tilt = 0.45 + 0.35 * rnd();
+        double az = phase + 2 * M_PI * k / 3 + 0.3 * (rnd(b) - 0.5), tilt = 0.45 + 0.35 * rnd(b);
         double nd[3];
         for (int a = 0; a < 3; a++)
             nd[a] = cos(tilt) * d[a] + sin(tilt) * (cos(az) * u[a] + sin(az) * v[a]);
         nd[2] += 0.15; /* towards the light */
         normalize(nd);
-        branch(b, q, nd, len * (0.62 + 0.1 * rnd()), r * 0.6, depth - 1, tips, ntips);
+        branch(b, q, nd, len * (0.62 + 0.1 * rnd(b)), r * 0.6, depth - 1, tips, ntips);
     }
 }
 
@@ -215,8 +214,8 @@ hlod_result hlod_scene_tree(size_t tris, uint64_t seed, hlod_mesh *out)
     memset(out, 0, sizeof *out);
     if (tris < 8000)
         tris = 8000;    /* the bark alone is 5,824 */
-    g_state = seed * 0x9E3779B97F4A7C15ull + 1;
     builder b = {0};
+    b.rng = seed * 0x9E3779B97F4A7C15ull + 1;
     twig tips[TIPS];
     size_t ntips = 0;
     object(&b, "bark");
@@ -236,19 +235,21 @@ hlod_result hlod_scene_tree(size_t tris, uint64_t seed, hlod_mesh *out)
         /* around a twig's tip: a leaf of about 0.12 units, at a random
          * orientation, within the twig's length of its end */
         const twig *t = &tips[i % ntips];
-        double c[3], n[3] = {rnd() - 0.5, rnd() - 0.5, rnd() - 0.5}, u[3], v[3];
+        double c[3], n[3], u[3], v[3];
+        for (int a = 0; a < 3; a++) /* one draw after another: a fixed order */
+            n[a] = rnd(&b) - 0.5;
         for (int a = 0; a < 3; a++)
-            c[a] = t->p[a] + t->len * 0.9 * (rnd() - 0.5) + 0.3 * t->len * t->d[a];
+            c[a] = t->p[a] + t->len * 0.9 * (rnd(&b) - 0.5) + 0.3 * t->len * t->d[a];
         normalize(n);
         frame(n, u, v);
-        double s = 0.05 + 0.04 * rnd();
+        double s = 0.05 + 0.04 * rnd(&b);
         uint32_t v0 = (uint32_t)b.m.vertex_count;
         for (int k = 0; k < 4; k++) {
             double x = (k == 1 || k == 2) ? s : -s, y = k >= 2 ? s * 1.6 : -s * 0.4;
             vert(&b, c[0] + x * u[0] + y * v[0], c[1] + x * u[1] + y * v[1],
                  c[2] + x * u[2] + y * v[2]);
         }
-        uint32_t mat = rnd() < 0.5 ? 1 : 2;
+        uint32_t mat = rnd(&b) < 0.5 ? 1 : 2;
         tri(&b, v0, v0 + 1, v0 + 2, mat);
         tri(&b, v0, v0 + 2, v0 + 3, mat);
     }
@@ -265,9 +266,9 @@ hlod_result hlod_scene_molecule(size_t tris, uint64_t seed, hlod_mesh *out)
     memset(out, 0, sizeof *out);
     size_t atoms = (size_t)llround((double)tris / 800);
     atoms = atoms ? atoms : 1;
-    g_state = seed * 0x9E3779B97F4A7C15ull + 7;
     const double R = cbrt((double)atoms / 0.3);
     builder b = {0};
+    b.rng = seed * 0x9E3779B97F4A7C15ull + 7;
     const size_t sv = SPHERE_SLICES * (SPHERE_STACKS - 1) + 2;
     for (size_t i = 0; i < atoms && !b.failed; i++) {
         if (i % ATOMS_PER_OBJECT == 0) {
@@ -282,9 +283,9 @@ hlod_result hlod_scene_molecule(size_t tris, uint64_t seed, hlod_mesh *out)
         double c[3];
         do {
             for (int a = 0; a < 3; a++)
-                c[a] = R * (2 * rnd() - 1);
+                c[a] = R * (2 * rnd(&b) - 1);
         } while (c[0] * c[0] + c[1] * c[1] + c[2] * c[2] > R * R);
-        double x = rnd();
+        double x = rnd(&b);
         uint32_t mat = x < 0.6 ? 0 : x < 0.8 ? 1 : x < 0.95 ? 2 : 3;
         uint32_t south = vert(&b, c[0], c[1], c[2] - 1), ring0 = south + 1;
         for (int st = 1; st < SPHERE_STACKS; st++) {
