@@ -16,7 +16,7 @@ PACKAGES=(
     clang libclang-rt-14-dev
     xvfb xauth
     strace util-linux procps
-    libcurl4-openssl-dev nginx-light iproute2 python3 openssl
+    libcurl4-openssl-dev nginx-light iproute2 python3 openssl libmicrohttpd-dev
     libcjson-dev
     parallel munge slurmctld slurmd slurm-client openssh-server openssh-client
     nodejs chromium chromium-driver

@@ -258,6 +258,18 @@ hlod_result hlod_engine_create(const hlod_store *store, const hlod_engine_desc *
         r = hlod_residency_init(&e->res, store, &e->d, &e->st);
     if (r == HLOD_OK && hlod_policy_has(e->d.policy, HLOD_PT_RZB))
         r = rzb_build(e);
+    if (r == HLOD_OK && hlod_policy_has(e->d.policy, HLOD_PT_LUMI)) {
+        if (!e->d.lumigraph_repo) {
+            hlod_logf(&e->d.logger, HLOD_LOG_ERROR, "engine: policy lumigraph needs a sampling "
+                      "repository (lumigraph_repo; hlod-bench --repo)");
+            r = HLOD_ERR_INVALID_ARG;
+        } else {
+            r = hlod_lumi_create(e->d.lumigraph_repo, e->d.lumigraph_answers,
+                                 hlod_store_get_header(store)->node_table_hash,
+                                 (uint64_t)e->d.lumi_cache_mb << 20, e->d.lumi_tol,
+                                 &e->d.logger, &e->lumi);
+        }
+    }
     if (r != HLOD_OK) {
         hlod_engine_destroy(e);
         return r;
@@ -282,6 +294,7 @@ void hlod_engine_destroy(hlod_engine *e)
         hlod_rzb_release(e->rzb, e->d.renderer);
     hlod_rzb_destroy(e->rzb);
     hlod_rzb_out_free(&e->d.allocator, &e->rzb_out);
+    hlod_lumi_destroy(e->lumi, e->d.renderer);
     hlod_allocator a = e->d.allocator;
     hlod_mem_free(&a, e);
 }
@@ -418,7 +431,10 @@ static void gpu_draw_node(hlod_engine *e, const hlod_camera *cam, uint32_t i)
     const hlod_store_node *n = &e->nodes[i];
     double off[3] = {n->origin[0] - cam->position[0], n->origin[1] - cam->position[1],
                      n->origin[2] - cam->position[2]};
-    hlod_gpu_draw(e->d.renderer, hlod_residency_gpu(&e->res, i), off, n->depth);
+    if (e->lumi)
+        hlod_gpu_lumi_draw(e->d.renderer, hlod_residency_gpu(&e->res, i), off);
+    else
+        hlod_gpu_draw(e->d.renderer, hlod_residency_gpu(&e->res, i), off, n->depth);
 }
 
 /* A node the occlusion test hid: it is not drawn, so it leaves the drawn
@@ -655,6 +671,8 @@ static void draw_frame(hlod_engine *e, const hlod_camera *cam, const hlod_camera
         in_place = 1;
     }
     e->drawn.n = 0;
+    if (e->lumi) /* the sparse mesh coloured from the repository's views */
+        hlod_gpu_lumi_begin(r, cam, &e->lumi_frame);
     if (!in_place && e->d.occlusion > 0 && hlod_policy_has(e->d.policy, HLOD_PT_OCCLUDE)) {
         draw_occluded(e, cam, view);
     } else {
@@ -894,6 +912,23 @@ static hlod_result rzb_select(hlod_engine *e, const hlod_view *view)
     return r;
 }
 
+/* Policy lumigraph: the views decoded since the last frame uploaded, this
+ * camera's blend made and its missing views asked for (lumigraph.h). */
+static hlod_result lumi_frame(hlod_engine *e, const hlod_camera *cam)
+{
+    hlod_lumi_stats ls;
+    long x = hlod_excuse_begin(); /* uploads: GL may wait for the driver's threads */
+    hlod_result r = hlod_lumi_frame(e->lumi, e->d.renderer, cam, e->d.lumi_uploads,
+                                    &e->lumi_frame, &ls);
+    hlod_excuse_end(x);
+    e->st.lumi_bytes = ls.bytes;
+    e->st.lumi_answer_max = ls.answer_max;
+    e->st.lumi_uploads = ls.uploads;
+    e->st.lumi_missing = ls.missing;
+    e->st.upload_ms += ls.upload_ms;
+    return r;
+}
+
 /* The frame in its steps: inputs, load, select, draw, measure and
  * publish, learn, and residency for the next. */
 hlod_result hlod_engine_frame(hlod_engine *e, const hlod_camera *cam, double dt,
@@ -925,6 +960,8 @@ hlod_result hlod_engine_frame(hlod_engine *e, const hlod_camera *cam, double dt,
     hlod_result r = e->rzb ? rzb_select(e, &view) : hlod_select(&e->sel, &e->res, &view, &in);
     e->st.traversal_ms = hlod_now_ms() - t0;
     if (r != HLOD_OK)
+        return r;
+    if (e->lumi && (r = lumi_frame(e, &fcam)) != HLOD_OK)
         return r;
     if (e->d.renderer) {
         long x = hlod_excuse_begin(); /* GL may wait for the driver's threads */
@@ -987,6 +1024,8 @@ hlod_result hlod_engine_replay(hlod_engine *e, const hlod_camera *cam, int occlu
                                    : e->draw_list  ? e->draw_list
                                                    : &e->sel.draw;
         hlod_gpu_begin(r, cam);
+        if (e->lumi)
+            hlod_gpu_lumi_begin(r, cam, &e->lumi_frame);
         for (size_t k = 0; k < list->n; k++)
             gpu_draw_node(e, cam, list->v[k]);
         if (!occlusion && e->drawn_valid)

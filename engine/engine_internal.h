@@ -20,6 +20,7 @@
 #include "hlod/engine.h"
 #include "occlusion.h"
 #include "residency.h"
+#include "lumigraph.h"
 #include "rzb.h"
 #include "selection.h"
 
@@ -45,6 +46,8 @@ struct hlod_engine {
     size_t splat_cap;
     hlod_rzb *rzb;              /* policy rzb: every leaf in core (rzb.h); else NULL */
     hlod_rzb_out rzb_out;       /* ... the frame's points and faces to rasterise */
+    hlod_lumi *lumi;            /* policy lumigraph: the repository's views; else NULL */
+    hlod_gpu_lumi_frame lumi_frame; /* ... this frame's blend */
 
     /* camera motion */
     int have_prev;

@@ -111,7 +111,12 @@
     X(PFNGLBINDRENDERBUFFERPROC, BindRenderbuffer)                   \
     X(PFNGLRENDERBUFFERSTORAGEPROC, RenderbufferStorage)             \
     X(PFNGLFRAMEBUFFERRENDERBUFFERPROC, FramebufferRenderbuffer)     \
-    X(PFNGLBLITFRAMEBUFFERPROC, BlitFramebuffer)
+    X(PFNGLBLITFRAMEBUFFERPROC, BlitFramebuffer)                     \
+    X(PFNGLTEXIMAGE3DPROC, TexImage3D)                               \
+    X(PFNGLTEXSUBIMAGE3DPROC, TexSubImage3D)                         \
+    X(PFNGLUNIFORM1IVPROC, Uniform1iv)                               \
+    X(PFNGLUNIFORM1FVPROC, Uniform1fv)                               \
+    X(PFNGLUNIFORM3FVPROC, Uniform3fv)
 
 typedef struct gl_table {
 #define GL_MEMBER(type, name) type name;
@@ -165,6 +170,12 @@ struct hlod_renderer {
         GLint u_color, u_depth;
         uint32_t w, h;          /* the textures' size */
     } comp;
+    struct {                    /* the Grid-Lumigraph client (hlod_gpu_lumi_*) */
+        GLuint prog, bg_prog, bg_vao, tex[2]; /* colour (RGB8), depth codes (R16) arrays */
+        GLint u_viewproj, u_offset, u_pt, u_w, u_slot, u_depth_par, u_hole, u_parallax;
+        GLint bg_inv, bg_pt, bg_w, bg_slot, bg_clear, bg_depth_par, bg_parallax;
+        uint32_t slots, size, depth_size;
+    } lumi;
 };
 
 /* The shaders come in variants chosen per draw (compiled once): NORMALS
@@ -501,6 +512,8 @@ hlod_result hlod_renderer_create(hlod_gl_get_proc get_proc, const hlod_logger *l
     return HLOD_OK;
 }
 
+static void lumi_free(hlod_renderer *r);
+
 /* called from the render thread, context current */
 static void delete_low(hlod_renderer *r)
 {
@@ -517,6 +530,7 @@ void hlod_renderer_destroy(hlod_renderer *r)
     if (!r)
         return;
     delete_low(r);
+    lumi_free(r);
     delete_programs(r);
     free(r);
 }
@@ -1172,4 +1186,368 @@ int hlod_renderer_texture_blocks(const hlod_renderer *r, uint32_t mode)
         return 0;
     }
     return r->s3tc && (mode == 2 || !r->software);
+}
+
+/* ---- the Grid-Lumigraph client (Okamoto 3.2; docs/lumigraph.md) ----
+ *
+ * Each fragment of the sparse mesh looks itself up in the views of the 8
+ * grid points around the eye: in each point's view whose face holds the
+ * direction from the point to the fragment (the six views of a point are
+ * a cube map), if that view's depth there is not nearer than the fragment
+ * (a shadow-map test: hidden from that point, the view saw something
+ * else), weighted by the point's trilinear weight; the sum is
+ * normalised.  A fragment no view sees is shaded from its face normal
+ * (section 5.2's hole filling).  Before the mesh, a pass at the far plane
+ * fills the pixels the mesh leaves empty with each view's colour along the
+ * pixel's ray, so a silhouette the sparse mesh lacks still shows. */
+
+#define LUMI_GLSL_FACES                                                                   \
+    "const vec3 FF[6] = vec3[6](vec3(1,0,0), vec3(-1,0,0), vec3(0,1,0), vec3(0,-1,0),\n"  \
+    "                           vec3(0,0,1), vec3(0,0,-1));\n"                            \
+    "const vec3 FU[6] = vec3[6](vec3(0,0,1), vec3(0,0,1), vec3(0,0,1), vec3(0,0,1),\n"    \
+    "                           vec3(0,1,0), vec3(0,1,0));\n"                             \
+    "uniform vec3 u_pt[8];\n"                                                             \
+    "uniform float u_w[8];\n"                                                             \
+    "uniform int u_slot[48];\n"                                                           \
+    "uniform sampler2DArray u_color;\n"                                                   \
+    "int face_of(vec3 v) {\n"                                                             \
+    "    vec3 a = abs(v);\n"                                                              \
+    "    if (a.x >= a.y && a.x >= a.z) return v.x >= 0.0 ? 0 : 1;\n"                      \
+    "    if (a.y >= a.z) return v.y >= 0.0 ? 2 : 3;\n"                                    \
+    "    return v.z >= 0.0 ? 4 : 5;\n"                                                    \
+    "}\n"                                                                                 \
+    /* texture coordinates of v in face f (rows top first), and its axial distance */     \
+    "vec3 face_uvz(vec3 v, int f) {\n"                                                    \
+    "    vec3 r = cross(FF[f], FU[f]);\n"                                                 \
+    "    float z = dot(v, FF[f]);\n"                                                      \
+    "    vec2 n = vec2(dot(v, r), dot(v, FU[f])) / z;\n"                                  \
+    "    return vec3(0.5 + 0.5 * n.x, 0.5 - 0.5 * n.y, z);\n"                             \
+    "}\n"
+
+static const char *lumi_vertex_src =
+    "layout(location = 0) in vec3 a_position;\n"
+    "uniform mat4 u_viewproj;\n"
+    "uniform vec3 u_offset;\n"
+    "out vec3 v_rel;\n"
+    "void main() {\n"
+    "    v_rel = a_position + u_offset;\n"
+    "    gl_Position = u_viewproj * vec4(v_rel, 1.0);\n"
+    "}\n";
+
+static const char *lumi_fragment_src =
+    LUMI_GLSL_FACES
+    "uniform sampler2DArray u_depth;\n"
+    "uniform vec3 u_depth_par;\n" /* near, ln(far / near), 1 + tolerance */
+    "uniform vec3 u_hole;\n"
+    "uniform float u_parallax;\n" /* radians a pixel spans */
+    "in vec3 v_rel;\n"
+    "out vec4 o_color;\n"
+    "void main() {\n"
+    /*   the face's normal, towards the eye */
+    "    vec3 n = cross(dFdx(v_rel), dFdy(v_rel));\n"
+    "    if (dot(n, v_rel) > 0.0) n = -n;\n"
+    "    vec3 acc = vec3(0.0);\n"
+    "    float wsum = 0.0;\n"
+    "    for (int i = 0; i < 8; i++) {\n"
+    "        if (u_w[i] <= 0.0) continue;\n"
+    "        vec3 v = v_rel - u_pt[i];\n"
+    /*       a point behind the face saw its back, or through it (the
+     *       shadow map's back-face case, section 3.2) */
+    "        if (dot(n, v) > 0.0) continue;\n"
+    "        int f = face_of(v);\n"
+    "        int s = u_slot[i * 6 + f];\n"
+    "        if (s < 0) continue;\n"
+    "        vec3 t = face_uvz(v, f);\n"
+    "        float q = texture(u_depth, vec3(t.xy, float(s))).r * 65535.0;\n"
+    /*       a point within two pixels' parallax of the eye saw along this
+     *       ray what the eye sees: no depth test (at a grid point the
+     *       image is that point's view, whatever the sparse mesh) */
+    "        if (length(u_pt[i]) > 2.0 * u_parallax * t.z) {\n"
+    "            if (q > 65534.5) continue;\n" /* the view saw nothing there */
+    "            float zs = u_depth_par.x * exp(q / 65534.0 * u_depth_par.y);\n"
+    "            if (t.z > zs * u_depth_par.z) continue;\n" /* hidden from point i */
+    "        }\n"
+    "        acc += u_w[i] * texture(u_color, vec3(t.xy, float(s))).rgb;\n"
+    "        wsum += u_w[i];\n"
+    "    }\n"
+    "    if (wsum > 0.0) {\n"
+    "        o_color = vec4(acc / wsum, 1.0);\n"
+    "        return;\n"
+    "    }\n"
+    "    vec3 to_eye = -v_rel;\n"
+    "    float d = length(to_eye);\n"
+    "    to_eye = d > 0.0 ? to_eye / d : vec3(0.0, 0.0, 1.0);\n"
+    "    float len = length(n);\n"
+    "    n = len > 0.0 ? n / len : to_eye;\n"
+    "    o_color = vec4(u_hole * (0.20 + 0.55 * abs(dot(n, to_eye)) + 0.25 * (0.5 + 0.5 * n.z)), 1.0);\n"
+    "}\n";
+
+static const char *lumi_bg_vertex_src =
+    "uniform mat4 u_inv;\n" /* clip space -> camera-relative direction */
+    "out vec3 v_dir;\n"
+    "void main() {\n"
+    "    vec2 p = vec2(gl_VertexID == 1 ? 3.0 : -1.0, gl_VertexID == 2 ? 3.0 : -1.0);\n"
+    "    vec4 far = u_inv * vec4(p, 1.0, 1.0);\n"
+    "    vec4 near = u_inv * vec4(p, -1.0, 1.0);\n"
+    "    v_dir = far.xyz / far.w - near.xyz / near.w;\n"
+    "    gl_Position = vec4(p, 1.0, 1.0);\n"
+    "}\n";
+
+static const char *lumi_bg_fragment_src =
+    LUMI_GLSL_FACES
+    "uniform sampler2DArray u_depth;\n"
+    "uniform vec3 u_depth_par;\n"
+    "uniform vec3 u_clear;\n"
+    "uniform float u_parallax;\n" /* radians a pixel spans */
+    "in vec3 v_dir;\n"
+    "out vec4 o_color;\n"
+    "void main() {\n"
+    "    vec3 acc = vec3(0.0);\n"
+    "    float wsum = 0.0;\n"
+    "    int f = face_of(v_dir);\n"
+    "    vec3 t = face_uvz(v_dir, f);\n"
+    "    for (int i = 0; i < 8; i++) {\n"
+    "        if (u_w[i] <= 0.0) continue;\n"
+    "        int s = u_slot[i * 6 + f];\n"
+    "        if (s == -1) continue;\n"
+    "        vec3 c = u_clear;\n"
+    "        if (s >= 0) {\n"
+    /*           what point i saw along this direction is seen along it from
+     *           the eye too only when it is far enough for the offset to
+     *           the point to move it under two pixels; else, unknown */
+    "            float q = texture(u_depth, vec3(t.xy, float(s))).r * 65535.0;\n"
+    "            if (q <= 65534.5) {\n"
+    "                float zs = u_depth_par.x * exp(q / 65534.0 * u_depth_par.y);\n"
+    "                if (length(u_pt[i]) > 2.0 * u_parallax * zs) continue;\n"
+    "                c = texture(u_color, vec3(t.xy, float(s))).rgb;\n"
+    "            }\n"
+    "        }\n"
+    "        acc += u_w[i] * c;\n"
+    "        wsum += u_w[i];\n"
+    "    }\n"
+    "    o_color = vec4(wsum > 0.0 ? acc / wsum : u_clear, 1.0);\n"
+    "}\n";
+
+static void lumi_free(hlod_renderer *r)
+{
+    const gl_table *gl = &r->gl;
+    if (r->lumi.prog)
+        gl->DeleteProgram(r->lumi.prog);
+    if (r->lumi.bg_prog)
+        gl->DeleteProgram(r->lumi.bg_prog);
+    if (r->lumi.bg_vao)
+        gl->DeleteVertexArrays(1, &r->lumi.bg_vao);
+    if (r->lumi.tex[0])
+        gl->DeleteTextures(2, r->lumi.tex);
+    memset(&r->lumi, 0, sizeof r->lumi);
+}
+
+void hlod_gpu_lumi_release(hlod_renderer *r)
+{
+    if (r) {
+        r->gl.UseProgram(0);
+        r->cur = NULL;
+        lumi_free(r);
+    }
+}
+
+static int lumi_programs(hlod_renderer *r)
+{
+    const gl_table *gl = &r->gl;
+    r->lumi.prog = link_program(r, "", lumi_vertex_src, lumi_fragment_src);
+    r->lumi.bg_prog = r->lumi.prog ? link_program(r, "", lumi_bg_vertex_src, lumi_bg_fragment_src) : 0;
+    if (!r->lumi.bg_prog)
+        return 0;
+    GLuint p = r->lumi.prog, b = r->lumi.bg_prog;
+    r->lumi.u_viewproj = gl->GetUniformLocation(p, "u_viewproj");
+    r->lumi.u_offset = gl->GetUniformLocation(p, "u_offset");
+    r->lumi.u_pt = gl->GetUniformLocation(p, "u_pt");
+    r->lumi.u_w = gl->GetUniformLocation(p, "u_w");
+    r->lumi.u_slot = gl->GetUniformLocation(p, "u_slot");
+    r->lumi.u_depth_par = gl->GetUniformLocation(p, "u_depth_par");
+    r->lumi.u_hole = gl->GetUniformLocation(p, "u_hole");
+    r->lumi.u_parallax = gl->GetUniformLocation(p, "u_parallax");
+    r->lumi.bg_inv = gl->GetUniformLocation(b, "u_inv");
+    r->lumi.bg_pt = gl->GetUniformLocation(b, "u_pt");
+    r->lumi.bg_w = gl->GetUniformLocation(b, "u_w");
+    r->lumi.bg_slot = gl->GetUniformLocation(b, "u_slot");
+    r->lumi.bg_clear = gl->GetUniformLocation(b, "u_clear");
+    r->lumi.bg_depth_par = gl->GetUniformLocation(b, "u_depth_par");
+    r->lumi.bg_parallax = gl->GetUniformLocation(b, "u_parallax");
+    gl->UseProgram(p);
+    gl->Uniform1i(gl->GetUniformLocation(p, "u_color"), 1);
+    gl->Uniform1i(gl->GetUniformLocation(p, "u_depth"), 2);
+    gl->UseProgram(b);
+    gl->Uniform1i(gl->GetUniformLocation(b, "u_color"), 1);
+    gl->Uniform1i(gl->GetUniformLocation(b, "u_depth"), 2);
+    gl->UseProgram(0);
+    r->cur = NULL;
+    gl->GenVertexArrays(1, &r->lumi.bg_vao);
+    return 1;
+}
+
+/* called from the render thread, context current */
+hlod_result hlod_gpu_lumi_init(hlod_renderer *r, uint32_t slots, uint32_t size,
+                               uint32_t depth_size)
+{
+    assert(r && slots && size && depth_size);
+    const gl_table *gl = &r->gl;
+    if (r->lumi.prog && r->lumi.slots == slots && r->lumi.size == size &&
+        r->lumi.depth_size == depth_size)
+        return HLOD_OK;
+    hlod_gpu_lumi_release(r);
+    take_errors(gl);
+    if (!lumi_programs(r)) {
+        lumi_free(r);
+        return HLOD_ERR_UNSUPPORTED;
+    }
+    gl->GenTextures(2, r->lumi.tex);
+    const GLint fmt[2] = {GL_RGB8, GL_R16};
+    const GLenum pix[2] = {GL_RGB, GL_RED}, type[2] = {GL_UNSIGNED_BYTE, GL_UNSIGNED_SHORT};
+    const uint32_t side[2] = {size, depth_size};
+    for (int k = 0; k < 2; k++) {
+        gl->ActiveTexture(GL_TEXTURE1 + (GLenum)k);
+        gl->BindTexture(GL_TEXTURE_2D_ARRAY, r->lumi.tex[k]);
+        /* colour filtered, depth codes never blended across an edge */
+        GLint filter = k ? GL_NEAREST : GL_LINEAR;
+        gl->TexParameteri(GL_TEXTURE_2D_ARRAY, GL_TEXTURE_MIN_FILTER, filter);
+        gl->TexParameteri(GL_TEXTURE_2D_ARRAY, GL_TEXTURE_MAG_FILTER, filter);
+        gl->TexParameteri(GL_TEXTURE_2D_ARRAY, GL_TEXTURE_WRAP_S, GL_CLAMP_TO_EDGE);
+        gl->TexParameteri(GL_TEXTURE_2D_ARRAY, GL_TEXTURE_WRAP_T, GL_CLAMP_TO_EDGE);
+        gl->TexImage3D(GL_TEXTURE_2D_ARRAY, 0, fmt[k], (GLsizei)side[k], (GLsizei)side[k],
+                       (GLsizei)slots, 0, pix[k], type[k], NULL);
+    }
+    gl->ActiveTexture(GL_TEXTURE0);
+    GLenum e = take_errors(gl);
+    if (e != GL_NO_ERROR) {
+        hlod_logf(&r->lg, HLOD_LOG_ERROR, "renderer: cannot make %u Grid-Lumigraph slots of "
+                  "%ux%u: GL error %#x", slots, size, size, e);
+        lumi_free(r);
+        return e == GL_OUT_OF_MEMORY ? HLOD_ERR_NOMEM : HLOD_ERR_UNSUPPORTED;
+    }
+    r->lumi.slots = slots;
+    r->lumi.size = size;
+    r->lumi.depth_size = depth_size;
+    return HLOD_OK;
+}
+
+/* called from the render thread, context current, outside begin and end
+ * or between them */
+hlod_result hlod_gpu_lumi_upload(hlod_renderer *r, uint32_t slot, const uint8_t *rgb,
+                                 const uint16_t *depth)
+{
+    assert(r && rgb && depth);
+    if (!r->lumi.prog || slot >= r->lumi.slots)
+        return HLOD_ERR_INVALID_ARG;
+    const gl_table *gl = &r->gl;
+    take_errors(gl);
+    gl->PixelStorei(GL_UNPACK_ALIGNMENT, 1);
+    const void *src[2] = {rgb, depth};
+    const GLenum pix[2] = {GL_RGB, GL_RED}, type[2] = {GL_UNSIGNED_BYTE, GL_UNSIGNED_SHORT};
+    const uint32_t side[2] = {r->lumi.size, r->lumi.depth_size};
+    for (int k = 0; k < 2; k++) {
+        gl->ActiveTexture(GL_TEXTURE1 + (GLenum)k);
+        gl->BindTexture(GL_TEXTURE_2D_ARRAY, r->lumi.tex[k]);
+        gl->TexSubImage3D(GL_TEXTURE_2D_ARRAY, 0, 0, 0, (GLint)slot, (GLsizei)side[k],
+                          (GLsizei)side[k], 1, pix[k], type[k], src[k]);
+    }
+    gl->ActiveTexture(GL_TEXTURE0);
+    gl->PixelStorei(GL_UNPACK_ALIGNMENT, 4);
+    GLenum e = take_errors(gl);
+    if (e != GL_NO_ERROR) {
+        hlod_logf(&r->lg, HLOD_LOG_ERROR, "renderer: Grid-Lumigraph upload: GL error %#x", e);
+        return HLOD_ERR_UNSUPPORTED;
+    }
+    return HLOD_OK;
+}
+
+/* Inverts a 4x4 column-major matrix (Cramer's rule through cofactors);
+ * 0 when it is singular. */
+static int invert4(const double m[16], double out[16])
+{
+    double inv[16];
+    inv[0] = m[5] * m[10] * m[15] - m[5] * m[11] * m[14] - m[9] * m[6] * m[15] + m[9] * m[7] * m[14] + m[13] * m[6] * m[11] - m[13] * m[7] * m[10];
+    inv[4] = -m[4] * m[10] * m[15] + m[4] * m[11] * m[14] + m[8] * m[6] * m[15] - m[8] * m[7] * m[14] - m[12] * m[6] * m[11] + m[12] * m[7] * m[10];
+    inv[8] = m[4] * m[9] * m[15] - m[4] * m[11] * m[13] - m[8] * m[5] * m[15] + m[8] * m[7] * m[13] + m[12] * m[5] * m[11] - m[12] * m[7] * m[9];
+    inv[12] = -m[4] * m[9] * m[14] + m[4] * m[10] * m[13] + m[8] * m[5] * m[14] - m[8] * m[6] * m[13] - m[12] * m[5] * m[10] + m[12] * m[6] * m[9];
+    inv[1] = -m[1] * m[10] * m[15] + m[1] * m[11] * m[14] + m[9] * m[2] * m[15] - m[9] * m[3] * m[14] - m[13] * m[2] * m[11] + m[13] * m[3] * m[10];
+    inv[5] = m[0] * m[10] * m[15] - m[0] * m[11] * m[14] - m[8] * m[2] * m[15] + m[8] * m[3] * m[14] + m[12] * m[2] * m[11] - m[12] * m[3] * m[10];
+    inv[9] = -m[0] * m[9] * m[15] + m[0] * m[11] * m[13] + m[8] * m[1] * m[15] - m[8] * m[3] * m[13] - m[12] * m[1] * m[11] + m[12] * m[3] * m[9];
+    inv[13] = m[0] * m[9] * m[14] - m[0] * m[10] * m[13] - m[8] * m[1] * m[14] + m[8] * m[2] * m[13] + m[12] * m[1] * m[10] - m[12] * m[2] * m[9];
+    inv[2] = m[1] * m[6] * m[15] - m[1] * m[7] * m[14] - m[5] * m[2] * m[15] + m[5] * m[3] * m[14] + m[13] * m[2] * m[7] - m[13] * m[3] * m[6];
+    inv[6] = -m[0] * m[6] * m[15] + m[0] * m[7] * m[14] + m[4] * m[2] * m[15] - m[4] * m[3] * m[14] - m[12] * m[2] * m[7] + m[12] * m[3] * m[6];
+    inv[10] = m[0] * m[5] * m[15] - m[0] * m[7] * m[13] - m[4] * m[1] * m[15] + m[4] * m[3] * m[13] + m[12] * m[1] * m[7] - m[12] * m[3] * m[5];
+    inv[14] = -m[0] * m[5] * m[14] + m[0] * m[6] * m[13] + m[4] * m[1] * m[14] - m[4] * m[2] * m[13] - m[12] * m[1] * m[6] + m[12] * m[2] * m[5];
+    inv[3] = -m[1] * m[6] * m[11] + m[1] * m[7] * m[10] + m[5] * m[2] * m[11] - m[5] * m[3] * m[10] - m[9] * m[2] * m[7] + m[9] * m[3] * m[6];
+    inv[7] = m[0] * m[6] * m[11] - m[0] * m[7] * m[10] - m[4] * m[2] * m[11] + m[4] * m[3] * m[10] + m[8] * m[2] * m[7] - m[8] * m[3] * m[6];
+    inv[11] = -m[0] * m[5] * m[11] + m[0] * m[7] * m[9] + m[4] * m[1] * m[11] - m[4] * m[3] * m[9] - m[8] * m[1] * m[7] + m[8] * m[3] * m[5];
+    inv[15] = m[0] * m[5] * m[10] - m[0] * m[6] * m[9] - m[4] * m[1] * m[10] + m[4] * m[2] * m[9] + m[8] * m[1] * m[6] - m[8] * m[2] * m[5];
+    double det = m[0] * inv[0] + m[1] * inv[4] + m[2] * inv[8] + m[3] * inv[12];
+    if (!(fabs(det) > 0))
+        return 0;
+    for (int k = 0; k < 16; k++)
+        out[k] = inv[k] / det;
+    return 1;
+}
+
+/* called from the render thread, after hlod_gpu_begin */
+void hlod_gpu_lumi_begin(hlod_renderer *r, const hlod_camera *cam, const hlod_gpu_lumi_frame *f)
+{
+    assert(r && cam && f && r->lumi.prog);
+    const gl_table *gl = &r->gl;
+    double vp[16], inv[16];
+    hlod_camera_view_proj(cam, vp);
+    float finv[16];
+    if (!invert4(vp, inv))
+        memset(inv, 0, sizeof inv);
+    for (int k = 0; k < 16; k++)
+        finv[k] = (float)inv[k];
+    for (int k = 0; k < 2; k++) {
+        gl->ActiveTexture(GL_TEXTURE1 + (GLenum)k);
+        gl->BindTexture(GL_TEXTURE_2D_ARRAY, r->lumi.tex[k]);
+    }
+    gl->ActiveTexture(GL_TEXTURE0);
+    if (r->culling) {
+        gl->Disable(GL_CULL_FACE);
+        r->culling = 0;
+    }
+    /* the far-plane pass: at depth 1 under GL_LEQUAL, what the mesh draws
+     * later covers it */
+    gl->UseProgram(r->lumi.bg_prog);
+    gl->UniformMatrix4fv(r->lumi.bg_inv, 1, GL_FALSE, finv);
+    gl->Uniform3fv(r->lumi.bg_pt, 8, &f->point[0][0]);
+    gl->Uniform1fv(r->lumi.bg_w, 8, f->weight);
+    gl->Uniform1iv(r->lumi.bg_slot, 48, &f->slot[0][0]);
+    gl->Uniform3f(r->lumi.bg_clear, r->clear[0], r->clear[1], r->clear[2]);
+    gl->Uniform3f(r->lumi.bg_depth_par, f->near_plane, f->log_ratio, 1.0f + f->tolerance);
+    const float parallax =
+        (float)(2.0 * tan(0.5 * cam->fov_y_deg * 3.14159265358979 / 180.0) / cam->height);
+    gl->Uniform1f(r->lumi.bg_parallax, parallax);
+    gl->DepthFunc(GL_LEQUAL);
+    gl->DepthMask(GL_FALSE);
+    gl->BindVertexArray(r->lumi.bg_vao);
+    gl->DrawArrays(GL_TRIANGLES, 0, 3);
+    gl->DepthMask(GL_TRUE);
+    gl->DepthFunc(GL_LESS);
+    gl->UseProgram(r->lumi.prog);
+    gl->UniformMatrix4fv(r->lumi.u_viewproj, 1, GL_FALSE, r->vp);
+    gl->Uniform3fv(r->lumi.u_pt, 8, &f->point[0][0]);
+    gl->Uniform1fv(r->lumi.u_w, 8, f->weight);
+    gl->Uniform1iv(r->lumi.u_slot, 48, &f->slot[0][0]);
+    gl->Uniform3f(r->lumi.u_depth_par, f->near_plane, f->log_ratio, 1.0f + f->tolerance);
+    gl->Uniform3f(r->lumi.u_hole, DEFAULT_GREY, DEFAULT_GREY, DEFAULT_GREY);
+    gl->Uniform1f(r->lumi.u_parallax, parallax);
+    r->cur = NULL;
+}
+
+/* called from the render thread, after hlod_gpu_lumi_begin */
+void hlod_gpu_lumi_draw(hlod_renderer *r, const hlod_gpu_node *g, const double offset[3])
+{
+    assert(r && g && offset);
+    if (!g->vao || !g->index_count)
+        return;
+    const gl_table *gl = &r->gl;
+    gl->Uniform3f(r->lumi.u_offset, (float)offset[0], (float)offset[1], (float)offset[2]);
+    gl->BindVertexArray(g->vao);
+    gl->DrawElements(GL_TRIANGLES, (GLsizei)g->index_count, GL_UNSIGNED_INT, NULL);
 }

@@ -115,5 +115,35 @@ const uint32_t *hlod_gpu_depth_view(hlod_renderer *r, uint32_t *stride, uint32_t
  * For occlusion culling (engine/occlusion.h). */
 hlod_result hlod_gpu_read_depth(hlod_renderer *r, uint32_t width, uint32_t height, uint32_t *out);
 
+/* The Grid-Lumigraph client's images on the GPU (engine/lumigraph.h,
+ * docs/lumigraph.md): `slots` layers of size^2 RGB8 colour and
+ * depth_size^2 16-bit depth codes.  Made once (again when the shape
+ * changes); HLOD_ERR_UNSUPPORTED (logged) when GL cannot. */
+hlod_result hlod_gpu_lumi_init(hlod_renderer *r, uint32_t slots, uint32_t size,
+                               uint32_t depth_size);
+void hlod_gpu_lumi_release(hlod_renderer *r);
+/* Fills a slot: colour rows top first, depth codes rows top first. */
+hlod_result hlod_gpu_lumi_upload(hlod_renderer *r, uint32_t slot, const uint8_t *rgb,
+                                 const uint16_t *depth);
+
+/* A frame's images: the 8 grid points around the eye (camera-relative),
+ * their weights, and per point and face the slot holding that view, -1
+ * when none does (not fetched yet), -2 when the view is empty (it saw
+ * nothing: the clear colour). */
+typedef struct hlod_gpu_lumi_frame {
+    float point[8][3];
+    float weight[8];
+    int32_t slot[8][6];
+    float near_plane, log_ratio;   /* depth codes: near * exp(q / 65534 * log_ratio) */
+    float tolerance;               /* a fragment farther than (1 + tolerance) x the view's
+                                      depth is hidden from that view */
+} hlod_gpu_lumi_frame;
+
+/* After hlod_gpu_begin: fills the background from the views along each
+ * pixel's ray, then readies hlod_gpu_lumi_draw. */
+void hlod_gpu_lumi_begin(hlod_renderer *r, const hlod_camera *cam, const hlod_gpu_lumi_frame *f);
+/* Draws a node's triangles coloured from the views (its own texture and
+ * colours unused). */
+void hlod_gpu_lumi_draw(hlod_renderer *r, const hlod_gpu_node *g, const double offset[3]);
 
 #endif

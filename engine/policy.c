@@ -31,7 +31,10 @@
  *           asked;
  *   cubes   Chamberlain's colour cubes: klein's walk over a store whose
  *           nodes carry cubes, children back to front, a node within
- *           cube_px drawn as its blended cube (docs/cubes.md).
+ *           cube_px drawn as its blended cube (docs/cubes.md);
+ *   lumigraph  okamoto's rule at the fixed lumi_mesh_px: the sparse mesh
+ *           that Okamoto's Grid-Lumigraph client colours from the views of
+ *           its repository (lumigraph.h, docs/lumigraph.md).
  */
 #include "policy.h"
 
@@ -104,6 +107,15 @@ static int okamoto_refines(const hlod_policy_in *in, int *near)
     return px > in->sse_pixels;
 }
 
+/* lumigraph: okamoto's rule at the fixed lumi_mesh_px (the sparse mesh's
+ * patches are asked for finer as their projected error grows, 5.1 step 4) */
+static int lumigraph_refines(const hlod_policy_in *in, int *near)
+{
+    hlod_policy_in at = *in;
+    at.sse_pixels = in->d->lumi_mesh_px;
+    return okamoto_refines(&at, near);
+}
+
 static int fs93_refines(const hlod_policy_in *in, int *near)
 {
     *near = in->mem->ask == in->frame;
@@ -139,6 +151,8 @@ static const hlod_policy_row rows[HLOD_POLICY_COUNT] = {
                                 klein_refines},
     [HLOD_POLICY_RZB] = {"rzb", HLOD_PT_RZB, klein_refines},
     [HLOD_POLICY_CUBES] = {"cubes", HLOD_PT_ADDITIVE | HLOD_PT_STREAM | HLOD_PT_CUBES, klein_refines},
+    [HLOD_POLICY_LUMIGRAPH] = {"lumigraph", HLOD_PT_STREAM | HLOD_PT_CONES | HLOD_PT_LUMI,
+                               lumigraph_refines},
 };
 
 const hlod_policy_row *hlod_policy_row_of(hlod_policy p)

@@ -33,6 +33,7 @@ enum {
     HLOD_PT_AUTOSPLAT = 1u << 10, /* the cost model adapts the splat size to the target */
     HLOD_PT_RZB = 1u << 11,     /* no front: every leaf in core, drawn as random points or
                                    rasterised where its faces are large (rzb.h) */
+    HLOD_PT_LUMI = 1u << 13,    /* the Grid-Lumigraph client draws the front (lumigraph.h) */
     HLOD_PT_CUBES = 1u << 12,   /* additive, small nodes drawn as their colour cubes
                                    (docs/cubes.md), children back to front */
 };

@@ -295,6 +295,16 @@ static int set_camera(hlod_camera *cam, const view *v)
     return hlod_camera_look_at(cam, v->eye, v->at, up, 60, 0.5, 1e5, 640, 360) == HLOD_OK;
 }
 
+/* Policies these tests leave to their own: full (references only, it
+ * loads every leaf); klein, klein-auto and cubes (additive stores only:
+ * test_sampletree, test_cubes); rzb (no front, faces: test_rzb);
+ * lumigraph (a sampling repository: test_lumigraph). */
+static int not_here(int pol)
+{
+    return pol == HLOD_POLICY_FULL || pol == HLOD_POLICY_KLEIN || pol == HLOD_POLICY_KLEIN_AUTO ||
+           pol == HLOD_POLICY_RZB || pol == HLOD_POLICY_CUBES || pol == HLOD_POLICY_LUMIGRAPH;
+}
+
 /* Each view for `each` frames under every policy but full, in
  * deterministic mode; returns the problems found. */
 static int run_views(const hlod_store *s, const hlod_engine_desc *base, const view *views,
@@ -302,11 +312,8 @@ static int run_views(const hlod_store *s, const hlod_engine_desc *base, const vi
 {
     int bad = 0;
     for (int pol = 0; pol < HLOD_POLICY_COUNT; pol++) {
-        if (pol == HLOD_POLICY_FULL || pol == HLOD_POLICY_KLEIN || pol == HLOD_POLICY_KLEIN_AUTO ||
-            pol == HLOD_POLICY_RZB || pol == HLOD_POLICY_CUBES)
-            continue; /* full: references only, it loads every leaf; klein, cubes: additive
-                         stores only (test_sampletree, test_cubes); rzb: no front, faces
-                         (test_rzb) */
+        if (not_here(pol))
+            continue;
         hlod_engine_desc d = *base;
         d.policy = (hlod_policy)pol;
         hlod_engine *e = NULL;
@@ -439,11 +446,8 @@ static void all_siblings_outside(void)
     hlod_engine_desc d = det_desc(1e-7, 20);
     CHECK(run_views(s, &d, views, n, 10, "siblings outside") == 0);
     for (int pol = 0; pol < HLOD_POLICY_COUNT; pol++) {
-        if (pol == HLOD_POLICY_FULL || pol == HLOD_POLICY_KLEIN || pol == HLOD_POLICY_KLEIN_AUTO ||
-            pol == HLOD_POLICY_RZB || pol == HLOD_POLICY_CUBES)
-            continue; /* full: references only, it loads every leaf; klein, cubes: additive
-                         stores only (test_sampletree, test_cubes); rzb: no front, faces
-                         (test_rzb) */
+        if (not_here(pol))
+            continue;
         d.policy = (hlod_policy)pol;
         hlod_engine *e = NULL;
         CHECK(hlod_engine_create(s, &d, &e) == HLOD_OK);
@@ -497,11 +501,8 @@ static int run_machine(const hlod_store *s, hlod_engine_desc d, fixed_machine *m
     d.time_model = fixed_machine_time;
     d.time_model_user = m;
     for (int pol = 0; pol < HLOD_POLICY_COUNT; pol++) {
-        if (pol == HLOD_POLICY_FULL || pol == HLOD_POLICY_KLEIN || pol == HLOD_POLICY_KLEIN_AUTO ||
-            pol == HLOD_POLICY_RZB || pol == HLOD_POLICY_CUBES)
-            continue; /* full: references only, it loads every leaf; klein, cubes: additive
-                         stores only (test_sampletree, test_cubes); rzb: no front, faces
-                         (test_rzb) */
+        if (not_here(pol))
+            continue;
         d.policy = (hlod_policy)pol;
         hlod_engine *e = NULL;
         CHECK(hlod_engine_create(s, &d, &e) == HLOD_OK);

@@ -25,7 +25,7 @@ missing_flags() {
     done <"$T/flags"
 }
 
-TOOLS="hlod-gen-city hlod-simplify hlod-build hlod-merge hlod-info hlod-export-3dtiles hlod-bench hlod-view"
+TOOLS="hlod-gen-city hlod-simplify hlod-build hlod-merge hlod-info hlod-export-3dtiles hlod-bench hlod-view hlod-lumigraph-bake hlod-lumigraph-serve"
 [ -x "$BIN/hlod-bench-simplify" ] && TOOLS="$TOOLS hlod-bench-simplify"
 [ -x "$BIN/hlod-bench-finish" ] && TOOLS="$TOOLS hlod-bench-finish"
 for tool in $TOOLS; do

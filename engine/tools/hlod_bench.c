@@ -73,6 +73,11 @@ static void usage(FILE *fp)
         "  --dt S            simulated time per frame (default 1/30 s)\n"
         "  --frames N        stop after N frames (default: the whole path)\n"
         "  --policy LIST     " HLOD_POLICY_CHOICES " (comma list; default lakhia)\n"
+        "  --method LIST     the same as --policy\n"
+        "  --repo REPO       policy lumigraph's sampling repository: a folder\n"
+        "                    written by hlod-lumigraph-bake, or its http(s) URL\n"
+        "  --answers         --repo is hlod-lumigraph-serve's URL: one request per\n"
+        "                    frame at most brings the views the eye lacks\n"
         "  --memory-mb M     memory budget in MiB (default: the whole store decoded,\n"
         "                    at most a quarter of the machine's memory)\n"
         "  --reference       render a full-detail reference per frame: PSNR, SSIM\n"
@@ -122,6 +127,8 @@ static void usage(FILE *fp)
         "toggles_up, toggles_down, toggles_per_frame, oscillations, psnr_mean,\n"
         "psnr_min, ssim_mean, image_flicker, tris_mean, loads, evictions, bytes_read,\n"
         "cache_hits (payloads from HLOD_CACHE_DIR, not in bytes_read),\n"
+        "bytes_fetched, answer_bytes_max, lumi_missing_frames (policy lumigraph:\n"
+        "view bytes fetched, the largest answer, frames whose blend lacked a view),\n"
         "loader_finish_ms, loader_busy_ms, loader_finish_share,\n"
         "peak_resident_bytes, memory_budget_bytes, missing_wanted_frames,\n"
         "render_waits, bad_nodes, load_failures, traversal_ms_mean, traversal_ms_max,\n"
@@ -166,6 +173,8 @@ typedef struct options {
     long frames;
     int up_y, reference, reference_every, reference_ss, deterministic, plots, json;
     const char *reference_store; /* the reference drawn from this store instead */
+    const char *repo;            /* policy lumigraph's sampling repository */
+    int answers;                 /* ... is hlod-lumigraph-serve's URL: ask it for answers */
     int backend, jitter_frames, occlusion_check, cone_check, realtime;
     uint64_t save[MAX_SAVE];    /* --save-frames */
     int nsave;
@@ -402,7 +411,12 @@ static int parse_args(int argc, char **argv, options *o)
             NEED("--dt");
             if (!hlod_cli_parse_double(PROG, "--dt", v, 0, 10, HLOD_CLI_MIN_OPEN, &o->dt))
                 return 2;
-        } else if (FLAG("--policy")) {
+        } else if (FLAG("--repo")) {
+            NEED("--repo");
+            o->repo = v;
+        } else if (!strcmp(a, "--answers")) {
+            o->answers = 1;
+        } else if (FLAG("--policy") || FLAG("--method")) {
             NEED("--policy");
             o->policy_given = 1;
             if (!parse_policies(v, o))
@@ -522,6 +536,8 @@ typedef struct summary {
     double tris_mean, traversal_mean, traversal_max;
     uint64_t loads, evictions, bytes_read, peak_resident, budget, missing_frames, waits;
     uint64_t cache_hits;                    /* payloads from HLOD_CACHE_DIR (not in bytes_read) */
+    uint64_t lumi_bytes, lumi_answer_max;   /* policy lumigraph: view bytes fetched, largest */
+    uint64_t lumi_missing_frames;           /* ... frames whose blend lacked a view */
     double loader_finish_ms, loader_busy_ms;    /* loader thread CPU time, whole run */
     uint64_t load_failures;                 /* failed reads (top nodes at start included) */
     uint32_t bad_nodes;                     /* nodes marked bad by the run's end */
@@ -661,6 +677,10 @@ static void summarise(const frame_rec *r, long n, double target, summary *s)
         s->evictions += st->evictions;
         s->bytes_read += st->bytes_read;
         s->cache_hits += st->cache_hits;
+        s->lumi_bytes += st->lumi_bytes;
+        if (st->lumi_answer_max > s->lumi_answer_max)
+            s->lumi_answer_max = st->lumi_answer_max;
+        s->lumi_missing_frames += st->lumi_missing > 0;
         s->loader_finish_ms += st->loader_finish_ms;
         s->loader_busy_ms += st->loader_busy_ms;
         if (st->resident_bytes > s->peak_resident)
@@ -744,7 +764,8 @@ static hlod_result write_frames_csv(const char *dir, const frame_rec *r, long n,
                 "ssim,luma_change,ref_luma_change,toggles_up_ma35,toggles_down_ma35,"
                 "pixels_drawn,margin,occlusion_hidden,occlusion_tested,occlusion_culled,"
                 "occlusion_ms,occlusion_check_psnr,occlusion_check_differing,cone_culled,"
-                "cone_check_differing,splats,splat_px,res_scale,cone_culled_tris\n");
+                "cone_check_differing,splats,splat_px,res_scale,cone_culled_tris,lumi_bytes,"
+                "lumi_missing\n");
     for (long i = 0; i < n; i++) {
         const hlod_frame_stats *s = &r[i].st;
         fprintf(fp, "%llu,%.6f,%.4f,%.4f,%.9g,%.4f,%.4f,%.4f,%.4f,%.4f,%.4f,%u",
@@ -784,8 +805,9 @@ static hlod_result write_frames_csv(const char *dir, const frame_rec *r, long n,
             fprintf(fp, ",");
         else
             fprintf(fp, ",%lld", r[i].cone_differing);
-        fprintf(fp, ",%u,%.3f,%.4f,%llu\n", s->splats, s->splat_px,
-                s->res_scale > 0 ? s->res_scale : 1.0, (unsigned long long)s->cone_culled_tris);
+        fprintf(fp, ",%u,%.3f,%.4f,%llu,%llu,%u\n", s->splats, s->splat_px,
+                s->res_scale > 0 ? s->res_scale : 1.0, (unsigned long long)s->cone_culled_tris,
+                (unsigned long long)s->lumi_bytes, s->lumi_missing);
     }
     return hlod_atomic_commit(&af, lg);
 }
@@ -815,6 +837,9 @@ static void json_summary(hlod_json *j, const summary *s, const char *policy, con
     hlod_json_int(j, "evictions", (long long)s->evictions);
     hlod_json_int(j, "bytes_read", (long long)s->bytes_read);
     hlod_json_int(j, "cache_hits", (long long)s->cache_hits);
+    hlod_json_int(j, "bytes_fetched", (long long)s->lumi_bytes);
+    hlod_json_int(j, "answer_bytes_max", (long long)s->lumi_answer_max);
+    hlod_json_int(j, "lumi_missing_frames", (long long)s->lumi_missing_frames);
     hlod_json_double(j, "loader_finish_ms", s->loader_finish_ms);
     hlod_json_double(j, "loader_busy_ms", s->loader_busy_ms);
     hlod_json_double(j, "loader_finish_share",
@@ -1273,6 +1298,8 @@ static int run_desc(context *c, hlod_policy policy, const setting *extra, hlod_e
     d->policy = policy;
     d->renderer = c->gl.renderer;
     d->logger = c->lg;
+    d->lumigraph_repo = o->repo;
+    d->lumigraph_answers = o->answers;
     d->memory_budget_bytes = o->memory_mb > 0 ? (uint64_t)(o->memory_mb * 1048576.0)
                                               : view_default_budget(c->store);
     for (int i = 0; i < o->nsets; i++)

@@ -80,6 +80,8 @@ static void usage(FILE *fp)
         "  --height H        window height (default 720)\n"
         "  --target-ms T     target frame time in ms (default 33.3)\n"
         "  --policy P        " HLOD_POLICY_CHOICES " (default lakhia)\n"
+        "  --lumigraph REPO  policy lumigraph over the sampling repository REPO (a\n"
+        "                    folder from hlod-lumigraph-bake, or its URL)\n"
         "  --memory-mb M     memory budget in MiB (default: the whole store decoded,\n"
         "                    at most a quarter of the machine's memory)\n"
         "  --path P          play a camera path instead of free flight: a file,\n"
@@ -120,6 +122,7 @@ static void usage(FILE *fp)
 
 typedef struct options {
     const char *store, *path, *paths_dir, *record, *screenshot;
+    const char *lumigraph;  /* --lumigraph REPO: policy lumigraph from this repository */
     uint32_t width, height;
     double target_ms, memory_mb, fov, near_plane;
     hlod_policy policy;
@@ -180,6 +183,11 @@ static int parse_args(int argc, char **argv, options *o)
             if (!hlod_policy_parse(v, &o->policy) || o->policy == HLOD_POLICY_FULL)
                 return hlod_cli_usage_error(PROG, "--policy: unknown policy '%s' "
                                             "(" HLOD_POLICY_CHOICES ")", v);
+        } else if (FLAG("--lumigraph")) {
+            NEED("--lumigraph");
+            o->lumigraph = v;
+            o->policy = HLOD_POLICY_LUMIGRAPH;
+            o->policy_given = 1;
         } else if (FLAG("--record")) {
             NEED("--record");
             o->record = v;
@@ -831,6 +839,7 @@ int main(int argc, char **argv)
     hlod_engine_desc d = {0};
     d.target_ms = o.target_ms;
     d.policy = o.policy;
+    d.lumigraph_repo = o.lumigraph;
     d.renderer = v.renderer;
     d.logger = v.lg;
     d.memory_budget_bytes = o.memory_mb > 0 ? (uint64_t)(o.memory_mb * 1048576.0)

@@ -63,12 +63,15 @@ typedef enum hlod_policy {
                                of splat_px where faces are small (docs/rzb.md) */
     HLOD_POLICY_CUBES,      /* Chamberlain's colour cubes: a node whose box projects within
                                cube_px is drawn as its blended cube (docs/cubes.md) */
+    HLOD_POLICY_LUMIGRAPH,  /* Okamoto's Grid-Lumigraph client: coarse nodes coloured from
+                               the views of a sampling repository (lumigraph_repo;
+                               docs/lumigraph.md) */
     HLOD_POLICY_COUNT
 } hlod_policy;
 
 /* The policies a user picks (full draws references), for help texts. */
 #define HLOD_POLICY_CHOICES \
-    "lakhia, nohyst, sse, fs93, counter, okamoto, klein, klein-auto, rzb, cubes"
+    "lakhia, nohyst, sse, fs93, counter, okamoto, klein, klein-auto, rzb, cubes, lumigraph"
 
 const char *hlod_policy_name(hlod_policy p);           /* "lakhia", ... */
 int hlod_policy_parse(const char *name, hlod_policy *out); /* 1 on success */
@@ -161,6 +164,14 @@ typedef double (*hlod_time_model)(void *user_data, const struct hlod_frame_stats
       "rzb policy: MiB of sample caches (Wand 7.2), least recently drawn dropped; 0: none")     \
     X(cube_px, cube_px, U32, 1, 1, 0, 64, 1,                                                     \
       "cubes policy: a node whose box projects within cube_px x cube_px pixels is drawn as its colour cube") \
+    X(lumi_mesh_px, lumi_mesh_px, D, 8, 0, 1, HLOD_UNBOUNDED, 1,                                  \
+      "lumigraph policy: a node is refined while its projected error exceeds this many pixels (the sparse mesh)") \
+    X(lumi_cache_mb, lumi_cache_mb, U32, 50, 1, 0, 65536, 0,                                     \
+      "lumigraph policy: MiB of fetched views kept, least recently used dropped")               \
+    X(lumi_tol, lumi_tol, D, 0.05, 0, 0, 10, 1,                                                  \
+      "lumigraph policy: a fragment farther than (1 + lumi_tol) x a view's depth is hidden from that view") \
+    X(lumi_uploads, lumi_uploads, U32, 2, 1, 0, 4, 1,                                            \
+      "lumigraph policy: views uploaded to the GPU per frame at most")                          \
     X(splats, splats, B, 1, 0, 0, 1, 1,                                                          \
       "klein policy: 1: small nodes are splats; 0: every node is drawn (the reference walk)")   \
     X(texture_upload, texture_upload, U32, 0, 0, 0, 2, 0,                                        \
@@ -223,6 +234,13 @@ typedef struct hlod_engine_desc {
      * a node just outside the frustum), so hlod_engine_replay_coned can
      * draw them: hlod-bench --cone-check. */
     int keep_coned;
+
+    /* Policy lumigraph: the sampling repository (hlod-lumigraph-bake's
+     * folder, or its URL); read at create. */
+    const char *lumigraph_repo;
+    /* ... 1: lumigraph_repo is hlod-lumigraph-serve's URL, asked for answers
+     * (the views the eye lacks, one request); 0: each view a file. */
+    int lumigraph_answers;
 
     hlod_renderer *renderer;     /* NULL: select only, draw nothing (tests) */
     hlod_time_model time_model;  /* NULL: wall time (glFinish-bounded) */
@@ -317,6 +335,11 @@ typedef struct hlod_frame_stats {
     double loader_busy_ms;       /* all its work: reads, hashing, finishing */
     uint32_t cache_hits;         /* payloads the loader took from the local cache
                                     (HLOD_CACHE_DIR) this frame: not in bytes_read */
+    /* policy lumigraph (docs/lumigraph.md) */
+    uint64_t lumi_bytes;         /* view bytes fetched from the repository this frame */
+    uint64_t lumi_answer_max;    /* the largest answer (one view) among them */
+    uint32_t lumi_uploads;       /* views uploaded to the GPU this frame */
+    uint32_t lumi_missing;       /* views the frame's blend lacked (not fetched yet) */
 } hlod_frame_stats;
 
 /* Creates an engine over an open store: reads every top node (groups and hlod_0)

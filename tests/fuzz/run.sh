@@ -13,6 +13,7 @@
 #   store  the store reader: open + every payload read (store_read.c)
 #   path   the camera path parser (engine/common/path.c)
 #   mesh   OBJ/PLY/OFF import + validation (preprocess/io/)
+#   lumi   the Grid-Lumigraph index and view parsers (lumigraph_repo.c)
 #
 # The committed corpus is tests/fuzz/corpus/<name>/: hand-made and real
 # seeds, regression inputs (crash-*, hang-*) and found/, a coverage-minimal
@@ -35,16 +36,16 @@ ROOT=$(pwd)
 BUILD=$ROOT/build-fuzz
 SECONDS_EACH=${FUZZ_SECONDS:-20}
 JOBS=${FUZZ_JOBS:-2}
-ALL=(store path mesh)
+ALL=(store path mesh lumi)
 
 seeds=0
 harnesses=()
 for a in "$@"; do
     case $a in
     --seeds) seeds=1 ;;
-    store | path | mesh) harnesses+=("$a") ;;
+    store | path | mesh | lumi) harnesses+=("$a") ;;
     -h | --help) sed -n '2,30p' "$0"; exit 0 ;;
-    *) echo "fuzz: unknown argument '$a' (store, path, mesh, --seeds)" >&2; exit 2 ;;
+    *) echo "fuzz: unknown argument '$a' (store, path, mesh, lumi, --seeds)" >&2; exit 2 ;;
     esac
 done
 [ ${#harnesses[@]} -gt 0 ] || harnesses=("${ALL[@]}")
