@@ -110,15 +110,17 @@ fi
 # ThreadSanitizer over the code that runs threads: hlod-build's workers,
 # hlod-export-3dtiles' workers (test_tiles),
 # the store writer/readers, the engine's loader thread and two engines in
-# two threads, the loader under injected faults and the soak.  OpenImageIO
+# two threads, the loader under injected faults and the soak, the
+# Grid-Lumigraph client's fetch thread (test_lumigraph).  OpenImageIO
 # is not instrumented; its internal synchronisation is suppressed
 # (tests/tsan.supp), ours is checked.
-TSAN_TESTS="test_build|test_city_levels|test_store\$|test_metis|test_engine\$|test_loader|test_faults|test_soak|test_bad_roots|test_tiles"
+TSAN_TESTS="test_build|test_city_levels|test_store\$|test_metis|test_engine\$|test_loader|test_faults|test_soak|test_bad_roots|test_tiles|test_lumigraph"
 build_tsan() {
     cmake -S "$ROOT" -B "$ROOT/build-tsan" -DCMAKE_BUILD_TYPE=RelWithDebInfo -DHLOD_SANITIZE=thread \
         -DHLOD_BENCH=OFF >/dev/null &&
         make -C "$ROOT/build-tsan" -j"$JOBS" hlod-build hlod-gen-city hlod-info test_build test_city_levels test_store test_metis \
-            test_engine test_loader test_faults test_soak test_bad_roots test_tiles
+            test_engine test_loader test_faults test_soak test_bad_roots test_tiles \
+            hlod-lumigraph-bake test_lumigraph
 }
 run_tsan() {
     local log="$ROOT/out/test-logs/ctest-build-tsan.log"
