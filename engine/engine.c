@@ -319,6 +319,12 @@ hlod_result hlod_engine_set(hlod_engine *e, const hlod_engine_desc *desc)
     if (d.c_memory == 0)
         d.c_memory = e->d.c_memory;
     hlod_result r = check_desc(&d, &e->d.logger);
+    if (r == HLOD_OK && (d.policy == HLOD_POLICY_LUMIGRAPH) != (e->lumi != NULL)) {
+        /* the client and its repository are made at create */
+        hlod_logf(&e->d.logger, HLOD_LOG_ERROR, "engine: policy lumigraph is chosen at create, "
+                  "not switched to or from (%s asked)", hlod_policy_name(d.policy));
+        r = HLOD_ERR_INVALID_ARG;
+    }
     if (r == HLOD_OK)
         r = check_refine(e->store, &d);
     if (r != HLOD_OK)
@@ -435,6 +441,23 @@ static void gpu_draw_node(hlod_engine *e, const hlod_camera *cam, uint32_t i)
         hlod_gpu_lumi_draw(e->d.renderer, hlod_residency_gpu(&e->res, i), off);
     else
         hlod_gpu_draw(e->d.renderer, hlod_residency_gpu(&e->res, i), off, n->depth);
+}
+
+/* Policy lumigraph's draw (docs/lumigraph.md): the nodes' depth first,
+ * then the background and the blend, each pixel shaded once. */
+static void lumi_draw(hlod_engine *e, const hlod_camera *cam, const hlod_u32_vec *list)
+{
+    hlod_renderer *r = e->d.renderer;
+    hlod_gpu_lumi_depth_begin(r);
+    for (size_t k = 0; k < list->n; k++) {
+        const hlod_store_node *n = &e->nodes[list->v[k]];
+        double off[3] = {n->origin[0] - cam->position[0], n->origin[1] - cam->position[1],
+                         n->origin[2] - cam->position[2]};
+        hlod_gpu_lumi_depth(r, hlod_residency_gpu(&e->res, list->v[k]), off);
+    }
+    hlod_gpu_lumi_begin(r, cam, &e->lumi_frame);
+    for (size_t k = 0; k < list->n; k++)
+        gpu_draw_node(e, cam, list->v[k]);
 }
 
 /* A node the occlusion test hid: it is not drawn, so it leaves the drawn
@@ -671,8 +694,12 @@ static void draw_frame(hlod_engine *e, const hlod_camera *cam, const hlod_camera
         in_place = 1;
     }
     e->drawn.n = 0;
-    if (e->lumi) /* the sparse mesh coloured from the repository's views */
-        hlod_gpu_lumi_begin(r, cam, &e->lumi_frame);
+    if (e->lumi) { /* the sparse mesh coloured from the repository's views */
+        lumi_draw(e, cam, e->draw_list);
+        e->drawn_valid = 0;
+        hlod_gpu_end(r, 1);
+        return;
+    }
     if (!in_place && e->d.occlusion > 0 && hlod_policy_has(e->d.policy, HLOD_PT_OCCLUDE)) {
         draw_occluded(e, cam, view);
     } else {
@@ -926,6 +953,7 @@ static hlod_result lumi_frame(hlod_engine *e, const hlod_camera *cam)
     e->st.lumi_uploads = ls.uploads;
     e->st.lumi_missing = ls.missing;
     e->st.upload_ms += ls.upload_ms;
+    e->lumi_frame.tolerance = (float)e->d.lumi_tol; /* a live setting */
     return r;
 }
 
@@ -1025,9 +1053,10 @@ hlod_result hlod_engine_replay(hlod_engine *e, const hlod_camera *cam, int occlu
                                                    : &e->sel.draw;
         hlod_gpu_begin(r, cam);
         if (e->lumi)
-            hlod_gpu_lumi_begin(r, cam, &e->lumi_frame);
-        for (size_t k = 0; k < list->n; k++)
-            gpu_draw_node(e, cam, list->v[k]);
+            lumi_draw(e, cam, list);
+        else
+            for (size_t k = 0; k < list->n; k++)
+                gpu_draw_node(e, cam, list->v[k]);
         if (!occlusion && e->drawn_valid)
             for (size_t k = 0; k < e->later.n; k++)
                 if (hlod_occlusion_hidden(&e->occ, e->later.v[k]) == e->frame)
@@ -1061,6 +1090,8 @@ hlod_result hlod_engine_replay_coned(hlod_engine *e, const hlod_camera *cam, uin
                                                : &e->sel.draw;
     uint32_t missed = 0, done = 0;
     hlod_gpu_begin(e->d.renderer, cam);
+    if (e->lumi)
+        hlod_gpu_lumi_begin(e->d.renderer, cam, &e->lumi_frame);
     for (size_t k = 0; k < list->n; k++)
         gpu_draw_node(e, cam, list->v[k]);
     for (size_t k = 0; k < e->sel.coned.n; k++) {

@@ -116,7 +116,8 @@
     X(PFNGLTEXSUBIMAGE3DPROC, TexSubImage3D)                         \
     X(PFNGLUNIFORM1IVPROC, Uniform1iv)                               \
     X(PFNGLUNIFORM1FVPROC, Uniform1fv)                               \
-    X(PFNGLUNIFORM3FVPROC, Uniform3fv)
+    X(PFNGLUNIFORM3FVPROC, Uniform3fv)                               \
+    X(PFNGLCOLORMASKPROC, ColorMask)
 
 typedef struct gl_table {
 #define GL_MEMBER(type, name) type name;
@@ -172,9 +173,12 @@ struct hlod_renderer {
     } comp;
     struct {                    /* the Grid-Lumigraph client (hlod_gpu_lumi_*) */
         GLuint prog, bg_prog, bg_vao, tex[2]; /* colour (RGB8), depth codes (R16) arrays */
+        GLuint depth_prog;      /* the depth pre-pass */
+        GLint d_viewproj, d_offset;
         GLint u_viewproj, u_offset, u_pt, u_w, u_slot, u_depth_par, u_hole, u_parallax;
         GLint bg_inv, bg_pt, bg_w, bg_slot, bg_clear, bg_depth_par, bg_parallax;
         uint32_t slots, size, depth_size;
+        int prepassed;          /* the depth pre-pass ran this frame */
     } lumi;
 };
 
@@ -791,6 +795,7 @@ void hlod_gpu_begin(hlod_renderer *r, const hlod_camera *cam)
     r->culling = 0;
     gl->Disable(GL_BLEND);
     gl->PolygonMode(GL_FRONT_AND_BACK, r->wireframe ? GL_LINE : GL_FILL);
+    gl->DepthMask(GL_TRUE); /* a clear writes depth only through the mask */
     gl->Clear(GL_COLOR_BUFFER_BIT | GL_DEPTH_BUFFER_BIT);
     for (int n = 0; n < 2; n++)
         for (int m = 0; m < 3; m++) {
@@ -798,7 +803,7 @@ void hlod_gpu_begin(hlod_renderer *r, const hlod_camera *cam)
             gl->UniformMatrix4fv(r->prog[n][m].u_viewproj, 1, GL_FALSE, vp);
         }
     memcpy(r->vp, vp, sizeof vp);
-    r->cur = &r->prog[0][0];
+    r->cur = NULL; /* the loop left prog[1][2] in use: the first draw binds its own */
     gl->ActiveTexture(GL_TEXTURE0);
     /* what nodes without these sections read (current attribute values) */
     gl->VertexAttrib4f(ATTR_NORMAL, 0, 0, 0, 0);
@@ -1328,9 +1333,13 @@ static const char *lumi_bg_fragment_src =
     "    o_color = vec4(wsum > 0.0 ? acc / wsum : u_clear, 1.0);\n"
     "}\n";
 
+static const char *lumi_depth_fragment_src = "void main() {}\n";
+
 static void lumi_free(hlod_renderer *r)
 {
     const gl_table *gl = &r->gl;
+    if (r->lumi.depth_prog)
+        gl->DeleteProgram(r->lumi.depth_prog);
     if (r->lumi.prog)
         gl->DeleteProgram(r->lumi.prog);
     if (r->lumi.bg_prog)
@@ -1356,8 +1365,12 @@ static int lumi_programs(hlod_renderer *r)
     const gl_table *gl = &r->gl;
     r->lumi.prog = link_program(r, "", lumi_vertex_src, lumi_fragment_src);
     r->lumi.bg_prog = r->lumi.prog ? link_program(r, "", lumi_bg_vertex_src, lumi_bg_fragment_src) : 0;
-    if (!r->lumi.bg_prog)
+    r->lumi.depth_prog =
+        r->lumi.bg_prog ? link_program(r, "", lumi_vertex_src, lumi_depth_fragment_src) : 0;
+    if (!r->lumi.depth_prog)
         return 0;
+    r->lumi.d_viewproj = gl->GetUniformLocation(r->lumi.depth_prog, "u_viewproj");
+    r->lumi.d_offset = gl->GetUniformLocation(r->lumi.depth_prog, "u_offset");
     GLuint p = r->lumi.prog, b = r->lumi.bg_prog;
     r->lumi.u_viewproj = gl->GetUniformLocation(p, "u_viewproj");
     r->lumi.u_offset = gl->GetUniformLocation(p, "u_offset");
@@ -1491,6 +1504,34 @@ static int invert4(const double m[16], double out[16])
 }
 
 /* called from the render thread, after hlod_gpu_begin */
+void hlod_gpu_lumi_depth_begin(hlod_renderer *r)
+{
+    assert(r && r->lumi.prog);
+    const gl_table *gl = &r->gl;
+    if (r->culling) {
+        gl->Disable(GL_CULL_FACE);
+        r->culling = 0;
+    }
+    gl->UseProgram(r->lumi.depth_prog);
+    gl->UniformMatrix4fv(r->lumi.d_viewproj, 1, GL_FALSE, r->vp);
+    gl->ColorMask(GL_FALSE, GL_FALSE, GL_FALSE, GL_FALSE);
+    r->cur = NULL;
+    r->lumi.prepassed = 1;
+}
+
+/* called from the render thread, after hlod_gpu_lumi_depth_begin */
+void hlod_gpu_lumi_depth(hlod_renderer *r, const hlod_gpu_node *g, const double offset[3])
+{
+    assert(r && g && offset);
+    if (!g->vao || !g->index_count)
+        return;
+    const gl_table *gl = &r->gl;
+    gl->Uniform3f(r->lumi.d_offset, (float)offset[0], (float)offset[1], (float)offset[2]);
+    gl->BindVertexArray(g->vao);
+    gl->DrawElements(GL_TRIANGLES, (GLsizei)g->index_count, GL_UNSIGNED_INT, NULL);
+}
+
+/* called from the render thread, after hlod_gpu_begin (and the pre-pass) */
 void hlod_gpu_lumi_begin(hlod_renderer *r, const hlod_camera *cam, const hlod_gpu_lumi_frame *f)
 {
     assert(r && cam && f && r->lumi.prog);
@@ -1523,12 +1564,20 @@ void hlod_gpu_lumi_begin(hlod_renderer *r, const hlod_camera *cam, const hlod_gp
     const float parallax =
         (float)(2.0 * tan(0.5 * cam->fov_y_deg * 3.14159265358979 / 180.0) / cam->height);
     gl->Uniform1f(r->lumi.bg_parallax, parallax);
+    gl->ColorMask(GL_TRUE, GL_TRUE, GL_TRUE, GL_TRUE);
     gl->DepthFunc(GL_LEQUAL);
     gl->DepthMask(GL_FALSE);
     gl->BindVertexArray(r->lumi.bg_vao);
     gl->DrawArrays(GL_TRIANGLES, 0, 3);
-    gl->DepthMask(GL_TRUE);
-    gl->DepthFunc(GL_LESS);
+    if (r->lumi.prepassed) {
+        /* each pixel shaded once: the nearest surface's fragment, whose
+         * depth the pre-pass wrote */
+        gl->DepthFunc(GL_LEQUAL);
+        r->lumi.prepassed = 0;
+    } else {
+        gl->DepthMask(GL_TRUE);
+        gl->DepthFunc(GL_LESS);
+    }
     gl->UseProgram(r->lumi.prog);
     gl->UniformMatrix4fv(r->lumi.u_viewproj, 1, GL_FALSE, r->vp);
     gl->Uniform3fv(r->lumi.u_pt, 8, &f->point[0][0]);

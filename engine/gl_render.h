@@ -139,8 +139,15 @@ typedef struct hlod_gpu_lumi_frame {
                                       depth is hidden from that view */
 } hlod_gpu_lumi_frame;
 
-/* After hlod_gpu_begin: fills the background from the views along each
- * pixel's ray, then readies hlod_gpu_lumi_draw. */
+/* An optional depth pre-pass, after hlod_gpu_begin: the nodes' depth
+ * alone (hlod_gpu_lumi_depth each), so that hlod_gpu_lumi_draw then
+ * shades each pixel once, whatever the overdraw. */
+void hlod_gpu_lumi_depth_begin(hlod_renderer *r);
+void hlod_gpu_lumi_depth(hlod_renderer *r, const hlod_gpu_node *g, const double offset[3]);
+/* After hlod_gpu_begin (and the pre-pass): fills the background from the
+ * views along each pixel's ray where nothing is drawn, then readies
+ * hlod_gpu_lumi_draw (depth tested LEQUAL without writing after a
+ * pre-pass; LESS with writes without one). */
 void hlod_gpu_lumi_begin(hlod_renderer *r, const hlod_camera *cam, const hlod_gpu_lumi_frame *f);
 /* Draws a node's triangles coloured from the views (its own texture and
  * colours unused). */

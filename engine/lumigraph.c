@@ -9,6 +9,7 @@
 #include <assert.h>
 #include <math.h>
 #include <pthread.h>
+#include <stdatomic.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -40,6 +41,8 @@ struct hlod_lumi {
     int started;
     /* shared, under mu */
     int stop;
+    atomic_int cancel;  /* set with stop: a transfer in flight is abandoned */
+    atomic_uchar *gone; /* per view: a server declined it (answers mode, never baked) */
     uint32_t want[SLOTS], want_n;
     double eye[3], dir[3];  /* the camera the want list is for */
     hlod_lumi_view ready[READY_MAX];
@@ -66,6 +69,12 @@ const hlod_lumi_index *hlod_lumi_get_index(const hlod_lumi *l)
 }
 
 /* ---- fetch thread ---- */
+
+static int cancelled(void *user)
+{
+    hlod_lumi *l = user;
+    return atomic_load_explicit(&l->cancel, memory_order_relaxed);
+}
 
 static entry *cache_find(hlod_lumi *l, uint32_t id)
 {
@@ -129,8 +138,10 @@ static int get_view(hlod_lumi *l, uint32_t id, hlod_lumi_view *v)
         size_t n;
         /* an outage is logged once, when it starts */
         hlod_logger quiet = {0};
-        hlod_result r = hlod_lumi_fetch(l->repo, rel, VIEW_MAX_BYTES, l->down ? &quiet : &l->lg,
-                                        &buf, &n);
+        hlod_result r = hlod_lumi_fetch_cancel(l->repo, rel, VIEW_MAX_BYTES, cancelled, l,
+                                               l->down ? &quiet : &l->lg, &buf, &n);
+        if (r == HLOD_ERR_CANCELLED)
+            return 0; /* shutting down */
         pthread_mutex_lock(&l->mu);
         if (r != HLOD_OK) {
             l->failures++;
@@ -183,15 +194,25 @@ static void ask_server(hlod_lumi *l, const double eye[3], const double dir[3],
         if (!wanted || cache_find(l, ids[k]))
             q.have |= 1ull << bits[k];
     }
-    char rel[700] = "answer?";
+    char text[600], rel[1800] = "answer?";
+    size_t tn = hlod_lumi_request_format(&q, text, sizeof text), rn = 7;
+    for (size_t k = 0; k < tn; k++) { /* '+' (an exponent's) would reach the server as ' ' */
+        if (text[k] == '+') {
+            memcpy(rel + rn, "%2B", 3);
+            rn += 3;
+        } else {
+            rel[rn++] = text[k];
+        }
+    }
+    rel[rn] = 0;
     uint8_t *buf = NULL;
     size_t len = 0;
     hlod_logger quiet = {0};
-    hlod_result r = hlod_lumi_request_format(&q, rel + 7, sizeof rel - 7)
-                        ? hlod_lumi_fetch(l->repo, rel, VIEW_MAX_BYTES, l->down ? &quiet : &l->lg,
-                                          &buf, &len)
-                        : HLOD_ERR_INVALID_ARG;
+    hlod_result r = tn ? hlod_lumi_fetch_cancel(l->repo, rel, VIEW_MAX_BYTES, cancelled, l,
+                                                l->down ? &quiet : &l->lg, &buf, &len)
+                       : HLOD_ERR_INVALID_ARG;
     size_t got = 0, pos = 0;
+    uint32_t last = 0; /* candidate order of the last record, + 1 */
     while (r == HLOD_OK && pos + 8 <= len) { /* records: id, length, a view's file */
         uint32_t head[2];
         memcpy(head, buf + pos, 8);
@@ -200,6 +221,9 @@ static void ask_server(hlod_lumi *l, const double eye[3], const double dir[3],
             candidate |= ids[k] == head[0];
         if (!candidate || head[1] > len - pos - 8)
             break; /* not what was asked: the rest is not trusted */
+        for (uint32_t k = 0; k < n; k++)
+            if (ids[k] == head[0] && k + 1 > last)
+                last = k + 1;
         uint8_t *v = malloc(head[1] ? head[1] : 1);
         if (v && !cache_find(l, head[0])) {
             memcpy(v, buf + pos + 8, head[1]);
@@ -209,6 +233,10 @@ static void ask_server(hlod_lumi *l, const double eye[3], const double dir[3],
             free(v);
         }
         pos += 8 + (size_t)head[1];
+    }
+    if (r == HLOD_ERR_CANCELLED) {
+        free(buf);
+        return; /* shutting down */
     }
     if (r == HLOD_OK && pos != len)
         hlod_logf(&l->lg, HLOD_LOG_WARN, "%s: an answer that does not parse (%zu of %zu bytes "
@@ -221,9 +249,24 @@ static void ask_server(hlod_lumi *l, const double eye[3], const double dir[3],
     l->bytes += len;
     if (len > l->answer_max)
         l->answer_max = len;
-    for (uint32_t w = 0; w < nw; w++)
-        if (r != HLOD_OK || !cache_find(l, want[w]))
-            l->retry_at[want[w]] = now + RETRY_MS;
+    /* a view the answer passed over (before its last record, or any when it
+     * brought none) waits out a retry; one after its last record was only
+     * cut by the answer's limit and is asked for again at once.  In
+     * answers mode a never-baked view passed over is one the server cannot
+     * render: not asked for again */
+    for (uint32_t w = 0; w < nw; w++) {
+        if (r == HLOD_OK && cache_find(l, want[w]))
+            continue;
+        uint32_t order = 0;
+        for (uint32_t k = 0; k < n; k++)
+            if (ids[k] == want[w])
+                order = k + 1;
+        if (r == HLOD_OK && last && order > last)
+            continue;
+        l->retry_at[want[w]] = now + RETRY_MS;
+        if (r == HLOD_OK && l->ix.state[want[w]] == HLOD_LUMI_MISSING)
+            atomic_store_explicit(&l->gone[want[w]], 1, memory_order_relaxed);
+    }
     pthread_mutex_unlock(&l->mu);
     if (r != HLOD_OK) {
         if (!l->down)
@@ -293,6 +336,7 @@ hlod_result hlod_lumi_create(const char *repo, int answers, uint64_t store_id,
     if (!l)
         return HLOD_ERR_NOMEM;
     l->lg = *lg;
+    atomic_init(&l->cancel, 0);
     l->tolerance = tolerance;
     l->cache_cap = cache_bytes;
     l->answers = answers;
@@ -313,7 +357,8 @@ hlod_result hlod_lumi_create(const char *repo, int answers, uint64_t store_id,
     if (r == HLOD_OK) {
         l->retry_at = calloc(l->ix.views, sizeof *l->retry_at);
         l->bad = calloc(l->ix.views, 1);
-        if (!l->retry_at || !l->bad)
+        l->gone = calloc(l->ix.views, sizeof *l->gone);
+        if (!l->retry_at || !l->bad || !l->gone)
             r = HLOD_ERR_NOMEM;
     }
     for (uint32_t s = 0; s < SLOTS; s++)
@@ -344,6 +389,7 @@ void hlod_lumi_destroy(hlod_lumi *l, hlod_renderer *r)
     if (l->started) {
         pthread_mutex_lock(&l->mu);
         l->stop = 1;
+        atomic_store(&l->cancel, 1);
         pthread_cond_signal(&l->wake);
         pthread_mutex_unlock(&l->mu);
         pthread_join(l->thread, NULL);
@@ -357,6 +403,7 @@ void hlod_lumi_destroy(hlod_lumi *l, hlod_renderer *r)
     free(l->cache);
     free(l->retry_at);
     free(l->bad);
+    free(l->gone);
     if (r && l->gpu > 0)
         hlod_gpu_lumi_release(r);
     hlod_lumi_index_free(&l->ix);
@@ -376,7 +423,9 @@ static uint32_t needed_views(const hlod_lumi *l, const double eye[3], const doub
     uint32_t nc = hlod_lumi_candidates(&l->ix, eye, fwd, ids, bits);
     for (uint32_t k = 0; k < nc; k++) {
         uint8_t st = l->ix.state[ids[k]];
-        if (st == HLOD_LUMI_BAKED || (st == HLOD_LUMI_MISSING && l->answers))
+        if (st == HLOD_LUMI_BAKED ||
+            (st == HLOD_LUMI_MISSING && l->answers &&
+             !atomic_load_explicit(&l->gone[ids[k]], memory_order_relaxed)))
             out[n++] = ids[k];
     }
     return n;
@@ -433,12 +482,10 @@ hlod_result hlod_lumi_frame(hlod_lumi *l, hlod_renderer *r, const hlod_camera *c
     memset(st, 0, sizeof *st);
     memset(f, 0, sizeof *f);
     l->frame++;
-    if (r && !l->gpu) {
-        hlod_result g = hlod_gpu_lumi_init(r, SLOTS, l->ix.size, l->ix.depth_size);
-        l->gpu = g == HLOD_OK ? 1 : -1;
-        if (g != HLOD_OK)
-            return g;
-    }
+    if (r && !l->gpu)
+        l->gpu = hlod_gpu_lumi_init(r, SLOTS, l->ix.size, l->ix.depth_size) == HLOD_OK ? 1 : -1;
+    if (r && l->gpu < 0)
+        return HLOD_ERR_UNSUPPORTED; /* every frame: nothing to draw with (logged once) */
     uint32_t point[8], need[SLOTS];
     double w[8], fwd[3];
     hlod_lumi_corners(&l->ix, cam->position, point, w);

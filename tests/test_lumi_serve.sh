@@ -29,7 +29,7 @@ SRC=${HLOD_SOURCE_DIR:-.}
 T=$(mktemp -d /tmp/hlod-test-lumi-serve.XXXXXX)
 SPID=""
 stop_server() { [ -n "$SPID" ] && kill "-${1:-TERM}" "$SPID" 2>/dev/null && wait "$SPID" 2>/dev/null; SPID=""; }
-trap 'stop_server KILL; rm -rf "$T"' EXIT
+trap 'stop_server KILL; [ "${KEEP_T:-0}" = 1 ] || rm -rf "$T"' EXIT
 
 "$BIN/hlod-gen-city" --preset tiny -o "$T/city.obj" --paths "$T/paths" --quiet &&
     "$BIN/hlod-build" "$T/city.obj" -o "$T/city.hlod" --desired-tris 300 --quiet &&

@@ -216,6 +216,8 @@ hlod_result hlod_lumi_index_decode(const uint8_t *b, size_t n, const char *name,
         BAD(HLOD_ERR_FORMAT, "%s: impossible shape (grid %u, size %u, depth size %u, quality %u, "
             "or a bad box or clip planes)", name, grid, get32(b + 12), get32(b + 16), get32(b + 20));
     uint32_t views = grid * grid * grid * HLOD_LUMI_FACES;
+    if (get32(b + 100) != 0)
+        BAD(HLOD_ERR_FORMAT, "%s: reserved field is %u, not 0", name, get32(b + 100));
     if (get32(b + 96) != views || n != HLOD_LUMI_INDEX_HEAD + (size_t)views)
         BAD(HLOD_ERR_FORMAT, "%s: %zu bytes for %u views; a grid of %u needs %u views, %zu bytes",
             name, n, get32(b + 96), grid, views, HLOD_LUMI_INDEX_HEAD + (size_t)views);
@@ -445,8 +447,20 @@ static size_t on_body(char *data, size_t size, size_t nmemb, void *user)
     return add;
 }
 
+typedef struct cancel_cb {
+    int (*fn)(void *);
+    void *user;
+} cancel_cb;
+
+static int on_progress(void *user, curl_off_t dt, curl_off_t dn, curl_off_t ut, curl_off_t un)
+{
+    (void)dt, (void)dn, (void)ut, (void)un;
+    const cancel_cb *c = user;
+    return c->fn && c->fn(c->user); /* non-zero aborts the transfer */
+}
+
 static hlod_result fetch_url(const char *url, size_t max_bytes, const hlod_logger *lg,
-                             uint8_t **out, size_t *n)
+                             const cancel_cb *cancel, uint8_t **out, size_t *n)
 {
     /* the HTTP reader's test hook (store_http.h): a latency before each
      * request */
@@ -468,6 +482,11 @@ static hlod_result fetch_url(const char *url, size_t max_bytes, const hlod_logge
     curl_easy_setopt(e, CURLOPT_ERRORBUFFER, err);
     curl_easy_setopt(e, CURLOPT_CONNECTTIMEOUT_MS, 5000L);
     curl_easy_setopt(e, CURLOPT_TIMEOUT_MS, 30000L);
+    if (cancel->fn) {
+        curl_easy_setopt(e, CURLOPT_XFERINFOFUNCTION, on_progress);
+        curl_easy_setopt(e, CURLOPT_XFERINFODATA, (void *)cancel);
+        curl_easy_setopt(e, CURLOPT_NOPROGRESS, 0L);
+    }
     const char *ca = getenv("CURL_CA_BUNDLE"); /* as the store reader */
     if (!ca || !*ca)
         ca = getenv("SSL_CERT_FILE");
@@ -480,6 +499,10 @@ static hlod_result fetch_url(const char *url, size_t max_bytes, const hlod_logge
     if (s.over) {
         free(s.buf);
         BAD(HLOD_ERR_FORMAT, "%s: longer than %zu bytes", url, max_bytes);
+    }
+    if (c == CURLE_ABORTED_BY_CALLBACK) { /* the caller cancelled it: nothing to say */
+        free(s.buf);
+        return HLOD_ERR_CANCELLED;
     }
     if (c != CURLE_OK || code != 200) {
         free(s.buf);
@@ -522,6 +545,14 @@ static hlod_result fetch_file(const char *path, size_t max_bytes, const hlod_log
 hlod_result hlod_lumi_fetch(const char *repo, const char *rel, size_t max_bytes,
                             const hlod_logger *lg, uint8_t **out, size_t *n)
 {
+    return hlod_lumi_fetch_cancel(repo, rel, max_bytes, NULL, NULL, lg, out, n);
+}
+
+hlod_result hlod_lumi_fetch_cancel(const char *repo, const char *rel, size_t max_bytes,
+                                   int (*cancel)(void *), void *user, const hlod_logger *lg,
+                                   uint8_t **out, size_t *n)
+{
+    const cancel_cb cb = {cancel, user};
     char name[4096];
     size_t len = strlen(repo);
     int slash = len && repo[len - 1] == '/';
@@ -530,7 +561,7 @@ hlod_result hlod_lumi_fetch(const char *repo, const char *rel, size_t max_bytes,
     *out = NULL;
     *n = 0;
     if (!strncmp(repo, "http://", 7) || !strncmp(repo, "https://", 8))
-        return fetch_url(name, max_bytes, lg, out, n);
+        return fetch_url(name, max_bytes, lg, &cb, out, n);
     return fetch_file(name, max_bytes, lg, out, n);
 }
 

@@ -247,6 +247,7 @@ static int bake(const options *o)
         ok = 0;
     }
     ok = ok && resume(&b, o->out);
+    const int adopted = ok; /* REPO's index is ours to write */
     uint32_t points = b.ix.grid * b.ix.grid * b.ix.grid, total = 0, done = 0;
     for (uint32_t p = 0; ok && p < points; p++)
         total += !o->shard_n || p % o->shard_n == o->shard_i - 1;
@@ -267,8 +268,9 @@ static int bake(const options *o)
             saved = hlod_cli_now();
         }
     }
-    if (ok)
-        ok = hlod_lumi_index_save(o->out, &b.ix, &b.lg) == HLOD_OK;
+    /* saved after a failure too: the views written so far are kept */
+    if (adopted && hlod_lumi_index_save(o->out, &b.ix, &b.lg) != HLOD_OK)
+        ok = 0;
     hlod_cli_progress_clear(&bar);
     if (ok && o->json)
         print_json(o, &b.ix, o->out, hlod_cli_now() - t0);
@@ -278,11 +280,22 @@ static int bake(const options *o)
 
 /* ---- merging ---- */
 
-/* Links (or copies) src to dst, written under a temporary name first. */
+/* Links (or copies) src to dst under a temporary name, then renames it
+ * over dst: dst is never missing, and src and dst the same file (a folder
+ * named two ways) is left alone. */
 static int place_file(const char *src, const char *dst, const hlod_logger *lg)
 {
-    if (link(src, dst) == 0 || (errno == EEXIST && unlink(dst) == 0 && link(src, dst) == 0))
+    struct stat a, b;
+    if (stat(src, &a) == 0 && stat(dst, &b) == 0 && a.st_dev == b.st_dev && a.st_ino == b.st_ino)
         return 1;
+    char tmp[4300];
+    snprintf(tmp, sizeof tmp, "%s.merge-%ld", dst, (long)getpid());
+    unlink(tmp);
+    if (link(src, tmp) == 0) {
+        if (rename(tmp, dst) == 0)
+            return 1;
+        unlink(tmp);
+    }
     FILE *in = fopen(src, "rb");
     if (!in) {
         hlod_cli_error(PROG, "%s: %s", src, strerror(errno));
@@ -320,11 +333,20 @@ static int merge(const options *o)
             ok = hlod_lumi_index_init(&out, part.grid, part.size, part.depth_size, part.quality,
                                       part.box_min, part.box_max, part.near_plane,
                                       part.far_plane, part.store_id) == HLOD_OK;
-        } else if (ok && (part.grid != out.grid || part.size != out.size ||
-                          part.depth_size != out.depth_size || part.quality != out.quality ||
-                          part.store_id != out.store_id ||
-                          memcmp(part.box_min, out.box_min, sizeof out.box_min) ||
-                          memcmp(part.box_max, out.box_max, sizeof out.box_max))) {
+            /* an index already in REPO must be of the same bake */
+            hlod_lumi_index have;
+            char ipath[4200];
+            snprintf(ipath, sizeof ipath, "%s/%s", o->out, HLOD_LUMI_INDEX_NAME);
+            if (ok && hlod_is_file(ipath)) {
+                ok = hlod_lumi_index_load(o->out, &lg, &have) == HLOD_OK;
+                if (ok && !lumi_same_shape(&have, &out)) {
+                    hlod_cli_error(PROG, "%s: holds a bake of another store or other parameters "
+                                   "than %s's; merge into another folder", ipath, dir);
+                    ok = 0;
+                }
+                hlod_lumi_index_free(&have);
+            }
+        } else if (ok && !lumi_same_shape(&part, &out)) {
             hlod_cli_error(PROG, "%s/%s: a bake of another store or other parameters than %s's",
                            dir, HLOD_LUMI_INDEX_NAME, o->parts[0]);
             ok = 0;

@@ -40,8 +40,8 @@ static void usage(FILE *fp)
         "  --bind ADDR      the IPv4 address to listen on (default 127.0.0.1)\n"
         "  --store STORE    the store REPO was baked from: views REPO lacks are\n"
         "                   rendered when an answer needs them, and kept in REPO\n"
-        "  --answer-kb K    an answer's limit in KiB (default 300; at least one\n"
-        "                   view is sent whatever its size)\n"
+        "  --answer-kb K    an answer's limit in KiB, 1..65536 (default 300; at\n"
+        "                   least one view is sent whatever its size)\n"
         "  --quiet          no line per request on stderr\n"
         "  -h, --help       show this help\n"
         "\n"
@@ -72,8 +72,11 @@ static enum MHD_Result reply(struct MHD_Connection *c, unsigned status, void *bo
                              enum MHD_ResponseMemoryMode mode, const char *type)
 {
     struct MHD_Response *r = MHD_create_response_from_buffer(n, body, mode);
-    if (!r)
+    if (!r) {
+        if (mode == MHD_RESPMEM_MUST_FREE)
+            free(body);
         return MHD_NO;
+    }
     MHD_add_response_header(r, "Content-Type", type);
     enum MHD_Result ok = MHD_queue_response(c, status, r);
     MHD_destroy_response(r);
@@ -251,7 +254,8 @@ int main(int argc, char **argv)
                 return hlod_cli_usage_error(PROG, "%s needs a store", "--store");
             s.store = v;
         } else if (hlod_cli_match_flag(argc, argv, &i, "--answer-kb", &v)) {
-            if (!v || !hlod_cli_parse_size(PROG, "--answer-kb", v, 1, 1 << 20, &kb))
+            /* the client takes answers of 64 MiB at most */
+            if (!v || !hlod_cli_parse_size(PROG, "--answer-kb", v, 1, 65536, &kb))
                 return 2;
         } else if (!strcmp(a, "--quiet")) {
             s.quiet = 1;

@@ -182,6 +182,8 @@ int lumi_same_shape(const hlod_lumi_index *a, const hlod_lumi_index *b)
 
 void lumi_baker_close(lumi_baker *b)
 {
+    if (b->gl) /* current on this thread (a server made it on another) */
+        hlod_osmesa_make_current(b->gl);
     hlod_engine_destroy(b->engine);
     hlod_renderer_destroy(b->renderer);
     hlod_osmesa_destroy(b->gl);

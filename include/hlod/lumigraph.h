@@ -128,6 +128,12 @@ void hlod_lumi_view_free(hlod_lumi_view *v);
  * or URL) when it cannot, HLOD_ERR_FORMAT when it is longer. */
 hlod_result hlod_lumi_fetch(const char *repo, const char *rel, size_t max_bytes,
                             const hlod_logger *lg, uint8_t **out, size_t *n);
+/* As hlod_lumi_fetch; an HTTP transfer is abandoned (HLOD_ERR_CANCELLED,
+ * not logged) as soon as cancel(user) returns non-zero (asked a few times
+ * a second). */
+hlod_result hlod_lumi_fetch_cancel(const char *repo, const char *rel, size_t max_bytes,
+                                   int (*cancel)(void *), void *user, const hlod_logger *lg,
+                                   uint8_t **out, size_t *n);
 
 /* ---- the answer protocol (section 5.1; hlod-lumigraph-serve) ----
  *

@@ -50,7 +50,7 @@ col_stats() {
     awk -F, -v col="$2" -v skip="$3" 'NR == 1 { for (i = 1; i <= NF; i++) if ($i == col) c = i; next }
         NR - 2 >= skip { n++; s += $c; q += $c * $c }
         END { if (!n) { print "nan nan"; exit } m = s / n; v = q / n - m * m; if (v < 0) v = 0;
-              printf "%.4f %.4f\n", m, m > 0 ? sqrt(v) / m : 0 }' "$1"
+              printf "%.4f %.4f\n", m, (m > 0 ? sqrt(v) / m : 0) }' "$1"
 }
 for b in $BLOCKS; do
     dir="$out/$b"
@@ -101,5 +101,5 @@ column -s, -t "$csv"
 awk -F, 'NR > 1 { k = $3 " " $4; n[k]++; x = log($2); y = log($5); sx[k] += x; sy[k] += y;
         sxx[k] += x * x; sxy[k] += x * y }
     END { for (k in n) { d = n[k] * sxx[k] - sx[k] * sx[k];
-            printf "slope %s: %.3f\n", k, d > 0 ? (n[k] * sxy[k] - sx[k] * sy[k]) / d : 0 } }' \
+            printf "slope %s: %.3f\n", k, (d > 0 ? (n[k] * sxy[k] - sx[k] * sy[k]) / d : 0) } }' \
     "$csv" | sort | tee "$out/slopes.txt"
