@@ -1288,13 +1288,13 @@ static const char *lumi_fragment_src =
     "}\n";
 
 static const char *lumi_bg_vertex_src =
-    "uniform mat4 u_inv;\n" /* clip space -> camera-relative direction */
-    "out vec3 v_dir;\n"
+    "uniform mat4 u_inv;\n" /* clip space -> camera-relative position */
+    /* the far plane's point, homogeneous: linear across the screen, so it
+     * interpolates exactly; divided per fragment (the eye is at 0) */
+    "out vec4 v_far;\n"
     "void main() {\n"
     "    vec2 p = vec2(gl_VertexID == 1 ? 3.0 : -1.0, gl_VertexID == 2 ? 3.0 : -1.0);\n"
-    "    vec4 far = u_inv * vec4(p, 1.0, 1.0);\n"
-    "    vec4 near = u_inv * vec4(p, -1.0, 1.0);\n"
-    "    v_dir = far.xyz / far.w - near.xyz / near.w;\n"
+    "    v_far = u_inv * vec4(p, 1.0, 1.0);\n"
     "    gl_Position = vec4(p, 1.0, 1.0);\n"
     "}\n";
 
@@ -1304,9 +1304,10 @@ static const char *lumi_bg_fragment_src =
     "uniform vec3 u_depth_par;\n"
     "uniform vec3 u_clear;\n"
     "uniform float u_parallax;\n" /* radians a pixel spans */
-    "in vec3 v_dir;\n"
+    "in vec4 v_far;\n"
     "out vec4 o_color;\n"
     "void main() {\n"
+    "    vec3 v_dir = v_far.xyz / v_far.w;\n"
     "    vec3 acc = vec3(0.0);\n"
     "    float wsum = 0.0;\n"
     "    int f = face_of(v_dir);\n"
@@ -1319,13 +1320,15 @@ static const char *lumi_bg_fragment_src =
     "        if (s >= 0) {\n"
     /*           what point i saw along this direction is seen along it from
      *           the eye too only when it is far enough for the offset to
-     *           the point to move it under two pixels; else, unknown */
+     *           the point to move it under two pixels (nothing, at any
+     *           offset: the view's own colour there, its sky as coded);
+     *           else, unknown */
     "            float q = texture(u_depth, vec3(t.xy, float(s))).r * 65535.0;\n"
     "            if (q <= 65534.5) {\n"
     "                float zs = u_depth_par.x * exp(q / 65534.0 * u_depth_par.y);\n"
     "                if (length(u_pt[i]) > 2.0 * u_parallax * zs) continue;\n"
-    "                c = texture(u_color, vec3(t.xy, float(s))).rgb;\n"
     "            }\n"
+    "            c = texture(u_color, vec3(t.xy, float(s))).rgb;\n"
     "        }\n"
     "        acc += u_w[i] * c;\n"
     "        wsum += u_w[i];\n"

@@ -21,6 +21,8 @@
 #   - a half-baked repository (one shard of two) served with --store: an
 #     answer brings a view the index listed as missing, rendered on demand
 #     and then on disk and in the index;
+#   - hlod-bench's grid_point_psnr_min at the middle grid point: >= 38 dB
+#     over its baked axes;
 #   - a folder without an index: exit 1 naming the file.
 set -u
 BIN=${HLOD_BIN_DIR:-build/bin}
@@ -171,6 +173,23 @@ after=$(awk -F, 'NR == 1 { for (i = 1; i <= NF; i++) if ($i == "lumi_bytes") c =
     [ "$(grep -c 'does not answer' "$T/kill.err")" = 1 ] && grep -q 'answers again' "$T/kill.err"
 ok $? "the server killed mid-run and back 1 s later: exit $rc, render_waits $(key "$T/kill" render_waits), the outage said once ($(grep -c 'does not answer' "$T/kill.err")) and its end, $after bytes fetched after the restart"
 stop_server
+
+# summary.json grid_point_psnr_min: a still path at the middle grid point,
+# looking along +x; the check renders each of the point's baked axes there
+# and compares them with the baked views (the issue's bound: 38 dB)
+python3 - "$MID" >"$T/mid.path" <<'EOF'
+import sys
+x, y, z = (float(v) for v in sys.argv[1].split(','))
+for t in (0, 1):
+    print(t, repr(x), repr(y), repr(z), repr(x + 1), repr(y), repr(z))
+EOF
+rm -rf "$T/gp"
+"$BIN/hlod-bench" "$T/city.hlod" --path "$T/mid.path" --method lumigraph --repo "$T/repo" \
+    --width 160 --height 120 --frames 30 --jitter-frames 0 --no-plots --out "$T/gp" 2>"$T/gp.err" >/dev/null
+rc=$?
+gp=$(key "$T/gp" grid_point_psnr_min) gn=$(key "$T/gp" grid_point_checks)
+[ $rc -eq 0 ] && [ "${gn:-0}" -ge 3 ] && perl -e 'exit !($ARGV[0] >= 38)' "$gp"
+ok $? "grid_point_psnr_min: $gp dB over $gn views at the middle grid point (exit $rc)"
 
 # on demand: the half repository, views of shard 2 missing
 start_server "$T/half" --store "$T/city.hlod"

@@ -35,6 +35,7 @@
 #include <stdlib.h>
 #include <string.h>
 #include <sys/stat.h>
+#include <time.h>
 
 #include "atomic_file.h"
 #include "cli.h"
@@ -43,6 +44,7 @@
 #include "view_flags.h"
 #include "hlod/engine.h"
 #include "hlod/image.h"
+#include "hlod/lumigraph.h"
 #include "hlod/renderer.h"
 #include "hlod/metrics.h"
 #include "hlod/path.h"
@@ -127,8 +129,10 @@ static void usage(FILE *fp)
         "toggles_up, toggles_down, toggles_per_frame, oscillations, psnr_mean,\n"
         "psnr_min, ssim_mean, image_flicker, tris_mean, loads, evictions, bytes_read,\n"
         "cache_hits (payloads from HLOD_CACHE_DIR, not in bytes_read),\n"
-        "bytes_fetched, answer_bytes_max, lumi_missing_frames (policy lumigraph:\n"
-        "view bytes fetched, the largest answer, frames whose blend lacked a view),\n"
+        "bytes_fetched, answer_bytes_max, lumi_missing_frames, grid_point_psnr_min,\n"
+        "grid_point_checks (policy lumigraph: view bytes fetched, the largest\n"
+        "answer, frames whose blend lacked a view, the client against the baked\n"
+        "views at the path's grid points: the worst PSNR, views checked),\n"
         "loader_finish_ms, loader_busy_ms, loader_finish_share,\n"
         "peak_resident_bytes, memory_budget_bytes, missing_wanted_frames,\n"
         "render_waits, bad_nodes, load_failures, traversal_ms_mean, traversal_ms_max,\n"
@@ -564,6 +568,9 @@ typedef struct summary {
     int jitter_count;
     const char *gl_renderer;
     const char *texture_upload;             /* "blocks" or "expanded" */
+    double grid_psnr_min;                   /* policy lumigraph: the client against the
+                                               baked views at the path's grid points */
+    int grid_checks;                        /* ... views checked */
 } summary;
 
 /* Frames from this one on count in toggles_after_60 (the issue's still
@@ -840,6 +847,8 @@ static void json_summary(hlod_json *j, const summary *s, const char *policy, con
     hlod_json_int(j, "bytes_fetched", (long long)s->lumi_bytes);
     hlod_json_int(j, "answer_bytes_max", (long long)s->lumi_answer_max);
     hlod_json_int(j, "lumi_missing_frames", (long long)s->lumi_missing_frames);
+    hlod_json_double(j, "grid_point_psnr_min", s->grid_psnr_min);
+    hlod_json_int(j, "grid_point_checks", s->grid_checks);
     hlod_json_double(j, "loader_finish_ms", s->loader_finish_ms);
     hlod_json_double(j, "loader_busy_ms", s->loader_busy_ms);
     hlod_json_double(j, "loader_finish_share",
@@ -1345,6 +1354,8 @@ typedef struct run_state {
     const uint8_t *prev_ref;    /* the last scored reference */
     hlod_cli_progress bar;
     double wall0;               /* --realtime: frame 0's start, ms */
+    double grid_psnr_min;       /* policy lumigraph: grid_point_check's; NAN without */
+    int grid_checks;
 } run_state;
 
 /* Reads frame f's image back when anything needs it; *image is NULL when
@@ -1523,6 +1534,128 @@ static int run_frame(run_state *s, uint64_t f)
 
 /* The run's summary into out, and its frames.csv, summary.json and
  * jitter.csv.  0, or 1 when a file cannot be written. */
+/* ---- policy lumigraph: the client at the grid points ---- */
+
+#define GRID_CHECKS_MAX 24
+
+/* The views to check: each baked face of the grid point nearest each
+ * frame's eye, when the eye is within a grid step of it along every axis;
+ * at most GRID_CHECKS_MAX of them, spread evenly over the list. */
+static uint32_t grid_views(const context *c, const hlod_lumi_index *ix, uint32_t *out)
+{
+    uint32_t *all = malloc((size_t)ix->views * sizeof *all);
+    uint8_t *seen = calloc(ix->views / HLOD_LUMI_FACES, 1);
+    uint32_t n = 0;
+    for (uint64_t f = 0; all && seen && f < run_frames(c); f++) {
+        double eye[3], at[3];
+        hlod_path_eval(&c->path, hlod_path_frame_time(&c->path, c->o->dt, f), eye, at);
+        uint32_t q[3];
+        int near = 1;
+        for (int k = 0; k < 3; k++) {
+            double step = (ix->box_max[k] - ix->box_min[k]) / (ix->grid - 1);
+            double u = step > 0 ? (eye[k] - ix->box_min[k]) / step : 0;
+            double r = floor(u + 0.5);
+            r = r < 0 ? 0 : r > ix->grid - 1 ? ix->grid - 1 : r;
+            near &= fabs(u - r) <= 1;
+            q[k] = (uint32_t)r;
+        }
+        uint32_t p = (q[2] * ix->grid + q[1]) * ix->grid + q[0];
+        if (!near || seen[p])
+            continue;
+        seen[p] = 1;
+        for (uint32_t d = 0; d < HLOD_LUMI_FACES; d++)
+            if (ix->state[p * HLOD_LUMI_FACES + d] == HLOD_LUMI_BAKED)
+                all[n++] = p * HLOD_LUMI_FACES + d;
+    }
+    uint32_t m = n < GRID_CHECKS_MAX ? n : GRID_CHECKS_MAX;
+    for (uint32_t k = 0; k < m; k++)
+        out[k] = all[(uint64_t)k * n / m];
+    free(all);
+    free(seen);
+    return m;
+}
+
+/* One view: the client's image at its grid point along its axis, once no
+ * view or node is missing (10 s at most), against the baked view. */
+static double grid_view_psnr(context *c, hlod_engine *e, gl_target *t, const hlod_lumi_index *ix,
+                             uint32_t id, uint8_t *img)
+{
+    uint32_t x, y, z, d;
+    double eye[3], fwd[3], up[3], right[3], at[3];
+    hlod_lumi_view_key(ix, id, &x, &y, &z, &d);
+    hlod_lumi_point(ix, x, y, z, eye);
+    hlod_lumi_face(d, fwd, up, right);
+    for (int k = 0; k < 3; k++)
+        at[k] = eye[k] + fwd[k];
+    hlod_camera cam;
+    if (hlod_camera_look_at(&cam, eye, at, up, 90, c->o->near_plane, ix->far_plane * 2, ix->size,
+                            ix->size) != HLOD_OK)
+        return NAN;
+    hlod_frame_stats st;
+    int quiet = 0;
+    for (int k = 0; k < 1000 && quiet < 3; k++) {
+        if (hlod_engine_frame(e, &cam, c->o->dt, &st) != HLOD_OK)
+            return NAN;
+        quiet = !st.lumi_missing && !st.wanted_missing && !st.lumi_uploads ? quiet + 1 : 0;
+        if (!quiet)
+            nanosleep(&(struct timespec){0, 10000000}, NULL);
+    }
+    char rel[128];
+    uint8_t *buf = NULL;
+    size_t n = 0;
+    hlod_lumi_view v = {0};
+    double db = NAN;
+    hlod_lumi_view_path(ix, id, rel, sizeof rel);
+    if (target_read(t, img) == HLOD_OK &&
+        hlod_lumi_fetch(c->o->repo, rel, 64u << 20, &c->lg, &buf, &n) == HLOD_OK &&
+        hlod_lumi_view_decode(ix, id, buf, n, rel, &c->lg, &v) == HLOD_OK &&
+        hlod_psnr_rgb8(img, v.rgb, ix->size, ix->size, &db) != HLOD_OK)
+        db = NAN;
+    hlod_lumi_view_free(&v);
+    free(buf);
+    return db;
+}
+
+/* summary.json grid_point_psnr_min (docs/lumigraph.md): the client against
+ * the baked views at the grid points the path passes, drawn by a second
+ * engine in a context of the views' size.  *min NAN with no view to check;
+ * 1 (said) on failure. */
+static int grid_point_check(context *c, const hlod_engine_desc *base, double *min, int *checks)
+{
+    *min = NAN;
+    *checks = 0;
+    hlod_lumi_index ix;
+    if (hlod_lumi_index_load(c->o->repo, &c->lg, &ix) != HLOD_OK)
+        return 1;
+    uint32_t ids[GRID_CHECKS_MAX], n = grid_views(c, &ix, ids);
+    gl_target t;
+    hlod_engine *e = NULL;
+    uint8_t *img = malloc((size_t)ix.size * ix.size * 3);
+    int bad = !img;
+    if (n && !bad && target_create(c->o->backend, ix.size, ix.size, &c->lg, &t) == HLOD_OK) {
+        hlod_engine_desc d = *base;
+        d.renderer = t.renderer;
+        d.deterministic = 0;
+        bad = hlod_engine_create(c->store, &d, &e) != HLOD_OK;
+        for (uint32_t k = 0; k < n && !bad; k++) {
+            double db = grid_view_psnr(c, e, &t, &ix, ids[k], img);
+            bad = isnan(db);
+            if (!bad && !(db >= *min))
+                *min = db;
+            *checks += !bad;
+        }
+        hlod_engine_destroy(e);
+        target_destroy(&t);
+    } else if (n) {
+        bad = 1;
+    }
+    if (bad)
+        hlod_cli_error(PROG, "%s: the grid-point check failed", c->o->repo);
+    free(img);
+    hlod_lumi_index_free(&ix);
+    return target_current(&c->gl) != HLOD_OK || bad;
+}
+
 static int write_run(run_state *s, hlod_policy policy, const hlod_engine_desc *d,
                      uint32_t depths, summary *out)
 {
@@ -1532,6 +1665,8 @@ static int write_run(run_state *s, hlod_policy policy, const hlod_engine_desc *d
     summarise(s->rec, n, target_ms, out);
     summarise_extra(s->rec, n, target_ms, s->jit, s->njit, out);
     out->jitter_frame = s->jitter_frame;
+    out->grid_psnr_min = s->grid_psnr_min;
+    out->grid_checks = s->grid_checks;
     out->gl_renderer = target_name(&c->gl);
     out->texture_upload =
         hlod_renderer_texture_blocks(c->gl.renderer, d->texture_upload) ? "blocks" : "expanded";
@@ -1583,6 +1718,9 @@ static int run(context *c, hlod_policy policy, const char *dir, const setting *e
     }
     hlod_cli_progress_clear(&s.bar);
     hlod_engine_destroy(s.e); /* c->gl current */
+    s.grid_psnr_min = NAN;
+    if (!status && policy == HLOD_POLICY_LUMIGRAPH)
+        status = grid_point_check(c, &d, &s.grid_psnr_min, &s.grid_checks);
     if (status) {
         free(s.rec);
         free(s.jit);
