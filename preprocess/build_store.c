@@ -86,6 +86,7 @@ typedef struct splitter {
     uint32_t *remap;    /* per input vertex: its index in the block, or UINT32_MAX */
     uint32_t *verts;    /* the block's input vertices, in first-use order */
     long *mat_key;      /* per material: the first material with its texture, or -1 */
+    long *col_key;      /* per material: the first material with its diffuse colour */
 } splitter;
 
 static void splitter_free(splitter *sp)
@@ -93,6 +94,7 @@ static void splitter_free(splitter *sp)
     free(sp->remap);
     free(sp->verts);
     free(sp->mat_key);
+    free(sp->col_key);
 }
 
 static hlod_result splitter_init(splitter *sp, const hlod_mesh *m)
@@ -102,7 +104,8 @@ static hlod_result splitter_init(splitter *sp, const hlod_mesh *m)
     sp->remap = malloc((m->vertex_count ? m->vertex_count : 1) * sizeof *sp->remap);
     sp->verts = malloc((m->vertex_count ? m->vertex_count : 1) * sizeof *sp->verts);
     sp->mat_key = malloc((m->material_count ? m->material_count : 1) * sizeof *sp->mat_key);
-    if (!sp->remap || !sp->verts || !sp->mat_key) {
+    sp->col_key = malloc((m->material_count ? m->material_count : 1) * sizeof *sp->col_key);
+    if (!sp->remap || !sp->verts || !sp->mat_key || !sp->col_key) {
         splitter_free(sp);
         return HLOD_ERR_NOMEM;
     }
@@ -114,6 +117,13 @@ static hlod_result splitter_init(splitter *sp, const hlod_mesh *m)
         for (size_t k = 0; path && k <= mat; k++)
             if (m->materials[k].texture_path && !strcmp(m->materials[k].texture_path, path)) {
                 sp->mat_key[mat] = (long)k;
+                break;
+            }
+        sp->col_key[mat] = (long)mat;
+        for (size_t k = 0; k < mat; k++)
+            if (!memcmp(m->materials[k].diffuse, m->materials[mat].diffuse,
+                        sizeof m->materials[k].diffuse)) {
+                sp->col_key[mat] = (long)k;
                 break;
             }
     }
@@ -159,19 +169,23 @@ static hlod_result extract(splitter *sp, const uint32_t *tris, size_t n, hlod_me
     return r;
 }
 
-/* The texture key of triangle t: the first material with its texture, or
- * -1 when it has none (or the mesh has no UVs). */
+/* The key of triangle t's block: the first material with its texture;
+ * untextured (no texture, or the mesh has no UVs), -2 - the first
+ * material with its diffuse colour, since an untextured block carries one
+ * colour; -1 without a material (grey). */
 static long tex_key(const splitter *sp, size_t t)
 {
     const hlod_mesh *m = sp->m;
     uint32_t mat = m->tri_material ? m->tri_material[t] : 0;
-    if (!m->uvs || mat >= m->material_count)
+    if (mat >= m->material_count)
         return -1;
-    return sp->mat_key[mat];
+    if (m->uvs && sp->mat_key[mat] >= 0)
+        return sp->mat_key[mat];
+    return -2 - sp->col_key[mat];
 }
 
-/* Splits triangle set tris (a group: an object or a cell) by texture and
- * appends one block per texture. */
+/* Splits triangle set tris (a group: an object or a cell) by texture, and
+ * its untextured triangles by colour, and appends one block per key. */
 static hlod_result add_group(splitter *sp, uint32_t *tris, size_t n, const char *name, blocks *bs)
 {
     const hlod_mesh *m = sp->m;

@@ -387,6 +387,48 @@ static void bad_input_leaves_nothing(void)
     CHECK(check_sh("'%s/hlod-info' --verify '%s' > /dev/null", bin, good) == 0);
 }
 
+/* One object of two untextured materials, a red quad and a green one:
+ * each keeps its colour (a block per colour), not the first material's. */
+static void untextured_colours_kept(void)
+{
+    char obj[1200], mtl[1200], out[1200];
+    snprintf(obj, sizeof obj, "%s/two.obj", tmp);
+    snprintf(mtl, sizeof mtl, "%s/two.mtl", tmp);
+    snprintf(out, sizeof out, "%s/two.hlod", tmp);
+    FILE *fp = fopen(mtl, "w");
+    CHECK(fp != NULL);
+    if (!fp)
+        return;
+    fprintf(fp, "newmtl red\nKd 0.9 0.1 0.1\nnewmtl green\nKd 0.1 0.9 0.1\n");
+    fclose(fp);
+    fp = fopen(obj, "w");
+    CHECK(fp != NULL);
+    if (!fp)
+        return;
+    fprintf(fp, "mtllib two.mtl\no both\n"
+                "v 0 0 0\nv 10 0 0\nv 10 10 0\nv 0 10 0\n"
+                "v 20 0 0\nv 30 0 0\nv 30 10 0\nv 20 10 0\n"
+                "usemtl red\nf 1 2 3\nf 1 3 4\nusemtl green\nf 5 6 7\nf 5 7 8\n");
+    fclose(fp);
+    CHECK(check_sh("'%s/hlod-build' '%s' -o '%s' --quiet", bin, obj, out) == 0);
+    hlod_store *s = NULL;
+    CHECK(hlod_store_open(out, NULL, &s) == HLOD_OK);
+    int red = 0, green = 0;
+    for (uint32_t i = 0; s && i < hlod_store_node_count(s); i++) {
+        hlod_store_payload p;
+        if (hlod_store_read_node(s, i, 1 << 20, &p) != HLOD_OK)
+            continue;
+        for (uint32_t v = 0; p.colors && v < p.vertex_count; v++) {
+            const uint8_t *c = p.colors + 4 * v;
+            red |= c[0] > 200 && c[1] < 60;
+            green |= c[1] > 200 && c[0] < 60;
+        }
+        hlod_store_payload_free(&p);
+    }
+    CHECKF(red && green, "colours kept: red %d, green %d", red, green);
+    hlod_store_close(s);
+}
+
 int main(void)
 {
     const char *b = getenv("HLOD_BIN_DIR");
@@ -400,6 +442,7 @@ int main(void)
     RUN(parts_city_meets_desired_tris);
     RUN(large_coordinates);
     RUN(bad_input_leaves_nothing);
+    RUN(untextured_colours_kept);
     check_sh("rm -rf '%s'", tmp);
     return check_done();
 }

@@ -357,7 +357,7 @@ static int write_boxes(const char *dir)
         const double *q = box[b];
         for (int c = 0; c < 8; c++)
             fprintf(fp, "v %g %g %g\n", q[(c & 1) ? 3 : 0], q[(c & 2) ? 4 : 1], q[(c & 4) ? 5 : 2]);
-        /* an object each: a block carries one colour (build_store.c) */
+        /* an object each: two blocks */
         fprintf(fp, "o %s\nusemtl %s\n", mtl[b], mtl[b]);
         const int f[12][3] = {{1, 3, 2}, {1, 2, 0}, {4, 6, 7}, {4, 7, 5}, {0, 4, 5}, {0, 5, 1},
                               {2, 3, 7}, {2, 7, 6}, {0, 2, 6}, {0, 6, 4}, {1, 5, 7}, {1, 7, 3}};
