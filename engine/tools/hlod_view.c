@@ -82,6 +82,8 @@ static void usage(FILE *fp)
         "  --policy P        " HLOD_POLICY_CHOICES " (default lakhia)\n"
         "  --lumigraph REPO  policy lumigraph over the sampling repository REPO (a\n"
         "                    folder from hlod-lumigraph-bake, or its URL)\n"
+        "  --answers         REPO is hlod-lumigraph-serve's URL: one request brings\n"
+        "                    the views the eye lacks\n"
         "  --memory-mb M     memory budget in MiB (default: the whole store decoded,\n"
         "                    at most a quarter of the machine's memory)\n"
         "  --path P          play a camera path instead of free flight: a file,\n"
@@ -123,6 +125,7 @@ static void usage(FILE *fp)
 typedef struct options {
     const char *store, *path, *paths_dir, *record, *screenshot;
     const char *lumigraph;  /* --lumigraph REPO: policy lumigraph from this repository */
+    int answers;            /* --answers: REPO is hlod-lumigraph-serve's URL */
     uint32_t width, height;
     double target_ms, memory_mb, fov, near_plane;
     hlod_policy policy;
@@ -188,6 +191,8 @@ static int parse_args(int argc, char **argv, options *o)
             o->lumigraph = v;
             o->policy = HLOD_POLICY_LUMIGRAPH;
             o->policy_given = 1;
+        } else if (!strcmp(a, "--answers")) {
+            o->answers = 1;
         } else if (FLAG("--record")) {
             NEED("--record");
             o->record = v;
@@ -840,6 +845,7 @@ int main(int argc, char **argv)
     d.target_ms = o.target_ms;
     d.policy = o.policy;
     d.lumigraph_repo = o.lumigraph;
+    d.lumigraph_answers = o.answers;
     d.renderer = v.renderer;
     d.logger = v.lg;
     d.memory_budget_bytes = o.memory_mb > 0 ? (uint64_t)(o.memory_mb * 1048576.0)
