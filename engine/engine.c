@@ -266,7 +266,7 @@ hlod_result hlod_engine_create(const hlod_store *store, const hlod_engine_desc *
         } else {
             r = hlod_lumi_create(e->d.lumigraph_repo, e->d.lumigraph_answers,
                                  hlod_store_get_header(store)->node_table_hash,
-                                 (uint64_t)e->d.lumi_cache_mb << 20, e->d.lumi_tol,
+                                 (uint64_t)e->d.lumi_cache_mb << 20,
                                  &e->d.logger, &e->lumi);
         }
     }

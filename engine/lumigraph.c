@@ -31,7 +31,6 @@ struct hlod_lumi {
     char *repo;
     hlod_lumi_index ix;
     hlod_logger lg;
-    double tolerance;
     uint64_t cache_cap;
     int answers;        /* 1: ask the server's /answer (hlod-lumigraph-serve); 0: files */
 
@@ -211,7 +210,7 @@ static void ask_server(hlod_lumi *l, const double eye[3], const double dir[3],
     hlod_result r = tn ? hlod_lumi_fetch_cancel(l->repo, rel, VIEW_MAX_BYTES, cancelled, l,
                                                 l->down ? &quiet : &l->lg, &buf, &len)
                        : HLOD_ERR_INVALID_ARG;
-    size_t got = 0, pos = 0;
+    size_t pos = 0;
     uint32_t last = 0; /* candidate order of the last record, + 1 */
     while (r == HLOD_OK && pos + 8 <= len) { /* records: id, length, a view's file */
         uint32_t head[2];
@@ -228,7 +227,6 @@ static void ask_server(hlod_lumi *l, const double eye[3], const double dir[3],
         if (v && !cache_find(l, head[0])) {
             memcpy(v, buf + pos + 8, head[1]);
             cache_put(l, head[0], v, head[1]);
-            got++;
         } else {
             free(v);
         }
@@ -278,7 +276,6 @@ static void ask_server(hlod_lumi *l, const double eye[3], const double dir[3],
             hlod_logf(&l->lg, HLOD_LOG_WARN, "%s: the server answers again", l->repo);
         l->down = 0;
     }
-    (void)got;
 }
 
 static void *fetch_main(void *arg)
@@ -325,7 +322,7 @@ static void *fetch_main(void *arg)
 /* ---- create / destroy ---- */
 
 hlod_result hlod_lumi_create(const char *repo, int answers, uint64_t store_id,
-                             uint64_t cache_bytes, double tolerance, const hlod_logger *lg,
+                             uint64_t cache_bytes, const hlod_logger *lg,
                              hlod_lumi **out)
 {
     *out = NULL;
@@ -337,7 +334,6 @@ hlod_result hlod_lumi_create(const char *repo, int answers, uint64_t store_id,
         return HLOD_ERR_NOMEM;
     l->lg = *lg;
     atomic_init(&l->cancel, 0);
-    l->tolerance = tolerance;
     l->cache_cap = cache_bytes;
     l->answers = answers;
     if (answers && strncmp(repo, "http://", 7) && strncmp(repo, "https://", 8)) {
@@ -550,6 +546,5 @@ hlod_result hlod_lumi_frame(hlod_lumi *l, hlod_renderer *r, const hlod_camera *c
     }
     f->near_plane = (float)l->ix.near_plane;
     f->log_ratio = (float)log(l->ix.far_plane / l->ix.near_plane);
-    f->tolerance = (float)l->tolerance;
     return HLOD_OK;
 }

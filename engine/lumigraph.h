@@ -45,14 +45,15 @@ typedef struct hlod_lumi_stats {
  * been baked from (HLOD_ERR_FORMAT, logged, otherwise).  cache_bytes: the
  * fetched bytes kept (LRU). */
 hlod_result hlod_lumi_create(const char *repo, int answers, uint64_t store_id,
-                             uint64_t cache_bytes, double tolerance, const hlod_logger *lg,
+                             uint64_t cache_bytes, const hlod_logger *lg,
                              hlod_lumi **out);
 /* Stops and joins the fetch thread; frees the GPU slots (context current). */
 void hlod_lumi_destroy(hlod_lumi *l, hlod_renderer *r);
 
 /* Render thread, once per frame before drawing: takes the views decoded
  * since the last frame into GPU slots (at most `uploads` of them), asks
- * the fetch thread for what this camera needs, and fills f.  With r NULL
+ * the fetch thread for what this camera needs, and fills f (all but its
+ * tolerance, the caller's: the engine's live lumi_tol).  With r NULL
  * nothing is uploaded.  HLOD_ERR_UNSUPPORTED when the GPU slots cannot be
  * made (logged). */
 hlod_result hlod_lumi_frame(hlod_lumi *l, hlod_renderer *r, const hlod_camera *cam,
