@@ -32,7 +32,11 @@
  * unwelded flat-shaded mesh (Wuson.ply) or glTF would not simplify at all.
  * Our simplifier does the same welding inside its timed call.  When node
  * and the npm package are installed (npm ci), meshoptimizer 1.3 runs too
- * (tests/bench/meshopt_js.mjs: Prune and Permissive, positions only).
+ * twice (tests/bench/meshopt_js.mjs): positions only with Prune and
+ * Permissive, and simplifyWithAttributes with the welded vertices' normals
+ * and UVs weighted 1, seams kept as ours keeps them (no flag).  Where
+ * that run stops short of the target, ours runs again at its count
+ * (hlod_eq_js_attr, untimed) and the comparison is made there.
  */
 #include "hlod_clock.h"
 #include "atomic_file.h"
@@ -59,6 +63,9 @@
 #define MAX_RATIOS 16
 #define TARGET_MEAN_RATIO 0.75
 #define REACH_SLACK 1.02  /* reached within 2% of the requested count */
+/* simplifyWithAttributes' weight for normals and UVs: "around 1.0" for
+ * normalised attributes, as its README advises (UVs span about 1). */
+#define ATTR_WEIGHT 1.0f
 
 static const char *const default_meshes[] = {"bunny00.off", "fandisk.off", "mech-holes-shark.off",
                                               "spider.obj", "2CylinderEngine.glb", "Wuson.ply"};
@@ -164,9 +171,12 @@ static size_t time_meshopt(const hlod_mesh *m, const uint32_t *indices, const fl
 
 /* The npm package's simplifier through node (tests/bench/meshopt_js.mjs),
  * when node and the package are installed (npm ci in the source tree):
- * returns the index count into dest, or (size_t)-1 when it cannot run. */
+ * positions only (n_attr 0: simplify, Prune + Permissive) or with n_attr
+ * attributes per vertex and their weights (simplifyWithAttributes, Prune).
+ * Returns the index count into dest, or (size_t)-1 when it cannot run. */
 static size_t time_meshopt_js(const char *tmp_dir, const uint32_t *indices, size_t n_idx,
-                              const float *pos, size_t vertex_count, size_t target_index_count,
+                              const float *pos, size_t vertex_count, const float *attr,
+                              const float *weights, uint32_t n_attr, size_t target_index_count,
                               uint32_t *dest, double *seconds)
 {
     char pkg[4096], in[4200], out[4200], cmd[16384];
@@ -180,9 +190,12 @@ static size_t time_meshopt_js(const char *tmp_dir, const uint32_t *indices, size
     FILE *f = fopen(in, "wb");
     if (!f)
         return (size_t)-1;
-    uint32_t head[3] = {(uint32_t)vertex_count, (uint32_t)n_idx, (uint32_t)target_index_count};
+    uint32_t head[4] = {(uint32_t)vertex_count, (uint32_t)n_idx, (uint32_t)target_index_count,
+                        n_attr};
     int ok = fwrite(head, sizeof head, 1, f) == 1 &&
              fwrite(pos, 3 * sizeof(float), vertex_count, f) == vertex_count &&
+             (!n_attr || (fwrite(attr, n_attr * sizeof(float), vertex_count, f) == vertex_count &&
+                          fwrite(weights, sizeof(float), n_attr, f) == n_attr)) &&
              fwrite(indices, sizeof(uint32_t), n_idx, f) == n_idx;
     ok &= fclose(f) == 0;
     snprintf(cmd, sizeof cmd, "node '%s/tests/bench/meshopt_js.mjs' '%s' '%s'", HLOD_SOURCE_DIR, in,
@@ -315,8 +328,9 @@ static hlod_result write_csv(const char *path, const row *rows, int n, const hlo
                   "runs\n");
     for (int i = 0; i < n; i++) {
         const row *w = &rows[i];
-        if (!strcmp(w->simplifier, "meshopt_js") && !w->measured)
-            continue; /* not installed (or failed): no row */
+        if (!w->measured && (!strncmp(w->simplifier, "meshopt_js", 10) ||
+                             !strcmp(w->simplifier, "hlod_eq_js_attr")))
+            continue; /* not installed, failed or not needed: no row */
         /* Mesh names with a comma or quote get CSV quoting. */
         if (strpbrk(w->mesh, ",\"")) {
             fputc('"', f.fp);
@@ -353,9 +367,14 @@ typedef struct summary {
     int missed_ours, missed_meshopt; /* pairs where each missed the target */
 } summary;
 
-/* Rows come in fours: meshopt, hlod (both at the requested target),
- * hlod_eq (at meshopt's count), meshopt_js (measured only when installed). */
-#define GROUP 4
+/* Rows come in sixes: meshopt, hlod (both at the requested target),
+ * hlod_eq (at meshopt's count), meshopt_js and meshopt_js_attr (measured
+ * only when installed), hlod_eq_js_attr (ours at meshopt_js_attr's count,
+ * measured only where it stopped short of the target). */
+#define GROUP 6
+#define ROW_JS 3
+#define ROW_JS_ATTR 4
+#define ROW_EQ_JS_ATTR 5
 
 static double pair_ratio(double ours, double theirs)
 {
@@ -398,6 +417,29 @@ static summary summarise(const row *rows, int n, int ours_at, int ref_at)
     return s;
 }
 
+/* Ours against the peer in row ref_at, at the requested target where the
+ * peer reached it (within REACH_SLACK), else at the peer's reached count
+ * (row eq_at): the project's rule for a peer that stops short. */
+static summary summarise_fair(const row *rows, int n, int ref_at, int eq_at)
+{
+    summary s = {1, 0, 0, DBL_MAX, 0, 0, 0, 0};
+    double sum = 0;
+    for (int i = 0; i + GROUP - 1 < n; i += GROUP) {
+        const row *m = &rows[i + ref_at];
+        const row *o = m->missed ? &rows[i + eq_at] : &rows[i + 1];
+        s.missed_meshopt += m->missed;
+        if (!m->measured || !o->measured)
+            continue;
+        if (o->d.max > m->d.max)
+            s.all_max_le = 0;
+        sum += pair_ratio(o->d.mean, m->d.mean);
+        s.mean_ratio_pairs++;
+    }
+    s.mean_ratio_avg = s.mean_ratio_pairs ? sum / s.mean_ratio_pairs : NAN;
+    s.min_mtri = 0;
+    return s;
+}
+
 static void json_distances(FILE *fp, const row *m, const row *o, const char *suffix)
 {
     int ok = m->measured && o->measured;
@@ -421,7 +463,7 @@ static void json_summary(FILE *fp, const summary *s, const char *suffix)
 }
 
 static hlod_result write_json(const char *path, const row *rows, int n, const summary *s,
-                              const summary *eq, const summary *js, size_t samples,
+                              const summary *eq, const summary *js, const summary *ja, size_t samples,
                               const hlod_logger *lg)
 {
     hlod_atomic_file f;
@@ -460,7 +502,7 @@ static hlod_result write_json(const char *path, const row *rows, int n, const su
         json_distances(fp, m, o, "");
         fprintf(fp, ",\n     ");
         json_distances(fp, m, e, "_eq");
-        const row *j = &rows[i + 3];
+        const row *j = &rows[i + ROW_JS];
         fprintf(fp, ",\n     \"tris_out_meshopt_js\": ");
         put_num(fp, j->measured, (double)j->tris_out, "null");
         fprintf(fp, ", \"max_meshopt_js\": ");
@@ -471,12 +513,29 @@ static hlod_result write_json(const char *path, const row *rows, int n, const su
         put_num(fp, j->measured, j->seconds, "null");
         fprintf(fp, ", ");
         json_distances(fp, j, o, "_js");
+        const row *a = &rows[i + ROW_JS_ATTR], *ae = &rows[i + ROW_EQ_JS_ATTR];
+        fprintf(fp, ",\n     \"tris_out_meshopt_js_attr\": ");
+        put_num(fp, a->measured, (double)a->tris_out, "null");
+        fprintf(fp, ", \"missed_target_meshopt_js_attr\": %s", a->missed ? "true" : "false");
+        fprintf(fp, ", \"max_meshopt_js_attr\": ");
+        put_num(fp, a->measured, a->d.max, "null");
+        fprintf(fp, ", \"mean_meshopt_js_attr\": ");
+        put_num(fp, a->measured, a->d.mean, "null");
+        fprintf(fp, ", \"seconds_meshopt_js_attr\": ");
+        put_num(fp, a->measured, a->seconds, "null");
+        fprintf(fp, ",\n     ");
+        json_distances(fp, a, o, "_js_attr");
+        fprintf(fp, ", \"tris_out_ours_js_attr_eq\": ");
+        put_num(fp, ae->measured, (double)ae->tris_out, "null");
+        fprintf(fp, ", ");
+        json_distances(fp, a, ae, "_js_attr_eq");
         fprintf(fp, "}%s\n", i + GROUP < n ? "," : "");
     }
     fprintf(fp, "  ],\n");
     json_summary(fp, s, "");
     json_summary(fp, eq, "_eq");
     json_summary(fp, js, "_js");
+    json_summary(fp, ja, "_js_attr");
     fprintf(fp, "  \"mean_ratio_target\": %.17g,\n", TARGET_MEAN_RATIO);
     fprintf(fp, "  \"pairs_missed_target_ours\": %d,\n  \"pairs_missed_target_meshopt\": %d,\n",
             s->missed_ours, s->missed_meshopt);
@@ -486,6 +545,54 @@ static hlod_result write_json(const char *path, const row *rows, int n, const su
     put_num(fp, s->time_ratio_max > 0, s->time_ratio_max, "null");
     fprintf(fp, "\n}\n");
     return hlod_atomic_commit(&f, lg);
+}
+
+/* meshoptimizer 1.3's simplifyWithAttributes (through node) at the
+ * requested target, into row ra and *out, which shares mo's welded
+ * vertices; returns 1 when it ran. */
+static int js_attr_run(const char *out_dir, const uint32_t *widx, size_t n_idx, const float *wpos,
+                       const float *wattr, const float *weights, uint32_t n_attr, size_t wn,
+                       size_t target, uint32_t *dest, const hlod_mesh *mo, row *ra, hlod_mesh *out)
+{
+    ra->simplifier = "meshopt_js_attr";
+    ra->seconds = 0;
+    ra->tris_out = 0;
+    ra->missed = 0;
+    ra->runs = 0;
+    ra->measured = 0;
+    size_t n = dest && wattr && make_dirs(out_dir)
+                   ? time_meshopt_js(out_dir, widx, n_idx, wpos, wn, wattr, weights, n_attr,
+                                     3 * target, dest, &ra->seconds)
+                   : (size_t)-1;
+    if (n == (size_t)-1)
+        return 0;
+    ra->tris_out = n / 3;
+    ra->missed = (double)ra->tris_out > REACH_SLACK * (double)target;
+    *out = *mo;
+    out->indices = dest;
+    out->tri_count = ra->tris_out;
+    return 1;
+}
+
+/* The table against simplifyWithAttributes. */
+static void print_js_attr(const row *rows, int n, const summary *sa)
+{
+    printf("\nagainst meshoptimizer's current simplifyWithAttributes (npm; normals, and UVs where "
+           "the mesh has them, weighted %g; seams kept), at the requested target where it "
+           "reached it, else at its count:\n", ATTR_WEIGHT);
+    printf("%-22s %6s %8s %8s %8s %8s %8s %s\n", "mesh", "ratio", "target", "js_attr", "ours", "max",
+           "mean", "at");
+    for (int i = 0; i + GROUP - 1 < n; i += GROUP) {
+        const row *a = &rows[i + ROW_JS_ATTR];
+        const row *o = a->missed ? &rows[i + ROW_EQ_JS_ATTR] : &rows[i + 1];
+        if (!a->measured || !o->measured)
+            continue;
+        printf("%-22s %6g %8zu %8zu %8zu %8.3f %8.3f %s\n", a->mesh, a->ratio, a->tris_target,
+               a->tris_out, o->tris_out, pair_ratio(o->d.max, a->d.max),
+               pair_ratio(o->d.mean, a->d.mean), a->missed ? "its count" : "target");
+    }
+    printf("our max <= its max on every pair: %s; average mean ratio %.3f\n",
+           sa->all_max_le ? "yes" : "no", sa->mean_ratio_avg);
 }
 
 /* ---- main ----------------------------------------------------------------- */
@@ -606,7 +713,12 @@ int main(int argc, char **argv)
         double *wposd = malloc(nv * 3 * sizeof *wposd + 1);
         uint32_t *dest = malloc(m->tri_count * 3 * sizeof *dest + 1);
         uint32_t *remap = malloc(nv * sizeof *remap + 1), *widx = malloc(m->tri_count * 3 * sizeof *widx + 1);
-        if (!pos || !uv || !wpos || !wposd || !dest || !remap || !widx) {
+        /* welded attributes for simplifyWithAttributes: the normal, then the UV */
+        uint32_t n_attr = m->uvs ? 5 : 3;
+        float *wattr = malloc(nv * n_attr * sizeof *wattr + 1), *wtmp = malloc(nv * 3 * sizeof *wtmp + 1);
+        if (!pos || !uv || !wpos || !wposd || !dest || !remap || !widx || !wattr || !wtmp) {
+            free(wattr);
+            free(wtmp);
             free(pos);
             free(uv);
             free(wpos);
@@ -631,9 +743,28 @@ int main(int argc, char **argv)
         for (size_t v = 0; v < nv; v++)
             if (remap[v] != ~0u)
                 memcpy(wposd + 3 * (size_t)remap[v], m->positions + 3 * v, 3 * sizeof(double));
+        const float weights[5] = {ATTR_WEIGHT, ATTR_WEIGHT, ATTR_WEIGHT, ATTR_WEIGHT, ATTR_WEIGHT};
+        {
+            hlod_mesh wm = {0};
+            wm.vertex_count = wn;
+            wm.positions = wposd;
+            wm.tri_count = m->tri_count;
+            wm.indices = widx;
+            if (hlod_mesh_vertex_normals(&wm, wtmp) != HLOD_OK)
+                memset(wtmp, 0, wn * 3 * sizeof *wtmp);
+            for (size_t v = 0; v < wn; v++)
+                memcpy(wattr + n_attr * v, wtmp + 3 * v, 3 * sizeof *wtmp);
+            if (m->uvs) {
+                meshopt_remapVertexBuffer(wtmp, uv, nv, 2 * sizeof(float), remap);
+                for (size_t v = 0; v < wn; v++)
+                    memcpy(wattr + n_attr * v + 3, wtmp + 2 * v, 2 * sizeof *wtmp);
+            }
+            free(wtmp);
+        }
 
         for (int j = 0; j < n_ratios; j++) {
-            row *rm = &rows[n_rows++], *ro = &rows[n_rows++], *re = &rows[n_rows++], *rj = &rows[n_rows++];
+            row *rm = &rows[n_rows], *ro = rm + 1, *re = rm + 2, *rj = rm + ROW_JS;
+            n_rows += GROUP;
             const char *slash = strrchr(paths[i], '/');
             size_t target = (size_t)(ratios[j] * (double)m->tri_count), n_idx = 0;
             *rm = (row){.mesh = slash ? slash + 1 : paths[i], .ratio = ratios[j], .simplifier = "meshopt",
@@ -684,8 +815,8 @@ int main(int argc, char **argv)
             rj->runs = 0;
             uint32_t *destj = malloc(3 * m->tri_count * sizeof *destj);
             size_t nj = destj && make_dirs(out_dir)
-                            ? time_meshopt_js(out_dir, widx, 3 * m->tri_count, wpos, wn, 3 * target,
-                                              destj, &rj->seconds)
+                            ? time_meshopt_js(out_dir, widx, 3 * m->tri_count, wpos, wn, NULL, NULL, 0,
+                                              3 * target, destj, &rj->seconds)
                             : (size_t)-1;
             hlod_mesh mj = mo;
             mj.indices = destj;
@@ -694,6 +825,30 @@ int main(int argc, char **argv)
                 rj->missed = (double)rj->tris_out > REACH_SLACK * (double)target;
                 mj.tri_count = rj->tris_out;
             }
+            /* ... and with the attributes weighted, seams kept */
+            row *ra = rm + ROW_JS_ATTR, *rae = rm + ROW_EQ_JS_ATTR;
+            hlod_mesh ma = {0}, eq_a = {0};
+            uint32_t *desta = malloc(3 * m->tri_count * sizeof *desta);
+            *ra = *rae = *rm;
+            rae->simplifier = "hlod_eq_js_attr";
+            rae->measured = 0;
+            if (js_attr_run(out_dir, widx, 3 * m->tri_count, wpos, wattr, weights, n_attr, wn,
+                            target, desta, &mo, ra, &ma) &&
+                ra->missed) {
+                /* it stopped short: ours at its count too (untimed) */
+                rae->tris_target = ra->tris_out ? ra->tris_out : 1;
+                double t_a;
+                if (r == HLOD_OK && time_ours(m, rae->tris_target, &eq_a, &t_a) == HLOD_OK) {
+                    rae->tris_out = eq_a.tri_count;
+                    rae->missed = (double)rae->tris_out > REACH_SLACK * (double)rae->tris_target;
+                    if (measure(m, &eq_a, samples, rae) != HLOD_OK)
+                        rae->measured = 0;
+                }
+            }
+            if (ra->tris_out && measure(m, &ma, samples, ra) != HLOD_OK)
+                ra->measured = 0;
+            free(desta);
+            hlod_mesh_free(&eq_a);
 
             hlod_result r1 = measure(m, &mo, samples, rm);
             hlod_result r2 = measure(m, &ours, samples, ro);
@@ -716,6 +871,10 @@ int main(int argc, char **argv)
             print_row(re);
             if (nj != (size_t)-1)
                 print_row(rj);
+            if (ra->measured)
+                print_row(ra);
+            if (rae->measured)
+                print_row(rae);
         }
         free(pos);
         free(uv);
@@ -724,10 +883,12 @@ int main(int argc, char **argv)
         free(dest);
         free(remap);
         free(widx);
+        free(wattr);
     }
 
     summary s = summarise(rows, n_rows, 1, 0), se = summarise(rows, n_rows, 2, 0),
-            sj = summarise(rows, n_rows, 1, 3);
+            sj = summarise(rows, n_rows, 1, ROW_JS),
+            sa = summarise_fair(rows, n_rows, ROW_JS_ATTR, ROW_EQ_JS_ATTR);
     printf("\nsummary: ours / meshopt, both at the requested target (eq: ours at meshopt's count)\n");
     printf("%-22s %6s %8s %8s %8s %8s %8s %8s %8s %5s\n", "mesh", "ratio", "target", "meshopt",
            "ours", "max", "mean", "max_eq", "mean_eq", "time");
@@ -767,6 +928,7 @@ int main(int argc, char **argv)
         }
         printf("our max <= its max on every pair: %s; average mean ratio %.3f\n",
                sj.all_max_le ? "yes" : "no", sj.mean_ratio_avg);
+        print_js_attr(rows, n_rows, &sa);
     } else {
         printf("meshoptimizer's npm package: not installed (npm ci in the source tree), not compared\n");
     }
@@ -780,7 +942,7 @@ int main(int argc, char **argv)
         goto done;
     }
     if (write_csv(csv, rows, n_rows, &lg) != HLOD_OK ||
-        write_json(json, rows, n_rows, &s, &se, &sj, samples, &lg) != HLOD_OK) {
+        write_json(json, rows, n_rows, &s, &se, &sj, &sa, samples, &lg) != HLOD_OK) {
         hlod_cli_error(PROG, "cannot write %s or %s", csv, json);
         status = 1;
         goto done;
