@@ -247,24 +247,27 @@ static void cone_store(const double axis[3], double c, float out_axis[3], float 
     *out_cos = f < -1 ? -1.0f : f;
 }
 
-/* The cosine of the widest face of p from the unit axis (2: no face with
- * an area); *far_out, that face's unit normal. */
-static double widest_face(const hlod_store_payload_desc *p, const double axis[3], double far_out[3])
+/* A face with an area: its edge cross product and that product's length. */
+typedef struct cone_face {
+    double x[3], len;
+} cone_face;
+
+/* The cosine of the widest of the n faces from the unit axis (2: none);
+ * *far_out, that face's unit normal (the first such face on a tie). */
+static double widest_face(const cone_face *f, size_t n, const double axis[3], double far_out[3])
 {
     double lo = 2;
-    for (size_t t = 0; t < p->tri_count; t++) {
-        double x[3];
-        face_cross(p, t, x);
-        double len = sqrt(x[0] * x[0] + x[1] * x[1] + x[2] * x[2]);
-        if (!(len > 0))
-            continue; /* no area: draws nothing */
-        double d = (x[0] * axis[0] + x[1] * axis[1] + x[2] * axis[2]) / len;
+    size_t at = 0;
+    for (size_t t = 0; t < n; t++) {
+        double d = (f[t].x[0] * axis[0] + f[t].x[1] * axis[1] + f[t].x[2] * axis[2]) / f[t].len;
         if (d < lo) {
             lo = d;
-            for (int k = 0; k < 3; k++)
-                far_out[k] = x[k] / len;
+            at = t;
         }
     }
+    if (lo < 2)
+        for (int k = 0; k < 3; k++)
+            far_out[k] = f[at].x[k] / f[at].len;
     return lo;
 }
 
@@ -278,31 +281,36 @@ static double widest_face(const hlod_store_payload_desc *p, const double axis[3]
  * the minimal enclosing ball's iteration (Badoiu and Clarkson), kept
  * where the widest face is narrowest: the half-angle is never wider than
  * the mean's, and is often much narrower where the faces lean one way.  In
- * double, relative to each face's first corner. */
-static void face_cone(const hlod_store_payload_desc *p, double axis[3], double *cos_out)
+ * double, relative to each face's first corner; each face's cross product
+ * is formed once, not once a round. */
+static hlod_result face_cone(const hlod_store_payload_desc *p, double axis[3], double *cos_out)
 {
+    cone_face *f = malloc(((size_t)p->tri_count + 1) * sizeof *f);
+    if (!f)
+        return HLOD_ERR_NOMEM;
     double sum[3] = {0, 0, 0};
-    int any = 0;
+    size_t n = 0;
     for (size_t t = 0; t < p->tri_count; t++) {
-        double x[3];
+        double *x = f[n].x;
         face_cross(p, t, x);
         double len = sqrt(x[0] * x[0] + x[1] * x[1] + x[2] * x[2]);
         if (!(len > 0))
             continue; /* no area: draws nothing */
         for (int k = 0; k < 3; k++)
             sum[k] += x[k];
-        any = 1;
+        f[n++].len = len;
     }
     double len = sqrt(sum[0] * sum[0] + sum[1] * sum[1] + sum[2] * sum[2]);
-    if (!any || !(len > 0)) {
+    if (!n || !(len > 0)) {
         axis[0] = axis[1] = 0;
         axis[2] = 1;
-        *cos_out = any ? -1 : 2;
-        return;
+        *cos_out = n ? -1 : 2;
+        free(f);
+        return HLOD_OK;
     }
     for (int k = 0; k < 3; k++)
         axis[k] = sum[k] / len;
-    double far[3], best = widest_face(p, axis, far), cur[3];
+    double far[3], best = widest_face(f, n, axis, far), cur[3];
     memcpy(cur, axis, sizeof cur);
     double c = best;
     for (int round = 0; round < CONE_AXIS_ROUNDS && c < 1; round++) {
@@ -315,13 +323,15 @@ static void face_cone(const hlod_store_payload_desc *p, double axis[3], double *
             break;
         for (int k = 0; k < 3; k++)
             cur[k] /= sqrt(n2);
-        c = widest_face(p, cur, far);
+        c = widest_face(f, n, cur, far);
         if (c > best) {
             best = c;
             memcpy(axis, cur, sizeof cur);
         }
     }
     *cos_out = best < -1 ? -1 : best;
+    free(f);
+    return HLOD_OK;
 }
 
 /* face_cone of the faces a raw payload stores: float offsets from the
@@ -337,9 +347,9 @@ static hlod_result raw_face_cone(const hlod_store_payload_desc *p, double axis[3
         pos[i] = (double)(float)(p->positions[i] - p->origin[i % 3]);
     hlod_store_payload_desc d = *p;
     d.positions = pos;
-    face_cone(&d, axis, cone_cos);
+    hlod_result r = face_cone(&d, axis, cone_cos);
     free(pos);
-    return HLOD_OK;
+    return r;
 }
 
 /* Fills the fields of n that p determines (Lakhia eqs. 1-3). */
@@ -504,7 +514,9 @@ static hlod_result serialize_packed(const hlod_store_writer *w, const hlod_store
     d.uvs = uvs;
     d.colors = col;
     derive_node(&d, w->desc.build.c_tex, node);
-    face_cone(&d, axis, cone_cos); /* of the faces as stored, on the grid */
+    r = face_cone(&d, axis, cone_cos); /* of the faces as stored, on the grid */
+    if (r != HLOD_OK)
+        goto done;
     hlod_packed_input in = {
         .flags = node->flags, .vertex_count = p->vertex_count, .tri_count = p->tri_count,
         .tex_tri_count = p->tex_tri_count, .grid = grid, .normals = nrm, .uvs = uvs,

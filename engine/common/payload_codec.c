@@ -116,33 +116,48 @@ static double jpeg_db(const hlod_packed_input *in, const uint8_t *jpeg, unsigned
     return db;
 }
 
-/* The block-coded chain of in's texture, zstd-coded into *out (malloc'ed),
- * and its level 0's PSNR. */
-static hlod_result pack_blocks(const hlod_packed_input *in, uint8_t **out, size_t *bytes,
-                               double *db, const char *name, const hlod_logger *lg)
+/* Level 0 of in's texture as blocks, at the start of a new chain buffer
+ * (*chain, malloc'ed, the whole chain's size), and its PSNR: enough to
+ * choose a codec; blocks_finish completes the chain when blocks win. */
+static hlod_result blocks_top(const hlod_packed_input *in, uint8_t **chain, double *db,
+                              const char *name, const hlod_logger *lg)
+{
+    *chain = NULL;
+    *db = 0;
+    const uint32_t w = in->tex_width, h = in->tex_height, c = in->tex_channels;
+    hlod_result r = HLOD_OK;
+    size_t total = hlod_bc_chain_bytes(w, h), n = (size_t)w * h * c;
+    uint8_t *blocks = total ? malloc(total) : NULL, *dec = malloc(n);
+    if (!blocks || !dec)
+        BAD(HLOD_ERR_NOMEM, "%s: out of memory coding a %ux%u texture as blocks", name, w, h);
+    hlod_bc_encode_top(in->pixels, w, h, c, blocks);
+    hlod_bc_decode_level(blocks, w, h, c, dec, c);
+    *db = hlod_tex_psnr(in->pixels, dec, n);
+    *chain = blocks;
+    blocks = NULL;
+done:
+    free(blocks);
+    free(dec);
+    return r;
+}
+
+/* The levels below level 0 into chain, then the chain zstd-coded into *out
+ * (malloc'ed). */
+static hlod_result blocks_finish(const hlod_packed_input *in, uint8_t *chain, uint8_t **out,
+                                 size_t *bytes, const char *name, const hlod_logger *lg)
 {
     *out = NULL;
     *bytes = 0;
-    *db = 0;
     const uint32_t w = in->tex_width, h = in->tex_height, c = in->tex_channels;
-    uint8_t *blocks = NULL, *dec = NULL, *z = NULL;
-    size_t chain = 0;
-    hlod_result r = hlod_bc_encode_chain(in->pixels, w, h, c, &blocks, &chain);
-    if (r == HLOD_ERR_NOMEM)
-        BAD(r, "%s: out of memory coding a %ux%u texture as blocks", name, w, h);
+    hlod_result r = hlod_bc_encode_below(in->pixels, w, h, c, chain);
+    uint8_t *z = NULL;
     if (r != HLOD_OK)
-        BAD(r, "%s: cannot code a %ux%ux%u texture as blocks", name, w, h, c);
-    size_t n = (size_t)w * h * c;
-    dec = malloc(n);
-    if (!dec)
-        BAD(HLOD_ERR_NOMEM, "%s: out of memory coding a %ux%u texture as blocks", name, w, h);
-    hlod_bc_decode_level(blocks, w, h, c, dec, c);
-    *db = hlod_tex_psnr(in->pixels, dec, n);
-    size_t room = ZSTD_compressBound(chain);
+        BAD(r, "%s: out of memory coding a %ux%u texture as blocks", name, w, h);
+    size_t size = hlod_bc_chain_bytes(w, h), room = ZSTD_compressBound(size);
     z = malloc(room);
     if (!z)
         BAD(HLOD_ERR_NOMEM, "%s: out of memory coding a %ux%u texture as blocks", name, w, h);
-    size_t zn = ZSTD_compress(z, room, blocks, chain, BC_ZSTD_LEVEL);
+    size_t zn = ZSTD_compress(z, room, chain, size, BC_ZSTD_LEVEL);
     if (ZSTD_isError(zn))
         BAD(HLOD_ERR_NOMEM, "%s: zstd cannot code a %ux%u texture: %s", name, w, h,
             ZSTD_getErrorName(zn));
@@ -150,8 +165,6 @@ static hlod_result pack_blocks(const hlod_packed_input *in, uint8_t **out, size_
     *bytes = zn;
     z = NULL;
 done:
-    free(blocks);
-    free(dec);
     free(z);
     return r;
 }
@@ -196,6 +209,7 @@ static hlod_result choose_texture(const hlod_packed_input *in, packed_texture *t
                                   const char *name, const hlod_logger *lg)
 {
     hlod_result r = HLOD_OK;
+    uint8_t *chain = NULL; /* level 0's blocks, the rest only once blocks win */
     size_t raw_tex = (size_t)in->tex_width * in->tex_height * in->tex_channels;
     int jpeg_ok = in->tex_width <= JPEG_MAX_SIDE && in->tex_height <= JPEG_MAX_SIDE;
     if (!(in->jpeg_quality > 0 && jpeg_ok) && raw_tex > UINT32_MAX)
@@ -205,21 +219,23 @@ static hlod_result choose_texture(const hlod_packed_input *in, packed_texture *t
     int grey_or_rgb = in->tex_channels == 1 || in->tex_channels == 3;
     double bc_db = 0;
     if (in->texture_blocks && grey_or_rgb &&
-        (r = pack_blocks(in, &t->bc, &t->bc_bytes, &bc_db, name, lg)) != HLOD_OK)
+        (r = blocks_top(in, &chain, &bc_db, name, lg)) != HLOD_OK)
         goto done;
     t->db = bc_db;
-    if ((!t->bc || bc_db < in->texture_min_db) && in->jpeg_quality > 0 && jpeg_ok &&
+    if ((!chain || bc_db < in->texture_min_db) && in->jpeg_quality > 0 && jpeg_ok &&
         grey_or_rgb) {
         if ((r = pack_texture(in, &t->jpeg, &t->jpeg_bytes, name, lg)) != HLOD_OK)
             goto done;
         t->db = in->texture_blocks ? jpeg_db(in, t->jpeg, t->jpeg_bytes) : 0;
-        if (t->bc && t->db <= bc_db) {
+        if (chain && t->db <= bc_db) {
             tjFree(t->jpeg);
             t->jpeg = NULL;
             t->db = bc_db;
         }
     }
-    if (t->bc && !t->jpeg && (bc_db >= in->texture_min_db || in->jpeg_quality > 0)) {
+    if (chain && !t->jpeg && (bc_db >= in->texture_min_db || in->jpeg_quality > 0)) {
+        if ((r = blocks_finish(in, chain, &t->bc, &t->bc_bytes, name, lg)) != HLOD_OK)
+            goto done;
         t->codec = HLOD_TEX_BC;
         t->levels = hlod_tex_level_count(in->tex_width, in->tex_height);
     } else if (t->jpeg) {
@@ -228,11 +244,8 @@ static hlod_result choose_texture(const hlod_packed_input *in, packed_texture *t
         t->codec = HLOD_TEX_RAW;
         t->db = 0;
     }
-    if (t->codec != HLOD_TEX_BC) {
-        free(t->bc);
-        t->bc = NULL;
-    }
 done:
+    free(chain);
     return r;
 }
 

@@ -99,6 +99,41 @@ static void encode_level(const uint8_t *px, uint32_t lw, uint32_t lh, uint32_t c
         }
 }
 
+void hlod_bc_encode_top(const uint8_t *pixels, uint32_t w, uint32_t h, uint32_t c, uint8_t *chain)
+{
+    encode_level(pixels, w, h, c, chain);
+}
+
+hlod_result hlod_bc_encode_below(const uint8_t *pixels, uint32_t w, uint32_t h, uint32_t c,
+                                 uint8_t *chain)
+{
+    uint32_t levels = hlod_tex_level_count(w, h), lw = w, lh = h;
+    if (levels < 2)
+        return HLOD_OK;
+    /* two scratch levels: level l + 1 is made from level l */
+    size_t scratch = (size_t)half(w) * half(h) * c;
+    uint8_t *a = malloc(scratch), *b = malloc(scratch);
+    if (!a || !b) {
+        free(a);
+        free(b);
+        return HLOD_ERR_NOMEM;
+    }
+    const uint8_t *level = pixels;
+    uint8_t *at = chain + level_blocks(lw, lh) * HLOD_BC_BLOCK_BYTES;
+    for (uint32_t l = 1; l < levels; l++) {
+        uint8_t *next = level == a ? b : a;
+        hlod_tex_downsample(level, lw, lh, next, c);
+        level = next;
+        lw = half(lw);
+        lh = half(lh);
+        encode_level(level, lw, lh, c, at);
+        at += level_blocks(lw, lh) * HLOD_BC_BLOCK_BYTES;
+    }
+    free(a);
+    free(b);
+    return HLOD_OK;
+}
+
 hlod_result hlod_bc_encode_chain(const uint8_t *pixels, uint32_t w, uint32_t h, uint32_t c,
                                  uint8_t **blocks, size_t *bytes)
 {
@@ -108,31 +143,14 @@ hlod_result hlod_bc_encode_chain(const uint8_t *pixels, uint32_t w, uint32_t h, 
         return HLOD_ERR_INVALID_ARG;
     size_t total = hlod_bc_chain_bytes(w, h);
     uint8_t *out = total ? malloc(total) : NULL;
-    /* two scratch levels: level l + 1 is made from level l */
-    size_t scratch = (size_t)half(w) * half(h) * c;
-    uint8_t *a = malloc(scratch), *b = malloc(scratch);
-    if (!out || !a || !b) {
-        free(out);
-        free(a);
-        free(b);
+    if (!out)
         return HLOD_ERR_NOMEM;
+    hlod_bc_encode_top(pixels, w, h, c, out);
+    hlod_result r = hlod_bc_encode_below(pixels, w, h, c, out);
+    if (r != HLOD_OK) {
+        free(out);
+        return r;
     }
-    uint32_t levels = hlod_tex_level_count(w, h), lw = w, lh = h;
-    const uint8_t *level = pixels;
-    uint8_t *at = out;
-    for (uint32_t l = 0; l < levels; l++) {
-        encode_level(level, lw, lh, c, at);
-        at += level_blocks(lw, lh) * HLOD_BC_BLOCK_BYTES;
-        if (l + 1 < levels) {
-            uint8_t *next = level == a ? b : a;
-            hlod_tex_downsample(level, lw, lh, next, c);
-            level = next;
-            lw = half(lw);
-            lh = half(lh);
-        }
-    }
-    free(a);
-    free(b);
     *blocks = out;
     *bytes = total;
     return HLOD_OK;

@@ -62,6 +62,14 @@ void hlod_tex_downsample(const uint8_t *src, uint32_t sw, uint32_t sh, uint8_t *
 hlod_result hlod_bc_encode_chain(const uint8_t *pixels, uint32_t w, uint32_t h, uint32_t c,
                                  uint8_t **blocks, size_t *bytes);
 
+/* hlod_bc_encode_chain in two steps, for a caller that may stop after
+ * level 0: the top level's blocks into the start of chain (a buffer of
+ * hlod_bc_chain_bytes(w, h)), then the levels below it (HLOD_ERR_NOMEM).
+ * c is 1 or 3, w and h at least 1; the bytes equal the one-step call's. */
+void hlod_bc_encode_top(const uint8_t *pixels, uint32_t w, uint32_t h, uint32_t c, uint8_t *chain);
+hlod_result hlod_bc_encode_below(const uint8_t *pixels, uint32_t w, uint32_t h, uint32_t c,
+                                 uint8_t *chain);
+
 /* Decodes one level's blocks (lw x lh texels, ceil(lw/4) * ceil(lh/4)
  * blocks) into out: out_c bytes a texel (BC1: 3 RGB or 4 RGBA with alpha
  * 255; BC4: 1).  c is the texture's stored channels (1: BC4, 3: BC1). */
