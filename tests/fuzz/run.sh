@@ -28,7 +28,8 @@
 # Prints a table (executions, exec/s, corpus, crashes per harness) and a
 # last line "fuzz: ..." that tests/run.sh shows in its summary.  Exits
 # non-zero on any crash, leak, timeout or build failure.
-# Environment: FUZZ_SECONDS (20), FUZZ_JOBS (make -j, 2), CC/CXX (clang).
+# Environment: FUZZ_SECONDS (20), FUZZ_JOBS (make -j and harnesses run at
+# once, 2), CC/CXX (clang).
 set -uo pipefail
 
 cd "$(dirname "$0")/../.." || exit 1
@@ -85,24 +86,19 @@ fi
 # This run's crashing inputs (earlier runs' stay in their own folders).
 ART=$BUILD/artifacts/$(date +%Y%m%d-%H%M%S)
 mkdir -p "$ART"
-rows=()
-total_execs=0
-total_crashes=0
-failed=0
-for h in "${harnesses[@]}"; do
-    bin=$BUILD/bin/fuzz_$h
-    seed_dir=$ROOT/tests/fuzz/corpus/$h
-    work=$BUILD/corpus/$h
-    log=$BUILD/fuzz-$h.log
+# fuzz_one H: replays H's corpus, fuzzes it, and writes its table row to
+# $BUILD/row-H ("CRASHES EXECS ROW...").  Harnesses run FUZZ_JOBS at a
+# time, each libFuzzer process on one core.
+fuzz_one() {
+    local h=$1 bin=$BUILD/bin/fuzz_$1 seed_dir=$ROOT/tests/fuzz/corpus/$1
+    local work=$BUILD/corpus/$1 log=$BUILD/fuzz-$1.log replay_rc fuzz_rc=0
     mkdir -p "$work"
-
     # 1. every committed input once (the regression inputs among them)
     echo "==> fuzz $h: replaying $(find "$seed_dir" -type f | wc -l) corpus inputs"
     "$bin" -runs=0 -timeout=10 -rss_limit_mb=2048 -artifact_prefix="$ART/$h-" \
         "$seed_dir" >"$log" 2>&1
     replay_rc=$?
     # 2. a time-boxed run: new inputs go to $work, seeds are read only
-    fuzz_rc=0
     if [ $replay_rc -eq 0 ]; then
         echo "==> fuzz $h: ${SECONDS_EACH}s"
         "$bin" -max_total_time="$SECONDS_EACH" -timeout=10 -rss_limit_mb=2048 \
@@ -110,22 +106,46 @@ for h in "${harnesses[@]}"; do
             "$work" "$seed_dir" >>"$log" 2>&1
         fuzz_rc=$?
     fi
-
+    local execs rate corpus crashes status=ok
     execs=$(grep -o 'stat::number_of_executed_units: *[0-9]*' "$log" | tail -n 1 | grep -o '[0-9]*$')
     rate=$(grep -o 'stat::average_exec_per_sec: *[0-9]*' "$log" | tail -n 1 | grep -o '[0-9]*$')
     corpus=$(ls "$work" | wc -l)
     crashes=$(ls "$ART" | grep -c "^$h-" || true)
-    status=ok
     if [ $replay_rc -ne 0 ] || [ $fuzz_rc -ne 0 ] || [ "$crashes" -gt 0 ]; then
         status=FAIL
-        failed=1
         [ "$crashes" -gt 0 ] || crashes=1
         echo "fuzz $h FAILED (replay exit $replay_rc, fuzz exit $fuzz_rc); log: $log" >&2
         grep -E '^(==[0-9]+==ERROR|SUMMARY|.*runtime error)|Test unit written' "$log" | head -n 20 >&2
     fi
-    total_execs=$((total_execs + ${execs:-0}))
+    printf '%s %s %-8s %12s %9s %8s %8s  %s\n' "$crashes" "${execs:-0}" "$h" "${execs:-0}" \
+        "${rate:-0}" "$corpus" "$crashes" "$status" >"$BUILD/row-$h"
+}
+
+running=0
+for h in "${harnesses[@]}"; do
+    rm -f "$BUILD/row-$h"
+    fuzz_one "$h" &
+    running=$((running + 1))
+    if [ $running -ge "$JOBS" ]; then
+        wait -n
+        running=$((running - 1))
+    fi
+done
+wait
+
+rows=()
+total_execs=0
+total_crashes=0
+failed=0
+for h in "${harnesses[@]}"; do
+    if ! read -r crashes execs row <"$BUILD/row-$h"; then
+        crashes=1 execs=0 row=$(printf '%-8s %12s %9s %8s %8s  %s' "$h" 0 0 0 1 FAIL)
+        echo "fuzz $h: no result (the harness's shell died)" >&2
+    fi
+    [ "$crashes" -gt 0 ] && failed=1
+    total_execs=$((total_execs + execs))
     total_crashes=$((total_crashes + crashes))
-    rows+=("$(printf '%-8s %12s %9s %8s %8s  %s' "$h" "${execs:-0}" "${rate:-0}" "$corpus" "$crashes" "$status")")
+    rows+=("$row")
 done
 
 echo
