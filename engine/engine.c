@@ -254,6 +254,12 @@ hlod_result hlod_engine_create(const hlod_store *store, const hlod_engine_desc *
     r = hlod_selection_init(&e->sel, store, &e->d, &e->st);
     if (r == HLOD_OK && !hlod_occlusion_init(&e->occ, &e->d.allocator, e->node_count))
         r = HLOD_ERR_NOMEM;
+    /* before any upload: the lumigraph's passes draw every node's own arrays */
+    if (e->d.renderer)
+        hlod_renderer_set_batch(e->d.renderer,
+                                hlod_policy_has(e->d.policy, HLOD_PT_LUMI) || e->d.batch < 0
+                                    ? 0
+                                    : e->d.batch_tris);
     if (r == HLOD_OK)
         r = hlod_residency_init(&e->res, store, &e->d, &e->st);
     if (r == HLOD_OK && hlod_policy_has(e->d.policy, HLOD_PT_RZB))
@@ -995,6 +1001,7 @@ hlod_result hlod_engine_frame(hlod_engine *e, const hlod_camera *cam, double dt,
         long x = hlod_excuse_begin(); /* GL may wait for the driver's threads */
         draw_frame(e, &fcam, cam, &view);
         hlod_excuse_end(x);
+        e->st.gl_draws = hlod_gpu_draw_calls(e->d.renderer);
     }
     double measured = e->d.time_model ? e->d.time_model(e->d.time_model_user, &e->st)
                                       : hlod_now_ms() - t_start;

@@ -134,6 +134,16 @@ enum { MODE_TEXTURE = 0, MODE_VERTEX_COLOR = 1, MODE_FLAT = 2 };
 /* Colour of untextured geometry without vertex colours: hlod_material's
  * default diffuse. */
 #define DEFAULT_GREY 0.8f
+#define DEFAULT_GREY_BYTE 204 /* 0.8 x 255, exactly */
+
+/* A batched node's vertex, as its batch buffer holds it (stride 28). */
+typedef struct batch_vertex {
+    float pos[3], nrm[3];
+    uint8_t rgba[4];
+} batch_vertex;
+
+/* Vertices a batch buffer holds before it is drawn (28 MiB). */
+#define BATCH_MAX_VERTICES (1u << 20)
 
 struct hlod_renderer {
     gl_table gl;
@@ -171,6 +181,15 @@ struct hlod_renderer {
         GLint u_color, u_depth;
         uint32_t w, h;          /* the textures' size */
     } comp;
+    uint32_t batch_tris;        /* hlod_renderer_set_batch */
+    uint32_t draw_calls;        /* since hlod_gpu_begin */
+    struct batch {              /* small nodes drawn together: [normals][culled] */
+        batch_vertex *v;
+        uint32_t *i;
+        size_t nv, ni, cap_v, cap_i;
+        GLuint vao, vbo, ibo;
+        int failed;             /* could not grow: logged once */
+    } batch[2][2];
     struct {                    /* the Grid-Lumigraph client (hlod_gpu_lumi_*) */
         GLuint prog, bg_prog, bg_vao, tex[2]; /* colour (RGB8), depth codes (R16) arrays */
         GLuint depth_prog;      /* the depth pre-pass */
@@ -519,6 +538,35 @@ hlod_result hlod_renderer_create(hlod_gl_get_proc get_proc, const hlod_logger *l
 static void lumi_free(hlod_renderer *r);
 
 /* called from the render thread, context current */
+static void batches_free(hlod_renderer *r)
+{
+    for (int n = 0; n < 2; n++)
+        for (int c = 0; c < 2; c++) {
+            struct batch *b = &r->batch[n][c];
+            if (b->vao)
+                r->gl.DeleteVertexArrays(1, &b->vao);
+            if (b->vbo)
+                r->gl.DeleteBuffers(1, &b->vbo);
+            if (b->ibo)
+                r->gl.DeleteBuffers(1, &b->ibo);
+            free(b->v);
+            free(b->i);
+            memset(b, 0, sizeof *b);
+        }
+}
+
+void hlod_renderer_set_batch(hlod_renderer *r, uint32_t max_tris)
+{
+    if (r)
+        r->batch_tris = max_tris;
+}
+
+uint32_t hlod_gpu_draw_calls(const hlod_renderer *r)
+{
+    return r ? r->draw_calls : 0;
+}
+
+/* called from the render thread, context current */
 static void delete_low(hlod_renderer *r)
 {
     if (r->low.fbo)
@@ -535,6 +583,7 @@ void hlod_renderer_destroy(hlod_renderer *r)
         return;
     delete_low(r);
     lumi_free(r);
+    batches_free(r);
     delete_programs(r);
     free(r);
 }
@@ -585,6 +634,7 @@ void hlod_gpu_release(hlod_renderer *r, hlod_gpu_node *g)
         if (g->tex)
             gl->DeleteTextures(1, &g->tex);
     }
+    free(g->cpu);
     memset(g, 0, sizeof *g);
 }
 
@@ -695,6 +745,36 @@ static uint64_t upload_texture(const hlod_renderer *r, const hlod_store_payload 
     return driver_bytes;
 }
 
+/* A small untextured node kept on the CPU for the batches: its vertices
+ * (node-local, as the payload holds them; light grey without colours),
+ * then its indices. */
+static hlod_result upload_batched(const hlod_store_payload *p, hlod_gpu_node *out)
+{
+    size_t n = p->vertex_count, bytes = n * sizeof(batch_vertex) + (size_t)p->index_count * 4;
+    batch_vertex *v = malloc(bytes);
+    if (!v)
+        return HLOD_ERR_NOMEM;
+    for (size_t k = 0; k < n; k++) {
+        memcpy(v[k].pos, p->positions + 3 * k, sizeof v[k].pos);
+        if (p->normals)
+            memcpy(v[k].nrm, p->normals + 3 * k, sizeof v[k].nrm);
+        else
+            v[k].nrm[0] = v[k].nrm[1] = v[k].nrm[2] = 0;
+        if (p->colors)
+            memcpy(v[k].rgba, p->colors + 4 * k, 4);
+        else
+            v[k].rgba[0] = v[k].rgba[1] = v[k].rgba[2] = DEFAULT_GREY_BYTE, v[k].rgba[3] = 255;
+    }
+    memcpy(v + n, p->indices, (size_t)p->index_count * 4);
+    out->cpu = v;
+    out->vertex_count = (uint32_t)n;
+    out->index_count = p->index_count;
+    out->tex_index_count = 0;
+    out->bytes = bytes;
+    out->flags = (p->normals ? HLOD_GPU_NORMALS : 0) | HLOD_GPU_BATCHED;
+    return HLOD_OK;
+}
+
 /* called from the render thread, context current */
 hlod_result hlod_gpu_upload(hlod_renderer *r, const hlod_store_payload *p, hlod_gpu_node *out)
 {
@@ -719,6 +799,8 @@ hlod_result hlod_gpu_upload(hlod_renderer *r, const hlod_store_payload *p, hlod_
                   p->node, p->tex_width, p->tex_height, r->max_texture);
         return HLOD_ERR_UNSUPPORTED;
     }
+    if (!textured && r->batch_tris && p->index_count / 3 <= r->batch_tris)
+        return upload_batched(p, out);
     const gl_table *gl = &r->gl;
     take_errors(gl);   /* errors from before are not this upload's */
 
@@ -804,6 +886,10 @@ void hlod_gpu_begin(hlod_renderer *r, const hlod_camera *cam)
         }
     memcpy(r->vp, vp, sizeof vp);
     r->cur = NULL; /* the loop left prog[1][2] in use: the first draw binds its own */
+    r->draw_calls = 0;
+    for (int n = 0; n < 2; n++)
+        for (int c = 0; c < 2; c++)
+            r->batch[n][c].nv = r->batch[n][c].ni = 0;
     gl->ActiveTexture(GL_TEXTURE0);
     /* what nodes without these sections read (current attribute values) */
     gl->VertexAttrib4f(ATTR_NORMAL, 0, 0, 0, 0);
@@ -823,17 +909,148 @@ static const struct program *use(hlod_renderer *r, int normals, int mode, const 
     return p;
 }
 
+/* Draws batch [normals][cull] in one call and empties it. */
+static void flush_batch(hlod_renderer *r, int normals, int cull)
+{
+    struct batch *b = &r->batch[normals][cull];
+    if (!b->ni)
+        return;
+    const gl_table *gl = &r->gl;
+    if (!b->vao) {
+        gl->GenVertexArrays(1, &b->vao);
+        gl->GenBuffers(1, &b->vbo);
+        gl->GenBuffers(1, &b->ibo);
+        gl->BindVertexArray(b->vao);
+        gl->BindBuffer(GL_ARRAY_BUFFER, b->vbo);
+        gl->VertexAttribPointer(ATTR_POSITION, 3, GL_FLOAT, GL_FALSE, sizeof(batch_vertex),
+                                (const void *)offsetof(batch_vertex, pos));
+        gl->EnableVertexAttribArray(ATTR_POSITION);
+        if (normals) {
+            gl->VertexAttribPointer(ATTR_NORMAL, 3, GL_FLOAT, GL_FALSE, sizeof(batch_vertex),
+                                    (const void *)offsetof(batch_vertex, nrm));
+            gl->EnableVertexAttribArray(ATTR_NORMAL);
+        }
+        gl->VertexAttribPointer(ATTR_COLOR, 4, GL_UNSIGNED_BYTE, GL_TRUE, sizeof(batch_vertex),
+                                (const void *)offsetof(batch_vertex, rgba));
+        gl->EnableVertexAttribArray(ATTR_COLOR);
+        gl->BindBuffer(GL_ELEMENT_ARRAY_BUFFER, b->ibo);   /* VAO state */
+    }
+    gl->BindVertexArray(b->vao);
+    gl->BindBuffer(GL_ARRAY_BUFFER, b->vbo);
+    gl->BufferData(GL_ARRAY_BUFFER, (GLsizeiptr)(b->nv * sizeof(batch_vertex)), b->v,
+                   GL_STREAM_DRAW);
+    gl->BufferData(GL_ELEMENT_ARRAY_BUFFER, (GLsizeiptr)(b->ni * 4), b->i, GL_STREAM_DRAW);
+    if (cull != r->culling) {
+        if (cull)
+            gl->Enable(GL_CULL_FACE);
+        else
+            gl->Disable(GL_CULL_FACE);
+        r->culling = cull;
+    }
+    static const float zero[3] = {0, 0, 0};   /* positions are camera-relative already */
+    use(r, normals, MODE_VERTEX_COLOR, zero);
+    gl->DrawElements(GL_TRIANGLES, (GLsizei)b->ni, GL_UNSIGNED_INT, NULL);
+    r->draw_calls++;
+    b->nv = b->ni = 0;
+}
+
+/* Draws every batch (before the frame is read, waited on or blended
+ * over); 1 when one was drawn. */
+static int flush_batches(hlod_renderer *r)
+{
+    int drew = 0;
+    for (int n = 0; n < 2; n++)
+        for (int c = 0; c < 2; c++) {
+            drew |= r->batch[n][c].ni > 0;
+            flush_batch(r, n, c);
+        }
+    return drew;
+}
+
+/* Room in b for nv more vertices and ni more indices; 0 when out of memory. */
+static int batch_room(struct batch *b, size_t nv, size_t ni)
+{
+    if (b->nv + nv > b->cap_v) {
+        size_t cap = b->cap_v ? 2 * b->cap_v : 4096;
+        while (cap < b->nv + nv)
+            cap *= 2;
+        batch_vertex *v = realloc(b->v, cap * sizeof *v);
+        if (!v)
+            return 0;
+        b->v = v;
+        b->cap_v = cap;
+    }
+    if (b->ni + ni > b->cap_i) {
+        size_t cap = b->cap_i ? 2 * b->cap_i : 8192;
+        while (cap < b->ni + ni)
+            cap *= 2;
+        uint32_t *i = realloc(b->i, cap * sizeof *i);
+        if (!i)
+            return 0;
+        b->i = i;
+        b->cap_i = cap;
+    }
+    return 1;
+}
+
+/* Appends count indices of batched node g from first, its vertices moved
+ * by off (float adds, as the vertex shader's a_position + u_offset), in
+ * colour flat when given (depth-colour mode). */
+static void batch_append(hlod_renderer *r, const hlod_gpu_node *g, const float off[3],
+                         uint32_t first, uint32_t count, int cull, const float *flat)
+{
+    int normals = (g->flags & HLOD_GPU_NORMALS) != 0;
+    struct batch *b = &r->batch[normals][cull];
+    size_t nv = g->vertex_count;
+    if (b->nv && b->nv + nv > BATCH_MAX_VERTICES)
+        flush_batch(r, normals, cull);
+    if (!batch_room(b, nv, count)) {
+        flush_batch(r, normals, cull);
+        if (!batch_room(b, nv, count)) {
+            if (!b->failed)
+                hlod_logf(&r->lg, HLOD_LOG_ERROR, "renderer: out of memory batching draws");
+            b->failed = 1;
+            return; /* this node is missing from the frame */
+        }
+    }
+    const batch_vertex *src = g->cpu;
+    batch_vertex *dst = b->v + b->nv;
+    uint8_t rgba[4] = {0, 0, 0, 255};
+    if (flat)
+        for (int k = 0; k < 3; k++)
+            rgba[k] = (uint8_t)(flat[k] * 255.0f + 0.5f);
+    for (size_t k = 0; k < nv; k++) {
+        dst[k] = src[k];
+        dst[k].pos[0] = src[k].pos[0] + off[0];
+        dst[k].pos[1] = src[k].pos[1] + off[1];
+        dst[k].pos[2] = src[k].pos[2] + off[2];
+        if (flat)
+            memcpy(dst[k].rgba, rgba, 4);
+    }
+    const uint32_t *idx = (const uint32_t *)(src + nv) + first;
+    uint32_t base = (uint32_t)b->nv, *out = b->i + b->ni;
+    for (uint32_t k = 0; k < count; k++)
+        out[k] = idx[k] + base;
+    b->nv += nv;
+    b->ni += count;
+}
+
 /* called from the render thread, between begin and end */
 void hlod_gpu_draw(hlod_renderer *r, const hlod_gpu_node *g, const double offset[3],
                    uint32_t depth)
 {
     assert(r && g && offset);
+    const float off[3] = {(float)offset[0], (float)offset[1], (float)offset[2]};
+    int cull = (g->flags & HLOD_GPU_CULL) && !r->wireframe && !r->no_culling;
+    if (g->flags & HLOD_GPU_BATCHED) {
+        batch_append(r, g, off, 0, g->index_count, cull,
+                     r->depth_colors ? depth_palette[depth % 8] : NULL);
+        return;
+    }
     if (!g->vao || !g->index_count)
         return;
     const gl_table *gl = &r->gl;
-    const float off[3] = {(float)offset[0], (float)offset[1], (float)offset[2]};
     int normals = (g->flags & HLOD_GPU_NORMALS) != 0;
-    int cull = (g->flags & HLOD_GPU_CULL) && !r->wireframe && !r->no_culling;
     if (cull != r->culling) {
         if (cull)
             gl->Enable(GL_CULL_FACE);
@@ -847,15 +1064,18 @@ void hlod_gpu_draw(hlod_renderer *r, const hlod_gpu_node *g, const double offset
         const struct program *p = use(r, normals, MODE_FLAT, off);
         gl->Uniform3f(p->u_flat, c[0], c[1], c[2]);
         gl->DrawElements(GL_TRIANGLES, (GLsizei)g->index_count, GL_UNSIGNED_INT, NULL);
+        r->draw_calls++;
         return;
     }
     if (g->tex_index_count) {
         gl->BindTexture(GL_TEXTURE_2D, g->tex);
         use(r, normals, MODE_TEXTURE, off);
         gl->DrawElements(GL_TRIANGLES, (GLsizei)g->tex_index_count, GL_UNSIGNED_INT, NULL);
+        r->draw_calls++;
     }
     if (g->index_count > g->tex_index_count) {
         use(r, normals, MODE_VERTEX_COLOR, off);
+        r->draw_calls++;
         gl->DrawElements(GL_TRIANGLES, (GLsizei)(g->index_count - g->tex_index_count),
                          GL_UNSIGNED_INT, (const void *)(uintptr_t)(4 * (size_t)g->tex_index_count));
     }
@@ -866,10 +1086,17 @@ void hlod_gpu_draw_range(hlod_renderer *r, const hlod_gpu_node *g, const double 
                          uint32_t first, uint32_t count)
 {
     assert(r && g && offset);
-    if (!g->vao || !count || first > g->index_count || count > g->index_count - first)
+    if (!count || first > g->index_count || count > g->index_count - first)
+        return;
+    const float off[3] = {(float)offset[0], (float)offset[1], (float)offset[2]};
+    if (g->flags & HLOD_GPU_BATCHED) {
+        batch_append(r, g, off, first, count, 0, NULL);
+        return;
+    }
+    if (!g->vao)
         return;
     const gl_table *gl = &r->gl;
-    const float off[3] = {(float)offset[0], (float)offset[1], (float)offset[2]};
+    r->draw_calls++;
     if (r->culling) {
         gl->Disable(GL_CULL_FACE);
         r->culling = 0;
@@ -914,6 +1141,7 @@ static void splat_buffer(hlod_renderer *r, const hlod_gpu_splat *s, uint32_t n)
 hlod_result hlod_gpu_blended(hlod_renderer *r, const hlod_gpu_splat *v, uint32_t n)
 {
     assert(r && (v || !n));
+    flush_batches(r); /* blended over what is drawn */
     if (n < 3)
         return HLOD_OK;
     const gl_table *gl = &r->gl;
@@ -927,6 +1155,7 @@ hlod_result hlod_gpu_blended(hlod_renderer *r, const hlod_gpu_splat *v, uint32_t
     gl->BlendFunc(GL_ONE, GL_ONE_MINUS_SRC_ALPHA);
     gl->DepthMask(GL_FALSE);
     gl->DrawArrays(GL_TRIANGLES, 0, (GLsizei)(n - n % 3));
+    r->draw_calls++;
     gl->DepthMask(GL_TRUE);
     gl->Disable(GL_BLEND);
     GLenum e = take_errors(gl);
@@ -941,6 +1170,7 @@ hlod_result hlod_gpu_blended(hlod_renderer *r, const hlod_gpu_splat *v, uint32_t
 hlod_result hlod_gpu_splats(hlod_renderer *r, const hlod_gpu_splat *s, uint32_t n, float size_px)
 {
     assert(r && (s || !n));
+    flush_batches(r);
     if (!n)
         return HLOD_OK;
     const gl_table *gl = &r->gl;
@@ -948,6 +1178,7 @@ hlod_result hlod_gpu_splats(hlod_renderer *r, const hlod_gpu_splat *s, uint32_t 
     gl->Uniform1f(r->splat.u_size, size_px);
     gl->Enable(GL_PROGRAM_POINT_SIZE);
     gl->DrawArrays(GL_POINTS, 0, (GLsizei)n);
+    r->draw_calls++;
     gl->Disable(GL_PROGRAM_POINT_SIZE);
     GLenum e = take_errors(gl);
     if (e != GL_NO_ERROR) {
@@ -992,6 +1223,7 @@ hlod_result hlod_gpu_composite(hlod_renderer *r, const uint8_t *rgba, const floa
                                uint32_t w, uint32_t h)
 {
     assert(r && rgba && depth && w && h);
+    flush_batches(r);
     const gl_table *gl = &r->gl;
     if (!ensure_comp(r, w, h)) {
         hlod_logf(&r->lg, HLOD_LOG_ERROR, "renderer: cannot make the %ux%u composite pass", w, h);
@@ -1089,6 +1321,7 @@ hlod_result hlod_gpu_begin_scaled(hlod_renderer *r, const hlod_camera *cam, uint
 void hlod_gpu_end(hlod_renderer *r, int finish)
 {
     assert(r);
+    flush_batches(r);
     r->gl.BindVertexArray(0);
     if (r->low.on) {
         const gl_table *gl = &r->gl;
@@ -1116,6 +1349,8 @@ void hlod_renderer_set_depth_view(hlod_renderer *r, hlod_depth_view view, void *
 
 const uint32_t *hlod_gpu_depth_view(hlod_renderer *r, uint32_t *stride, uint32_t *mask)
 {
+    if (r && flush_batches(r))
+        r->gl.Finish(); /* the view reads the depth as it stands */
     /* the in-place view is the image's depth, not a small frame's */
     return r && r->depth_view && !r->low.on ? r->depth_view(r->depth_view_user, stride, mask)
                                             : NULL;
@@ -1125,6 +1360,7 @@ const uint32_t *hlod_gpu_depth_view(hlod_renderer *r, uint32_t *stride, uint32_t
 void hlod_gpu_wait(hlod_renderer *r)
 {
     assert(r);
+    flush_batches(r);
     r->gl.Finish();
 }
 
@@ -1134,6 +1370,7 @@ hlod_result hlod_gpu_read_depth(hlod_renderer *r, uint32_t width, uint32_t heigh
 {
     if (!r || !out || !width || !height)
         return HLOD_ERR_INVALID_ARG;
+    flush_batches(r);
     const gl_table *gl = &r->gl;
     take_errors(gl);
     gl->PixelStorei(GL_PACK_ALIGNMENT, 4);
@@ -1510,6 +1747,7 @@ static int invert4(const double m[16], double out[16])
 void hlod_gpu_lumi_depth_begin(hlod_renderer *r)
 {
     assert(r && r->lumi.prog);
+    flush_batches(r);
     const gl_table *gl = &r->gl;
     if (r->culling) {
         gl->Disable(GL_CULL_FACE);
@@ -1538,6 +1776,7 @@ void hlod_gpu_lumi_depth(hlod_renderer *r, const hlod_gpu_node *g, const double 
 void hlod_gpu_lumi_begin(hlod_renderer *r, const hlod_camera *cam, const hlod_gpu_lumi_frame *f)
 {
     assert(r && cam && f && r->lumi.prog);
+    flush_batches(r);
     const gl_table *gl = &r->gl;
     double vp[16], inv[16];
     hlod_camera_view_proj(cam, vp);

@@ -27,13 +27,30 @@ typedef struct hlod_gpu_node {
     uint32_t vao, vbo, ibo, tex;    /* GL names; 0 = none */
     uint32_t index_count;
     uint32_t tex_index_count;       /* the first tex_index_count indices are textured */
-    uint64_t bytes;                 /* GPU bytes (buffers + texture with mipmaps) */
+    uint64_t bytes;                 /* GPU bytes (buffers + texture with mipmaps), or a
+                                       batched node's CPU bytes */
     uint32_t flags;                 /* HLOD_GPU_* */
+    uint32_t vertex_count;          /* a batched node's */
+    void *cpu;                      /* a batched node's vertices, then its indices */
 } hlod_gpu_node;
 
 #define HLOD_GPU_NORMALS 1u         /* vertex normals: lit per vertex */
 #define HLOD_GPU_CULL 2u            /* closed and outward: cull back faces
                                        (the caller sets it) */
+#define HLOD_GPU_BATCHED 4u         /* kept on the CPU and drawn with others (below) */
+
+/* Small nodes drawn together (docs/runtime.md, "Batched draws"): an
+ * untextured payload of at most max_tris triangles uploaded after this
+ * call keeps its vertices on the CPU, no GL objects; each draw of it (or
+ * of a range of it) appends its vertices, moved by the draw's offset in
+ * float as the vertex shader would, to one of four buffers (normals or
+ * not, culled or not), and a buffer is drawn in one call when it fills
+ * and before anything reads or blends over the frame.  The image is the
+ * one the node's own draws make, but for pixels where two nodes' faces
+ * lie at exactly the same depth.  0 (the default): no batching. */
+void hlod_renderer_set_batch(hlod_renderer *r, uint32_t max_tris);
+/* Draw calls issued since hlod_gpu_begin. */
+uint32_t hlod_gpu_draw_calls(const hlod_renderer *r);
 
 /* Uploads a payload.  HLOD_ERR_NOMEM when GL runs out of memory (the node
  * stays absent), HLOD_ERR_INVALID_ARG for an empty payload,

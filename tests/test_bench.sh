@@ -122,7 +122,7 @@ ok $? "deadline_met and toggles_after_60 agree with frames.csv"
 [ "$(($(wc -l <"$T/run/jitter.csv") - 1))" -eq 120 ] && head -1 "$T/run/jitter.csv" | grep -qx "i,ms"
 ok $? "jitter.csv: one row per replay (120)"
 head -1 "$T/run/frames.csv" |
-    grep -q ",toggles_up_ma35,toggles_down_ma35,pixels_drawn,margin,occlusion_hidden,occlusion_tested,occlusion_culled,occlusion_ms,occlusion_check_psnr,occlusion_check_differing,cone_culled,cone_check_differing,splats,splat_px,res_scale,cone_culled_tris,lumi_bytes,lumi_missing$"
+    grep -q ",toggles_up_ma35,toggles_down_ma35,pixels_drawn,margin,occlusion_hidden,occlusion_tested,occlusion_culled,occlusion_ms,occlusion_check_psnr,occlusion_check_differing,cone_culled,cone_check_differing,splats,splat_px,res_scale,cone_culled_tris,lumi_bytes,lumi_missing,gl_draws$"
 ok $? "frames.csv: the new columns come last, in order"
 # dyn_res's keys agree with the frames (all at full size without it)
 scaled=$(awk -F, 'NR == 1 { for (i = 1; i <= NF; i++) at[$i] = i; next }

@@ -169,11 +169,15 @@ static int render_source(hlod_renderer *r, hlod_osmesa *gl, const char *obj, con
 /* The store at full detail from cam into out. */
 static uint32_t g_texture_upload;   /* the texture_upload setting render_full uses */
 
+static uint32_t g_batch_tris; /* render_full's batch_tris */
+
 static void render_full(hlod_renderer *r, hlod_osmesa *gl, hlod_store *s, const hlod_camera *cam,
                         uint8_t *out, hlod_frame_stats *st)
 {
     hlod_engine_desc d = {0};
     d.texture_upload = g_texture_upload;
+    d.batch = g_batch_tris ? 1 : -1;
+    d.batch_tris = g_batch_tris;
     d.policy = HLOD_POLICY_FULL;
     d.renderer = r;
     d.deterministic = 1;
@@ -198,7 +202,7 @@ static double coverage(const uint8_t *rgb, const uint8_t bg[3])
 
 static hlod_renderer *g_r;
 static hlod_osmesa *g_gl;
-static hlod_store *g_near, *g_far, *g_blocks, *g_jpeg;
+static hlod_store *g_near, *g_far, *g_blocks, *g_jpeg, *g_plain;
 static const double g_far_origin[3] = {5e5, 4.1e6, 0};
 static char g_obj[2048];
 
@@ -518,14 +522,14 @@ static void waited_uploads_go(void)
  * the same order, so no depth tie can land otherwise).  It must cull
  * something (else it could not fail), and with the setting off
  * it culls nothing and hides nothing. */
-static void occlusion_makes_no_hole_run(const char *how)
+static void occlusion_makes_no_hole_run(const char *how, hlod_store *store, uint32_t batch)
 {
     static uint8_t a[W * H * 3], b[W * H * 3];
-    const hlod_store_node *root = hlod_store_nodes(g_near);
+    const hlod_store_node *root = hlod_store_nodes(store);
     double lo[3], hi[3];
     memcpy(lo, root->bbox_min, sizeof lo);
     memcpy(hi, root->bbox_max, sizeof hi);
-    for (uint32_t r = 1; r < hlod_store_root_count(g_near); r++)
+    for (uint32_t r = 1; r < hlod_store_root_count(store); r++)
         for (int k = 0; k < 3; k++) {
             lo[k] = root[r].bbox_min[k] < lo[k] ? root[r].bbox_min[k] : lo[k];
             hi[k] = root[r].bbox_max[k] > hi[k] ? root[r].bbox_max[k] : hi[k];
@@ -535,8 +539,10 @@ static void occlusion_makes_no_hole_run(const char *how)
         d.renderer = g_r;
         d.target_ms = 1000; /* detail everywhere the selection can see */
         d.occlusion = on ? 1 : -1;
+        d.batch = batch ? 1 : -1;
+        d.batch_tris = batch;
         hlod_engine *e = NULL;
-        CHECK(hlod_engine_create(g_near, &d, &e) == HLOD_OK);
+        CHECK(hlod_engine_create(store, &d, &e) == HLOD_OK);
         if (!e)
             return;
         uint32_t culled = 0, hidden = 0, worst_differ = 0;
@@ -595,10 +601,47 @@ static void occlusion_makes_no_hole_run(const char *how)
  * OSMesa's own buffer (hlod_osmesa_share_depth). */
 static void occlusion_makes_no_hole(void)
 {
-    occlusion_makes_no_hole_run("depth copied");
+    occlusion_makes_no_hole_run("depth copied", g_near, 0);
     hlod_osmesa_share_depth(g_gl, g_r);
-    occlusion_makes_no_hole_run("depth in place");
+    occlusion_makes_no_hole_run("depth in place", g_near, 0);
+    /* small untextured nodes drawn in batches: the passes' batches are
+     * drawn before the depth is read */
+    occlusion_makes_no_hole_run("batched, depth in place", g_plain, 512);
     hlod_renderer_set_depth_view(g_r, NULL, NULL);
+    occlusion_makes_no_hole_run("batched, depth copied", g_plain, 512);
+}
+
+/* Small untextured nodes drawn together (hlod_renderer_set_batch) make the
+ * image their own draws make, in far fewer draw calls. */
+static void batched_draws_agree(void)
+{
+    static uint8_t a[W * H * 3], b[W * H * 3];
+    hlod_camera cam;
+    double o[3] = {0, 0, 0};
+    city_camera(&cam, o, 70, 40);
+    hlod_frame_stats sa, sb;
+    g_batch_tris = 0;
+    render_full(g_r, g_gl, g_plain, &cam, a, &sa);
+    g_batch_tris = 512;
+    render_full(g_r, g_gl, g_plain, &cam, b, &sb);
+    g_batch_tris = 0;
+    size_t differ = 0;
+    for (size_t i = 0; i < sizeof a; i += 3)
+        differ += a[i] != b[i] || a[i + 1] != b[i + 1] || a[i + 2] != b[i + 2];
+    double p = differ ? psnr(a, b) : INFINITY;
+    uint8_t bg[3] = {a[0], a[1], a[2]};
+    fprintf(stderr, "  full detail, %u nodes: %u draw calls one by one, %u batched; %zu pixels "
+            "differ (PSNR %.1f dB)\n", sa.nodes_drawn, sa.gl_draws, sb.gl_draws, differ, p);
+    CHECK(coverage(a, bg) > 0.2);
+    CHECK(sa.nodes_drawn == sb.nodes_drawn && sa.tris_drawn == sb.tris_drawn);
+    CHECKF(sa.gl_draws >= sa.nodes_drawn && 8 * sb.gl_draws <= sa.gl_draws,
+           "%u draw calls one by one, %u batched, for %u nodes", sa.gl_draws, sb.gl_draws,
+           sa.nodes_drawn);
+    CHECKF(differ <= (size_t)W * H / 1000 && p >= 50, "%zu pixels differ, PSNR %.2f dB", differ, p);
+    if (differ > (size_t)W * H / 1000 || p < 50 || getenv("HLOD_TEST_SAVE")) {
+        save("batch-off", a);
+        save("batch-on", b);
+    }
 }
 
 int main(void)
@@ -618,7 +661,11 @@ int main(void)
              check_sh("'%s/hlod-build' '%s/near.obj' -o '%s/blocks.hlod' --desired-tris 300 "
                       "--texture-min-db 0 --quiet", bin, tmp, tmp) == 0 &&
              check_sh("'%s/hlod-build' '%s/near.obj' -o '%s/jpeg.hlod' --desired-tris 300 "
-                      "--texture-blocks off --quiet", bin, tmp, tmp) == 0;
+                      "--texture-blocks off --quiet", bin, tmp, tmp) == 0 &&
+             check_sh("'%s/hlod-gen-city' --preset tiny --untextured -o '%s/plain.obj' --quiet", bin,
+                      tmp) == 0 &&
+             check_sh("'%s/hlod-build' '%s/plain.obj' -o '%s/plain.hlod' --desired-tris 300 --quiet",
+                      bin, tmp, tmp) == 0;
     CHECK(ok);
     char p[2048];
     snprintf(p, sizeof p, "%s/near.hlod", tmp);
@@ -629,13 +676,16 @@ int main(void)
     CHECK(ok && hlod_store_open(p, NULL, &g_blocks) == HLOD_OK);
     snprintf(p, sizeof p, "%s/jpeg.hlod", tmp);
     CHECK(ok && hlod_store_open(p, NULL, &g_jpeg) == HLOD_OK);
+    snprintf(p, sizeof p, "%s/plain.hlod", tmp);
+    CHECK(ok && hlod_store_open(p, NULL, &g_plain) == HLOD_OK);
     CHECK(hlod_osmesa_create(W, H, NULL, &g_gl) == HLOD_OK);
     CHECK(g_gl && hlod_renderer_create(hlod_osmesa_get_proc(), NULL, &g_r) == HLOD_OK);
-    if (g_near && g_far && g_blocks && g_jpeg && g_r) {
+    if (g_near && g_far && g_blocks && g_jpeg && g_plain && g_r) {
         CHECK(hlod_store_get_header(g_near)->depth_count >= 2);
         RUN(full_detail_matches_source);
         RUN(far_origin_same_image);
         RUN(texture_upload_modes_agree);
+        RUN(batched_draws_agree);
         RUN(generous_target_converges);
         RUN(waited_uploads_go);
         RUN(solid_blocks_cull_invisibly);
@@ -648,6 +698,7 @@ int main(void)
     hlod_store_close(g_far);
     hlod_store_close(g_blocks);
     hlod_store_close(g_jpeg);
+    hlod_store_close(g_plain);
     if (check_failures_ == 0)
         check_sh("rm -rf '%s'", tmp);
     return check_done();

@@ -772,7 +772,7 @@ static hlod_result write_frames_csv(const char *dir, const frame_rec *r, long n,
                 "pixels_drawn,margin,occlusion_hidden,occlusion_tested,occlusion_culled,"
                 "occlusion_ms,occlusion_check_psnr,occlusion_check_differing,cone_culled,"
                 "cone_check_differing,splats,splat_px,res_scale,cone_culled_tris,lumi_bytes,"
-                "lumi_missing\n");
+                "lumi_missing,gl_draws\n");
     for (long i = 0; i < n; i++) {
         const hlod_frame_stats *s = &r[i].st;
         fprintf(fp, "%llu,%.6f,%.4f,%.4f,%.9g,%.4f,%.4f,%.4f,%.4f,%.4f,%.4f,%u",
@@ -812,9 +812,9 @@ static hlod_result write_frames_csv(const char *dir, const frame_rec *r, long n,
             fprintf(fp, ",");
         else
             fprintf(fp, ",%lld", r[i].cone_differing);
-        fprintf(fp, ",%u,%.3f,%.4f,%llu,%llu,%u\n", s->splats, s->splat_px,
+        fprintf(fp, ",%u,%.3f,%.4f,%llu,%llu,%u,%u\n", s->splats, s->splat_px,
                 s->res_scale > 0 ? s->res_scale : 1.0, (unsigned long long)s->cone_culled_tris,
-                (unsigned long long)s->lumi_bytes, s->lumi_missing);
+                (unsigned long long)s->lumi_bytes, s->lumi_missing, s->gl_draws);
     }
     return hlod_atomic_commit(&af, lg);
 }

@@ -174,6 +174,10 @@ typedef double (*hlod_time_model)(void *user_data, const struct hlod_frame_stats
       "lumigraph policy: views uploaded to the GPU per frame at most")                          \
     X(splats, splats, B, 1, 0, 0, 1, 1,                                                          \
       "klein policy: 1: small nodes are splats; 0: every node is drawn (the reference walk)")   \
+    X(batch, batch, B, 1, 0, 0, 1, 0,                                                            \
+      "1: small untextured nodes (batch_tris) are kept on the CPU and drawn together; 0: each in its own draw call") \
+    X(batch_tris, batch_tris, U32, 256, 1, 0, 65536, 0,                                          \
+      "batch: an untextured node of at most this many triangles is batched")                   \
     X(texture_upload, texture_upload, U32, 0, 0, 0, 2, 0,                                        \
       "block-coded textures: 1 the loader expands them to texels; 2 uploaded as blocks; 0 blocks where the GL samples them natively") \
     X(read_chunk_bytes, read_chunk_bytes, U32, 64u << 10, 1, 0, HLOD_UNBOUNDED, 0,               \
@@ -340,6 +344,7 @@ typedef struct hlod_frame_stats {
     uint64_t lumi_answer_max;    /* the largest answer (one view) among them */
     uint32_t lumi_uploads;       /* views uploaded to the GPU this frame */
     uint32_t lumi_missing;       /* views the frame's blend lacked (not fetched yet) */
+    uint32_t gl_draws;           /* draw calls the renderer issued for the frame */
 } hlod_frame_stats;
 
 /* Creates an engine over an open store: reads every top node (groups and hlod_0)
