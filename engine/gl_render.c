@@ -909,6 +909,18 @@ static const struct program *use(hlod_renderer *r, int normals, int mode, const 
     return p;
 }
 
+/* Back faces culled (cull) or drawn, from here on in the frame. */
+static void set_culling(hlod_renderer *r, int cull)
+{
+    if (cull == r->culling)
+        return;
+    if (cull)
+        r->gl.Enable(GL_CULL_FACE);
+    else
+        r->gl.Disable(GL_CULL_FACE);
+    r->culling = cull;
+}
+
 /* Draws batch [normals][cull] in one call and empties it. */
 static void flush_batch(hlod_renderer *r, int normals, int cull)
 {
@@ -940,13 +952,7 @@ static void flush_batch(hlod_renderer *r, int normals, int cull)
     gl->BufferData(GL_ARRAY_BUFFER, (GLsizeiptr)(b->nv * sizeof(batch_vertex)), b->v,
                    GL_STREAM_DRAW);
     gl->BufferData(GL_ELEMENT_ARRAY_BUFFER, (GLsizeiptr)(b->ni * 4), b->i, GL_STREAM_DRAW);
-    if (cull != r->culling) {
-        if (cull)
-            gl->Enable(GL_CULL_FACE);
-        else
-            gl->Disable(GL_CULL_FACE);
-        r->culling = cull;
-    }
+    set_culling(r, cull);
     static const float zero[3] = {0, 0, 0};   /* positions are camera-relative already */
     use(r, normals, MODE_VERTEX_COLOR, zero);
     gl->DrawElements(GL_TRIANGLES, (GLsizei)b->ni, GL_UNSIGNED_INT, NULL);
@@ -967,30 +973,32 @@ static int flush_batches(hlod_renderer *r)
     return drew;
 }
 
+/* *p (of *cap elements of size elem) holds at least need; 0 when out of
+ * memory (*p unchanged). */
+static int grow(void **p, size_t *cap, size_t need, size_t elem, size_t first)
+{
+    if (need <= *cap)
+        return 1;
+    size_t c = *cap ? 2 * *cap : first;
+    while (c < need)
+        c *= 2;
+    void *q = realloc(*p, c * elem);
+    if (!q)
+        return 0;
+    *p = q;
+    *cap = c;
+    return 1;
+}
+
 /* Room in b for nv more vertices and ni more indices; 0 when out of memory. */
 static int batch_room(struct batch *b, size_t nv, size_t ni)
 {
-    if (b->nv + nv > b->cap_v) {
-        size_t cap = b->cap_v ? 2 * b->cap_v : 4096;
-        while (cap < b->nv + nv)
-            cap *= 2;
-        batch_vertex *v = realloc(b->v, cap * sizeof *v);
-        if (!v)
-            return 0;
-        b->v = v;
-        b->cap_v = cap;
-    }
-    if (b->ni + ni > b->cap_i) {
-        size_t cap = b->cap_i ? 2 * b->cap_i : 8192;
-        while (cap < b->ni + ni)
-            cap *= 2;
-        uint32_t *i = realloc(b->i, cap * sizeof *i);
-        if (!i)
-            return 0;
-        b->i = i;
-        b->cap_i = cap;
-    }
-    return 1;
+    void *v = b->v, *i = b->i;
+    int ok = grow(&v, &b->cap_v, b->nv + nv, sizeof *b->v, 4096) &&
+             grow(&i, &b->cap_i, b->ni + ni, sizeof *b->i, 8192);
+    b->v = v;
+    b->i = i;
+    return ok;
 }
 
 /* Appends count indices of batched node g from first, its vertices moved
@@ -1051,13 +1059,7 @@ void hlod_gpu_draw(hlod_renderer *r, const hlod_gpu_node *g, const double offset
         return;
     const gl_table *gl = &r->gl;
     int normals = (g->flags & HLOD_GPU_NORMALS) != 0;
-    if (cull != r->culling) {
-        if (cull)
-            gl->Enable(GL_CULL_FACE);
-        else
-            gl->Disable(GL_CULL_FACE);
-        r->culling = cull;
-    }
+    set_culling(r, cull);
     gl->BindVertexArray(g->vao);
     if (r->depth_colors) {
         const float *c = depth_palette[depth % 8];

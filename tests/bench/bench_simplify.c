@@ -383,6 +383,17 @@ static double pair_ratio(double ours, double theirs)
     return ours > 0 ? INFINITY : 1.0;
 }
 
+/* One measured pair into s: ours (o) against the peer (m). */
+static void add_pair(summary *s, double *sum, const row *m, const row *o)
+{
+    if (!m->measured || !o->measured)
+        return;
+    if (o->d.max > m->d.max)
+        s->all_max_le = 0;
+    *sum += pair_ratio(o->d.mean, m->d.mean);
+    s->mean_ratio_pairs++;
+}
+
 /* ours_at = 1: at the requested target; 2: at equal count.  ref_at = 0:
  * against meshopt 0.18; 3: against meshopt_js. */
 static summary summarise(const row *rows, int n, int ours_at, int ref_at)
@@ -403,12 +414,7 @@ static summary summarise(const row *rows, int n, int ours_at, int ref_at)
             if (tr > s.time_ratio_max)
                 s.time_ratio_max = tr;
         }
-        if (!m->measured || !o->measured)
-            continue;
-        if (o->d.max > m->d.max)
-            s.all_max_le = 0;
-        sum += pair_ratio(o->d.mean, m->d.mean);
-        s.mean_ratio_pairs++;
+        add_pair(&s, &sum, m, o);
     }
     s.mean_ratio_avg = s.mean_ratio_pairs ? sum / s.mean_ratio_pairs : NAN;
     if (s.min_mtri == DBL_MAX)
@@ -428,12 +434,7 @@ static summary summarise_fair(const row *rows, int n, int ref_at, int eq_at)
         const row *m = &rows[i + ref_at];
         const row *o = m->missed ? &rows[i + eq_at] : &rows[i + 1];
         s.missed_meshopt += m->missed;
-        if (!m->measured || !o->measured)
-            continue;
-        if (o->d.max > m->d.max)
-            s.all_max_le = 0;
-        sum += pair_ratio(o->d.mean, m->d.mean);
-        s.mean_ratio_pairs++;
+        add_pair(&s, &sum, m, o);
     }
     s.mean_ratio_avg = s.mean_ratio_pairs ? sum / s.mean_ratio_pairs : NAN;
     s.min_mtri = 0;
@@ -451,6 +452,19 @@ static void json_distances(FILE *fp, const row *m, const row *o, const char *suf
     put_num(fp, ok, pair_ratio(o->d.max, m->d.max), "null");
     fprintf(fp, ", \"mean_ratio%s\": ", suffix);
     put_num(fp, ok, pair_ratio(o->d.mean, m->d.mean), "null");
+}
+
+/* A peer run's tris_out, max, mean and seconds keys, suffixed. */
+static void json_peer(FILE *fp, const row *j, const char *suffix)
+{
+    fprintf(fp, "\"tris_out_meshopt%s\": ", suffix);
+    put_num(fp, j->measured, (double)j->tris_out, "null");
+    fprintf(fp, ", \"max_meshopt%s\": ", suffix);
+    put_num(fp, j->measured, j->d.max, "null");
+    fprintf(fp, ", \"mean_meshopt%s\": ", suffix);
+    put_num(fp, j->measured, j->d.mean, "null");
+    fprintf(fp, ", \"seconds_meshopt%s\": ", suffix);
+    put_num(fp, j->measured, j->seconds, "null");
 }
 
 static void json_summary(FILE *fp, const summary *s, const char *suffix)
@@ -503,26 +517,14 @@ static hlod_result write_json(const char *path, const row *rows, int n, const su
         fprintf(fp, ",\n     ");
         json_distances(fp, m, e, "_eq");
         const row *j = &rows[i + ROW_JS];
-        fprintf(fp, ",\n     \"tris_out_meshopt_js\": ");
-        put_num(fp, j->measured, (double)j->tris_out, "null");
-        fprintf(fp, ", \"max_meshopt_js\": ");
-        put_num(fp, j->measured, j->d.max, "null");
-        fprintf(fp, ", \"mean_meshopt_js\": ");
-        put_num(fp, j->measured, j->d.mean, "null");
-        fprintf(fp, ", \"seconds_meshopt_js\": ");
-        put_num(fp, j->measured, j->seconds, "null");
+        fprintf(fp, ",\n     ");
+        json_peer(fp, j, "_js");
         fprintf(fp, ", ");
         json_distances(fp, j, o, "_js");
         const row *a = &rows[i + ROW_JS_ATTR], *ae = &rows[i + ROW_EQ_JS_ATTR];
-        fprintf(fp, ",\n     \"tris_out_meshopt_js_attr\": ");
-        put_num(fp, a->measured, (double)a->tris_out, "null");
+        fprintf(fp, ",\n     ");
+        json_peer(fp, a, "_js_attr");
         fprintf(fp, ", \"missed_target_meshopt_js_attr\": %s", a->missed ? "true" : "false");
-        fprintf(fp, ", \"max_meshopt_js_attr\": ");
-        put_num(fp, a->measured, a->d.max, "null");
-        fprintf(fp, ", \"mean_meshopt_js_attr\": ");
-        put_num(fp, a->measured, a->d.mean, "null");
-        fprintf(fp, ", \"seconds_meshopt_js_attr\": ");
-        put_num(fp, a->measured, a->seconds, "null");
         fprintf(fp, ",\n     ");
         json_distances(fp, a, o, "_js_attr");
         fprintf(fp, ", \"tris_out_ours_js_attr_eq\": ");
