@@ -2641,7 +2641,91 @@ static int part_costs(state *s, const uint32_t *live_v, size_t n, double (*q)[3]
  * it goes, the limit of Garland-Heckbert's aggregation of a small part into
  * its neighbour.  Parts with a locked vertex stay, as does the last part;
  * the error limit holds. */
-static size_t prune_parts(state *s, run *r, double limit2, int may_undershoot)
+/* What prune_parts measured, kept between the calls of one prune_all, where
+ * only parts go: a part's cost changes only when a part nearest to one of
+ * its query points went (removing vertices never brings one nearer, and a
+ * part over the limit stays over it), so only those are measured again.
+ * The costs are those a full measurement gives, bit for bit. */
+typedef struct part_cache {
+    double *cost;           /* per part: its cost when `have` */
+    uint8_t *have;          /* measured (not filtered out) in an earlier call */
+    uint8_t *removed;       /* taken by an earlier call */
+    uint32_t *near_first;   /* per part: its query points' nearest parts ... */
+    uint32_t *near;         /* ... near[near_first[p] .. near_first[p + 1]), distinct */
+    size_t near_n;
+    int valid;              /* a call has filled it */
+} part_cache;
+
+static void part_cache_free(part_cache *c)
+{
+    free(c->cost);
+    free(c->have);
+    free(c->removed);
+    free(c->near_first);
+    free(c->near);
+    memset(c, 0, sizeof *c);
+}
+
+/* Is part p's cached cost still what a measurement would give? */
+static int part_clean(const part_cache *c, uint32_t p)
+{
+    if (!c->valid || !c->have[p])
+        return 0;
+    for (uint32_t j = c->near_first[p]; j < c->near_first[p + 1]; j++)
+        if (c->removed[c->near[j]])
+            return 0;
+    return 1;
+}
+
+/* The cache after a call: measured parts' costs and nearest parts from
+ * this call's queries (first, by_part: the queries by part; near: each
+ * query's nearest part), clean ones as they were; 0 when out of memory. */
+static int part_cache_update(part_cache *c, size_t np, const part_cost *pc, const uint8_t *clean,
+                             const uint8_t *filtered, const uint32_t *first,
+                             const uint32_t *by_part, const uint32_t *near)
+{
+    size_t cap = c->near_n + first[np];
+    uint32_t *nf = malloc((np + 1) * sizeof *nf), *nl = malloc((cap + 1) * sizeof *nl);
+    uint32_t *mark = malloc((np + 1) * sizeof *mark);
+    if (!nf || !nl || !mark) {
+        free(nf);
+        free(nl);
+        free(mark);
+        return 0;
+    }
+    size_t n = 0;
+    for (size_t p = 0; p < np; p++) {
+        nf[p] = (uint32_t)n;
+        mark[p] = UINT32_MAX;
+        if (clean[p]) {
+            for (uint32_t j = c->near_first[p]; j < c->near_first[p + 1]; j++)
+                nl[n++] = c->near[j];
+            continue;
+        }
+        c->have[p] = !filtered[p];
+        c->cost[p] = pc[p].cost;
+        if (filtered[p])
+            continue;
+        for (uint32_t j = first[p]; j < first[p + 1]; j++) {
+            uint32_t q = near[by_part[j]];
+            if (q != UINT32_MAX && mark[q] != (uint32_t)p) {
+                mark[q] = (uint32_t)p;
+                nl[n++] = q;
+            }
+        }
+    }
+    nf[np] = (uint32_t)n;
+    free(mark);
+    free(c->near_first);
+    free(c->near);
+    c->near_first = nf;
+    c->near = nl;
+    c->near_n = n;
+    c->valid = 1;
+    return 1;
+}
+
+static size_t prune_parts(state *s, run *r, double limit2, int may_undershoot, part_cache *cache)
 {
     if (s->n_parts < 2 || (!r->target && !(r->err_limit2 > 0)))
         return 0; /* one part, or no goal to prune for */
@@ -2653,8 +2737,14 @@ static size_t prune_parts(state *s, run *r, double limit2, int may_undershoot)
     double(*q)[3] = malloc(mq * sizeof *q);
     double *dist = malloc(mq * sizeof *dist);
     part_cost *pc = calloc(np, sizeof *pc);
-    uint8_t *gone = calloc(np, 1);
-    if (!live_v || !near || !first || !by_part || !qpart || !q || !dist || !pc || !gone) {
+    uint8_t *gone = calloc(np, 1), *filtered = calloc(np, 1), *clean = calloc(np, 1);
+    if (!cache->cost) {
+        cache->cost = calloc(np, sizeof *cache->cost);
+        cache->have = calloc(np, 1);
+        cache->removed = calloc(np, 1);
+    }
+    if (!live_v || !near || !first || !by_part || !qpart || !q || !dist || !pc || !gone ||
+        !filtered || !clean || !cache->cost || !cache->have || !cache->removed) {
         s->oom = 1;
         goto out;
     }
@@ -2680,14 +2770,21 @@ static size_t prune_parts(state *s, run *r, double limit2, int may_undershoot)
             pc[s->part[s->tri_pos[3 * t]]].tris++;
     /* measure only parts that could go: unlocked, and not so large that
      * they would take the count too far under the target */
-    for (size_t i = 0; i < np; i++)
-        gone[i] = !pc[i].tris || pc[i].locked ||
-                  (!may_undershoot &&
-                   (double)(r->live - pc[i].tris) < UNDERSHOOT * (double)r->target);
+    for (size_t i = 0; i < np; i++) {
+        filtered[i] = !pc[i].tris || pc[i].locked ||
+                      (!may_undershoot &&
+                       (double)(r->live - pc[i].tris) < UNDERSHOOT * (double)r->target);
+        /* ... and those whose cost the last call's measurement still gives */
+        clean[i] = !filtered[i] && part_clean(cache, (uint32_t)i);
+        gone[i] = filtered[i] || clean[i];
+    }
     if (!part_costs(s, live_v, n, q, qpart, &nq, first, by_part, dist, near, gone, pc, limit2)) {
         s->oom = 1;
         goto out;
     }
+    for (size_t i = 0; i < np; i++)
+        if (clean[i])
+            pc[i].cost = cache->cost[i];
     /* every part's query points, in part order (the stale check below) */
     memset(first, 0, (np + 1) * sizeof *first);
     for (size_t i = 0; i < nq; i++)
@@ -2699,6 +2796,10 @@ static size_t prune_parts(state *s, run *r, double limit2, int may_undershoot)
     for (size_t i = np; i > 0; i--)
         first[i] = first[i - 1];
     first[0] = 0;
+    if (!part_cache_update(cache, np, pc, clean, filtered, first, by_part, near)) {
+        s->oom = 1;
+        goto out;
+    }
     memset(gone, 0, np);
     size_t live_parts = 0;
     for (size_t i = 0; i < np; i++)
@@ -2719,8 +2820,9 @@ static size_t prune_parts(state *s, run *r, double limit2, int may_undershoot)
         }
         /* its cost was measured to parts that are still there */
         int stale = 0;
-        for (uint32_t j = first[pc[i].part]; j < first[pc[i].part + 1] && !stale; j++)
-            stale = near[by_part[j]] != UINT32_MAX && gone[near[by_part[j]]];
+        for (uint32_t j = cache->near_first[pc[i].part];
+             j < cache->near_first[pc[i].part + 1] && !stale; j++)
+            stale = gone[cache->near[j]];
         if (stale)
             break; /* measured again on the next call, before any dearer part */
         gone[pc[i].part] = 1;
@@ -2737,6 +2839,7 @@ static size_t prune_parts(state *s, run *r, double limit2, int may_undershoot)
         }
     for (size_t i = 0; i < last; i++)
         if (gone[pc[i].part]) {
+            cache->removed[pc[i].part] = 1;
             r->pruned_tris += pc[i].tris;
             r->max_est = fmax(r->max_est, pc[i].cost * pc[i].cost);
             removed++;
@@ -2760,6 +2863,8 @@ out:
     free(dist);
     free(pc);
     free(gone);
+    free(filtered);
+    free(clean);
     return removed;
 }
 
@@ -2768,8 +2873,11 @@ out:
 static void prune_all(state *s, run *r, double limit2, int may_undershoot)
 {
     size_t k;
-    while (r->live > r->target && !r->stop && !s->oom && (k = prune_parts(s, r, limit2, may_undershoot)))
+    part_cache cache = {0};
+    while (r->live > r->target && !r->stop && !s->oom &&
+           (k = prune_parts(s, r, limit2, may_undershoot, &cache)))
         r->pruned += k;
+    part_cache_free(&cache);
 }
 
 /* Phase "parts": the connected pieces of the surface, numbered 0..n_parts
