@@ -1248,7 +1248,7 @@ static int ftri_desc(const void *p, const void *q)
  * a valid lower bound). */
 static hlod_result bound_side(const hlod_mesh *m, hlod_dgrid *g, const double origin[3], double rel_tol,
                               double abs_tol, double known, int max_depth, double budget,
-                              double *lower, double *upper, int *capped)
+                              double stop, double *lower, double *upper, int *capped)
 {
     size_t nv = m->vertex_count, nt = m->tri_count;
     double *fv = malloc((nv ? nv : 1) * sizeof *fv);
@@ -1264,6 +1264,11 @@ static hlod_result bound_side(const hlod_mesh *m, hlod_dgrid *g, const double or
         for (int k = 0; k < 3; k++)
             p[k] = m->positions[3 * v + k] - origin[k];
         fv[v] = sqrt(hlod_dgrid_closest2(g, p, &nearv[v]));
+        if (fv[v] > stop) { /* the caller's question is answered */
+            lb = dmax(lb, fv[v]);
+            ub_left = INFINITY;
+            goto out;
+        }
     }
     for (size_t t = 0; t < nt; t++) {
         const uint32_t *ix = m->indices + 3 * t;
@@ -1338,6 +1343,10 @@ static hlod_result bound_side(const hlod_mesh *m, hlod_dgrid *g, const double or
                 fm[e] = sqrt(hlod_dgrid_closest2(g, mid[e], &nm[e]));
                 if (fm[e] > lb)
                     lb = fm[e];
+                if (lb > stop) {
+                    ub_left = INFINITY;
+                    goto out;
+                }
             }
             /* corners 0,1,2; midpoints m0 = (0,1), m1 = (1,2), m2 = (2,0) */
             const double *cp[4][3] = {{t.p[0], mid[0], mid[2]},
@@ -1379,6 +1388,13 @@ done:
 
 hlod_result hlod_mesh_hausdorff_bound(const hlod_mesh *a, const hlod_mesh *b, double rel_tol,
                                       double abs_tol, double *lower, double *upper)
+{
+    return hlod_mesh_hausdorff_bound_above(a, b, rel_tol, abs_tol, INFINITY, lower, upper);
+}
+
+hlod_result hlod_mesh_hausdorff_bound_above(const hlod_mesh *a, const hlod_mesh *b, double rel_tol,
+                                            double abs_tol, double stop_above, double *lower,
+                                            double *upper)
 {
     if (!a || !b || !lower || !upper || !(rel_tol >= 0) || !(abs_tol >= 0))
         return HLOD_ERR_INVALID_ARG;
@@ -1425,13 +1441,18 @@ hlod_result hlod_mesh_hausdorff_bound(const hlod_mesh *a, const hlod_mesh *b, do
     for (size_t k = 0; k < rounds; k++) {
         int depth = BOUND_DEPTHS[k], capped = 0;
         double l1, u1, l2 = 0, u2 = INFINITY;
-        r = bound_side(first, &g2, origin, rel_tol, abs_tol, lb, depth, budget, &l1, &u1, &capped);
+        r = bound_side(first, &g2, origin, rel_tol, abs_tol, lb, depth, budget, stop_above, &l1,
+                       &u1, &capped);
         if (r == HLOD_OK && u1 < INFINITY)
-            r = bound_side(second, &g1, origin, rel_tol, abs_tol, dmax(lb, l1), depth, budget, &l2,
-                           &u2, &capped);
+            r = bound_side(second, &g1, origin, rel_tol, abs_tol, dmax(lb, l1), depth, budget,
+                           stop_above, &l2, &u2, &capped);
         if (r != HLOD_OK)
             break;
         lb = dmax(lb, dmax(l1, l2));
+        if (lb > stop_above) {
+            ub = INFINITY; /* answered: farther than stop_above */
+            break;
+        }
         if (u1 == INFINITY || u2 == INFINITY) {
             if (k == 0)
                 continue;       /* over budget: start the rounds */

@@ -3175,12 +3175,20 @@ hlod_result hlod_simplify(const hlod_mesh *in, const hlod_simplify_desc *desc,
     double t0 = hlod_now_s();
     double tol = 1e-3 * hlod_mesh_bbox_diag(in), lower, now = INFINITY, e = INFINITY;
     hlod_mesh alt = {0};
-    res = hlod_mesh_hausdorff_bound(out, in, CLUSTER_TOL, tol, &lower, &now);
-    if (res == HLOD_OK)
-        res = cluster_to(in, desc->target_tris, desc->vertex_lock, &alt);
+    int keep = 0;
+    res = cluster_to(in, desc->target_tris, desc->vertex_lock, &alt);
     if (res == HLOD_OK && alt.tri_count && alt.tri_count <= desc->target_tris)
         res = hlod_mesh_hausdorff_bound(&alt, in, CLUSTER_TOL, tol, &lower, &e);
-    if (res == HLOD_OK && e < CLUSTER_GAIN * now) {
+    if (res == HLOD_OK && e < INFINITY) {
+        /* the collapses' bound only as far as the choice needs it: once a
+         * point lies farther than e / CLUSTER_GAIN, clustering is kept */
+        res = hlod_mesh_hausdorff_bound_above(out, in, CLUSTER_TOL, tol, e / CLUSTER_GAIN,
+                                              &lower, &now);
+        if (res == HLOD_OK && now == INFINITY && !(e < CLUSTER_GAIN * lower))
+            res = hlod_mesh_hausdorff_bound(out, in, CLUSTER_TOL, tol, &lower, &now);
+        keep = res == HLOD_OK && (now == INFINITY || e < CLUSTER_GAIN * now);
+    }
+    if (keep) {
         hlod_mesh_free(out);
         *out = alt;
         memset(&alt, 0, sizeof alt);

@@ -55,6 +55,15 @@ hlod_result hlod_mesh_distance(const hlod_mesh *a, const hlod_mesh *b,
 hlod_result hlod_mesh_hausdorff_bound(const hlod_mesh *a, const hlod_mesh *b, double rel_tol,
                                       double abs_tol, double *lower, double *upper);
 
+/* As hlod_mesh_hausdorff_bound, for a caller that only needs to know
+ * whether the distance exceeds stop_above: as soon as a point is found
+ * farther than stop_above from the other surface, it returns with *lower
+ * that point's distance (> stop_above) and *upper INFINITY.  Otherwise
+ * *lower and *upper are exactly hlod_mesh_hausdorff_bound's. */
+hlod_result hlod_mesh_hausdorff_bound_above(const hlod_mesh *a, const hlod_mesh *b, double rel_tol,
+                                            double abs_tol, double stop_above, double *lower,
+                                            double *upper);
+
 #ifdef __cplusplus
 }
 #endif
