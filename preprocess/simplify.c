@@ -2440,12 +2440,14 @@ typedef struct vgrid {
     double lo[3], h;
     int g;
     uint32_t *start, *list;   /* cell c holds list[start[c] .. start[c + 1]) */
+    uint32_t *part;           /* per cell: the one part of its vertices, or UINT32_MAX */
 } vgrid;
 
 static void vgrid_free(vgrid *vg)
 {
     free(vg->start);
     free(vg->list);
+    free(vg->part);
 }
 
 /* 0 when out of memory. */
@@ -2463,11 +2465,12 @@ static int vgrid_build(const state *s, const uint32_t *live_v, size_t n, vgrid *
     double h = ext > 0 ? ext / g : 1;
     size_t cells = (size_t)g * g * g;
     uint32_t *start = calloc(cells + 1, sizeof *start), *list = malloc((n + 1) * sizeof *list),
-             *cell = malloc((n + 1) * sizeof *cell);
-    if (!start || !list || !cell) {
+             *cell = malloc((n + 1) * sizeof *cell), *part = malloc(cells * sizeof *part);
+    if (!start || !list || !cell || !part) {
         free(start);
         free(list);
         free(cell);
+        free(part);
         return 0;
     }
     int c3[3];
@@ -2486,10 +2489,18 @@ static int vgrid_build(const state *s, const uint32_t *live_v, size_t n, vgrid *
     for (size_t c = cells; c > 0; c--)
         start[c] = start[c - 1];
     start[0] = 0;
+    for (size_t c = 0; c < cells; c++) {
+        uint32_t p = start[c] < start[c + 1] ? s->part[live_v[list[start[c]]]] : UINT32_MAX;
+        for (uint32_t j = start[c] + 1; j < start[c + 1] && p != UINT32_MAX; j++)
+            if (s->part[live_v[list[j]]] != p)
+                p = UINT32_MAX;
+        part[c] = p;
+    }
     free(cell);
     memcpy(vg->lo, lo, sizeof lo);
     vg->h = h;
     vg->g = g;
+    vg->part = part;
     vg->start = start;
     vg->list = list;
     return 1;
@@ -2537,6 +2548,21 @@ static void other_part_distances(const state *s, const vgrid *vg, const uint32_t
                         if (abs(x - ci[0]) != ring && abs(y - ci[1]) != ring && abs(z - ci[2]) != ring)
                             continue; /* inside: an earlier ring */
                         size_t c = (size_t)x + (size_t)g * ((size_t)y + (size_t)g * (size_t)z);
+                        /* a cell of its own part's vertices alone, or one
+                         * no nearer than the best found (its box grown
+                         * by a millionth of a cell against rounding),
+                         * cannot change the answer */
+                        if (start[c] == start[c + 1] || vg->part[c] == qpart[i])
+                            continue;
+                        const int cc[3] = {x, y, z};
+                        double cd2 = 0;
+                        for (int k = 0; k < 3; k++) {
+                            double a = lo[k] + (cc[k] - 1e-6) * h, b = lo[k] + (cc[k] + 1 + 1e-6) * h;
+                            double e = p[k] < a ? a - p[k] : p[k] > b ? p[k] - b : 0;
+                            cd2 += e * e;
+                        }
+                        if (cd2 >= best2)
+                            continue;
                         for (uint32_t j = start[c]; j < start[c + 1]; j++) {
                             uint32_t o = list[j];
                             if (part[live_v[o]] == qpart[i])
