@@ -22,12 +22,37 @@ typedef struct vkey {
     uint32_t v;
 } vkey;
 
-static int cmp_vkey(const void *pa, const void *pb)
+/* Sorts k[0..n), given in increasing v, by key then v: a stable LSD radix
+ * sort on the key, a byte a pass, passes where every key has the same byte
+ * skipped (the order qsort by (key, v) gives, in linear time).  0 when out
+ * of memory. */
+static int sort_vkeys(vkey *k, size_t n)
 {
-    const vkey *a = pa, *b = pb;
-    if (a->key != b->key)
-        return a->key < b->key ? -1 : 1;
-    return (a->v > b->v) - (a->v < b->v);
+    vkey *tmp = malloc((n + 1) * sizeof *tmp);
+    if (!tmp)
+        return 0;
+    vkey *src = k, *dst = tmp;
+    for (int shift = 0; shift < 64; shift += 8) {
+        size_t count[257] = {0};
+        for (size_t i = 0; i < n; i++)
+            count[((src[i].key >> shift) & 255) + 1]++;
+        int one = 0;
+        for (int b = 1; b <= 256; b++)
+            one |= count[b] == n;
+        if (one)
+            continue; /* every key has this byte: the order stands */
+        for (int b = 0; b < 256; b++)
+            count[b + 1] += count[b];
+        for (size_t i = 0; i < n; i++)
+            dst[count[(src[i].key >> shift) & 255]++] = src[i];
+        vkey *t = src;
+        src = dst;
+        dst = t;
+    }
+    if (src != k)
+        memcpy(k, src, n * sizeof *k);
+    free(tmp);
+    return 1;
 }
 
 typedef struct tkey {
@@ -128,7 +153,10 @@ static hlod_result cluster_map(const hlod_mesh *in, double cell, const uint8_t *
         /* a locked vertex is a cluster of its own (keys past every cell's) */
         k[v] = (vkey){lock && lock[v] ? (1ull << 63) | v : key, (uint32_t)v};
     }
-    qsort(k, nv, sizeof *k, cmp_vkey);
+    if (!sort_vkeys(k, nv)) {
+        free(k);
+        return HLOD_ERR_NOMEM;
+    }
     double *p = malloc((nv + 1) * 3 * sizeof *p);
     if (!p) {
         free(k);
