@@ -4,7 +4,8 @@
  *
  * A node on the GPU is one VAO with one VBO (positions, normals, UVs and
  * colours as present in the payload) and one IBO, plus a mipmapped texture
- * when the payload has one.  Positions stay relative to the node's origin;
+ * when the payload has one.  A small untextured node may instead stay on
+ * the CPU and be drawn in a batch (hlod_renderer_set_batch).  Positions stay relative to the node's origin;
  * hlod_gpu_draw gets the origin minus the camera position, computed in
  * double by the caller and rounded to float once, so vertex data never
  * sees large coordinates.
