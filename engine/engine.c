@@ -932,12 +932,16 @@ static hlod_result rzb_select(hlod_engine *e, const hlod_view *view)
     hlod_selection *s = &e->sel;
     s->draw.n = s->splats.n = s->coned.n = 0;
     hlod_rzb_set_cache(e->rzb, (size_t)e->d.rzb_cache_mb << 20);
+    hlod_result r = hlod_rzb_set_copies(e->rzb, e->d.rzb_copies);
+    if (r != HLOD_OK)
+        return r;
     hlod_rzb_params p = {.eps = e->d.rzb_eps,
                          .d = e->d.splat_px,
                          .seed = 0x9E3779B97F4A7C15ull * e->frame,
                          .frame = e->frame,
-                         .splat_c = e->d.rzb_splat_c > 0 && e->d.renderer};
-    hlod_result r = hlod_rzb_frame(e->rzb, view, &p, &e->rzb_out);
+                         .splat_c = e->d.rzb_splat_c > 0 && e->d.renderer,
+                         .no_raster = !(e->d.rzb_raster > 0)};
+    r = hlod_rzb_frame(e->rzb, view, &p, &e->rzb_out);
     e->st.nodes_drawn = (uint32_t)e->rzb_out.range_count;
     e->st.tris_drawn = e->rzb_out.range_tris;
     e->st.cost_drawn = (double)e->rzb_out.range_tris;

@@ -61,6 +61,8 @@ uint32_t hlod_rzb_class_count(const hlod_rzb *z);
 /* A range of one class's faces, drawn by the rasteriser. */
 typedef struct hlod_rzb_range {
     uint32_t cls, first, count;
+    uint64_t copy;  /* the copy (hlod_rzb_set_copies): column << 32 | row */
+    double off[3];  /* and its offset from the scene */
 } hlod_rzb_range;
 
 /* One frame's output, kept between frames (its arrays grow). */
@@ -96,6 +98,20 @@ void hlod_rzb_out_free(const hlod_allocator *a, hlod_rzb_out *o);
 void hlod_rzb_set_cache(hlod_rzb *z, size_t bytes);
 size_t hlod_rzb_cache_bytes(const hlod_rzb *z);
 
+/* Instancing (Wand 7.3): the scene is drawn as 2^levels x 2^levels
+ * copies of itself side by side along x and y, each offset by a whole
+ * number of the scene box's x and y sides from the first (which stays
+ * where it is), held once.  Each frame walks a quadtree of blocks of
+ * copies: a block whose depth range is narrow (rzb_eps) and whose faces
+ * project within d^2 / ln v pixels is sampled as one box, its points
+ * spread over its copies uniformly (no sample caches: those are made
+ * only within one copy); a single copy is walked as the scene is.
+ * levels <= HLOD_RZB_MAX_COPY_LEVELS; 0 (the default): the scene once.
+ * HLOD_ERR_NOMEM, HLOD_ERR_INVALID_ARG past the limit. */
+#define HLOD_RZB_MAX_COPY_LEVELS 24
+hlod_result hlod_rzb_set_copies(hlod_rzb *z, uint32_t levels);
+uint32_t hlod_rzb_copy_levels(const hlod_rzb *z);
+
 typedef struct hlod_rzb_params {
     double eps;      /* a box is selected when (z_max / z_min)^2 <= eps; > 1 */
     double d;        /* the points' size, pixels; >= 1 */
@@ -105,6 +121,9 @@ typedef struct hlod_rzb_params {
     int splat_c;     /* the points are splatted here, d x d pixels each, into
                         out's colour and depth (the C splatter), else listed
                         for GL points */
+    int no_raster;   /* every selected box is sampled, whatever its faces
+                        project to (Wand Fig. 6: points only); a box
+                        reaching the eye's plane is still rasterised */
 } hlod_rzb_params;
 
 /* Selects and samples for view v.  HLOD_ERR_NOMEM on allocation failure

@@ -280,6 +280,14 @@ ok $? "--save-frames 1,x exits 2 naming the flag"
 "$BIN/hlod-bench" "$T/city.hlod" --path "$P" --out "$T/x" --save-frames 1,,2 2>/dev/null
 [ $? -eq 2 ]
 ok $? "--save-frames 1,,2 exits 2"
+"$BIN/hlod-bench" "$T/city.hlod" --path "$P" --out "$T/x" --policy rzb --set rzb_copies=2 \
+    --reference 2>"$T/err"
+[ $? -eq 2 ] && grep -q -- "--reference" "$T/err" && grep -q "rzb_copies" "$T/err"
+ok $? "--reference with rzb_copies exits 2 naming both"
+"$BIN/hlod-bench" "$T/city.hlod" --path "$P" --out "$T/x" --policy rzb --set rzb_copies=25 \
+    --frames 2 2>"$T/err"
+[ $? -eq 1 ] && grep -q "rzb_copies 25 is not in" "$T/err"
+ok $? "rzb_copies=25 is refused by the engine, named"
 for bad in "--reference-ss 3" "--backend vulkan" "--jitter-frames -1"; do
     # shellcheck disable=SC2086
     "$BIN/hlod-bench" "$T/city.hlod" --path "$P" --out "$T/x" $bad 2>"$T/err"

@@ -11,7 +11,15 @@
  *   sampled, none rasterised; the same seed gives the same points;
  * - with every face large, rzb rasterises them all and draws the image
  *   policy full draws (PSNR >= 40 dB);
- * - faces seen from behind, one-sided, give no point.
+ * - faces seen from behind, one-sided, give no point;
+ * - copies (Wand 7.3): a block of 2 x 2 copies draws the image of the
+ *   store twice as wide (faces rasterised, 40 dB); a 4 x 4 block seen from
+ *   above is sampled as one box, its points spread over the copies
+ *   uniformly (chi-square) and covering the view but for about a pixel a
+ *   frame (at most 10 in 4 frames); 4^20
+ *   and 4^24 copies seen over the horizon (the eye scaled with them) take
+ *   no more boxes than 4^10: the walk grows with the picture, not with
+ *   the copies.
  */
 #include "check.h"
 #include "engine_internal.h"
@@ -161,6 +169,8 @@ static void down_camera(hlod_camera *cam, double cx, double cy, double h)
 
 /* One frame of store `path` under policy pol, splat size d (rzb: points
  * splatted in C, or GL points), into rgb. */
+static uint32_t g_copies; /* rzb_copies of the next render_as */
+
 static int render_as(const char *path, hlod_policy pol, uint32_t d, int splat_c,
                      const hlod_camera *cam, uint8_t *rgb, hlod_frame_stats *st)
 {
@@ -173,6 +183,7 @@ static int render_as(const char *path, hlod_policy pol, uint32_t d, int splat_c,
     desc.deterministic = 1;
     desc.splat_px = d;
     desc.rzb_splat_c = splat_c ? 1 : -1; /* a flag: 0 would be the default */
+    desc.rzb_copies = g_copies;
     desc.memory_budget_bytes = 1ull << 32;
     hlod_engine *e = NULL;
     int ok = hlod_engine_create(s, &desc, &e) == HLOD_OK &&
@@ -382,6 +393,179 @@ static void back_faces_give_no_point(void)
     }
 }
 
+/* 2 x 2 copies of a textured block of 100 m (leaves of 50 m, 4 x 4 quads)
+ * against one block of 200 m built with the same leaves: seen from 60 m,
+ * every face rasterised, the same image. */
+static void copies_draw_the_wider_store(void)
+{
+    char one[512], wide[512];
+    snprintf(one, sizeof one, "%s/copy1.hlod", g_dir);
+    snprintf(wide, sizeof wide, "%s/copy2.hlod", g_dir);
+    fixture_opts o1 = {.roots = 1, .depth = 1, .grid = 4, .size = 100, .textured = 1};
+    fixture_opts o2 = {.roots = 1, .depth = 2, .grid = 4, .size = 200, .textured = 1};
+    CHECK(fixture_write(one, &o1, NULL) == HLOD_OK && fixture_write(wide, &o2, NULL) == HLOD_OK);
+    hlod_camera cam;
+    const double eye[3] = {130, 60, 60}, at[3] = {100, 110, 0}, up[3] = {0, 0, 1};
+    CHECK(hlod_camera_look_at(&cam, eye, at, up, 60, 0.1, 1e4, W, H) == HLOD_OK);
+    uint8_t *a = malloc(W * H * 3), *b = malloc(W * H * 3);
+    hlod_frame_stats sa, sb;
+    g_copies = 1;
+    CHECK(a && b && render(one, HLOD_POLICY_RZB, 1, &cam, a, &sa));
+    g_copies = 0;
+    CHECK(a && b && render(wide, HLOD_POLICY_RZB, 1, &cam, b, &sb));
+    double psnr = 0;
+    if (a && b)
+        CHECK(hlod_psnr_rgb8(a, b, W, H, &psnr) == HLOD_OK);
+    size_t bg = 0;
+    for (size_t p = 0; a && p < W * H; p++)
+        bg += is_bg(a + 3 * p);
+    printf("REPORT 2 x 2 copies: %llu faces rasterised in %u draws, %u points; %.1f dB against "
+           "the store twice as wide (%llu faces); %zu background pixels\n",
+           (unsigned long long)sa.tris_drawn, sa.nodes_drawn, sa.splats, psnr,
+           (unsigned long long)sb.tris_drawn, bg);
+    CHECKF(sa.splats == 0 && sa.tris_drawn > 128, "copies: %u points, %llu faces", sa.splats,
+           (unsigned long long)sa.tris_drawn);
+    CHECKF(bg < W * H / 2, "copies: %zu background pixels", bg);
+    CHECKF(psnr >= 40, "copies' image %.1f dB from the wide store's", psnr);
+    free(a);
+    free(b);
+}
+
+/* The fine board (100 m, at x = 5e6) as 4 x 4 copies seen from 150 m
+ * above their middle: one block, sampled as one box; its points are
+ * spread over the 16 copies as their areas say (chi-square, 15 degrees of
+ * freedom) and cover the view. */
+static void copies_sample_as_one_box(void)
+{
+    char path[512];
+    snprintf(path, sizeof path, "%s/fine.hlod", g_dir); /* fine_board_is_covered's */
+    hlod_store *s = NULL;
+    CHECK(hlod_store_open(path, NULL, &s) == HLOD_OK);
+    if (!s)
+        return;
+    hlod_camera cam;
+    down_camera(&cam, 5e6 + 200, 200, 150);
+    uint8_t *img = malloc(W * H * 3);
+    for (int splat_c = 0; splat_c < 2 && img; splat_c++) {
+        hlod_engine_desc desc = {0};
+        desc.policy = HLOD_POLICY_RZB;
+        desc.renderer = g_r;
+        desc.deterministic = 1;
+        desc.rzb_copies = 2;
+        desc.rzb_splat_c = splat_c ? 1 : -1;
+        hlod_engine *e = NULL;
+        hlod_frame_stats st;
+        CHECK(hlod_engine_create(s, &desc, &e) == HLOD_OK);
+        CHECK(e && hlod_engine_frame(e, &cam, 1.0 / 30, &st) == HLOD_OK);
+        if (!e)
+            break;
+        const hlod_rzb_out *o = &e->rzb_out;
+        CHECKF(o->boxes_sampled == 1 && o->boxes_drawn == 0 && o->range_count == 0,
+               "%u boxes sampled, %u rasterised", o->boxes_sampled, o->boxes_drawn);
+        if (!splat_c) {
+            /* GL points: each point's copy from its position */
+            uint32_t count[16] = {0};
+            size_t outside = 0;
+            for (size_t k = 0; k < o->splat_count; k++) {
+                double x = cam.position[0] + o->splats[k].pos[0] - 5e6,
+                       y = cam.position[1] + o->splats[k].pos[1];
+                /* (a point's position is a float relative to the eye:
+                 * within a centimetre of the edge is on it) */
+                long i = (long)floor(x / 100), j = (long)floor(y / 100);
+                if (x < -0.01 || x > 400.01 || y < -0.01 || y > 400.01)
+                    outside++;
+                else
+                    count[4 * (j < 0 ? 0 : j > 3 ? 3 : j) + (i < 0 ? 0 : i > 3 ? 3 : i)]++;
+            }
+            double want[16];
+            for (int q = 0; q < 16; q++)
+                want[q] = (double)(o->splat_count - outside) / 16;
+            double c2 = chi2_of(count, want, 16);
+            printf("REPORT 4 x 4 copies, one box: %zu points, chi2 over the copies %.2f (p >= "
+                   "0.01 below 30.58 at 15 dof), %zu outside them\n", o->splat_count, c2,
+                   outside);
+            CHECKF(outside == 0 && o->splat_count > 10000, "%zu points, %zu outside the copies",
+                   o->splat_count, outside);
+            CHECKF(c2 <= 30.578, "points over the copies: chi2 %.2f", c2);
+        } else {
+            /* each copy drawn independently: a pixel is missed with
+             * probability e^-(ln v), about 1 a frame (Poisson); over 4
+             * frames at most 10 (P(more) = 0.3 %) */
+            size_t holes = 0, worst = 0;
+            for (int fr = 0; fr < 4; fr++) {
+                if (fr)
+                    CHECK(hlod_engine_frame(e, &cam, 1.0 / 30, &st) == HLOD_OK);
+                CHECK(hlod_osmesa_read_rgb(g_gl, img) == HLOD_OK);
+                size_t h = 0;
+                for (size_t p = 0; p < W * H; p++)
+                    h += is_bg(img + 3 * p);
+                holes += h;
+                worst = h > worst ? h : worst;
+            }
+            printf("REPORT 4 x 4 copies, C splatter: %u points a frame, %zu of %d pixels "
+                   "uncovered in 4 frames (at most %zu in one)\n", st.splats, holes, W * H, worst);
+            CHECKF(holes <= 10, "copies: %zu pixels uncovered in 4 frames", holes);
+        }
+        hlod_engine_destroy(e);
+    }
+    hlod_store_close(s);
+    free(img);
+}
+
+/* 2^levels x 2^levels copies of the fine board seen from a low eye over
+ * the horizon, the eye's height and distances scaled with the copies (the
+ * same picture, as in Wand Fig. 6): the boxes walked follow the picture,
+ * not the copies (a walk over copies would take 4^10 times more at 20). */
+static uint32_t horizon_boxes(hlod_rzb *z, uint32_t levels, uint64_t *points)
+{
+    double k = ldexp(1.0, (int)levels - 4);
+    hlod_camera cam;
+    const double eye[3] = {5e6 + 40 * k, 40 * k, 10 * k}, at[3] = {5e6 + 400 * k, 400 * k, 0},
+                 up[3] = {0, 0, 1};
+    CHECK(hlod_camera_look_at(&cam, eye, at, up, 60, 0.1 * k, 1e4 * k, W, H) == HLOD_OK);
+    double still[3] = {0, 0, 0};
+    hlod_view v;
+    hlod_view_init(&v, &cam, still, 0);
+    hlod_rzb_out out = {0};
+    hlod_rzb_params prm = {.eps = 1.4, .d = 1, .seed = 1, .frame = 1, .splat_c = 0};
+    CHECK(hlod_rzb_set_copies(z, levels) == HLOD_OK);
+    CHECK(hlod_rzb_frame(z, &v, &prm, &out) == HLOD_OK);
+    *points = out.samples;
+    uint32_t boxes = out.boxes_sampled + out.boxes_drawn;
+    hlod_rzb_out_free(&g_alloc, &out);
+    return boxes;
+}
+
+static void copies_walk_grows_with_levels(void)
+{
+    char path[512];
+    snprintf(path, sizeof path, "%s/fine.hlod", g_dir);
+    hlod_store *s = NULL;
+    CHECK(hlod_store_open(path, NULL, &s) == HLOD_OK);
+    if (!s)
+        return;
+    hlod_engine_desc desc = {0};
+    desc.policy = HLOD_POLICY_RZB;
+    desc.deterministic = 1;
+    hlod_engine *e = NULL;
+    CHECK(hlod_engine_create(s, &desc, &e) == HLOD_OK);
+    if (e) {
+        uint64_t p10, p20, p40;
+        uint32_t b10 = horizon_boxes(e->rzb, 10, &p10), b20 = horizon_boxes(e->rzb, 20, &p20),
+                 b40 = horizon_boxes(e->rzb, 24, &p40);
+        printf("REPORT copies over the horizon: 4^10 copies %u boxes (%llu points), 4^20 %u "
+               "(%llu), 4^24 %u (%llu)\n", b10, (unsigned long long)p10, b20,
+               (unsigned long long)p20, b40, (unsigned long long)p40);
+        CHECKF(b10 > 10 && b20 < 3 * b10 && b40 < 4 * b10,
+               "boxes %u, %u, %u at 10, 20, 24 levels", b10, b20, b40);
+        CHECKF(p20 < 4 * p10 && p10 < 4 * p20, "points %llu at 10 levels, %llu at 20",
+               (unsigned long long)p10, (unsigned long long)p20);
+        CHECK(hlod_rzb_set_copies(e->rzb, HLOD_RZB_MAX_COPY_LEVELS + 1) == HLOD_ERR_INVALID_ARG);
+    }
+    hlod_engine_destroy(e);
+    hlod_store_close(s);
+}
+
 int main(void)
 {
     snprintf(g_dir, sizeof g_dir, "/tmp/hlod_test_rzb_XXXXXX");
@@ -398,6 +582,9 @@ int main(void)
         RUN(fine_board_is_covered);
         RUN(caches_serve_the_next_frame);
         RUN(large_faces_draw_as_full);
+        RUN(copies_draw_the_wider_store);
+        RUN(copies_sample_as_one_box);
+        RUN(copies_walk_grows_with_levels);
     } else {
         CHECK(0); /* OSMesa is installed by the test command */
     }

@@ -222,6 +222,16 @@ static int given(const options *o, const setting *extra, const char *key)
     return extra && !strcmp(extra->key, key);
 }
 
+/* --set rzb_copies: the levels of copies policy rzb draws (0: none). */
+static uint32_t copy_levels(const options *o)
+{
+    uint32_t l = 0;
+    for (int i = 0; i < o->nsets; i++)
+        if (!strcmp(o->sets[i].key, "rzb_copies"))
+            l = (uint32_t)o->sets[i].value;
+    return l;
+}
+
 static void apply_setting(hlod_engine_desc *d, const char *k, double v)
 {
     hlod_result r = hlod_engine_desc_set(d, k, v);
@@ -512,6 +522,9 @@ static int parse_args(int argc, char **argv, options *o)
         return hlod_cli_usage_error(PROG, "--path is required%s", "");
     if (!o->out)
         return hlod_cli_usage_error(PROG, "--out is required%s", "");
+    if (o->reference && copy_levels(o))
+        return hlod_cli_usage_error(PROG, "--reference draws the store once: not with "
+                                    "rzb_copies (%s)", o->store);
     return -1;
 }
 
@@ -1138,14 +1151,18 @@ static void path_camera_size(const context *c, uint64_t f, uint32_t width, uint3
     double t = hlod_path_frame_time(&c->path, o->dt, f), eye[3], at[3];
     hlod_path_eval(&c->path, t, eye, at);
     const hlod_store_header *h = hlod_store_get_header(c->store);
-    double diag = 0;
+    /* the scene's box: with rzb_copies, its copies' along x and y */
+    double lo[3], hi[3], diag = 0;
     for (int k = 0; k < 3; k++) {
-        double span = h->bbox_max[k] - h->bbox_min[k];
-        diag += span * span;
+        lo[k] = h->bbox_min[k];
+        hi[k] = h->bbox_max[k];
+        if (k < 2)
+            hi[k] = lo[k] + ldexp(hi[k] - lo[k], (int)copy_levels(o));
+        diag += (hi[k] - lo[k]) * (hi[k] - lo[k]);
     }
     double far_plane = 3 * sqrt(diag) + 1000;
     for (int k = 0; k < 3; k++) {
-        double m = fabs(eye[k] - 0.5 * (h->bbox_min[k] + h->bbox_max[k]));
+        double m = fabs(eye[k] - 0.5 * (lo[k] + hi[k]));
         far_plane += m;
     }
     double up[3] = {0, o->up_y ? 1 : 0, o->up_y ? 0 : 1};

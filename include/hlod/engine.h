@@ -162,6 +162,10 @@ typedef double (*hlod_time_model)(void *user_data, const struct hlod_frame_stats
       "rzb policy: 1: points splatted in C into a depth and colour frame; 0: as GL points")      \
     X(rzb_cache_mb, rzb_cache_mb, U32, 0, 0, 0, 65536, 1,                                        \
       "rzb policy: MiB of sample caches (Wand 7.2), least recently drawn dropped; 0: none")     \
+    X(rzb_copies, rzb_copies, U32, 0, 0, 0, 24, 1,                                               \
+      "rzb policy: the scene drawn as 2^N x 2^N copies of itself side by side along x and y, held once (Wand 7.3); 0: once") \
+    X(rzb_raster, rzb_raster, B, 1, 0, 0, 1, 1,                                                  \
+      "rzb policy: 1: faces that may project over d^2 / ln v pixels are rasterised; 0: points only (Wand Fig. 6)") \
     X(cube_px, cube_px, U32, 1, 1, 0, 64, 1,                                                     \
       "cubes policy: a node whose box projects within cube_px x cube_px pixels is drawn as its colour cube") \
     X(lumi_mesh_px, lumi_mesh_px, D, 8, 0, 1, HLOD_UNBOUNDED, 1,                                  \
