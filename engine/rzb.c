@@ -780,21 +780,98 @@ static uint32_t draw_point(frame_ctx *f, const rzb_class *c, uint32_t b, uint32_
     return t;
 }
 
-/* N fresh points of the range [b, e) of class c. */
-static void sample(frame_ctx *f, uint32_t ci, uint32_t b, uint32_t e, uint64_t n)
+/* Where points come from: a range [b, e) of one class, or (k set) a
+ * block of copies.  Positions are relative to `origin` (world): the
+ * class's origin (offset to the copy drawn) for a range, the block's box
+ * corner for a block, so that a cache's floats stay small. */
+typedef struct point_src {
+    const rzb_class *c;  /* a range's class */
+    uint32_t b, e, at;   /* ... its faces, the last pick */
+    const copy_block *k; /* a block; NULL for a range */
+    double pitch[2];     /* ... its copies' spacing */
+    uint32_t ci, t;      /* ... the last class and face picked */
+    double origin[3];
+} point_src;
+
+static point_src range_src(const frame_ctx *f, uint32_t ci, uint32_t b, uint32_t e)
 {
-    const rzb_class *c = &f->z->cls[ci];
+    point_src s = {.c = &f->z->cls[ci], .b = b, .e = e, .at = b};
+    for (int a = 0; a < 3; a++)
+        s.origin[a] = s.c->origin[a] + f->off[a];
+    return s;
+}
+
+static point_src block_src(const frame_ctx *f, const copy_block *k, const double pitch[2])
+{
+    const hlod_rzb *z = f->z;
+    point_src s = {.k = k, .pitch = {pitch[0], pitch[1]}};
+    for (int a = 0; a < 3; a++)
+        s.origin[a] = z->box_lo[a];
+    s.origin[0] += k->i * pitch[0];
+    s.origin[1] += k->j * pitch[1];
+    return s;
+}
+
+/* The i-th of n points of source s: its face (NULL: none, an empty
+ * class), its position relative to s's origin and its colour.
+ *   A range: one uniform position in each of n equal strata of its area
+ * (pick_next).
+ *   A block: the faces picked as a range's are, over the scene's classes
+ * in order; each point's copy drawn uniformly (the copies' areas are
+ * equal): each face of each copy is picked with probability n x its area
+ * / the block's.  (Strata over the copies instead, copy by copy, restart
+ * the search at every copy: with more copies than points each point
+ * searched its class afresh, 1.6x the time a frame.) */
+static const rzb_tri *src_point(frame_ctx *f, point_src *s, uint64_t i, uint64_t n, double p[3],
+                                double col[3])
+{
+    const hlod_rzb *z = f->z;
+    if (!s->k) {
+        uint32_t t = draw_point(f, s->c, s->b, s->e, i, n, &s->at, p, col);
+        return &s->c->tri[t];
+    }
+    double total = z->class_cum[z->class_count];
+    double r = ((double)i + uniform(f)) / (double)n * total;
+    while (s->ci + 1 < z->class_count && !(z->class_cum[s->ci + 1] > r)) {
+        s->ci++;
+        s->t = 0;
+    }
+    const rzb_class *c = &z->cls[s->ci];
+    if (!c->count)
+        return NULL;
+    double y = r - z->class_cum[s->ci];
+    if (!(y < c->cum[c->count]))
+        y = nextafter(c->cum[c->count], 0);
+    s->t = gallop(c->cum, s->t, c->count, y);
+    double side = ldexp(1.0, (int)s->k->level);
+    double col_i = floor(uniform(f) * side), row_j = floor(uniform(f) * side), w[3];
+    bary(uniform(f), uniform(f), w);
+    const rzb_tri *tr = &c->tri[s->t];
+    for (int a = 0; a < 3; a++) {
+        p[a] = c->origin[a] - z->box_lo[a] + w[0] * tr->p[0][a] + w[1] * tr->p[1][a] +
+               w[2] * tr->p[2][a];
+        col[a] = w[0] * tr->rgba[0][a] + w[1] * tr->rgba[1][a] + w[2] * tr->rgba[2][a];
+    }
+    p[0] += col_i * s->pitch[0];
+    p[1] += row_j * s->pitch[1];
+    return tr;
+}
+
+/* N fresh points of source s. */
+static void fresh(frame_ctx *f, point_src *s, uint64_t n)
+{
     n = room(f, n);
     double base[3];
     for (int a = 0; a < 3; a++)
-        base[a] = c->origin[a] + f->off[a] - f->v->eye[a];
-    uint32_t at = b;
+        base[a] = s->origin[a] - f->v->eye[a];
     for (uint64_t i = 0; i < n; i++) {
         double p[3], col[3], rel[3];
-        uint32_t t = draw_point(f, c, b, e, i, n, &at, p, col);
+        const rzb_tri *tr = src_point(f, s, i, n, p, col);
+        if (!tr)
+            continue;
         for (int a = 0; a < 3; a++)
             rel[a] = base[a] + p[a];
-        emit(f, rel, c->tri[t].n, col, (int)c->tri[t].two_sided);
+        emit(f, rel, tr->n, col, (int)tr->two_sided);
     }
 }
 
@@ -881,8 +958,7 @@ static int cache_grow(hlod_rzb *z)
 /* The points of a new cache at `level`: n fresh points of the range,
  * without back-face rejection (a cache serves every side), each snapped
  * to the centre of its cell, one a cell (a scratch hash set of cells). */
-static int cache_fill(frame_ctx *f, const rzb_class *c, uint32_t b, uint32_t e, uint64_t n,
-                      int level, rzb_cache *out)
+static int cache_fill(frame_ctx *f, point_src *src, uint64_t n, int level, rzb_cache *out)
 {
     hlod_rzb *z = f->z;
     double side = ldexp(1.0, level);
@@ -897,10 +973,12 @@ static int cache_fill(frame_ctx *f, const rzb_class *c, uint32_t b, uint32_t e, 
         return 0;
     }
     memset(seen, 0, slots * sizeof *seen);
-    uint32_t at = b, count = 0;
+    uint32_t count = 0;
     for (uint64_t i = 0; i < n; i++) {
         double p[3], col[3];
-        uint32_t t = draw_point(f, c, b, e, i, n, &at, p, col);
+        const rzb_tri *tr = src_point(f, src, i, n, p, col);
+        if (!tr)
+            continue;
         int64_t cell[3];
         for (int a = 0; a < 3; a++)
             cell[a] = (int64_t)floor(p[a] / side);
@@ -913,7 +991,6 @@ static int cache_fill(frame_ctx *f, const rzb_class *c, uint32_t b, uint32_t e, 
             continue; /* the cell has its point (a rare hash clash drops one more) */
         seen[s] = key;
         cache_pt *q = &pt[count++];
-        const rzb_tri *tr = &c->tri[t];
         for (int a = 0; a < 3; a++) {
             q->p[a] = (float)((cell[a] + 0.5) * side);
             q->n[a] = (int16_t)lrint(tr->n[a] * 32767.0);
@@ -929,50 +1006,48 @@ static int cache_fill(frame_ctx *f, const rzb_class *c, uint32_t b, uint32_t e, 
     return 1;
 }
 
-/* A selected range drawn from its cache (made or made again when its
- * cells no longer fit the view: over d pixels at the box's nearest depth,
- * or four times smaller than needed). */
-static void cached(frame_ctx *f, uint32_t ci, uint32_t node, int own, uint32_t b, uint32_t e,
-                   double zmin, uint64_t n)
+/* Source s drawn from its cache, the one of (key, copy): made, or made
+ * again when its cells no longer fit the view (over d pixels at the
+ * box's nearest depth zmin, or four times smaller than needed). */
+static void cached(frame_ctx *f, point_src *s, uint64_t key, uint64_t copy, double zmin,
+                   uint64_t n)
 {
     hlod_rzb *z = f->z;
-    const rzb_class *c = &z->cls[ci];
     /* a cell whose side projects within d pixels at zmin: its diagonal
      * within sqrt(3) d (Wand 7.2) */
     int level = (int)floor(log2(zmin * f->d / sqrt(f->f2)));
-    uint64_t key = (((uint64_t)ci << 40) | ((uint64_t)node << 1) | (uint64_t)own) + 1;
     if (!cache_grow(z)) {
-        sample(f, ci, b, e, n);
+        fresh(f, s, n);
         return;
     }
-    rzb_cache *slot = cache_slot(z, key, f->copy);
+    rzb_cache *slot = cache_slot(z, key, copy);
     if (slot->key && (slot->level > level || slot->level < level - 2)) {
         cache_remove(z, (size_t)(slot - z->cache));
-        slot = cache_slot(z, key, f->copy);
+        slot = cache_slot(z, key, copy);
     }
     if (!slot->key) {
         /* four times the points a fresh frame draws: its cells project
          * within d / 2 to d pixels, so each gets about ln v of them, and
          * few stay empty */
         uint64_t fill = 4 * n < RZB_MAX_SAMPLES ? 4 * n : RZB_MAX_SAMPLES;
-        rzb_cache fresh = {0};
-        if (!cache_fill(f, c, b, e, fill, level, &fresh)) {
+        rzb_cache made = {0};
+        if (!cache_fill(f, s, fill, level, &made)) {
             f->nomem = 1;
             return;
         }
-        fresh.key = key;
-        fresh.copy = f->copy;
-        slot = cache_slot(z, key, f->copy); /* unchanged: nothing was added since */
-        *slot = fresh;
+        made.key = key;
+        made.copy = copy;
+        slot = cache_slot(z, key, copy); /* unchanged: nothing was added since */
+        *slot = made;
         z->cache_used++;
-        z->cache_bytes += (size_t)fresh.count * sizeof(cache_pt);
+        z->cache_bytes += (size_t)made.count * sizeof(cache_pt);
         f->out->cache_fills++;
     }
     slot->used = f->frame;
     uint64_t m = room(f, slot->count);
     double base[3];
     for (int a = 0; a < 3; a++)
-        base[a] = c->origin[a] + f->off[a] - f->v->eye[a];
+        base[a] = s->origin[a] - f->v->eye[a];
     for (uint64_t i = 0; i < m; i++) {
         const cache_pt *q = &slot->pt[i];
         double rel[3], col[3];
@@ -1004,10 +1079,12 @@ static void select_range(frame_ctx *f, uint32_t ci, uint32_t node, int own, uint
     }
     double want = ceil((c->cum[e] - c->cum[b]) * proj * f->lnv / f->d2);
     uint64_t n = want < (double)RZB_MAX_SAMPLES ? (uint64_t)want : RZB_MAX_SAMPLES;
+    point_src src = range_src(f, ci, b, e);
     if (f->z->cache_limit)
-        cached(f, ci, node, own, b, e, zmin, n);
+        cached(f, &src, (((uint64_t)ci << 40) | ((uint64_t)node << 1) | (uint64_t)own) + 1,
+               f->copy, zmin, n);
     else
-        sample(f, ci, b, e, n);
+        fresh(f, &src, n);
     f->out->boxes_sampled++;
 }
 
@@ -1062,48 +1139,6 @@ static void walk_class(frame_ctx *f, uint32_t ci)
 
 /* ---- instancing (section 7.3) ---- */
 
-/* N fresh points of a block of copies: faces picked as a range's are
- * (one uniform position in each of n equal strata of the scene's area,
- * classes then faces in order, read front to back by the forward
- * search), each point's copy drawn uniformly (the copies' areas are
- * equal): each face of each copy is picked with probability n x its area
- * / the block's.  (Strata over the copies instead, copy by copy, restart
- * the search at every copy: with more copies than points each point
- * searched its class afresh, 1.8x the time a point.) */
-static void sample_block(frame_ctx *f, const copy_block *k, const double pitch[2], uint64_t n)
-{
-    const hlod_rzb *z = f->z;
-    n = room(f, n);
-    double side = ldexp(1.0, (int)k->level), total = z->class_cum[z->class_count];
-    uint32_t ci = 0, t = 0;
-    for (uint64_t s = 0; s < n; s++) {
-        double r = ((double)s + uniform(f)) / (double)n * total;
-        while (ci + 1 < z->class_count && !(z->class_cum[ci + 1] > r)) {
-            ci++;
-            t = 0;
-        }
-        const rzb_class *c = &z->cls[ci];
-        if (!c->count)
-            continue;
-        double y = r - z->class_cum[ci];
-        if (!(y < c->cum[c->count]))
-            y = nextafter(c->cum[c->count], 0);
-        t = gallop(c->cum, t, c->count, y);
-        double col = floor(uniform(f) * side), row = floor(uniform(f) * side);
-        double w[3], rel[3], rgb[3];
-        bary(uniform(f), uniform(f), w);
-        const rzb_tri *tr = &c->tri[t];
-        for (int a = 0; a < 3; a++) {
-            rel[a] = c->origin[a] - f->v->eye[a] + w[0] * tr->p[0][a] + w[1] * tr->p[1][a] +
-                     w[2] * tr->p[2][a];
-            rgb[a] = w[0] * tr->rgba[0][a] + w[1] * tr->rgba[1][a] + w[2] * tr->rgba[2][a];
-        }
-        rel[0] += (k->i + col) * pitch[0];
-        rel[1] += (k->j + row) * pitch[1];
-        emit(f, rel, tr->n, rgb, (int)tr->two_sided);
-    }
-}
-
 /* The copies' walk: a quadtree of square blocks of copies from the whole
  * grid down.  A block outside the frustum or behind the eye is skipped;
  * a block whose depth range is narrow, and whose faces all project within
@@ -1147,8 +1182,12 @@ static void walk_copies(frame_ctx *f)
         if (zmin > 0 && zmax * zmax <= f->eps * zmin * zmin &&
             (!f->raster || z->max_area * proj <= f->d2 / f->lnv)) {
             double want = ceil(z->class_cum[z->class_count] * (double)n * n * proj * f->lnv / f->d2);
-            sample_block(f, &k, pitch, want < (double)RZB_MAX_SAMPLES ? (uint64_t)want
-                                                                      : RZB_MAX_SAMPLES);
+            uint64_t m = want < (double)RZB_MAX_SAMPLES ? (uint64_t)want : RZB_MAX_SAMPLES;
+            point_src src = block_src(f, &k, pitch);
+            if (z->cache_limit) /* a block's key: its level, past every range's */
+                cached(f, &src, (1ull << 63) | k.level, (uint64_t)k.i << 32 | k.j, zmin, m);
+            else
+                fresh(f, &src, m);
             f->out->boxes_sampled++;
             continue;
         }

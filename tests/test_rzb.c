@@ -16,7 +16,8 @@
  *   store twice as wide (faces rasterised, 40 dB); a 4 x 4 block seen from
  *   above is sampled as one box, its points spread over the copies
  *   uniformly (chi-square) and covering the view but for about a pixel a
- *   frame (at most 10 in 4 frames); 4^20
+ *   frame (at most 10 in 4 frames), and from the block's cache in the
+ *   next frame with a third of the points; 4^20
  *   and 4^24 copies seen over the horizon (the eye scaled with them) take
  *   no more boxes than 4^10: the walk grows with the picture, not with
  *   the copies.
@@ -512,6 +513,58 @@ static void copies_sample_as_one_box(void)
     free(img);
 }
 
+/* A block of copies keeps its points too: the 4 x 4 copies' frame 2 draws
+ * them all from the block's cache, far fewer than fresh, and covers the
+ * view as a range's cache does. */
+static void copies_serve_from_caches(void)
+{
+    char path[512];
+    snprintf(path, sizeof path, "%s/fine.hlod", g_dir);
+    hlod_store *s = NULL;
+    CHECK(hlod_store_open(path, NULL, &s) == HLOD_OK);
+    if (!s)
+        return;
+    hlod_camera cam;
+    down_camera(&cam, 5e6 + 200, 200, 150);
+    hlod_engine_desc desc = {0};
+    desc.policy = HLOD_POLICY_RZB;
+    desc.renderer = g_r;
+    desc.deterministic = 1;
+    desc.rzb_copies = 2;
+    desc.rzb_cache_mb = 64;
+    hlod_engine *e = NULL;
+    hlod_frame_stats st;
+    uint8_t *img = malloc(W * H * 3);
+    CHECK(img && hlod_engine_create(s, &desc, &e) == HLOD_OK);
+    uint64_t first = 0;
+    for (int k = 0; k < 2 && e && img; k++) {
+        CHECK(hlod_engine_frame(e, &cam, 1.0 / 30, &st) == HLOD_OK);
+        const hlod_rzb_out *o = &e->rzb_out;
+        if (k == 0) {
+            CHECKF(o->cache_fills == 1 && o->boxes_sampled == 1, "frame 1: %u caches made, %u boxes",
+                   o->cache_fills, o->boxes_sampled);
+            first = o->cache_bytes;
+            continue;
+        }
+        CHECK(hlod_osmesa_read_rgb(g_gl, img) == HLOD_OK);
+        size_t holes = 0;
+        for (size_t p = 0; p < W * H; p++)
+            holes += is_bg(img + 3 * p);
+        printf("REPORT 4 x 4 copies from the block's cache: frame 2 drew %llu points from %zu "
+               "bytes (fresh: 757,453); %zu of %d pixels uncovered\n",
+               (unsigned long long)o->samples, o->cache_bytes, holes, W * H);
+        CHECKF(o->cache_fills == 0 && o->cache_points == o->samples && o->cache_bytes == first,
+               "frame 2: %u caches made, %llu of %llu points from caches", o->cache_fills,
+               (unsigned long long)o->cache_points, (unsigned long long)o->samples);
+        CHECKF(o->samples > 1000 && 3 * o->samples < 757453, "cached points %llu",
+               (unsigned long long)o->samples);
+        CHECKF(holes <= W * H / 200, "from the block's cache: %zu pixels uncovered", holes);
+    }
+    hlod_engine_destroy(e);
+    hlod_store_close(s);
+    free(img);
+}
+
 /* 2^levels x 2^levels copies of the fine board seen from a low eye over
  * the horizon, the eye's height and distances scaled with the copies (the
  * same picture, as in Wand Fig. 6): the boxes walked follow the picture,
@@ -584,6 +637,7 @@ int main(void)
         RUN(large_faces_draw_as_full);
         RUN(copies_draw_the_wider_store);
         RUN(copies_sample_as_one_box);
+        RUN(copies_serve_from_caches);
         RUN(copies_walk_grows_with_levels);
     } else {
         CHECK(0); /* OSMesa is installed by the test command */
