@@ -207,6 +207,35 @@ static int is_bg(const uint8_t *p)
     return p[0] == 255 && p[1] == 0 && p[2] == 255;
 }
 
+/* The background pixels of a frame read back. */
+static size_t count_bg(const uint8_t *img)
+{
+    size_t n = 0;
+    for (size_t p = 0; p < W * H; p++)
+        n += is_bg(img + 3 * p);
+    return n;
+}
+
+/* fine_board_is_covered's store, opened (NULL on failure, checked). */
+static hlod_store *open_fine(void)
+{
+    char path[512];
+    snprintf(path, sizeof path, "%s/fine.hlod", g_dir);
+    hlod_store *s = NULL;
+    CHECK(hlod_store_open(path, NULL, &s) == HLOD_OK);
+    return s;
+}
+
+/* An rzb engine's description over the test renderer, deterministic. */
+static hlod_engine_desc rzb_desc(void)
+{
+    hlod_engine_desc desc = {0};
+    desc.policy = HLOD_POLICY_RZB;
+    desc.renderer = g_r;
+    desc.deterministic = 1;
+    return desc;
+}
+
 /* The board (4 roots of 100 m side by side along x) seen from above fills
  * the view: 64 leaves a root of 80 x 80 quads, 0.05 px^2 a face. */
 static void fine_board_is_covered(void)
@@ -226,9 +255,7 @@ static void fine_board_is_covered(void)
             hlod_frame_stats st, st2;
             uint8_t *out = c ? img : gl;
             CHECK(render_as(path, HLOD_POLICY_RZB, sizes[k], c, &cam, out, &st));
-            size_t holes = 0;
-            for (size_t p = 0; p < W * H; p++)
-                holes += is_bg(out + 3 * p);
+            size_t holes = count_bg(out);
             printf("REPORT d = %u, %s: %u points, %llu faces rasterised, %zu of %d pixels "
                    "uncovered\n", sizes[k], c ? "C splatter" : "GL points", st.splats,
                    (unsigned long long)st.tris_drawn, holes, W * H);
@@ -257,18 +284,12 @@ static void fine_board_is_covered(void)
  * cell's centre, up to half a cell off the surface). */
 static void caches_serve_the_next_frame(void)
 {
-    char path[512];
-    snprintf(path, sizeof path, "%s/fine.hlod", g_dir); /* fine_board_is_covered's */
-    hlod_store *s = NULL;
-    CHECK(hlod_store_open(path, NULL, &s) == HLOD_OK);
+    hlod_store *s = open_fine();
     if (!s)
         return;
     hlod_camera cam;
     down_camera(&cam, 5e6 + 50, 50, 50);
-    hlod_engine_desc desc = {0};
-    desc.policy = HLOD_POLICY_RZB;
-    desc.renderer = g_r;
-    desc.deterministic = 1;
+    hlod_engine_desc desc = rzb_desc();
     hlod_engine *e = NULL;
     hlod_frame_stats st;
     /* fresh points: no caches (the default) */
@@ -288,9 +309,7 @@ static void caches_serve_the_next_frame(void)
             continue;
         }
         CHECK(hlod_osmesa_read_rgb(g_gl, img) == HLOD_OK);
-        size_t holes = 0;
-        for (size_t p = 0; p < W * H; p++)
-            holes += is_bg(img + 3 * p);
+        size_t holes = count_bg(img);
         printf("REPORT caches: frame 2 drew %llu points from %zu bytes of caches (%u made "
                "again), fresh points %llu; %zu of %d pixels uncovered\n",
                (unsigned long long)o->samples, o->cache_bytes, o->cache_fills,
@@ -417,9 +436,7 @@ static void copies_draw_the_wider_store(void)
     double psnr = 0;
     if (a && b)
         CHECK(hlod_psnr_rgb8(a, b, W, H, &psnr) == HLOD_OK);
-    size_t bg = 0;
-    for (size_t p = 0; a && p < W * H; p++)
-        bg += is_bg(a + 3 * p);
+    size_t bg = a ? count_bg(a) : W * H;
     printf("REPORT 2 x 2 copies: %llu faces rasterised in %u draws, %u points; %.1f dB against "
            "the store twice as wide (%llu faces); %zu background pixels\n",
            (unsigned long long)sa.tris_drawn, sa.nodes_drawn, sa.splats, psnr,
@@ -438,20 +455,14 @@ static void copies_draw_the_wider_store(void)
  * freedom) and cover the view. */
 static void copies_sample_as_one_box(void)
 {
-    char path[512];
-    snprintf(path, sizeof path, "%s/fine.hlod", g_dir); /* fine_board_is_covered's */
-    hlod_store *s = NULL;
-    CHECK(hlod_store_open(path, NULL, &s) == HLOD_OK);
+    hlod_store *s = open_fine();
     if (!s)
         return;
     hlod_camera cam;
     down_camera(&cam, 5e6 + 200, 200, 150);
     uint8_t *img = malloc(W * H * 3);
     for (int splat_c = 0; splat_c < 2 && img; splat_c++) {
-        hlod_engine_desc desc = {0};
-        desc.policy = HLOD_POLICY_RZB;
-        desc.renderer = g_r;
-        desc.deterministic = 1;
+        hlod_engine_desc desc = rzb_desc();
         desc.rzb_copies = 2;
         desc.rzb_splat_c = splat_c ? 1 : -1;
         hlod_engine *e = NULL;
@@ -497,9 +508,7 @@ static void copies_sample_as_one_box(void)
                 if (fr)
                     CHECK(hlod_engine_frame(e, &cam, 1.0 / 30, &st) == HLOD_OK);
                 CHECK(hlod_osmesa_read_rgb(g_gl, img) == HLOD_OK);
-                size_t h = 0;
-                for (size_t p = 0; p < W * H; p++)
-                    h += is_bg(img + 3 * p);
+                size_t h = count_bg(img);
                 holes += h;
                 worst = h > worst ? h : worst;
             }
@@ -518,18 +527,12 @@ static void copies_sample_as_one_box(void)
  * view as a range's cache does. */
 static void copies_serve_from_caches(void)
 {
-    char path[512];
-    snprintf(path, sizeof path, "%s/fine.hlod", g_dir);
-    hlod_store *s = NULL;
-    CHECK(hlod_store_open(path, NULL, &s) == HLOD_OK);
+    hlod_store *s = open_fine();
     if (!s)
         return;
     hlod_camera cam;
     down_camera(&cam, 5e6 + 200, 200, 150);
-    hlod_engine_desc desc = {0};
-    desc.policy = HLOD_POLICY_RZB;
-    desc.renderer = g_r;
-    desc.deterministic = 1;
+    hlod_engine_desc desc = rzb_desc();
     desc.rzb_copies = 2;
     desc.rzb_cache_mb = 64;
     hlod_engine *e = NULL;
@@ -547,9 +550,7 @@ static void copies_serve_from_caches(void)
             continue;
         }
         CHECK(hlod_osmesa_read_rgb(g_gl, img) == HLOD_OK);
-        size_t holes = 0;
-        for (size_t p = 0; p < W * H; p++)
-            holes += is_bg(img + 3 * p);
+        size_t holes = count_bg(img);
         printf("REPORT 4 x 4 copies from the block's cache: frame 2 drew %llu points from %zu "
                "bytes (fresh: 757,453); %zu of %d pixels uncovered\n",
                (unsigned long long)o->samples, o->cache_bytes, holes, W * H);
@@ -591,10 +592,7 @@ static uint32_t horizon_boxes(hlod_rzb *z, uint32_t levels, uint64_t *points)
 
 static void copies_walk_grows_with_levels(void)
 {
-    char path[512];
-    snprintf(path, sizeof path, "%s/fine.hlod", g_dir);
-    hlod_store *s = NULL;
-    CHECK(hlod_store_open(path, NULL, &s) == HLOD_OK);
+    hlod_store *s = open_fine();
     if (!s)
         return;
     hlod_engine_desc desc = {0};
