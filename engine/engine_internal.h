@@ -46,6 +46,7 @@ struct hlod_engine {
     size_t splat_cap;
     hlod_rzb *rzb;              /* policy rzb: every leaf in core (rzb.h); else NULL */
     hlod_rzb_out rzb_out;       /* ... the frame's points and faces to rasterise */
+    hlod_view rzb_view;         /* ... and the view it sampled (a replay samples it again) */
     hlod_lumi *lumi;            /* policy lumigraph: the repository's views; else NULL */
     hlod_gpu_lumi_frame lumi_frame; /* ... this frame's blend */
 

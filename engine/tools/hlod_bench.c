@@ -222,14 +222,17 @@ static int given(const options *o, const setting *extra, const char *key)
     return extra && !strcmp(extra->key, key);
 }
 
-/* --set rzb_copies: the levels of copies policy rzb draws (0: none). */
+/* --set or --sweep rzb_copies: the most levels of copies policy rzb
+ * draws in any run (0: none). */
 static uint32_t copy_levels(const options *o)
 {
-    uint32_t l = 0;
+    double l = 0;
     for (int i = 0; i < o->nsets; i++)
         if (!strcmp(o->sets[i].key, "rzb_copies"))
-            l = (uint32_t)o->sets[i].value;
-    return l;
+            l = o->sets[i].value;
+    for (int i = 0; o->sweep_key && !strcmp(o->sweep_key, "rzb_copies") && i < o->nsweep; i++)
+        l = o->sweep[i] > l ? o->sweep[i] : l;
+    return l > 0 && l <= 64 ? (uint32_t)l : 0;
 }
 
 static void apply_setting(hlod_engine_desc *d, const char *k, double v)

@@ -387,8 +387,10 @@ const hlod_engine_desc *hlod_engine_get_desc(const hlod_engine *e);
  * its draw order, the culled nodes last, so that a depth tie between two
  * nodes falls the same way in both).  For the machine's own
  * jitter (hlod-bench replays one frozen selection) and for checking that
- * occlusion culling changes no pixel.  HLOD_ERR_INVALID_ARG before the
- * first frame or for a bad camera. */
+ * occlusion culling changes no pixel.  Policy rzb, whose selection is its
+ * sampling, samples the last frame's view again with its seed (the same
+ * points) before drawing.  HLOD_ERR_INVALID_ARG before the first frame or
+ * for a bad camera. */
 hlod_result hlod_engine_replay(hlod_engine *e, const hlod_camera *cam, int occlusion, double *ms);
 
 /* Draws the last frame's selection again from cam as hlod_engine_replay

@@ -20,8 +20,8 @@
 # rasterised faces, no caches) and rzb_raster=1 (the default: faces that
 # project over d^2 / ln v pixels rasterised).  ROUNDS rounds, the levels
 # alternated within each, so the machine's drift falls on every level
-# alike; the machine's own jitter is the spread of a level's rounds (the
-# frozen replay replays a selection of nodes, and rzb draws none).
+# alike; the machine's own jitter is the spread of a level's rounds (a
+# replay of rzb samples the frame again, so it would double the run).
 #
 # Env: BIN (build/bin), LEVELS ("0 1 2 ... 18"), FRAMES (20), ROUNDS (2),
 # SPLAT_PX (1).
