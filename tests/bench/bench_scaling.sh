@@ -35,7 +35,9 @@
 # method, error bars from the machine's p50 to p99, from the per-method
 # rows in OUTDIR/scaling-METHOD.dat) when gnuplot is there.
 # Boards and stores are kept in OUTDIR/N/.
-# Env: BIN (build/bin), FRAMES (120), VIEW_FRAMES (400), TARGET (33),
+# Env: BIN (build/bin), FRAMES (120), VIEW_FRAMES (400 below 4 x 10^6
+# triangles, 1,600 from there: a sample tree of 8 x 10^6 settles its
+# loads for the still view at about frame 480), TARGET (33),
 # JITTER (60), MEMORY_MB (0: build in core; else hlod-build --memory-mb).
 set -uo pipefail
 ROOT=$(cd "$(dirname "$0")/../.." && pwd)
@@ -45,7 +47,6 @@ shift
 SIZES=("$@")
 [ ${#SIZES[@]} -gt 0 ] || SIZES=(80000 800000 8000000)
 FRAMES=${FRAMES:-120}
-VIEW_FRAMES=${VIEW_FRAMES:-400}
 MEMORY_MB=${MEMORY_MB:-0}
 TARGET=${TARGET:-33}
 JITTER=${JITTER:-60}
@@ -83,11 +84,12 @@ bench() { # STORE RUN_DIR ARGS...: the low path, then the still view
         --memory-mb 8192 --set max_inflight=256 --reference --reference-every 20 \
         --reference-store "$ref" "$@" 2>"$dir.err" >/dev/null &&
         "$BIN/hlod-bench" "$st" --path "$out/view.path" --target-ms "$TARGET" --out "$dir-view" \
-            --width 640 --height 480 --frames "$VIEW_FRAMES" --jitter-frames "$JITTER" \
+            --width 640 --height 480 --frames "$view_frames" --jitter-frames "$JITTER" \
             --no-plots --memory-mb 8192 --set max_inflight=256 "$@" 2>"$dir-view.err" >/dev/null ||
         { echo "failed: $dir (see $dir.err)"; return 1; }
 }
 for n in "${SIZES[@]}"; do
+    view_frames=${VIEW_FRAMES:-$([ "$n" -ge 4000000 ] && echo 1600 || echo 400)}
     d="$out/$n"
     mkdir -p "$d"
     echo "== $n triangles"
