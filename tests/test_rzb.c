@@ -280,6 +280,20 @@ static void fine_board_is_covered(void)
     free(gl);
 }
 
+/* The points one frame of desc draws from cam without sample caches
+ * (checked; 0 on failure). */
+static uint64_t fresh_points(const hlod_store *s, hlod_engine_desc desc, const hlod_camera *cam)
+{
+    desc.rzb_cache_mb = 0;
+    hlod_engine *e = NULL;
+    hlod_frame_stats st;
+    CHECK(hlod_engine_create(s, &desc, &e) == HLOD_OK);
+    CHECK(e && hlod_engine_frame(e, cam, 1.0 / 30, &st) == HLOD_OK);
+    uint64_t n = e ? e->rzb_out.samples : 0;
+    hlod_engine_destroy(e);
+    return n;
+}
+
 /* A replay (hlod_engine_replay: the machine's jitter) samples the last
  * frame's view again with its seed: the same points, the same image, and
  * the frame's counts unchanged. */
@@ -329,12 +343,7 @@ static void caches_serve_the_next_frame(void)
     hlod_engine_desc desc = rzb_desc();
     hlod_engine *e = NULL;
     hlod_frame_stats st;
-    /* fresh points: no caches (the default) */
-    CHECK(hlod_engine_create(s, &desc, &e) == HLOD_OK);
-    CHECK(e && hlod_engine_frame(e, &cam, 1.0 / 30, &st) == HLOD_OK);
-    uint64_t fresh = e ? e->rzb_out.samples : 0;
-    hlod_engine_destroy(e);
-    e = NULL;
+    uint64_t fresh = fresh_points(s, desc, &cam);
     desc.rzb_cache_mb = 64;
     uint8_t *img = malloc(W * H * 3);
     CHECK(img && hlod_engine_create(s, &desc, &e) == HLOD_OK);
@@ -571,16 +580,9 @@ static void copies_serve_from_caches(void)
     down_camera(&cam, 5e6 + 100, 100, 125);
     hlod_engine_desc desc = rzb_desc();
     desc.rzb_copies = 1;
-    desc.rzb_cache_mb = 64;
     hlod_engine *e = NULL;
     hlod_frame_stats st;
-    /* fresh points first: no caches */
-    desc.rzb_cache_mb = 0;
-    CHECK(hlod_engine_create(s, &desc, &e) == HLOD_OK);
-    CHECK(e && hlod_engine_frame(e, &cam, 1.0 / 30, &st) == HLOD_OK);
-    uint64_t fresh = e ? e->rzb_out.samples : 0;
-    hlod_engine_destroy(e);
-    e = NULL;
+    uint64_t fresh = fresh_points(s, desc, &cam);
     desc.rzb_cache_mb = 64;
     uint8_t *img = malloc(W * H * 3);
     CHECK(img && hlod_engine_create(s, &desc, &e) == HLOD_OK);

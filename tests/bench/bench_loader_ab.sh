@@ -41,8 +41,7 @@ if [ -z "${MEMORY_MB:-}" ]; then
         { echo "bench_loader_ab: $store: hlod-info failed" >&2; exit 1; }
 fi
 mkdir -p "$out" || exit 1
-key() { perl -MJSON::PP -e 'local $/; my $j = JSON::PP->new->decode(<STDIN>);
-    my $v = $j->{$ARGV[0]}; print defined $v ? $v : ""' "$1" <"$2"; }
+. "$ROOT/tests/bench/summary_key.sh"
 csv="$out/loader_ab.csv"
 echo "path,set,round,deadline_met,render_waits,missing_wanted_frames,machine_p50_ms,machine_p99_ms,miss_queued,frames_queued,miss_idle,frames_idle,miss_queued_45,frames_queued_45,miss_idle_45,frames_idle_45" >"$csv"
 for r in $(seq "$ROUNDS"); do

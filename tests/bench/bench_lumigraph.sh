@@ -43,8 +43,7 @@ MESH_PX=${MESH_PX:-8}
 mkdir -p "$out" || exit 1
 csv="$out/lumigraph.csv"
 echo "model,tris,path,policy,frame_ms_mean,frame_ms_cv,psnr_mean,bytes_per_frame,answer_bytes_max,lumi_missing_frames,tris_mean,machine_p50_ms,machine_p99_ms,bake_seconds,bake_bytes,views" >"$csv"
-key() { perl -MJSON::PP -e 'local $/; my $j = JSON::PP->new->decode(<STDIN>);
-    my $v = $j->{$ARGV[0]}; print defined $v ? $v : ""' "$1" <"$2"; }
+. "$ROOT/tests/bench/summary_key.sh"
 # col_stats CSV COLUMN SKIP: "mean cv" of COLUMN over the rows after SKIP
 col_stats() {
     awk -F, -v col="$2" -v skip="$3" 'NR == 1 { for (i = 1; i <= NF; i++) if ($i == col) c = i; next }

@@ -28,8 +28,7 @@ perl -e 'for my $i (0 .. 40) { my $t = $i * 0.5; my $x = 20 + 4 * $i; my $y = 10
     printf "%.2f %.3f %.3f 6 %.3f %.3f 0\n", $t, $x, $y, $x + 12, $y + 30 }' >"$out/low.path"
 csv="$out/rzb.csv"
 echo "tris,run,policy,splat_px,splat_c,cache_mb,rzb_eps,frame_ms_mean,frame_ms_p50,psnr_mean,tris_mean,splats_mean" >"$csv"
-key() { perl -MJSON::PP -e 'local $/; my $j = JSON::PP->new->decode(<STDIN>);
-    my $v = $j->{$ARGV[0]}; print defined $v ? $v : ""' "$1" <"$2"; }
+. "$ROOT/tests/bench/summary_key.sh"
 # run N NAME POLICY [--set k=v ...]: one hlod-bench run, one CSV row
 run() {
     local n=$1 name=$2 pol=$3

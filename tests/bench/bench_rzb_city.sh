@@ -35,8 +35,7 @@ ROUNDS=${ROUNDS:-2}
 CACHE_MB=${CACHE_MB:-1024}
 FRAMES_FULL=${FRAMES_FULL:-300}
 mkdir -p "$out" || exit 1
-key() { perl -MJSON::PP -e 'local $/; my $j = JSON::PP->new->decode(<STDIN>);
-    my $v = $j->{$ARGV[0]}; print defined $v ? $v : ""' "$1" <"$2"; }
+. "$ROOT/tests/bench/summary_key.sh"
 csv="$out/rzb_city.csv"
 echo "path,run,round,copies,frame_ms_p50,frame_ms_mean,splats_mean,tris_mean" >"$csv"
 # run PATH NAME COPIES ARGS...: one hlod-bench run, one CSV row

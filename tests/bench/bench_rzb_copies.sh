@@ -39,8 +39,7 @@ if [ ! -s "$out/board.hlod" ]; then
         "$BIN/hlod-build" "$out/board.obj" -o "$out/board.hlod" --quiet ||
         { echo "bench_rzb_copies: building the board failed" >&2; exit 1; }
 fi
-key() { perl -MJSON::PP -e 'local $/; my $j = JSON::PP->new->decode(<STDIN>);
-    my $v = $j->{$ARGV[0]}; print defined $v ? $v : ""' "$1" <"$2"; }
+. "$ROOT/tests/bench/summary_key.sh"
 csv="$out/rzb_copies.csv"
 echo "levels,tris,raster,round,frame_ms_mean,frame_ms_p50,frame_ms_p99,splats_mean,tris_mean" >"$csv"
 for r in $(seq "$ROUNDS"); do

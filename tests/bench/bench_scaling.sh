@@ -58,8 +58,7 @@ perl -e 'for my $i (0 .. 40) { my $t = $i * 0.5; my $x = 20 + 4 * $i; my $y = 10
 printf "0 20 10 6 32 40 0\n100 20 10 6 32 40 0\n" >"$out/view.path"
 csv="$out/scaling.csv"
 echo "method,tris,build_s,store_bytes,frame_ms_mean,frame_ms_p50,machine_p50_ms,machine_p99_ms,tris_mean,splats_mean,view_p50_ms,view_p99_ms,view_tris,view_missing,psnr_mean" >"$csv"
-key() { perl -MJSON::PP -e 'local $/; my $j = JSON::PP->new->decode(<STDIN>);
-    my $v = $j->{$ARGV[0]}; print defined $v ? $v : ""' "$1" <"$2"; }
+. "$ROOT/tests/bench/summary_key.sh"
 row() { # METHOD N BUILD_JSON STORE RUN_DIR
     local s="$5/summary.json" v="$5-view/summary.json" last
     last=$(tail -n 1 "$5-view/frames.csv" | cut -d, -f1)
