@@ -172,6 +172,19 @@ static hlod_result check_refine(const hlod_store *store, const hlod_engine_desc 
                   "store's nodes carry none (build one with hlod-build --method cubes)");
         return HLOD_ERR_INVALID_ARG;
     }
+    if (d->far_cubes > 0 && (add || hlod_policy_has(d->policy, HLOD_PT_RZB) ||
+                              hlod_policy_has(d->policy, HLOD_PT_LUMI))) {
+        hlod_logf(&d->logger, HLOD_LOG_ERROR, "engine: far_cubes draws a replacement "
+                  "hierarchy's front; policy %s on this store has none (klein's small nodes "
+                  "are splats, cubes' are cubes already)", hlod_policy_name(d->policy));
+        return HLOD_ERR_INVALID_ARG;
+    }
+    if (d->far_cubes > 0 &&
+        (!x || !hlod_store_get_header(store)->node_count || !(x[0].flags & HLOD_EXTRA_CUBE))) {
+        hlod_logf(&d->logger, HLOD_LOG_ERROR, "engine: far_cubes draws the nodes' colour "
+                  "cubes; this store's nodes carry none (build it with hlod-build --far-cubes on)");
+        return HLOD_ERR_INVALID_ARG;
+    }
     if (!add && pol) {
         hlod_logf(&d->logger, HLOD_LOG_ERROR, "engine: policy %s draws a sample tree; this "
                   "store refines by replacement (build one with hlod-build --method sampletree)",
@@ -621,6 +634,37 @@ static void draw_cubes(hlod_engine *e, const hlod_camera *cam)
     (void)hlod_gpu_blended(e->d.renderer, e->splat_buf, (uint32_t)nv);
 }
 
+/* far_cubes: the front's cubes far to near (their box centres' distance
+ * from the eye), so that each blends over those behind it.  Unsorted
+ * without memory for the keys. */
+static void order_cubes(hlod_engine *e, const hlod_camera *cam)
+{
+    hlod_u32_vec *sp = &e->sel.splats;
+    size_t n = sp->n;
+    if (n < 2)
+        return;
+    if (e->draw_keys_cap < n) {
+        draw_key *k = hlod_mem_realloc(&e->d.allocator, e->draw_keys, n * sizeof *k);
+        if (!k)
+            return;
+        e->draw_keys = k;
+        e->draw_keys_cap = n;
+    }
+    draw_key *keys = e->draw_keys;
+    for (size_t k = 0; k < n; k++) {
+        const hlod_store_node *nd = &e->nodes[sp->v[k]];
+        double d2 = 0;
+        for (int a = 0; a < 3; a++) {
+            double c = 0.5 * (nd->bbox_min[a] + nd->bbox_max[a]) - cam->position[a];
+            d2 += c * c;
+        }
+        keys[k] = (draw_key){0, d2, sp->v[k]};
+    }
+    hlod_sort(keys, n, sizeof *keys, cmp_draw_key);
+    for (size_t k = 0; k < n; k++)
+        sp->v[k] = keys[n - 1 - k].node;
+}
+
 /* The selection's splats (a sample tree's small nodes, Klein 4.5): each
  * at its box's centre, its colour lit as a face with the node's average
  * normal would be (gl_render.c's headlight and sky), as wide as the walk's
@@ -633,6 +677,11 @@ static void draw_splats(hlod_engine *e, const hlod_camera *cam)
         return;
     }
     if (hlod_policy_has(e->d.policy, HLOD_PT_CUBES)) {
+        draw_cubes(e, cam);
+        return;
+    }
+    if (e->d.far_cubes > 0) { /* the front's nodes within cube_px (docs/cubes.md) */
+        order_cubes(e, cam);
         draw_cubes(e, cam);
         return;
     }
@@ -708,6 +757,7 @@ static void draw_frame(hlod_engine *e, const hlod_camera *cam, const hlod_camera
     }
     if (!in_place && e->d.occlusion > 0 && hlod_policy_has(e->d.policy, HLOD_PT_OCCLUDE)) {
         draw_occluded(e, cam, view);
+        draw_splats(e, cam); /* far_cubes' cubes, over what occlusion left */
     } else {
         for (size_t k = 0; k < e->draw_list->n; k++)
             gpu_draw_node(e, cam, e->draw_list->v[k]);

@@ -44,6 +44,8 @@ typedef struct hlod_node_frame {
                              * 0 once refined again */
     hlod_policy_mem mem;    /* the policy's own (policy.h) */
     uint32_t coned;         /* frame normal cones last culled it */
+    uint32_t cube;          /* frame it was priced visible within cube_px, its colour cube
+                             * standing in for it (far_cubes) */
 } hlod_node_frame;
 
 /* The camera as the selection sees it, in camera-relative doubles. */
@@ -89,7 +91,8 @@ typedef struct hlod_selection {
     hlod_u32_vec refined;       /* nodes refined this frame, in walk order */
     hlod_u32_vec coned;         /* nodes normal cones culled this frame */
     int additive;               /* the store refines additively (walk_additive) */
-    hlod_u32_vec splats;        /* additive: nodes drawn as one splat this frame */
+    hlod_u32_vec splats;        /* additive: nodes drawn as one splat (or cube) this frame;
+                                   a front with far_cubes: the nodes drawn as their cubes */
     double splat_px;            /* ... the splat size they stopped at (klein-auto's varies) */
     double reserved, reserving; /* extra of the last frame's refinements; of this frame's */
     uint32_t cap_hits;          /* refinements the budget bound refused this frame */

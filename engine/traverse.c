@@ -53,6 +53,7 @@ typedef struct walk {
     int cones;           /* normal cones cull (the setting, or the policy's trait) */
     int nomem;           /* an allocation failed where no result could say so */
     double splat_px;     /* the additive walk's splat size (select_in) */
+    int far_cubes;       /* a front node within cube_px is its cube (docs/cubes.md) */
 } walk;
 
 /* ---- life ---- */
@@ -359,14 +360,32 @@ static void price(walk *w, const hlod_view *v, uint32_t i, double fv)
     hlod_node_frame *f = &w->fr[i];
     f->priority = node_priority(w, v, i, fv);
     f->priced = w->frame;
-    if (fv >= 1)
-        f->pix = hlod_view_pixels(v, w->nodes[i].bbox_min, w->nodes[i].bbox_max);
+    if (fv >= 1) {
+        const hlod_store_node *n = &w->nodes[i];
+        f->pix = hlod_view_pixels(v, n->bbox_min, n->bbox_max);
+        double raw[4], z;
+        if (w->far_cubes && (w->s->extras[i].flags & HLOD_EXTRA_CUBE) &&
+            project_raw(v, n->bbox_min, n->bbox_max, raw, &z) &&
+            raw[2] - raw[0] <= w->d->cube_px && raw[3] - raw[1] <= w->d->cube_px)
+            f->cube = w->frame;
+    }
     w->st->nodes_visited++;
 }
 
-/* timeNeeded of a visible node: the cost model's terms for drawing it. */
+/* Whether node i stands as its colour cube this frame (far_cubes): priced
+ * visible within cube_px x cube_px pixels.  Its mesh is neither read nor
+ * drawn, nor its subtree walked. */
+static int is_cube(const walk *w, uint32_t i)
+{
+    return w->fr[i].cube == w->frame;
+}
+
+/* timeNeeded of a visible node: the cost model's terms for drawing it (a
+ * cube: its pixels only; its faces go with the frame's other cubes). */
 static double node_needed(const walk *w, uint32_t i)
 {
+    if (is_cube(w, i))
+        return w->pixel_ms * w->fr[i].pix;
     return w->draw_ms + w->v_time * hlod_node_cost(&w->nodes[i]) + w->pixel_ms * w->fr[i].pix;
 }
 
@@ -434,6 +453,20 @@ static int draw_node(walk *w, uint32_t i)
     w->st->pixels_drawn += f->pix;
     if (is_hidden(w, i))
         w->st->occlusion_hidden++;
+    return 1;
+}
+
+/* Node i drawn as its colour cube (far_cubes): listed with the frame's
+ * cubes, counted as a splat; for toggles and the hold it is drawn. */
+static int draw_cube(walk *w, uint32_t i)
+{
+    hlod_node_frame *f = &w->fr[i];
+    if (!hlod_u32_push(&w->d->allocator, &w->s->splats, i))
+        return 0;
+    if (f->refined && f->refined + 1 == w->frame)
+        note_toggle(w, i, -1);
+    f->drawn = w->frame;
+    w->st->splats++;
     return 1;
 }
 
@@ -560,7 +593,7 @@ static int stand_in(walk *w, const hlod_view *v, front *fr, uint32_t p)
             continue;
         }
         price(w, v, c, fv);
-        if (fv < 1 || (!stands_down(w, c) &&
+        if (fv < 1 || (!stands_down(w, c) && !is_cube(w, c) &&
                        hlod_residency_state(w->res, c) != HLOD_NODE_RESIDENT)) {
             release(w, fr, c);
             /* a visible one being read leaves a hole until it arrives */
@@ -583,7 +616,7 @@ static int stand_in(walk *w, const hlod_view *v, front *fr, uint32_t p)
         cf->slice = pf->slice * (cf->priority / sum_pr);
         cf->needed = node_needed(w, w->s->next.v[k]);
         sum_needed += cf->needed;
-        if (w->policy->traits & HLOD_PT_HYST)
+        if ((w->policy->traits & HLOD_PT_HYST) && cf->needed > 0) /* (a cube's may be 0) */
             update_hyst(w, cf);
     }
     fr->est += sum_needed - pf->needed;
@@ -753,7 +786,7 @@ typedef struct family {
  * hlod_0 not read yet (it is on its way). */
 static int holds_back(const walk *w, uint32_t c)
 {
-    return hlod_residency_state(w->res, c) != HLOD_NODE_RESIDENT &&
+    return !is_cube(w, c) && hlod_residency_state(w->res, c) != HLOD_NODE_RESIDENT &&
            !(hlod_residency_is_top(w->res, c) && stands_down(w, c) &&
              hlod_store_first_child(w->nodes, c) < hlod_store_child_end(w->nodes, c));
 }
@@ -838,7 +871,8 @@ static int ask_children(walk *w, const family *f)
         return 1;
     for (size_t k = f->mark; k < w->s->next.n; k++) {
         uint32_t c = w->s->next.v[k];
-        if (!(f->refine ? hlod_residency_need : hlod_residency_want)(w->res, c, w->fr[c].priority))
+        if (!is_cube(w, c) &&
+            !(f->refine ? hlod_residency_need : hlod_residency_want)(w->res, c, w->fr[c].priority))
             return 0;
     }
     return 1;
@@ -872,6 +906,13 @@ static int visit(walk *w, const hlod_view *v, front *fr, uint32_t p)
 {
     hlod_node_frame *pf = &w->fr[p];
     uint32_t c0 = hlod_store_first_child(w->nodes, p), c1 = hlod_store_child_end(w->nodes, p);
+    if (is_cube(w, p)) {
+        /* its cube needs no read, and its children would be smaller still */
+        (void)claim(w, fr, pf);
+        for (uint32_t c = c0; c < c1; c++)
+            release(w, fr, c);
+        return draw_cube(w, p);
+    }
     if (stands_down(w, p))
         return stand_in(w, v, fr, p);
     const int was_refined = claim(w, fr, pf);
@@ -1211,7 +1252,8 @@ hlod_result hlod_select(hlod_selection *s, struct hlod_residency *res, const hlo
                 in->occlusion && in->occ && (pol->traits & HLOD_PT_OCCLUDE), in->still,
                 in->hold_since && (pol->traits & HLOD_PT_HOLD), in->hold_since, pol, in->occ,
                 s->extras && (s->d->cone_cull > 0 || (pol->traits & HLOD_PT_CONES)), 0,
-                in->splat_px >= 1 ? in->splat_px : 1};
+                in->splat_px >= 1 ? in->splat_px : 1,
+                s->extras && !s->additive && s->d->far_cubes > 0};
     walk *w = &ctx;
     const double share_ms = in->share_ms;
     s->draw.n = s->level.n = s->next.n = s->refined.n = s->coned.n = s->splats.n = 0;

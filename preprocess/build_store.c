@@ -1293,6 +1293,7 @@ static void writer_desc(const hlod_build_desc *d, const input *in, const hlod_lo
     wd->build.node_tris = metis ? d->node_tris : 0;
     wd->build.c_tex = d->c_tex;
     wd->build.flags = d->cone_split && d->method == HLOD_BUILD_CUTPLANE ? HLOD_BUILD_CONE_SPLIT : 0;
+    wd->cubes = d->far_cubes && d->method != HLOD_BUILD_SAMPLETREE && d->method != HLOD_BUILD_CUBES;
     if (d->method == HLOD_BUILD_SAMPLETREE || d->method == HLOD_BUILD_CUBES) {
         int cubes = d->method == HLOD_BUILD_CUBES;
         memset(&wd->build, 0, sizeof wd->build);
@@ -1478,6 +1479,7 @@ hlod_result hlod_build_store(const hlod_build_desc *d, const char *const *inputs
         ph.tris_in = rep.tris_in;
         ph.jpeg_quality = wd.jpeg_quality;
         ph.texture_blocks = wd.texture_blocks;
+        ph.far_cubes = wd.cubes;
         ph.texture_min_db = wd.texture_min_db;
         r = start_shard(d, &in, out_path, &ph, store_path, sizeof store_path, lg);
     }

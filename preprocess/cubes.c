@@ -12,6 +12,7 @@
 #include "cubes.h"
 
 #include <math.h>
+#include <stdlib.h>
 #include <string.h>
 
 #define S HLOD_CUBE_SAMPLES
@@ -150,4 +151,80 @@ void hlod_cube_unpack(const uint8_t in[6][4], hlod_cube *c)
     for (int f = 0; f < 6; f++)
         for (int k = 0; k < 4; k++)
             c->rgba[f][k] = in[f][k] / 255.0f;
+}
+
+void hlod_pixel_rgba(const uint8_t *p, int channels, uint8_t out[4])
+{
+    switch (channels) {
+    case 1: out[0] = out[1] = out[2] = p[0]; out[3] = 255; break;
+    case 2: out[0] = out[1] = out[2] = p[0]; out[3] = p[1]; break;
+    case 3: out[0] = p[0]; out[1] = p[1]; out[2] = p[2]; out[3] = 255; break;
+    default: memcpy(out, p, 4); break;
+    }
+}
+
+void hlod_cube_texel(const uint8_t *pixels, int w, int h, int channels, double u, double v,
+                     uint8_t out[4])
+{
+    u -= floor(u);
+    v -= floor(v);
+    int x = (int)(u * w), y = (int)((1 - v) * h);
+    x = x < 0 ? 0 : x >= w ? w - 1 : x;
+    y = y < 0 ? 0 : y >= h ? h - 1 : y;
+    hlod_pixel_rgba(pixels + ((size_t)y * w + x) * channels, channels, out);
+}
+
+/* The renderer's colour of a node without texture or vertex colours
+ * (gl_render.c's DEFAULT_GREY). */
+#define PAYLOAD_GREY 0.8f
+
+static void payload_color(void *user, size_t t, const double w[3], float rgb[3])
+{
+    const hlod_store_payload_desc *p = user;
+    const uint32_t *ix = p->indices + 3 * t;
+    if (t < p->tex_tri_count && p->pixels && p->uvs) {
+        double u = 0, v = 0;
+        for (int k = 0; k < 3; k++) {
+            u += w[k] * p->uvs[2 * ix[k]];
+            v += w[k] * p->uvs[2 * ix[k] + 1];
+        }
+        uint8_t px[4];
+        hlod_cube_texel(p->pixels, (int)p->tex_width, (int)p->tex_height, (int)p->tex_channels, u,
+                        v, px);
+        for (int c = 0; c < 3; c++)
+            rgb[c] = px[c] / 255.0f;
+    } else if (p->colors) {
+        for (int c = 0; c < 3; c++) {
+            double x = 0;
+            for (int k = 0; k < 3; k++)
+                x += w[k] * p->colors[4 * ix[k] + c];
+            rgb[c] = (float)(x / 255);
+        }
+    } else {
+        rgb[0] = rgb[1] = rgb[2] = PAYLOAD_GREY;
+    }
+}
+
+hlod_result hlod_cube_of_payload(const hlod_store_payload_desc *p, uint8_t out[6][4])
+{
+    double (*P)[9] = malloc((size_t)p->tri_count * sizeof *P);
+    if (!P)
+        return HLOD_ERR_NOMEM;
+    hlod_cube_in in = {.lo = {INFINITY, INFINITY, INFINITY},
+                       .hi = {-INFINITY, -INFINITY, -INFINITY},
+                       .tris = P, .stride = sizeof *P, .n = p->tri_count,
+                       .color = payload_color, .user = (void *)p};
+    for (uint32_t i = 0; i < p->vertex_count; i++)
+        for (int a = 0; a < 3; a++) {
+            in.lo[a] = fmin(in.lo[a], p->positions[3 * i + a]);
+            in.hi[a] = fmax(in.hi[a], p->positions[3 * i + a]);
+        }
+    for (uint32_t t = 0; t < p->tri_count; t++)
+        for (int k = 0; k < 3; k++)
+            memcpy(&P[t][3 * k], p->positions + 3 * (size_t)p->indices[3 * t + k], 3 * sizeof(double));
+    hlod_cube c;
+    hlod_cube_faces(&in, &c);
+    hlod_cube_pack(&c, out);
+    free(P);
+    return HLOD_OK;
 }

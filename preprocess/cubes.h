@@ -15,6 +15,9 @@
 #include <stddef.h>
 #include <stdint.h>
 
+#include "hlod/hlod.h"
+#include "hlod/store_write.h"
+
 /* Samples along a face side: 4 x 4 pixels of 4 x 4 samples each. */
 #define HLOD_CUBE_SAMPLES 16
 
@@ -49,5 +52,20 @@ void hlod_cube_faces(const hlod_cube_in *in, hlod_cube *out);
 /* A face as stored (hlod_store_extra.cube): RGBA8, premultiplied. */
 void hlod_cube_pack(const hlod_cube *c, uint8_t out[6][4]);
 void hlod_cube_unpack(const uint8_t in[6][4], hlod_cube *c);
+
+/* A pixel of `channels` (1..4) channels as RGBA. */
+void hlod_pixel_rgba(const uint8_t *p, int channels, uint8_t out[4]);
+
+/* The texel of a w x h image of `channels` (1-4) bytes a pixel, top row
+ * first, at (u, v), wrapped (v = 0 the bottom row), as RGBA. */
+void hlod_cube_texel(const uint8_t *pixels, int w, int h, int channels, double u, double v,
+                     uint8_t out[4]);
+
+/* The packed cube of one node's own mesh, as hlod_store_writer_add takes
+ * it, over the box of its positions: what `far_cubes` draws in place of
+ * the mesh (docs/cubes.md, "Cubes as stand-ins").  A triangle's colour is
+ * its texture's texel (the first tex_tri_count triangles), else its
+ * vertex colours blended, else the renderer's grey.  HLOD_ERR_NOMEM. */
+hlod_result hlod_cube_of_payload(const hlod_store_payload_desc *p, uint8_t out[6][4]);
 
 #endif

@@ -185,7 +185,8 @@ uint64_t hlod_part_params_hash(const hlod_build_desc *d, size_t tris_in, size_t 
     buf b = {0};
     uint64_t u[] = {(uint64_t)d->method, d->desired_tris, d->voxel_tris, d->leaf_tris, d->node_tris,
                     d->seed, (uint64_t)!!d->city_levels, (uint64_t)!!d->compress, d->quant_bits,
-                    d->jpeg_quality, tris_in, blocks, (uint64_t)!!d->texture_blocks};
+                    d->jpeg_quality, tris_in, blocks, (uint64_t)!!d->texture_blocks,
+                    (uint64_t)!!d->far_cubes};
     double f[] = {d->grid, d->level_factor, d->c_tex, d->texture_min_db};
     put(&b, u, sizeof u);
     put(&b, f, sizeof f);
@@ -568,7 +569,7 @@ static hlod_result check_together(const part *parts, size_t n, const hlod_logger
             h->block_count != h0->block_count || h->cut_level != h0->cut_level ||
             h->levels != h0->levels || h->tris_in != h0->tris_in ||
             h->group_tris != h0->group_tris || h->group_size != h0->group_size ||
-            h->jpeg_quality != h0->jpeg_quality || h->texture_blocks != h0->texture_blocks ||
+            h->jpeg_quality != h0->jpeg_quality || h->texture_blocks != h0->texture_blocks || h->far_cubes != h0->far_cubes ||
             h->texture_min_db != h0->texture_min_db || memcmp(&sh->build, &s0->build, sizeof s0->build) ||
             sh->quant_step != s0->quant_step ||
             memcmp(sh->quant_origin, s0->quant_origin, sizeof s0->quant_origin) ||
@@ -760,6 +761,7 @@ static void merged_desc(const part *p0, const hlod_logger *lg, hlod_store_writer
     wd->jpeg_quality = p0->h.jpeg_quality;
     wd->texture_blocks = p0->h.texture_blocks;
     wd->texture_min_db = p0->h.texture_min_db;
+    wd->cubes = p0->h.far_cubes;
     wd->logger = lg;
 }
 

@@ -54,7 +54,8 @@ typedef struct hlod_part_header {
     uint64_t file_size;
     double texture_min_db;      /* the writer's texture settings */
     uint32_t texture_blocks;
-    uint8_t reserved[44];
+    uint32_t far_cubes;         /* the writer's cubes (hlod-build --far-cubes) */
+    uint8_t reserved[40];
     uint64_t header_hash;       /* XXH3-64 of the bytes before it */
 } hlod_part_header;
 

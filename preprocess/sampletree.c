@@ -118,26 +118,10 @@ static const hlod_image *tex_get(st_texes *t, uint32_t i, const hlod_logger *lg)
     return t->state[i] > 0 ? &t->img[i] : NULL;
 }
 
-/* A pixel of `channels` (1..4) channels as RGBA. */
-static void pixel_rgba(const uint8_t *p, int channels, uint8_t out[4])
-{
-    switch (channels) {
-    case 1: out[0] = out[1] = out[2] = p[0]; out[3] = 255; break;
-    case 2: out[0] = out[1] = out[2] = p[0]; out[3] = p[1]; break;
-    case 3: out[0] = p[0]; out[1] = p[1]; out[2] = p[2]; out[3] = 255; break;
-    default: memcpy(out, p, 4); break;
-    }
-}
-
 /* The texture's texel at (u, v), wrapped (v = 0 the bottom row), as RGBA. */
 static void texel(const hlod_image *img, double u, double v, uint8_t out[4])
 {
-    u -= floor(u);
-    v -= floor(v);
-    int x = (int)(u * img->width), y = (int)((1 - v) * img->height);
-    x = x < 0 ? 0 : x >= img->width ? img->width - 1 : x;
-    y = y < 0 ? 0 : y >= img->height ? img->height - 1 : y;
-    pixel_rgba(img->pixels + ((size_t)y * img->width + x) * img->channels, img->channels, out);
+    hlod_cube_texel(img->pixels, img->width, img->height, img->channels, u, v, out);
 }
 
 /* The texture slot of a triangle of m with this texture path (NONE
@@ -828,7 +812,7 @@ static hlod_result to_rgba(const hlod_image *img, hlod_image *out)
     out->height = img->height;
     out->channels = 4;
     for (size_t i = 0; i < px; i++)
-        pixel_rgba(img->pixels + i * img->channels, img->channels, out->pixels + 4 * i);
+        hlod_pixel_rgba(img->pixels + i * img->channels, img->channels, out->pixels + 4 * i);
     return HLOD_OK;
 }
 

@@ -25,6 +25,7 @@
 #include "hlod/store_write.h"
 
 #include "atomic_file.h"
+#include "cubes.h"
 #include "payload_codec.h"
 
 #include <assert.h>
@@ -47,6 +48,8 @@ typedef struct payload_record {
     uint8_t used;       /* claimed by a node in finish */
     float cone_axis[3]; /* the normal cone of the payload's own faces (unit), as stored */
     float cone_cos;     /* its half-angle's cosine; -1: no bound; 2: no face */
+    uint8_t has_cube;   /* cube holds the payload's colour cube (desc.cubes) */
+    uint8_t cube[6][4];
 } payload_record;
 
 struct hlod_store_writer {
@@ -111,6 +114,10 @@ hlod_result hlod_store_writer_open(const char *path, const hlod_store_writer_des
         (b->flags && b->method != HLOD_STORE_METHOD_CUTPLANE)) {
         hlod_logf(lg, HLOD_LOG_ERROR, "%s: bad build parameters (method %u, c_tex %g, level "
                   "factor %g)", path, b->method, b->c_tex, b->level_factor);
+        return HLOD_ERR_INVALID_ARG;
+    }
+    if (desc->cubes > 1) {
+        hlod_logf(lg, HLOD_LOG_ERROR, "%s: cubes is %u, not 0 or 1", path, desc->cubes);
         return HLOD_ERR_INVALID_ARG;
     }
     if (desc->quant_step != 0) {
@@ -543,7 +550,7 @@ done:
 /* called from any thread */
 static hlod_result store_payload(hlod_store_writer *w, uint8_t *buf, uint64_t size,
                                  hlod_store_node *node, const double axis[3], double cone_cos,
-                                 int stored);
+                                 int stored, const uint8_t (*cube)[4]);
 
 /* called from any thread: one stored texture of codec HLOD_TEX_* */
 static void count_texture(hlod_store_writer *w, uint32_t codec, double db)
@@ -597,16 +604,20 @@ hlod_result hlod_store_writer_add(hlod_store_writer *w, const hlod_store_payload
                 free(buf);
         }
     }
+    uint8_t cube[6][4];
+    if (r == HLOD_OK && w->desc.cubes && (r = hlod_cube_of_payload(p, cube)) != HLOD_OK)
+        free(buf);
     if (r != HLOD_OK)
         return r;
-    return store_payload(w, buf, size, node, axis, cone_cos, 0);
+    return store_payload(w, buf, size, node, axis, cone_cos, 0,
+                         w->desc.cubes ? (const uint8_t (*)[4])cube : NULL);
 }
 
 /* Writes the serialized payload buf (size bytes, freed here) at the next
  * aligned offset and completes *node's payload fields. */
 static hlod_result store_payload(hlod_store_writer *w, uint8_t *buf, uint64_t size,
                                  hlod_store_node *node, const double axis[3], double cone_cos,
-                                 int stored)
+                                 int stored, const uint8_t (*cube)[4])
 {
     const char *name = w->file.final_path;
     uint64_t hash = hlod_store_hash(buf, (size_t)size);
@@ -653,6 +664,10 @@ static hlod_result store_payload(hlod_store_writer *w, uint8_t *buf, uint64_t si
         rec->cone_cos = (float)cone_cos;
     } else {
         cone_store(axis, cone_cos, rec->cone_axis, &rec->cone_cos);
+    }
+    if (cube) {
+        memcpy(rec->cube, cube, sizeof rec->cube);
+        rec->has_cube = 1;
     }
     pthread_mutex_unlock(&w->lock);
 
@@ -709,8 +724,10 @@ hlod_result hlod_store_writer_add_copy(hlod_store_writer *w, const hlod_store_no
             axis[k] = src_extra->cone_axis[k];
         cone_cos = src_extra->cone_cos;
     }
-    return store_payload(w, buf, src->payload_size, node, axis, cone_cos,
-                         src_extra != NULL);
+    return store_payload(w, buf, src->payload_size, node, axis, cone_cos, src_extra != NULL,
+                         src_extra && (src_extra->flags & HLOD_EXTRA_CUBE)
+                             ? (const uint8_t (*)[4])src_extra->cube
+                             : NULL);
 }
 
 /* ---- finish ---- */
@@ -956,6 +973,14 @@ static void subtree_cones(hlod_store_writer *w, const hlod_store_node *table, ui
     for (uint32_t pos = 0; pos < count; pos++)
         if (x[pos].cone_cos >= 2)
             memset(&x[pos], 0, sizeof x[pos]);
+    /* the payloads' own cubes (desc.cubes, or a copy's) */
+    for (uint32_t pos = 0; pos < count; pos++) {
+        const payload_record *rec = find_record(w, table[pos].payload_offset);
+        if (rec->has_cube) {
+            memcpy(x[pos].cube, rec->cube, sizeof x[pos].cube);
+            x[pos].flags |= HLOD_EXTRA_CUBE;
+        }
+    }
 }
 
 /* The per-node colours and colour cubes given before finish, into the

@@ -10,7 +10,8 @@
  * tree).  `origin` shifts the whole store, to check that a city at 5e6 m
  * behaves exactly as at the origin.  With `height` every other grid vertex
  * is raised that far (a box with volume, that an eye can stand inside).  With `textured` every node carries a
- * small checker texture.
+ * small checker texture.  With `cubes` every node carries its colour cube
+ * (hlod_store_writer_desc.cubes, far_cubes).
  */
 #ifndef HLOD_TESTS_STORE_FIXTURE_H
 #define HLOD_TESTS_STORE_FIXTURE_H
@@ -29,6 +30,7 @@ typedef struct fixture_opts {
     double origin[3];
     double height; /* corrugation; default 0 (flat) */
     int textured;
+    int cubes;
 } fixture_opts;
 
 typedef struct fixture_build {
@@ -129,6 +131,7 @@ static hlod_result fixture_write(const char *path, const fixture_opts *opts, uin
     hlod_store_writer_desc wd;
     memset(&wd, 0, sizeof wd);
     wd.build.c_tex = 0.5;
+    wd.cubes = o.cubes != 0;
     fixture_build b;
     memset(&b, 0, sizeof b);
     b.o = &o;

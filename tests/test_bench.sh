@@ -235,6 +235,43 @@ if [ -r "$BUNNY" ]; then
 else
     skip "normal cones: $BUNNY missing (data/fetch-meshes.sh)"
 fi
+
+# ---- far cubes (docs/cubes.md, "Cubes as stand-ins") ----
+# The bunny built with its nodes' cubes: hlod-info says so; far off, its
+# small nodes are drawn as cubes and no frame draws nothing; a store
+# without cubes, or a sample tree asked for them, is refused.
+if [ -r "$BUNNY" ]; then
+    "$BIN/hlod-build" "$BUNNY" -o "$T/bunnyfc.hlod" --desired-tris 450 --far-cubes on --quiet &&
+        "$BIN/hlod-info" "$T/bunnyfc.hlod" --json | grep -q '"cubes":true' &&
+        "$BIN/hlod-info" "$T/bunny.hlod" --json | grep -q '"cubes":false'
+    ok $? "--far-cubes on: hlod-info says the nodes carry cubes, and not without"
+    "$BIN/hlod-build" "$BUNNY" -o "$T/bunnyst.hlod" --method sampletree --far-cubes on 2>"$T/err"
+    [ $? -eq 2 ] && grep -q -- '--far-cubes' "$T/err" && [ ! -e "$T/bunnyst.hlod" ]
+    ok $? "--far-cubes on with --method sampletree: exit 2, the flag named, nothing written"
+    perl -e 'for my $i (0 .. 10) { my $t = $i * 0.5; my $a = 6.283185307 * $t / 10;
+        printf "%g %.6f %.6f 2 0 0 0\n", $t, 12 * cos($a), 12 * sin($a) }' >"$T/far.path"
+    FAR=(--path "$T/far.path" --target-ms 33 --width 320 --height 180 --memory-mb 64 --no-plots
+        --jitter-frames 0 --deterministic --set v_time=0.0001 --set fixed_ms=2 --reference)
+    "$BIN/hlod-bench" "$T/bunnyfc.hlod" "${FAR[@]}" --out "$T/far1" --set far_cubes=1 \
+        --set cube_px=8 2>"$T/err" &&
+        "$BIN/hlod-bench" "$T/bunnyfc.hlod" "${FAR[@]}" --out "$T/far0" 2>>"$T/err"
+    rc=$?
+    for r in far0 far1; do
+        echo "REPORT far cubes $r: $(perl -MJSON::PP -e 'local $/; my $j = JSON::PP->new->decode(<STDIN>);
+            print join " ", map { "$_=" . ($j->{$_} // "null") } qw(splats_mean tris_mean psnr_mean psnr_min)' \
+            <"$T/$r/summary.json" 2>/dev/null)"
+    done
+    [ $rc -eq 0 ] && perl -MJSON::PP -e 'local $/; open my $a, "<", $ARGV[0]; open my $b, "<", $ARGV[1];
+        my ($c, $m) = map { JSON::PP->new->decode(scalar <$_>) } $a, $b;
+        exit !($c->{splats_mean} > 0 && $m->{splats_mean} == 0 && $c->{tris_mean} < $m->{tris_mean} &&
+               $c->{psnr_min} > 10)' "$T/far1/summary.json" "$T/far0/summary.json"
+    ok $? "far_cubes=1 on the bunny 12 units off: cubes drawn, fewer triangles than without, no empty frame ($(head -c 200 "$T/err"))"
+    "$BIN/hlod-bench" "$T/bunny.hlod" "${FAR[@]}" --out "$T/farno" --set far_cubes=1 2>"$T/err"
+    [ $? -eq 1 ] && grep -q 'far_cubes' "$T/err"
+    ok $? "far_cubes=1 on a store without cubes: exit 1, named ($(head -c 200 "$T/err"))"
+else
+    skip "far cubes: $BUNNY missing (data/fetch-meshes.sh)"
+fi
 "$BIN/hlod-bench" "$T/city.hlod" --path "$P" --out "$T/citycone" "${COMMON[@]}" --set cone_cull=1 \
     --cone-check --no-plots 2>/dev/null &&
     [ "$(col "$T/citycone" cone_check_differing | sort -u)" = 0 ] &&

@@ -15,8 +15,16 @@
  *   image is close to full's; without its cubes (cube_px 1 with the
  *   cubes' alpha taken away) the far cloud would vanish.
  * - Policies and stores that do not match are refused.
+ * - Cubes as stand-ins (far_cubes): a replacement store written with
+ *   cubes has one on every node, made from the node's own mesh (its
+ *   vertex colours, or its texture's texels), and the same payload bytes
+ *   as without; drawn from far by lakhia with far_cubes, the nodes within
+ *   cube_px are cubes, no node under them is read, and the picture
+ *   covers what the meshes cover in about their colour.  Engines refuse
+ *   far_cubes on a store without cubes and on an additive one.
  */
 #include "check.h"
+#include "store_fixture.h"
 
 #include "../preprocess/cubes.h"
 #include "../preprocess/sampletree.h"
@@ -410,6 +418,166 @@ static void policies_refuse_other_stores(void)
     hlod_store_close(b);
 }
 
+/* ---- cubes as stand-ins (far_cubes) ---- */
+
+static hlod_store *fixture_store(const char *name, int cubes, int textured)
+{
+    char path[512];
+    snprintf(path, sizeof path, "%s/%s", g_dir, name);
+    fixture_opts o = {.roots = 4, .depth = 3, .grid = 4, .size = 100, .cubes = cubes,
+                      .textured = textured};
+    hlod_store *s = NULL;
+    if (fixture_write(path, &o, NULL) != HLOD_OK || hlod_store_open(path, NULL, &s) != HLOD_OK)
+        return NULL;
+    return s;
+}
+
+static void payload_cubes(void)
+{
+    hlod_store *a = fixture_store("plain.hlod", 0, 0), *b = fixture_store("fc.hlod", 1, 0),
+               *t = fixture_store("fct.hlod", 1, 1);
+    CHECK(a && b && t);
+    if (a && b && t) {
+        uint32_t n = hlod_store_node_count(b);
+        const hlod_store_node *na = hlod_store_nodes(a), *nb = hlod_store_nodes(b);
+        const hlod_store_extra *xa = hlod_store_extras(a), *xb = hlod_store_extras(b),
+                               *xt = hlod_store_extras(t);
+        CHECK(n == hlod_store_node_count(a) && xb && xt);
+        uint32_t with_a = 0, with_b = 0, same_payload = 0;
+        for (uint32_t i = 0; i < n && xb; i++) {
+            with_a += xa && (xa[i].flags & HLOD_EXTRA_CUBE) != 0;
+            with_b += (xb[i].flags & HLOD_EXTRA_CUBE) != 0;
+            same_payload += na[i].payload_hash == nb[i].payload_hash;
+        }
+        CHECKF(with_b == n && with_a == 0, "cubes on %u and %u of %u nodes", with_b, with_a, n);
+        CHECKF(same_payload == n, "%u of %u payloads the same bytes", same_payload, n);
+        /* the fixture's node: a flat square facing +z, vertex colour
+         * (60 + 40 level, 120, 200) */
+        int ok_col = 1;
+        for (uint32_t i = 0; i < n && xb; i++) {
+            const uint8_t *up = xb[i].cube[4], *down = xb[i].cube[5], *side = xb[i].cube[0];
+            int want[3] = {60 + 40 * (int)nb[i].depth, 120, 200};
+            for (int c = 0; c < 3; c++)
+                ok_col &= abs(up[c] - want[c]) <= 1 && abs(down[c] - want[c]) <= 1;
+            ok_col &= up[3] == 255 && down[3] == 255 && side[3] == 0;
+            if (!ok_col) {
+                CHECKF(0, "node %u (depth %u): +z %u %u %u %u, -z alpha %u, +x alpha %u", i,
+                       nb[i].depth, up[0], up[1], up[2], up[3], down[3], side[3]);
+                break;
+            }
+        }
+        /* textured: the 4 x 4 checker's mean, (135, 120, 128) */
+        const uint8_t *up = xt ? xt[0].cube[4] : NULL;
+        CHECKF(up && abs(up[0] - 135) <= 4 && abs(up[1] - 120) <= 4 && abs(up[2] - 128) <= 4 &&
+               up[3] == 255, "textured +z face %u %u %u %u", up ? up[0] : 0, up ? up[1] : 0,
+               up ? up[2] : 0, up ? up[3] : 0);
+    }
+    hlod_store_close(a);
+    hlod_store_close(b);
+    hlod_store_close(t);
+}
+
+/* Policy lakhia from above at distance `dist`: frame `frames` of a still
+ * camera, deterministic; *deep gets the nodes at depth >= 2 that were
+ * ever resident. */
+static int far_frames(hlod_store *s, int far_cubes, uint32_t cube_px, double dist, int frames,
+                      uint8_t *rgb, hlod_frame_stats *st, uint32_t *deep)
+{
+    hlod_engine_desc d = {0};
+    d.policy = HLOD_POLICY_LAKHIA;
+    d.far_cubes = far_cubes ? 1 : -1;
+    d.cube_px = cube_px;
+    d.renderer = g_r;
+    d.deterministic = 1;
+    d.target_ms = 1000;
+    d.memory_budget_bytes = 1ull << 32;
+    hlod_engine *e = NULL;
+    if (hlod_engine_create(s, &d, &e) != HLOD_OK)
+        return 0;
+    const double at[3] = {200, 50, 0}, eye[3] = {200, 50 - 0.2 * dist, dist}, up[3] = {0, 0, 1};
+    hlod_camera cam;
+    int ok = hlod_camera_look_at(&cam, eye, at, up, 60, 1, 10 * dist, W, H) == HLOD_OK;
+    const hlod_store_node *n = hlod_store_nodes(s);
+    *deep = 0;
+    uint8_t *seen = calloc(hlod_store_node_count(s), 1);
+    for (int f = 0; ok && seen && f < frames; f++) {
+        ok = hlod_engine_frame(e, &cam, 1.0 / 30, st) == HLOD_OK;
+        for (uint32_t i = 0; i < hlod_store_node_count(s); i++)
+            if (n[i].depth >= 2 && hlod_engine_node_state(e, i) == HLOD_NODE_RESIDENT && !seen[i]) {
+                seen[i] = 1;
+                (*deep)++;
+            }
+    }
+    ok = ok && seen && hlod_osmesa_read_rgb(g_gl, rgb) == HLOD_OK;
+    free(seen);
+    hlod_engine_destroy(e);
+    return ok;
+}
+
+static void far_cubes_stand_in(void)
+{
+    hlod_store *a = fixture_store("plain.hlod", 0, 0), *b = fixture_store("fc.hlod", 1, 0);
+    uint8_t *ref = malloc(W * H * 3), *img = malloc(W * H * 3);
+    CHECK(a && b && ref && img);
+    if (a && b && ref && img) {
+        /* at 600 m a root (100 m) is about 35 px wide, a depth-2 node 9:
+         * within cube_px 12 the nodes from depth 2 down are cubes */
+        hlod_frame_stats sm, sc;
+        uint32_t deep_m = 0, deep_c = 0;
+        CHECK(far_frames(a, 0, 12, 600, 20, ref, &sm, &deep_m));
+        CHECK(far_frames(b, 1, 12, 600, 20, img, &sc, &deep_c));
+        size_t cm = covered(ref), cc = covered(img);
+        double md = mean_diff(ref, img);
+        printf("REPORT far_cubes at 600 m, cube_px 12: meshes %llu triangles, %u nodes, %zu "
+               "pixels, %u nodes of depth >= 2 read; cubes %llu triangles, %u nodes, %u cubes, "
+               "%zu pixels, %u read; mean difference on the covered pixels %.1f of 255\n",
+               (unsigned long long)sm.tris_drawn, sm.nodes_drawn, cm, deep_m,
+               (unsigned long long)sc.tris_drawn, sc.nodes_drawn, sc.splats, cc, deep_c, md);
+        CHECKF(sm.splats == 0 && deep_m > 0, "without far_cubes: %u cubes, %u deep nodes read",
+               sm.splats, deep_m);
+        CHECKF(sc.splats >= 16 && deep_c == 0, "far_cubes: %u cubes, %u deep nodes read",
+               sc.splats, deep_c);
+        CHECKF(cc * 10 >= cm * 9 && cc * 10 <= cm * 11, "covered %zu pixels against %zu", cc, cm);
+        CHECKF(md < 16, "mean difference %.1f of 255", md);
+        if (check_failures_) {
+            char p1[600], p2[600];
+            snprintf(p1, sizeof p1, "%s/far_meshes.ppm", g_dir);
+            snprintf(p2, sizeof p2, "%s/far_cubes.ppm", g_dir);
+            for (int k = 0; k < 2; k++) {
+                FILE *fp = fopen(k ? p2 : p1, "wb");
+                if (fp) {
+                    fprintf(fp, "P6\n%d %d\n255\n", W, H);
+                    fwrite(k ? img : ref, 1, (size_t)W * H * 3, fp);
+                    fclose(fp);
+                }
+            }
+        }
+    }
+    free(ref);
+    free(img);
+    hlod_store_close(a);
+    hlod_store_close(b);
+}
+
+static void far_cubes_refused(void)
+{
+    char st[512];
+    snprintf(st, sizeof st, "%s/cloud.hlod", g_dir);
+    hlod_store *a = fixture_store("plain.hlod", 0, 0), *c = NULL;
+    CHECK(a && hlod_store_open(st, NULL, &c) == HLOD_OK);
+    hlod_engine_desc d = {0};
+    hlod_engine *e = NULL;
+    d.far_cubes = 1;
+    d.policy = HLOD_POLICY_LAKHIA;
+    if (a)
+        CHECK(hlod_engine_create(a, &d, &e) == HLOD_ERR_INVALID_ARG && !e);
+    d.policy = HLOD_POLICY_CUBES; /* additive: its cubes are its own */
+    if (c)
+        CHECK(hlod_engine_create(c, &d, &e) == HLOD_ERR_INVALID_ARG && !e);
+    hlod_store_close(a);
+    hlod_store_close(c);
+}
+
 int main(void)
 {
     snprintf(g_dir, sizeof g_dir, "/tmp/hlod_test_cubes_XXXXXX");
@@ -421,10 +589,13 @@ int main(void)
     RUN(composite_matches_direct);
     RUN(cloud_store);
     RUN(policies_refuse_other_stores);
+    RUN(payload_cubes);
+    RUN(far_cubes_refused);
     if (hlod_osmesa_create(W, H, NULL, &g_gl) == HLOD_OK &&
         hlod_renderer_create(hlod_osmesa_get_proc(), NULL, &g_r) == HLOD_OK) {
         hlod_renderer_set_clear_color(g_r, 1, 0, 1);
         RUN(far_cloud_is_cubes);
+        RUN(far_cubes_stand_in);
     } else {
         CHECK(0); /* OSMesa is installed by the test command */
     }

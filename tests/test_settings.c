@@ -141,6 +141,7 @@ static void ranges_are_checked(void)
     fixture_opts o = {0};
     o.roots = 2;
     o.depth = 1;
+    o.cubes = 1; /* far_cubes = 1 needs them */
     CHECK(fixture_write(path, &o, NULL) == HLOD_OK);
     hlod_store *st = NULL;
     CHECK(hlod_store_open(path, NULL, &st) == HLOD_OK);

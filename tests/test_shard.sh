@@ -138,6 +138,12 @@ for n in $NS; do
     ok $? "30-block city, $n shards: merge byte-identical (cut level $(key "$T/c30-cutplane-$n.json" cut_level), $(key "$T/c30-cutplane-$n.json" groups_built) groups built by the merge)"
 done
 
+# far cubes: the parts' cubes copied, the merged levels' made by the merge
+"$BIN/hlod-build" "$T/small.obj" -o "$T/fc.hlod" --desired-tris 450 --far-cubes on --quiet &&
+    shards_match fc 3 "$T/small.obj" --desired-tris 450 --far-cubes on &&
+    "$BIN/hlod-info" "$T/fc-3.hlod" --json | grep -q '"cubes":true'
+ok $? "small city with --far-cubes on, 3 shards: merge byte-identical, the nodes carry cubes"
+
 # no city levels: every block a root, nothing for the merge to build
 # (not under the sanitizers: the plan's one level, no code of its own)
 if [ "$QUICK" != 1 ]; then

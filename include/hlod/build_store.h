@@ -64,6 +64,9 @@ typedef struct hlod_build_desc {
                                    (default): no limit, one bucket */
     size_t node_tris;           /* N_n (metis); default 2000 */
     double c_tex;               /* c_tex of Lakhia eq. 1, in [0, 1]; default 0.5 */
+    int far_cubes;              /* cutplane, metis: non-zero gives every node
+                                   the colour cube of its own mesh (the
+                                   runtime's far_cubes, docs/cubes.md); default 0 */
     int cone_split;             /* cutplane: non-zero cuts the pieces within three
                                    levels of the leaves whose normals spread over
                                    45 degrees into orientation classes, so normal

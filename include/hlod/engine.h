@@ -167,7 +167,9 @@ typedef double (*hlod_time_model)(void *user_data, const struct hlod_frame_stats
     X(rzb_raster, rzb_raster, B, 1, 0, 0, 1, 1,                                                  \
       "rzb policy: 1: faces that may project over d^2 / ln v pixels are rasterised; 0: points only (Wand Fig. 6)") \
     X(cube_px, cube_px, U32, 1, 1, 0, 64, 1,                                                     \
-      "cubes policy: a node whose box projects within cube_px x cube_px pixels is drawn as its colour cube") \
+      "cubes policy and far_cubes: a node whose box projects within cube_px x cube_px pixels is drawn as its colour cube") \
+    X(far_cubes, far_cubes, B, 0, 0, 0, 1, 0,                                                    \
+      "1: a front node within cube_px is drawn as its colour cube, its mesh neither read nor drawn (a store built with far cubes, docs/cubes.md); 0: never") \
     X(lumi_mesh_px, lumi_mesh_px, D, 8, 0, 1, HLOD_UNBOUNDED, 1,                                  \
       "lumigraph policy: a node is refined while its projected error exceeds this many pixels (the sparse mesh)") \
     X(lumi_cache_mb, lumi_cache_mb, U32, 50, 1, 0, 65536, 0,                                     \
@@ -336,7 +338,8 @@ typedef struct hlod_frame_stats {
     uint64_t cone_culled_tris;   /* triangles of those nodes themselves: what the
                                     frame would have drawn for them, coarsest */
     uint32_t splats;             /* sample tree nodes drawn as one splat (policy klein;
-                                    docs/sampletree.md) */
+                                    docs/sampletree.md), rzb's points, colour cubes
+                                    drawn (policy cubes, or far_cubes; docs/cubes.md) */
     double occlusion_ms;         /* CPU time of the depth read-back, pyramid and tests */
     /* loader thread CPU time this frame (docs/store-format.md) */
     double loader_finish_ms;     /* checksums, decoding and validation of payloads */

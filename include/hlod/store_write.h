@@ -58,6 +58,11 @@ typedef struct hlod_store_writer_desc {
      * jpeg_quality (raw at 0); 0: JPEG or raw as jpeg_quality says. */
     uint32_t texture_blocks;
     double texture_min_db;
+    /* 1: every node added gets the colour cube of its own mesh in the
+     * extras table (HLOD_EXTRA_CUBE; a copy keeps its source's), for the
+     * runtime's far_cubes (docs/cubes.md, "Cubes as stand-ins"); 0: none
+     * unless hlod_store_writer_set_cubes gives them. */
+    uint32_t cubes;
     const hlod_logger *logger;      /* may be NULL; must outlive the writer
                                        and be thread safe if add is called
                                        from several threads */

@@ -3,7 +3,7 @@
  *
  *   hlod-build INPUT... -o OUT.hlod [--method cutplane|metis]
  *              [--blocks objects|grid:SIZE] [--desired-tris N]
- *              [--level-factor F] [--cone-split on|off] [--voxel-tris N] [--leaf-tris N]
+ *              [--level-factor F] [--cone-split on|off] [--far-cubes on|off] [--voxel-tris N] [--leaf-tris N]
  *              [--node-tris N] [--c-tex C] [--city-levels on|off] [--threads T]
  *              [--compress on|off] [--quant-bits B] [--jpeg-quality Q]
  *              [--texture-blocks on|off] [--texture-min-db DB]
@@ -59,6 +59,10 @@ static void usage(FILE *fp)
             "                         the leaves into orientation classes where their\n"
             "                         normals spread over 45 degrees, so normal cones\n"
             "                         cull more (cone_cull); off (default)\n"
+            "  --far-cubes S          cutplane, metis: on gives every node the colour\n"
+            "                         cube of its own mesh, drawn in its place where\n"
+            "                         it projects within cube_px (engine setting\n"
+            "                         far_cubes; docs/cubes.md); off (default)\n"
             "  --voxel-tris N         N_v: triangles per voxel (metis, default 500)\n"
             "  --leaf-tris N          N_l: leaf size (metis, default 4000); sampletree\n"
             "                         and cubes: a cell of more triangles splits\n"
@@ -167,6 +171,12 @@ static int check_options(options *o, int leaf_given)
     }
     if (o->bd.cone_split && o->bd.method != HLOD_BUILD_CUTPLANE) {
         hlod_cli_error(PROG, "--cone-split on: only with --method cutplane");
+        return 0;
+    }
+    if (o->bd.far_cubes &&
+        (o->bd.method == HLOD_BUILD_SAMPLETREE || o->bd.method == HLOD_BUILD_CUBES)) {
+        hlod_cli_error(PROG, "--far-cubes on: only with --method cutplane or metis (a sample "
+                       "tree's small nodes are splats, a cubes store's are cubes already)");
         return 0;
     }
     if (o->bd.method == HLOD_BUILD_SAMPLETREE && !leaf_given)
@@ -291,6 +301,10 @@ static int parse(int argc, char **argv, options *o)
             if (!hlod_cli_parse_size(PROG, a, val, 0, 100, &q))
                 return 0;
             o->bd.jpeg_quality = (unsigned)q;
+        } else if (!strcmp(a, "--far-cubes")) {
+            NEED_VAL();
+            if (!on_off(a, val, &o->bd.far_cubes))
+                return 0;
         } else if (!strcmp(a, "--cone-split")) {
             NEED_VAL();
             if (!on_off(a, val, &o->bd.cone_split))

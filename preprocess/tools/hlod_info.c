@@ -188,6 +188,14 @@ static void json_double(FILE *fp, double v)
 }
 
 /* The per-depth arrays make this more than hlod_json's flat objects. */
+/* Whether the nodes carry colour cubes (a cubes store's, or a build's
+ * --far-cubes): the first node's extras record says it for all. */
+static int carries_cubes(const hlod_store *s)
+{
+    const hlod_store_extra *x = hlod_store_extras(s);
+    return x && hlod_store_get_header(s)->node_count && (x[0].flags & HLOD_EXTRA_CUBE);
+}
+
 static int print_json(FILE *fp, const char *file, const hlod_store *s, const stats *st,
                       int verified)
 {
@@ -241,7 +249,9 @@ static int print_json(FILE *fp, const char *file, const hlod_store *s, const sta
             (unsigned long long)h->build.voxel_tris, (unsigned long long)h->build.leaf_tris,
             (unsigned long long)h->build.node_tris);
     json_double(fp, h->build.c_tex);
-    fprintf(fp, ",\"cone_split\":%s", (h->build.flags & HLOD_BUILD_CONE_SPLIT) ? "true" : "false");
+    fprintf(fp, ",\"cone_split\":%s,\"cubes\":%s",
+            (h->build.flags & HLOD_BUILD_CONE_SPLIT) ? "true" : "false",
+            carries_cubes(s) ? "true" : "false");
     fputs(",\"bbox_min\":[", fp);
     for (int k = 0; k < 3; k++) {
         fputs(k ? "," : "", fp);
@@ -279,11 +289,12 @@ static void print_table(FILE *fp, const char *file, const hlod_store *s, const s
                 (unsigned long long)b->leaf_tris, b->c_tex);
     else
         fprintf(fp, "build: method %s, C_desiredTri %llu, C_levelFactor %g, N_v %llu, N_l %llu, "
-                "N_n %llu, c_tex %g%s\n", method_name(b->method),
+                "N_n %llu, c_tex %g%s%s\n", method_name(b->method),
                 (unsigned long long)b->desired_tris, b->level_factor,
                 (unsigned long long)b->voxel_tris, (unsigned long long)b->leaf_tris,
                 (unsigned long long)b->node_tris, b->c_tex,
-                (b->flags & HLOD_BUILD_CONE_SPLIT) ? ", cone split" : "");
+                (b->flags & HLOD_BUILD_CONE_SPLIT) ? ", cone split" : "",
+                carries_cubes(s) ? ", far cubes" : "");
     fprintf(fp, "bbox: (%.17g, %.17g, %.17g) - (%.17g, %.17g, %.17g)\n", h->bbox_min[0],
             h->bbox_min[1], h->bbox_min[2], h->bbox_max[0], h->bbox_max[1], h->bbox_max[2]);
     fprintf(fp, "blocks %u at depth %u (%u group nodes above, %u roots), nodes %u, leaves %llu, "
