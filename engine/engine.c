@@ -185,6 +185,12 @@ static hlod_result check_refine(const hlod_store *store, const hlod_engine_desc 
                   "cubes; this store's nodes carry none (build it with hlod-build --far-cubes on)");
         return HLOD_ERR_INVALID_ARG;
     }
+    if (d->cube_copies > 0 && hlod_policy_has(d->policy, HLOD_PT_CUBES) &&
+        hlod_store_root_count(store) != 1) {
+        hlod_logf(&d->logger, HLOD_LOG_ERROR, "engine: cube_copies draws copies of a store of "
+                  "one root; this one has %u", hlod_store_root_count(store));
+        return HLOD_ERR_INVALID_ARG;
+    }
     if (!add && pol) {
         hlod_logf(&d->logger, HLOD_LOG_ERROR, "engine: policy %s draws a sample tree; this "
                   "store refines by replacement (build one with hlod-build --method sampletree)",
@@ -400,6 +406,11 @@ static void order_draws(hlod_engine *e, const hlod_camera *cam)
 {
     const hlod_u32_vec *sel = &e->sel.draw;
     size_t n = sel->n;
+    if (e->sel.copy_levels) {
+        /* cube_copies: the walk's order, each entry beside its copy */
+        e->draw_list = sel;
+        return;
+    }
     e->order.n = 0;
     if (e->order.cap < n) {
         uint32_t *v = hlod_mem_realloc(&e->d.allocator, e->order.v, n * sizeof *v);
@@ -451,15 +462,35 @@ static void order_draws(hlod_engine *e, const hlod_camera *cam)
         e->order.v[k] = keys[k].node;
 }
 
-static void gpu_draw_node(hlod_engine *e, const hlod_camera *cam, uint32_t i)
+/* Node i drawn where copy `copy` of the scene puts it (cube_copies; 0:
+ * where it is). */
+static void gpu_draw_copy(hlod_engine *e, const hlod_camera *cam, uint32_t i, uint32_t copy)
 {
     const hlod_store_node *n = &e->nodes[i];
     double off[3] = {n->origin[0] - cam->position[0], n->origin[1] - cam->position[1],
-                     n->origin[2] - cam->position[2]};
+                     n->origin[2] - cam->position[2]}, c[3];
+    hlod_sel_copy_offset(&e->sel, copy, c);
+    for (int a = 0; a < 3; a++)
+        off[a] += c[a];
     if (e->lumi)
         hlod_gpu_lumi_draw(e->d.renderer, hlod_residency_gpu(&e->res, i), off);
     else
         hlod_gpu_draw(e->d.renderer, hlod_residency_gpu(&e->res, i), off, n->depth);
+}
+
+static void gpu_draw_node(hlod_engine *e, const hlod_camera *cam, uint32_t i)
+{
+    gpu_draw_copy(e, cam, i, 0);
+}
+
+/* Entry k of a draw list: with cube_copies the selection's list carries
+ * each entry's copy. */
+static void gpu_draw_listed(hlod_engine *e, const hlod_camera *cam, const hlod_u32_vec *list,
+                            size_t k)
+{
+    const hlod_selection *s = &e->sel;
+    uint32_t copy = s->copy_levels && list == &s->draw && k < s->draw_copy.n ? s->draw_copy.v[k] : 0;
+    gpu_draw_copy(e, cam, list->v[k], copy);
 }
 
 /* Policy lumigraph's draw (docs/lumigraph.md): the nodes' depth first,
@@ -593,15 +624,24 @@ static void draw_cubes(hlod_engine *e, const hlod_camera *cam)
         e->splat_cap = need;
     }
     size_t nv = 0;
+    const hlod_selection *s = &e->sel;
     for (size_t k = 0; k < sp->n; k++) {
-        const hlod_store_node *n = &e->nodes[sp->v[k]];
-        double lo[3], hi[3];
+        uint32_t i = sp->v[k];
+        uint32_t copy = s->copy_levels && k < s->splat_copy.n ? s->splat_copy.v[k] : 0;
+        double lo[3], hi[3], off[3];
+        hlod_sel_copy_offset(s, copy, off);
+        uint32_t level = HLOD_SEL_IS_BLOCK(i) ? UINT32_MAX - i : 0;
         for (int a = 0; a < 3; a++) {
-            lo[a] = n->bbox_min[a] - cam->position[a];
-            hi[a] = n->bbox_max[a] - cam->position[a];
+            /* a block of 2^level x 2^level copies (cube_copies), or a node */
+            double b0 = level ? s->scene_lo[a] : e->nodes[i].bbox_min[a],
+                   b1 = level ? s->scene_hi[a] : e->nodes[i].bbox_max[a];
+            if (level && a < 2)
+                b1 += ((1u << level) - 1) * s->copy_side[a];
+            lo[a] = b0 + off[a] - cam->position[a];
+            hi[a] = b1 + off[a] - cam->position[a];
         }
         for (int f = 0; f < 6; f++) {
-            const uint8_t *c = x[sp->v[k]].cube[f];
+            const uint8_t *c = level ? s->block_cube[level][f] : x[i].cube[f];
             const int a = f / 2, plus = !(f & 1), u = (a + 1) % 3, w = (a + 2) % 3;
             double plane = plus ? hi[a] : lo[a];
             /* seen only from its own side: the eye (0) beyond its plane */
@@ -760,7 +800,7 @@ static void draw_frame(hlod_engine *e, const hlod_camera *cam, const hlod_camera
         draw_splats(e, cam); /* far_cubes' cubes, over what occlusion left */
     } else {
         for (size_t k = 0; k < e->draw_list->n; k++)
-            gpu_draw_node(e, cam, e->draw_list->v[k]);
+            gpu_draw_listed(e, cam, e->draw_list, k);
         draw_splats(e, cam);
         e->drawn_valid = 0; /* replay draws the selection */
         hlod_gpu_end(r, 1);
@@ -1128,7 +1168,7 @@ hlod_result hlod_engine_replay(hlod_engine *e, const hlod_camera *cam, int occlu
             lumi_draw(e, cam, list);
         else
             for (size_t k = 0; k < list->n; k++)
-                gpu_draw_node(e, cam, list->v[k]);
+                gpu_draw_listed(e, cam, list, k);
         if (!occlusion && e->drawn_valid)
             for (size_t k = 0; k < e->later.n; k++)
                 if (hlod_occlusion_hidden(&e->occ, e->later.v[k]) == e->frame)
@@ -1165,7 +1205,7 @@ hlod_result hlod_engine_replay_coned(hlod_engine *e, const hlod_camera *cam, uin
     if (e->lumi)
         hlod_gpu_lumi_begin(e->d.renderer, cam, &e->lumi_frame);
     for (size_t k = 0; k < list->n; k++)
-        gpu_draw_node(e, cam, list->v[k]);
+        gpu_draw_listed(e, cam, list, k);
     for (size_t k = 0; k < e->sel.coned.n; k++) {
         uint32_t i = e->sel.coned.v[k];
         if (hlod_residency_state(&e->res, i) == HLOD_NODE_RESIDENT &&

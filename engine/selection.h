@@ -94,6 +94,17 @@ typedef struct hlod_selection {
     hlod_u32_vec splats;        /* additive: nodes drawn as one splat (or cube) this frame;
                                    a front with far_cubes: the nodes drawn as their cubes */
     double splat_px;            /* ... the splat size they stopped at (klein-auto's varies) */
+    /* cube_copies (policy cubes, Chamberlain Fig. 5): the scene drawn as
+     * 2^copy_levels x 2^copy_levels copies side by side, copy c = i + j
+     * 2^copy_levels offset by (i, j) x copy_side.  draw_copy and
+     * splat_copy give each entry of draw and splats its copy; a splats
+     * entry HLOD_SEL_BLOCK(L) is the cube of the block of 2^L x 2^L copies
+     * whose first copy its splat_copy gives (block_cube[L]). */
+    uint32_t copy_levels;
+    hlod_u32_vec draw_copy, splat_copy;
+    double scene_lo[3], scene_hi[3], copy_side[2];
+    uint8_t block_cube[17][6][4];
+    uint32_t block_cubes_root;  /* 1 + the root whose cube block_cube was made from; 0: none */
     double reserved, reserving; /* extra of the last frame's refinements; of this frame's */
     uint32_t cap_hits;          /* refinements the budget bound refused this frame */
     uint32_t slice_denied;      /* refinements near but refused by time slices */
@@ -104,6 +115,19 @@ typedef struct hlod_selection {
     hlod_knapsack_item *fs93_wish; /* the items again, all allowed: what to read */
     size_t fs93_wish_cap;
 } hlod_selection;
+
+/* A splats entry that is a block of copies' cube (cube_copies). */
+#define HLOD_SEL_BLOCK(level) (UINT32_MAX - (uint32_t)(level))
+#define HLOD_SEL_IS_BLOCK(entry) ((entry) >= UINT32_MAX - 16u)
+
+/* The offset of copy c (cube_copies): (i, j, 0) x copy_side. */
+static inline void hlod_sel_copy_offset(const struct hlod_selection *s, uint32_t c, double off[3])
+{
+    uint32_t side = 1u << s->copy_levels;
+    off[0] = (double)(c % side) * s->copy_side[0];
+    off[1] = (double)(c / side) * s->copy_side[1];
+    off[2] = 0;
+}
 
 /* d and st must outlive s.  HLOD_ERR_NOMEM. */
 hlod_result hlod_selection_init(hlod_selection *s, const hlod_store *store,

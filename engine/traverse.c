@@ -70,6 +70,13 @@ hlod_result hlod_selection_init(hlod_selection *s, const hlod_store *store,
     s->root_count = hlod_store_root_count(store);
     s->d = d;
     s->st = st;
+    const hlod_store_header *h = hlod_store_get_header(store);
+    for (int a = 0; a < 3; a++) {
+        s->scene_lo[a] = h->bbox_min[a];
+        s->scene_hi[a] = h->bbox_max[a];
+    }
+    s->copy_side[0] = h->bbox_max[0] - h->bbox_min[0];
+    s->copy_side[1] = h->bbox_max[1] - h->bbox_min[1];
     s->fr = hlod_mem_alloc(&d->allocator, (size_t)s->node_count * sizeof *s->fr);
     if (!s->fr)
         return HLOD_ERR_NOMEM;
@@ -89,6 +96,8 @@ void hlod_selection_free(hlod_selection *s)
     hlod_mem_free(a, s->refined.v);
     hlod_mem_free(a, s->coned.v);
     hlod_mem_free(a, s->splats.v);
+    hlod_mem_free(a, s->draw_copy.v);
+    hlod_mem_free(a, s->splat_copy.v);
     hlod_mem_free(a, s->fs93_items);
     hlod_mem_free(a, s->fs93_nodes);
     hlod_mem_free(a, s->fs93_wish);
@@ -1169,7 +1178,7 @@ static int push_back_to_front(walk *w, const hlod_view *v, uint32_t c0, uint32_t
  * with splats off, streaming as klein does.  Policy cubes (Chamberlain
  * 3) walks the same way over colour cubes: children back to front, and
  * a node within cube_px is its cube, listed in that order. */
-static int walk_additive(walk *w, const hlod_view *v)
+static int walk_nodes(walk *w, const hlod_view *v)
 {
     hlod_selection *s = w->s;
     const int full = w->d->policy == HLOD_POLICY_FULL || w->d->splats < 0;
@@ -1227,6 +1236,134 @@ static int walk_additive(walk *w, const hlod_view *v)
                 return 0;
     }
     return 1;
+}
+
+/* The cube of a block of 2^L x 2^L copies, L = 0..16, from the root's
+ * (Chamberlain 4 over copies that tile the block): seen along z the four
+ * sub-blocks lie side by side, so the face is theirs; seen along x or y
+ * each column is a sub-block over the one behind it, so the face is
+ * theirs composited front over back ("over", premultiplied). */
+static void make_block_cubes(hlod_selection *s)
+{
+    float c[6][4];
+    for (int f = 0; f < 6; f++)
+        for (int k = 0; k < 4; k++)
+            c[f][k] = s->extras[0].cube[f][k] / 255.0f;
+    for (int L = 0; L <= 16; L++) {
+        for (int f = 0; f < 6; f++)
+            for (int k = 0; k < 4; k++)
+                s->block_cube[L][f][k] = (uint8_t)lrintf(255 * (c[f][k] < 1 ? c[f][k] : 1));
+        for (int f = 0; f < 4; f++) { /* +-x, +-y */
+            float a = c[f][3];
+            for (int k = 0; k < 4; k++)
+                c[f][k] += (1 - a) * c[f][k];
+        }
+    }
+    s->block_cubes_root = 1;
+}
+
+/* The box of the block of 2^L x 2^L copies from copy (i, j). */
+static void block_box(const hlod_selection *s, uint32_t L, uint32_t i, uint32_t j, double lo[3],
+                      double hi[3])
+{
+    for (int a = 0; a < 3; a++) {
+        lo[a] = s->scene_lo[a];
+        hi[a] = s->scene_hi[a];
+    }
+    lo[0] += i * s->copy_side[0];
+    lo[1] += j * s->copy_side[1];
+    hi[0] += (i + (1u << L) - 1) * s->copy_side[0];
+    hi[1] += (j + (1u << L) - 1) * s->copy_side[1];
+}
+
+/* Chamberlain Fig. 5, copies instanced at the top (cube_copies): a
+ * quadtree of blocks of copies, walked depth first from the whole grid,
+ * sub-blocks far to near.  A block outside the frustum is skipped; one
+ * whose box projects within cube_px is its block cube; a single copy is
+ * walked as the scene is, with the eye moved by minus its offset (every
+ * test is relative to the eye), its entries marked with the copy; any
+ * other block splits in four. */
+static int walk_copies(walk *w, const hlod_view *v)
+{
+    hlod_selection *s = w->s;
+    const hlod_allocator *al = &w->d->allocator;
+    const uint32_t N = s->copy_levels, side = 1u << N;
+    if (!s->block_cubes_root)
+        make_block_cubes(s);
+    hlod_u32_vec *stack = &s->next; /* level, i, j triples */
+    stack->n = 0;
+    if (!hlod_u32_push(al, stack, N) || !hlod_u32_push(al, stack, 0) || !hlod_u32_push(al, stack, 0))
+        return 0;
+    while (stack->n) {
+        uint32_t j = stack->v[--stack->n], i = stack->v[--stack->n], L = stack->v[--stack->n];
+        double lo[3], hi[3];
+        block_box(s, L, i, j, lo, hi);
+        if (hlod_view_outside(v, lo, hi) > 0)
+            continue;
+        double raw[4], z;
+        w->st->nodes_visited++;
+        if (L > 0 && project_raw(v, lo, hi, raw, &z) && raw[2] - raw[0] <= w->splat_px &&
+            raw[3] - raw[1] <= w->splat_px) {
+            if (!hlod_u32_push(al, &s->splats, HLOD_SEL_BLOCK(L)) ||
+                !hlod_u32_push(al, &s->splat_copy, i + j * side))
+                return 0;
+            w->st->splats++;
+            continue;
+        }
+        if (L == 0) {
+            hlod_view cv = *v;
+            double off[3];
+            hlod_sel_copy_offset(s, i + j * side, off);
+            for (int a = 0; a < 3; a++) {
+                cv.eye[a] -= off[a];
+                cv.probe[a] -= off[a];
+            }
+            size_t d0 = s->draw.n, s0 = s->splats.n;
+            size_t keep = stack->n; /* walk_nodes uses s->level, not this stack */
+            if (!walk_nodes(w, &cv))
+                return 0;
+            stack->n = keep;
+            for (size_t k = d0; k < s->draw.n; k++)
+                if (!hlod_u32_push(al, &s->draw_copy, i + j * side))
+                    return 0;
+            for (size_t k = s0; k < s->splats.n; k++)
+                if (!hlod_u32_push(al, &s->splat_copy, i + j * side))
+                    return 0;
+            continue;
+        }
+        /* the four sub-blocks, nearest pushed first (popped last) */
+        uint32_t h = 1u << (L - 1), sub[4][2] = {{i, j}, {i + h, j}, {i, j + h}, {i + h, j + h}};
+        double d2[4];
+        int order[4] = {0, 1, 2, 3};
+        for (int k = 0; k < 4; k++) {
+            double sl[3], sh[3];
+            block_box(s, L - 1, sub[k][0], sub[k][1], sl, sh);
+            d2[k] = 0;
+            for (int a = 0; a < 3; a++) {
+                double c = 0.5 * (sl[a] + sh[a]) - v->eye[a];
+                d2[k] += c * c;
+            }
+        }
+        for (int k = 1; k < 4; k++)
+            for (int q = k; q > 0 && d2[order[q]] < d2[order[q - 1]]; q--) {
+                int t = order[q];
+                order[q] = order[q - 1];
+                order[q - 1] = t;
+            }
+        for (int k = 0; k < 4; k++)
+            if (!hlod_u32_push(al, stack, L - 1) || !hlod_u32_push(al, stack, sub[order[k]][0]) ||
+                !hlod_u32_push(al, stack, sub[order[k]][1]))
+                return 0;
+    }
+    return 1;
+}
+
+static int walk_additive(walk *w, const hlod_view *v)
+{
+    hlod_selection *s = w->s;
+    s->draw_copy.n = s->splat_copy.n = 0;
+    s->copy_levels = (w->policy->traits & HLOD_PT_CUBES) && s->extras ? w->d->cube_copies : 0;
+    return s->copy_levels ? walk_copies(w, v) : walk_nodes(w, v);
 }
 
 static void sum_subtrees(walk *w)

@@ -222,15 +222,20 @@ static int given(const options *o, const setting *extra, const char *key)
     return extra && !strcmp(extra->key, key);
 }
 
-/* --set or --sweep rzb_copies: the most levels of copies policy rzb
- * draws in any run (0: none). */
+static int is_copies_key(const char *k)
+{
+    return !strcmp(k, "rzb_copies") || !strcmp(k, "cube_copies");
+}
+
+/* --set or --sweep rzb_copies or cube_copies: the most levels of copies
+ * policy rzb or cubes draws in any run (0: none). */
 static uint32_t copy_levels(const options *o)
 {
     double l = 0;
     for (int i = 0; i < o->nsets; i++)
-        if (!strcmp(o->sets[i].key, "rzb_copies"))
-            l = o->sets[i].value;
-    for (int i = 0; o->sweep_key && !strcmp(o->sweep_key, "rzb_copies") && i < o->nsweep; i++)
+        if (is_copies_key(o->sets[i].key))
+            l = o->sets[i].value > l ? o->sets[i].value : l;
+    for (int i = 0; o->sweep_key && is_copies_key(o->sweep_key) && i < o->nsweep; i++)
         l = o->sweep[i] > l ? o->sweep[i] : l;
     return l > 0 && l <= 64 ? (uint32_t)l : 0;
 }
@@ -527,7 +532,7 @@ static int parse_args(int argc, char **argv, options *o)
         return hlod_cli_usage_error(PROG, "--out is required%s", "");
     if (o->reference && copy_levels(o))
         return hlod_cli_usage_error(PROG, "--reference draws the store once: not with "
-                                    "rzb_copies (%s)", o->store);
+                                    "rzb_copies or cube_copies (%s)", o->store);
     return -1;
 }
 
@@ -1154,7 +1159,7 @@ static void path_camera_size(const context *c, uint64_t f, uint32_t width, uint3
     double t = hlod_path_frame_time(&c->path, o->dt, f), eye[3], at[3];
     hlod_path_eval(&c->path, t, eye, at);
     const hlod_store_header *h = hlod_store_get_header(c->store);
-    /* the scene's box: with rzb_copies, its copies' along x and y */
+    /* the scene's box: with rzb_copies or cube_copies, its copies' along x and y */
     double lo[3], hi[3], diag = 0;
     for (int k = 0; k < 3; k++) {
         lo[k] = h->bbox_min[k];

@@ -170,6 +170,8 @@ typedef double (*hlod_time_model)(void *user_data, const struct hlod_frame_stats
       "cubes policy and far_cubes: a node whose box projects within cube_px x cube_px pixels is drawn as its colour cube") \
     X(far_cubes, far_cubes, B, 0, 0, 0, 1, 0,                                                    \
       "1: a front node within cube_px is drawn as its colour cube, its mesh neither read nor drawn (a store built with far cubes, docs/cubes.md); 0: never") \
+    X(cube_copies, cube_copies, U32, 0, 0, 0, 16, 0,                                             \
+      "cubes policy: the scene drawn as 2^N x 2^N copies of itself side by side along x and y, held once, a block of copies within cube_px drawn as one cube (Chamberlain Fig. 5); 0: once") \
     X(lumi_mesh_px, lumi_mesh_px, D, 8, 0, 1, HLOD_UNBOUNDED, 1,                                  \
       "lumigraph policy: a node is refined while its projected error exceeds this many pixels (the sparse mesh)") \
     X(lumi_cache_mb, lumi_cache_mb, U32, 50, 1, 0, 65536, 0,                                     \

@@ -1,0 +1,77 @@
+#!/usr/bin/env bash
+# bench_cubes_copies.sh - the shape of Chamberlain Fig. 5: colour cubes
+# (policy cubes, docs/cubes.md) on a forest made by instancing one tree
+# at the top.  A benchmark, not a test: it prints a table and writes one
+# CSV.
+#
+#   bash tests/bench/bench_cubes_copies.sh OUTDIR
+#
+# The tree is the paper's (hlod-gen-scene --kind tree --tris 52470),
+# built once with --method cubes --leaf-tris 64.  At level N it is drawn
+# as 2^N x 2^N copies held once (--set cube_copies=N): 4^N trees, 16,384
+# (8.6 x 10^8 triangles) at N = 7.  The eye stands still at the forest's
+# corner, outside it, 1.5 tree heights up, looking along its diagonal:
+# each level adds trees farther off, as the paper's sequence of scenes
+# does.  320x240, FRAMES frames with every wanted node read before the
+# frame (--deterministic), then the frozen frame drawn JITTER times: its
+# p50 and p99 are the level's time.  Two rows a level: cubes (cube_px 1)
+# and full (every node of every copy: cubes with splats=0), full up to
+# FULL_MAX levels.  The table ends with the fit of cubes' time to
+# a + b ln(trees) and the first level where cubes is faster than full.
+#
+# Env: BIN (build/bin), LEVELS ("0 1 2 3 4 5 6 7"), FULL_MAX (4),
+# FRAMES (10), JITTER (30), CUBE_PX (1).
+set -uo pipefail
+ROOT=$(cd "$(dirname "$0")/../.." && pwd)
+BIN=${BIN:-$ROOT/build/bin}
+out=$(realpath -m "${1:?usage: bench_cubes_copies.sh OUTDIR}")
+LEVELS=${LEVELS:-0 1 2 3 4 5 6 7}
+FULL_MAX=${FULL_MAX:-4}
+FRAMES=${FRAMES:-10}
+JITTER=${JITTER:-30}
+CUBE_PX=${CUBE_PX:-1}
+mkdir -p "$out" || exit 1
+if [ ! -s "$out/tree.hlod" ]; then
+    "$BIN/hlod-gen-scene" --kind tree --tris 52470 -o "$out/tree.obj" --quiet &&
+        "$BIN/hlod-build" "$out/tree.obj" -o "$out/tree.hlod" --method cubes --leaf-tris 64 --quiet ||
+        { echo "bench_cubes_copies: building the tree failed" >&2; exit 1; }
+fi
+. "$ROOT/tests/bench/summary_key.sh"
+"$BIN/hlod-info" "$out/tree.hlod" --json >"$out/info.json" || exit 1
+# the eye: at the forest's corner (the box's low corner), 1.5 heights up
+# and one tree back, looking along the diagonal at the far ground
+perl -MJSON::PP -e 'local $/; my $j = JSON::PP->new->decode(<STDIN>);
+    my ($lo, $hi) = ($j->{bbox_min}, $j->{bbox_max});
+    my @s = map { $hi->[$_] - $lo->[$_] } 0 .. 2;
+    my @e = ($lo->[0] - $s[0], $lo->[1] - $s[1], $lo->[2] + 1.5 * $s[2]);
+    my @a = ($lo->[0] + 100 * $s[0], $lo->[1] + 100 * $s[1], $lo->[2]);
+    printf "%g %.9g %.9g %.9g %.9g %.9g %.9g\n", $_, @e, @a for (0, 100)' <"$out/info.json" >"$out/edge.path" ||
+    exit 1
+csv="$out/cubes_copies.csv"
+echo "levels,trees,tris,policy,p50_ms,p99_ms,tris_mean,cubes_mean,missing_last" >"$csv"
+for n in $LEVELS; do
+    trees=$(perl -e "print 4 ** $n")
+    for pol in cubes full; do
+        [ "$pol" = full ] && [ "$n" -gt "$FULL_MAX" ] && continue
+        how=(--set "cube_px=$CUBE_PX")
+        [ "$pol" = full ] && how=(--set splats=0)
+        dir="$out/L$n-$pol"
+        "$BIN/hlod-bench" "$out/tree.hlod" --path "$out/edge.path" --frames "$FRAMES" \
+            --width 320 --height 240 --target-ms 33 --no-plots --jitter-frames "$JITTER" \
+            --deterministic --set deterministic_load_bytes=4000000000 --set max_inflight=1000000 \
+            --policy cubes --set "cube_copies=$n" "${how[@]}" --out "$dir" >/dev/null 2>"$dir.err" ||
+            { echo "bench_cubes_copies: $dir failed (see $dir.err)" >&2; continue; }
+        missing=$(tail -1 "$dir/frames.csv" | perl -e 'my @h = split /,/, $ARGV[0]; my @r = split /,/, <STDIN>;
+            my ($i) = grep { $h[$_] eq "wanted_missing" } 0 .. $#h; print $r[$i]' "$(head -1 "$dir/frames.csv")")
+        echo "$n,$trees,$((trees * 52470)),$pol,$(key machine_p50_ms "$dir/summary.json"),$(key machine_p99_ms "$dir/summary.json"),$(key tris_mean "$dir/summary.json"),$(key splats_mean "$dir/summary.json"),$missing" >>"$csv"
+    done
+done
+column -s, -t "$csv"
+perl -e 'my (%c, %f); <STDIN>; while (<STDIN>) { chomp; my @r = split /,/; ($r[3] eq "cubes" ? \%c : \%f)->{$r[1]} = $r[4] }
+    my @n = sort { $a <=> $b } keys %c; my ($sx, $sy, $sxx, $sxy, $syy) = (0) x 5;
+    for (@n) { my ($x, $y) = (log($_), $c{$_}); $sx += $x; $sy += $y; $sxx += $x * $x; $sxy += $x * $y; $syy += $y * $y }
+    my $k = @n; exit 0 if $k < 3; my $b = ($k * $sxy - $sx * $sy) / ($k * $sxx - $sx ** 2); my $a = ($sy - $b * $sx) / $k;
+    my $ss = 0; my $m = $sy / $k; my $st = 0; for (@n) { my $e = $c{$_} - ($a + $b * log($_)); $ss += $e * $e; $st += ($c{$_} - $m) ** 2 }
+    printf "cubes: p50 = %.2f + %.2f ln(trees) ms, R^2 %.3f over %d levels\n", $a, $b, $st > 0 ? 1 - $ss / $st : 1, $k;
+    my ($be) = grep { exists $f{$_} && $c{$_} < $f{$_} } @n;
+    printf "break-even: %s\n", defined $be ? "cubes faster than full from $be trees" : "cubes never faster where full ran"' <"$csv"
