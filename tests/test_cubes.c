@@ -348,12 +348,20 @@ static size_t covered(const uint8_t *img)
     return n;
 }
 
-static void far_cloud_is_cubes(void)
+/* The cloud store cloud_store wrote (NULL, counted as a failure, when
+ * it cannot be opened). */
+static hlod_store *open_cloud(void)
 {
     char path[512];
     snprintf(path, sizeof path, "%s/cloud.hlod", g_dir);
     hlod_store *s = NULL;
     CHECK(hlod_store_open(path, NULL, &s) == HLOD_OK);
+    return s;
+}
+
+static void far_cloud_is_cubes(void)
+{
+    hlod_store *s = open_cloud();
     if (!s)
         return;
     uint8_t *ref = malloc(W * H * 3), *img = malloc(W * H * 3);
@@ -414,10 +422,7 @@ static hlod_camera look(double ex, double ey, double ez, double ax, double ay, d
 
 static void cloud_copies(void)
 {
-    char path[512];
-    snprintf(path, sizeof path, "%s/cloud.hlod", g_dir);
-    hlod_store *s = NULL;
-    CHECK(hlod_store_open(path, NULL, &s) == HLOD_OK);
+    hlod_store *s = open_cloud();
     uint8_t *a = malloc(W * H * 3), *b = malloc(W * H * 3);
     if (!s || !a || !b) {
         free(a);
@@ -470,10 +475,7 @@ static void cloud_copies(void)
  * drawn from a view that sees all, loaded, none left out. */
 static void exact_budget_holds_all(void)
 {
-    char path[512];
-    snprintf(path, sizeof path, "%s/cloud.hlod", g_dir);
-    hlod_store *s = NULL;
-    CHECK(hlod_store_open(path, NULL, &s) == HLOD_OK);
+    hlod_store *s = open_cloud();
     if (!s)
         return;
     hlod_engine_desc d = {0};
