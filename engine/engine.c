@@ -364,6 +364,21 @@ const hlod_engine_desc *hlod_engine_get_desc(const hlod_engine *e)
     return e ? &e->d : NULL;
 }
 
+void hlod_engine_scene_box(const hlod_engine *e, double lo[3], double hi[3])
+{
+    assert(e && lo && hi);
+    const hlod_selection *s = &e->sel;
+    uint32_t levels = hlod_policy_has(e->d.policy, HLOD_PT_RZB)     ? e->d.rzb_copies
+                      : hlod_policy_has(e->d.policy, HLOD_PT_CUBES) ? e->d.cube_copies
+                                                                    : 0;
+    for (int k = 0; k < 3; k++) {
+        lo[k] = s->scene_lo[k];
+        hi[k] = s->scene_hi[k];
+        if (k < 2)
+            hi[k] = lo[k] + ldexp(hi[k] - lo[k], (int)levels);
+    }
+}
+
 /* ---- frame ---- */
 
 static int camera_ok(const hlod_camera *c)

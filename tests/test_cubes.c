@@ -466,6 +466,23 @@ static void cloud_copies(void)
            "8 x 8 copies far off: %u cubes, %llu triangles, %zu pixels", s1.splats,
            (unsigned long long)s1.tris_drawn, covered(a));
     g_copies = 0;
+    /* the box a viewer's far plane must reach: the copies', under cubes */
+    for (int pol = 0; pol < 2; pol++) {
+        hlod_engine_desc d = {0};
+        d.policy = pol ? HLOD_POLICY_KLEIN : HLOD_POLICY_CUBES;
+        d.cube_copies = 3;
+        hlod_engine *e = NULL;
+        CHECK(hlod_engine_create(s, &d, &e) == HLOD_OK);
+        double lo[3], hi[3], want = pol ? 1 : 8;
+        if (e) {
+            hlod_engine_scene_box(e, lo, hi);
+            CHECKF(fabs((hi[0] - lo[0]) - want * sx) < 1e-9 && fabs((hi[1] - lo[1]) - want * sy) < 1e-9 &&
+                       lo[0] == h->bbox_min[0] && hi[2] == h->bbox_max[2],
+                   "%s: scene box %g x %g, want %g x %g", pol ? "klein" : "cubes", hi[0] - lo[0],
+                   hi[1] - lo[1], want * sx, want * sy);
+        }
+        hlod_engine_destroy(e);
+    }
     free(a);
     free(b);
     hlod_store_close(s);

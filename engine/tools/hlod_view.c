@@ -855,6 +855,15 @@ int main(int argc, char **argv)
         hlod_cli_error(PROG, "%s: cannot start the engine: %s", o.store, hlod_result_str(r));
         goto destroy_renderer;
     }
+    {
+        /* the far plane reaches every copy the engine draws (rzb_copies,
+         * cube_copies); the first view stays on the store */
+        double lo[3], hi[3], d2 = 0;
+        hlod_engine_scene_box(v.engine, lo, hi);
+        for (int k = 0; k < 3; k++)
+            d2 += (hi[k] - lo[k]) * (hi[k] - lo[k]);
+        v.diag = sqrt(d2);
+    }
     if (o.frames < 0)
         fprintf(stderr, "%s: WASD/QE move, drag to look (M captures the mouse), 1/2/3 "
                         "walk/drive/fly, +/- target, H hysteresis, C depth colours, "

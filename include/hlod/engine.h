@@ -383,6 +383,12 @@ hlod_result hlod_engine_frame(hlod_engine *e, const hlod_camera *cam, double dt,
 hlod_result hlod_engine_set(hlod_engine *e, const hlod_engine_desc *desc);
 const hlod_engine_desc *hlod_engine_get_desc(const hlod_engine *e);
 
+/* The box of what the engine draws: the store's, or with copies (rzb_copies
+ * under policy rzb, cube_copies under policy cubes) the box of all of
+ * them, 2^N store widths along x and y.  A viewer's far plane must reach
+ * it. */
+void hlod_engine_scene_box(const hlod_engine *e, double lo[3], double hi[3]);
+
 /* Draws the last frame's selection again from cam and returns its time in
  * *ms, measured like a frame's (glFinish-bounded; the time model's when
  * one is set).  Changes nothing: no collecting, uploads, learning or
