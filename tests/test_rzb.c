@@ -228,6 +228,14 @@ static hlod_store *open_fine(void)
     return s;
 }
 
+/* The fine board and the view from above that it fills (*cam); NULL,
+ * counted as a failure, when the store cannot be opened. */
+static hlod_store *open_fine_view(hlod_camera *cam)
+{
+    down_camera(cam, 5e6 + 50, 50, 50);
+    return open_fine();
+}
+
 /* An rzb engine's description over the test renderer, deterministic. */
 static hlod_engine_desc rzb_desc(void)
 {
@@ -299,11 +307,10 @@ static uint64_t fresh_points(const hlod_store *s, hlod_engine_desc desc, const h
  * the frame's counts unchanged. */
 static void replay_draws_the_same_points(void)
 {
-    hlod_store *s = open_fine();
+    hlod_camera cam;
+    hlod_store *s = open_fine_view(&cam);
     if (!s)
         return;
-    hlod_camera cam;
-    down_camera(&cam, 5e6 + 50, 50, 50);
     hlod_engine_desc desc = rzb_desc();
     hlod_engine *e = NULL;
     hlod_frame_stats st;
@@ -335,11 +342,10 @@ static void replay_draws_the_same_points(void)
  * cell's centre, up to half a cell off the surface). */
 static void caches_serve_the_next_frame(void)
 {
-    hlod_store *s = open_fine();
+    hlod_camera cam;
+    hlod_store *s = open_fine_view(&cam);
     if (!s)
         return;
-    hlod_camera cam;
-    down_camera(&cam, 5e6 + 50, 50, 50);
     hlod_engine_desc desc = rzb_desc();
     hlod_engine *e = NULL;
     hlod_frame_stats st;
