@@ -413,6 +413,20 @@ static int cmp_draw_key(const void *pa, const void *pb)
     return a->d2 < b->d2 ? -1 : a->d2 > b->d2 ? 1 : (a->node > b->node) - (a->node < b->node);
 }
 
+/* The engine's sort keys for n entries (draw order, far_cubes' cubes);
+ * NULL without memory (the caller keeps its order). */
+static draw_key *draw_keys(hlod_engine *e, size_t n)
+{
+    if (e->draw_keys_cap < n) {
+        draw_key *k = hlod_mem_realloc(&e->d.allocator, e->draw_keys, n * sizeof *k);
+        if (!k)
+            return NULL;
+        e->draw_keys = k;
+        e->draw_keys_cap = n;
+    }
+    return e->draw_keys;
+}
+
 /* The engine's draw order (e->order): the selection's nodes near to far
  * from the camera, those the eye stands in or above (flat, below it)
  * first.  Without memory for it, the selection's own order (still
@@ -443,16 +457,9 @@ static void order_draws(hlod_engine *e, const hlod_camera *cam)
         memcpy(e->order.v, sel->v, n * sizeof *sel->v);
     e->order.n = n;
     e->draw_list = &e->order;
-    if (n < 2)
-        return;
-    if (e->draw_keys_cap < n) {
-        draw_key *k = hlod_mem_realloc(&e->d.allocator, e->draw_keys, n * sizeof *k);
-        if (!k)
-            return; /* unsorted is still correct */
-        e->draw_keys = k;
-        e->draw_keys_cap = n;
-    }
-    draw_key *keys = e->draw_keys;
+    draw_key *keys = n < 2 ? NULL : draw_keys(e, n);
+    if (!keys)
+        return; /* unsorted is still correct */
     for (size_t k = 0; k < n; k++) {
         const hlod_store_node *nd = &e->nodes[e->order.v[k]];
         double box = 0, centre = 0;
@@ -484,9 +491,11 @@ static void gpu_draw_copy(hlod_engine *e, const hlod_camera *cam, uint32_t i, ui
     const hlod_store_node *n = &e->nodes[i];
     double off[3] = {n->origin[0] - cam->position[0], n->origin[1] - cam->position[1],
                      n->origin[2] - cam->position[2]}, c[3];
-    hlod_sel_copy_offset(&e->sel, copy, c);
-    for (int a = 0; a < 3; a++)
-        off[a] += c[a];
+    if (copy) {
+        hlod_sel_copy_offset(&e->sel, copy, c);
+        for (int a = 0; a < 3; a++)
+            off[a] += c[a];
+    }
     if (e->lumi)
         hlod_gpu_lumi_draw(e->d.renderer, hlod_residency_gpu(&e->res, i), off);
     else
@@ -620,8 +629,9 @@ static void draw_occluded(hlod_engine *e, const hlod_camera *cam, const hlod_vie
     e->st.occlusion_ms = t2 - t0;
 }
 
-/* The selection's colour cubes (policy cubes; Chamberlain 3), in the
- * walk's back-to-front order: each cube's faces that face the eye, two
+/* The selection's colour cubes (policy cubes, Chamberlain 3, with its
+ * copies' block cubes; or a front's far_cubes, ordered by order_cubes), in
+ * the walk's back-to-front order: each cube's faces that face the eye, two
  * triangles each, lit as the geometry is, blended over what is drawn
  * (docs/cubes.md). */
 static void draw_cubes(hlod_engine *e, const hlod_camera *cam)
@@ -696,16 +706,9 @@ static void order_cubes(hlod_engine *e, const hlod_camera *cam)
 {
     hlod_u32_vec *sp = &e->sel.splats;
     size_t n = sp->n;
-    if (n < 2)
+    draw_key *keys = n < 2 ? NULL : draw_keys(e, n);
+    if (!keys)
         return;
-    if (e->draw_keys_cap < n) {
-        draw_key *k = hlod_mem_realloc(&e->d.allocator, e->draw_keys, n * sizeof *k);
-        if (!k)
-            return;
-        e->draw_keys = k;
-        e->draw_keys_cap = n;
-    }
-    draw_key *keys = e->draw_keys;
     for (size_t k = 0; k < n; k++) {
         const hlod_store_node *nd = &e->nodes[sp->v[k]];
         double d2 = 0;

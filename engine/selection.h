@@ -104,7 +104,7 @@ typedef struct hlod_selection {
     hlod_u32_vec draw_copy, splat_copy;
     double scene_lo[3], scene_hi[3], copy_side[2];
     uint8_t block_cube[17][6][4];
-    uint32_t block_cubes_root;  /* 1 + the root whose cube block_cube was made from; 0: none */
+    int block_cubes_made;       /* block_cube holds the root's cube per level */
     double reserved, reserving; /* extra of the last frame's refinements; of this frame's */
     uint32_t cap_hits;          /* refinements the budget bound refused this frame */
     uint32_t slice_denied;      /* refinements near but refused by time slices */

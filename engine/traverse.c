@@ -1259,7 +1259,7 @@ static void make_block_cubes(hlod_selection *s)
                 c[f][k] += (1 - a) * c[f][k];
         }
     }
-    s->block_cubes_root = 1;
+    s->block_cubes_made = 1;
 }
 
 /* The box of the block of 2^L x 2^L copies from copy (i, j). */
@@ -1288,7 +1288,7 @@ static int walk_copies(walk *w, const hlod_view *v)
     hlod_selection *s = w->s;
     const hlod_allocator *al = &w->d->allocator;
     const uint32_t N = s->copy_levels, side = 1u << N;
-    if (!s->block_cubes_root)
+    if (!s->block_cubes_made)
         make_block_cubes(s);
     hlod_u32_vec *stack = &s->next; /* level, i, j triples */
     stack->n = 0;
